@@ -1,0 +1,8 @@
+"""hwbvh: the hardware BVH builder of Doyle 2014, simulated exactly, in the 384-bit format."""
+from .api import Bvh, build, load, save
+from .errors import InputError
+from .format import NODE_DTYPE, sah_cost, tree_stats, validate
+from .primitives import as_triangles, load_triangles, primitive_boxes
+
+__all__ = ["Bvh", "build", "load", "save", "InputError", "NODE_DTYPE", "sah_cost", "tree_stats",
+           "validate", "as_triangles", "load_triangles", "primitive_boxes"]

@@ -1,0 +1,191 @@
+"""Build a BVH in the hardware's format, save it, load it back.
+
+>>> bvh = build(triangles)                  # (n, 3, 3) float array, or a mesh path
+>>> bvh.nodes                                # NODE_DTYPE records, root at 0
+>>> bvh.indices                              # index-list entries (uint32, < 2^24)
+>>> save(bvh, "out/bunny")                   # bunny.nodes / bunny.indices / bunny.json
+"""
+import json
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import config
+from .builder import build_canonical, check_params
+from .errors import InputError
+from .format import NODE_DTYPE, pack_indices, tree_stats, unpack_indices, validate
+from .layout import lay_out
+from .primitives import as_triangles, load_triangles, primitive_boxes
+from .sweep import build_sweep
+
+BUILDERS = ("hwbvh", "sweep")
+
+
+@dataclass
+class Bvh:
+    """A BVH in the 384-bit node format with its 24-bit index list.
+
+    nodes : (m,) NODE_DTYPE; indices : (N,) uint32 primitive index per index-list position;
+    triangles : (N, 3, 3) float32 (what the indices refer to); meta : the NAME.json contents.
+    """
+    nodes: np.ndarray
+    indices: np.ndarray
+    triangles: np.ndarray
+    meta: dict
+    handoff: np.ndarray = field(default=None, repr=False)   # canonical roots, for dumps
+    tree: object = field(default=None, repr=False)          # the CanonicalTree
+
+    @property
+    def n_prims(self):
+        return len(self.indices)
+
+    def handoff_order(self):
+        """Primitive indices in the order the upper builder hands them to subtree builders
+        (thesis ``mike_rt -U``), and the size of each hand-off."""
+        t = self.tree
+        if t is None or self.handoff is None:
+            raise ValueError("this BVH was loaded from files; rebuild it for the hand-off order")
+        starts = t.start[self.handoff].astype(np.int64)
+        counts = t.count[self.handoff].astype(np.int64)
+        order = np.concatenate([t.ids[s:s + c] for s, c in zip(starts, counts)]) if len(starts) else \
+            np.empty(0, np.int32)
+        return order, counts
+
+
+def _triangles(source):
+    if isinstance(source, (str, os.PathLike)):
+        return load_triangles(source), os.fspath(source)
+    return as_triangles(source), "<array>"
+
+
+def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAULT_BINS,
+          capacity=config.DEFAULT_CAPACITY, subtree_builders=1,
+          block_nodes=config.DEFAULT_BLOCK_NODES, validate_tree=False, task_prims=None):
+    """Build a BVH over a mesh path or an ``(n, 3, 3)`` triangle array.
+
+    builder : "hwbvh" (the hardware's binned SAH, exact) or "sweep" (full SAH reference).
+    capacity, subtree_builders, block_nodes : where nodes land (never what the tree is).
+    """
+    if builder not in BUILDERS:
+        raise InputError("--builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
+    check_params(leaf_size, bins)
+    for name, v, lo in (("capacity", capacity, 1), ("subtree builders", subtree_builders, 1),
+                        ("block size", block_nodes, 1)):
+        if not isinstance(v, (int, np.integer)) or v < lo:
+            raise InputError(name, f"must be a positive integer, got {v}")
+    tris, src = _triangles(source)
+    t0 = time.perf_counter()
+    boxes = primitive_boxes(tris)
+    if builder == "hwbvh":
+        tree = build_canonical(boxes, leaf_size=leaf_size, bins=bins, task_prims=task_prims)
+        max_leaf = leaf_size
+    else:
+        tree = build_sweep(boxes)
+        max_leaf = tree.leaf_size
+    nodes, handoff, info = lay_out(tree, capacity, subtree_builders, block_nodes)
+    seconds = time.perf_counter() - t0
+    st = tree_stats(nodes)
+    meta = {
+        "format": "hwrt-bvh-1",
+        "source": src,
+        "builder": builder,
+        "triangles": int(len(tris)),
+        "nodes": st["nodes"],
+        "node_slots": info["node_slots"],
+        "leaves": st["leaves"],
+        "max_depth": st["max_depth"],
+        "sah_cost": st["sah_cost"],
+        "fallback_splits": tree.stats["fallback_splits"],
+        "build_seconds": seconds,
+        "parameters": {
+            "leaf_size": int(leaf_size) if builder == "hwbvh" else None,
+            "max_leaf": int(max_leaf),
+            "bins": int(bins) if builder == "hwbvh" else None,
+            "capacity": int(capacity),
+            "subtree_builders": int(subtree_builders),
+            "block_nodes": int(block_nodes),
+        },
+        "handoffs": info["handoffs"],
+        "blocks": info["blocks"],
+    }
+    bvh = Bvh(nodes=nodes, indices=tree.ids.astype(np.uint32), triangles=tris, meta=meta,
+              handoff=handoff, tree=tree)
+    if validate_tree:
+        validate(nodes, bvh.indices, len(tris), max_leaf, boxes, source=src)
+    return bvh
+
+
+def _atomic_write(path, data, mode="wb"):
+    d = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=d)
+    try:
+        with os.fdopen(fd, mode) as f:
+            f.write(data)
+        return tmp
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def write_files(pairs):
+    """Write several files so that either all appear or none: each goes to a temporary file in
+    its directory first; the renames happen only when every write succeeded."""
+    tmps = []
+    try:
+        for path, data in pairs:
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            tmps.append((_atomic_write(path, data, "w" if isinstance(data, str) else "wb"), path))
+    except BaseException:
+        for tmp, _ in tmps:
+            os.unlink(tmp)
+        raise
+    for tmp, path in tmps:
+        os.replace(tmp, path)
+
+
+def save(bvh, prefix):
+    """Write PREFIX.nodes, PREFIX.indices and PREFIX.json (SPEC 4)."""
+    prefix = os.fspath(prefix)
+    write_files([
+        (prefix + ".nodes", bvh.nodes.tobytes()),
+        (prefix + ".indices", pack_indices(bvh.indices)),
+        (prefix + ".json", json.dumps(bvh.meta, indent=2) + "\n"),
+    ])
+    return [prefix + ext for ext in (".nodes", ".indices", ".json")]
+
+
+def load(prefix, triangles=None):
+    """Read PREFIX.nodes / .indices / .json and validate every invariant. ``triangles``
+    (optional (N, 3, 3)) also checks that leaf boxes contain their primitives."""
+    prefix = os.fspath(prefix)
+    try:
+        with open(prefix + ".json") as f:
+            meta = json.load(f)
+    except OSError as e:
+        raise InputError(prefix + ".json", e.strerror or "cannot read") from None
+    except json.JSONDecodeError as e:
+        raise InputError(prefix + ".json", f"not valid JSON ({e.msg}, line {e.lineno})") from None
+    try:
+        n = int(meta["triangles"])
+        max_leaf = int(meta["parameters"]["max_leaf"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(prefix + ".json", "missing 'triangles' or 'parameters.max_leaf'") from None
+    try:
+        raw = open(prefix + ".nodes", "rb").read()
+        idx = open(prefix + ".indices", "rb").read()
+    except OSError as e:
+        raise InputError(e.filename, e.strerror or "cannot read") from None
+    if len(raw) % NODE_DTYPE.itemsize:
+        raise InputError(prefix + ".nodes", f"size {len(raw)} is not a multiple of 48 bytes")
+    nodes = np.frombuffer(raw, dtype=NODE_DTYPE).copy()
+    try:
+        entries = unpack_indices(idx)
+    except ValueError as e:
+        raise InputError(prefix + ".indices", str(e)) from None
+    boxes = primitive_boxes(as_triangles(triangles)) if triangles is not None else None
+    validate(nodes, entries, n, max_leaf, boxes, source=prefix + ".nodes")
+    return Bvh(nodes=nodes, indices=entries[:n].copy(),
+               triangles=None if triangles is None else as_triangles(triangles), meta=meta)

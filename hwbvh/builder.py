@@ -1,0 +1,294 @@
+"""The functional HWBVH builder: the tree the hardware builds, bit for bit (thesis ch. 3, SPEC 2-3).
+
+Every node is split by the binned SAH of the binning units and the SAH calculator, its records
+partitioned by bin index, and recursion follows state S4 of Fig. 3.3: both children leaves ->
+pop; one leaf -> continue with the other; neither -> push right, continue left. Leaves are
+nodes with ``count <= leaf_size``. A node none of whose axes has a valid candidate is split at
+the midpoint of its list (``fallback_splits``).
+
+The hardware splits the work between one upper builder (nodes above the subtree capacity, in
+DRAM) and subtree builders (everything below, on chip). The algorithm is the same in both, so
+the *tree* does not depend on the capacity; only node placement does, and that is decided by
+the tree output logic in :mod:`hwbvh.layout`. This module therefore builds one canonical tree,
+in software-friendly parallel phases that mirror the hardware:
+
+1. large nodes (the upper levels) are binned and partitioned data-parallel over chunks;
+2. the remaining subtrees are independent tasks, built in parallel, one per thread at a time,
+   exactly like subtree builders working side by side.
+
+The canonical tree lives in arrays of ``2N + n_top`` slots: a task over records
+``[s, s + n)`` writes its nodes depth-first (left child right after its parent) into slots
+``[2s, 2s + 2n - 1)``; upper nodes live at ``2N + k``.
+"""
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit, prange, get_num_threads
+
+from . import config
+from .binning_unit import bin_range, bin_range_parallel
+from .errors import InputError
+from .partitioning_unit import (partition_range, partition_range_parallel, range_bounds,
+                                range_bounds_parallel)
+from .sah_calculator import best_split
+
+AXIS_LEAF = -1
+AXIS_FALLBACK = 3
+
+
+@dataclass
+class CanonicalTree:
+    """A built tree before layout. Node arrays have ``2N + n_top`` slots (unused ones are
+    ``count == 0``); ``root`` is the root slot; ``ids`` is the index list in depth-first leaf
+    order (leaf ``start`` indexes it)."""
+    box: np.ndarray      # (M, 6) float32
+    left: np.ndarray     # (M,) int32, -1 for leaves
+    right: np.ndarray    # (M,) int32
+    start: np.ndarray    # (M,) int32
+    count: np.ndarray    # (M,) int32
+    axis: np.ndarray     # (M,) int8: split axis, -1 leaf, 3 fallback
+    root: int
+    ids: np.ndarray      # (N,) int32
+    n_prims: int
+    leaf_size: int
+    bins: int
+    builder: str = "hwbvh"
+    stats: dict = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------------------
+# Subtree builder: one task, sequential, depth-first (Fig. 3.3)
+# --------------------------------------------------------------------------------------
+@njit(cache=True)
+def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
+                  slot0, start, count, buf, rootbox, depth0, leaf_size, nbins, stats):
+    """Build the subtree of records [start, start+count) held in buffer ``buf`` of the pair
+    ``bb`` (2, N, 6) / ``bi`` (2, N). Nodes go to slots ``slot0, slot0+1, ...`` in pre-order.
+    ``stats`` (int64 (4,)) accumulates nodes, leaves, fallback splits, max depth."""
+    binbox = np.empty((3, nbins, 6), dtype=np.float32)
+    bincnt = np.empty((3, nbins), dtype=np.int64)
+    lbox = np.empty(6, dtype=np.float32)
+    rbox = np.empty(6, dtype=np.float32)
+    cap = count + 2
+    st_parent = np.empty(cap, dtype=np.int64)
+    st_start = np.empty(cap, dtype=np.int64)
+    st_count = np.empty(cap, dtype=np.int64)
+    st_buf = np.empty(cap, dtype=np.int64)
+    st_depth = np.empty(cap, dtype=np.int64)
+    st_box = np.empty((cap, 6), dtype=np.float32)
+    sp = 0
+
+    slot = slot0
+    nxt = slot0 + 1
+    s = start
+    n = count
+    cur_buf = buf
+    depth = depth0
+    curbox = np.empty(6, dtype=np.float32)
+    curbox[:] = rootbox
+    while True:
+        # -- write the node record (its AABB now; child pointers fill the gap later) --
+        cbox[slot, :] = curbox
+        cstart[slot] = s
+        ccount[slot] = n
+        stats[0] += 1
+        if depth > stats[3]:
+            stats[3] = depth
+        if n <= leaf_size:
+            # -- leaf: indices go to the index output in leaf order --
+            cleft[slot] = -1
+            cright[slot] = -1
+            caxis[slot] = AXIS_LEAF
+            for i in range(s, s + n):
+                out_ids[i] = bi[cur_buf, i]
+            stats[1] += 1
+            if sp == 0:
+                break
+            sp -= 1
+            slot = nxt
+            nxt += 1
+            cright[st_parent[sp]] = slot
+            s = st_start[sp]
+            n = st_count[sp]
+            cur_buf = st_buf[sp]
+            depth = st_depth[sp]
+            curbox[:] = st_box[sp]
+            continue
+        # -- binning units + SAH calculator --
+        src_b = bb[cur_buf]
+        bin_range(src_b, s, s + n, curbox, nbins, binbox, bincnt)
+        axis, boundary, nl, nr, cost = best_split(binbox, bincnt, nbins, lbox, rbox)
+        if axis < 0:
+            # -- no valid candidate on any axis: midpoint of the list, in buffer order --
+            nl = n // 2
+            nr = n - nl
+            range_bounds(src_b, s, s + nl, lbox)
+            range_bounds(src_b, s + nl, s + n, rbox)
+            caxis[slot] = AXIS_FALLBACK
+            stats[2] += 1
+            child_buf = cur_buf
+        else:
+            # -- partitioning unit: into the opposite buffer of the pair --
+            partition_range(src_b, bi[cur_buf], bb[1 - cur_buf], bi[1 - cur_buf],
+                            s, s + n, axis, boundary, curbox, nbins)
+            caxis[slot] = axis
+            child_buf = 1 - cur_buf
+        # -- state S4: push right, continue left (pre-order output) --
+        st_parent[sp] = slot
+        st_start[sp] = s + nl
+        st_count[sp] = nr
+        st_buf[sp] = child_buf
+        st_depth[sp] = depth + 1
+        st_box[sp, :] = rbox
+        sp += 1
+        left_slot = nxt
+        nxt += 1
+        cleft[slot] = left_slot
+        slot = left_slot
+        n = nl
+        cur_buf = child_buf
+        depth += 1
+        curbox[:] = lbox
+    return nxt - slot0
+
+
+@njit(cache=True, parallel=True)
+def build_tasks(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
+                t_start, t_count, t_buf, t_box, t_depth, leaf_size, nbins, nthreads):
+    """Build every task subtree; thread k takes tasks k, k+T, ... of the list, which the caller
+    sorts largest first (a greedy balance, like handing subtrees to the first idle builder)."""
+    ntasks = t_start.shape[0]
+    stats = np.zeros((nthreads, 4), dtype=np.int64)
+    for k in prange(nthreads):
+        for t in range(k, ntasks, nthreads):
+            build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
+                          2 * t_start[t], t_start[t], t_count[t], t_buf[t], t_box[t],
+                          t_depth[t], leaf_size, nbins, stats[k])
+    return stats
+
+
+# --------------------------------------------------------------------------------------
+# Public API
+# --------------------------------------------------------------------------------------
+def check_params(leaf_size, bins, source="arguments"):
+    if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= config.MAX_LEAF_SIZE):
+        raise InputError(source, f"leaf size must be an integer in 1..{config.MAX_LEAF_SIZE}, got {leaf_size}")
+    if not (isinstance(bins, (int, np.integer)) and 2 <= bins <= config.MAX_SOFTWARE_BINS):
+        raise InputError(source, f"bins must be an integer in 2..{config.MAX_SOFTWARE_BINS} "
+                                 f"(the hardware has at most {config.MAX_HARDWARE_BINS}), got {bins}")
+
+
+def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAULT_BINS,
+                    task_prims=None):
+    """Build the HWBVH tree over primitive AABBs.
+
+    boxes : (n, 6) float32 primitive AABBs (see :func:`hwbvh.primitives.primitive_boxes`).
+    Returns a :class:`CanonicalTree`. The result does not depend on ``task_prims`` (the
+    software scheduling grain), which tests use to check exactness.
+    """
+    check_params(leaf_size, bins)
+    boxes = np.ascontiguousarray(boxes, dtype=np.float32)
+    n = len(boxes)
+    if n == 0:
+        raise InputError("<boxes>", "no primitives")
+    nthreads = get_num_threads()
+    if task_prims is None:
+        task_prims = max(config.TASK_MIN_PRIMS, n // (config.TASKS_PER_THREAD * nthreads))
+    nchunks = max(1, 4 * nthreads)
+
+    bb = np.empty((2, n, 6), dtype=np.float32)
+    bb[0] = boxes
+    bi = np.empty((2, n), dtype=np.int32)
+    bi[0] = np.arange(n, dtype=np.int32)
+    out_ids = np.empty(n, dtype=np.int32)
+
+    # ---- upper levels: one node at a time, each data-parallel over chunks ----
+    top = []            # [box, axis, start, count, left_ref, right_ref]; refs resolved below
+    tasks = []          # (start, count, buf, box, depth)
+    fallback = 0
+    rootbox = range_bounds_parallel(boxes, 0, n, nchunks)
+    # stack entries: (start, count, buf, box, depth, parent_top_index, side)
+    stack = [(0, n, 0, rootbox, 0, -1, 0)]
+    while stack:
+        s, cnt, buf, box, depth, parent, side = stack.pop()
+        if cnt <= task_prims:
+            tasks.append((s, cnt, buf, box, depth))
+            ref = ("task", s)
+        else:
+            ref = ("top", len(top))
+        if parent >= 0:
+            top[parent][4 + side] = ref
+        if ref[0] == "task":
+            continue
+        k = len(top)
+        node = [box, 0, s, cnt, None, None]
+        top.append(node)
+        binbox, bincnt, chunk_cnt = bin_range_parallel(bb[buf], s, s + cnt, box, bins, nchunks)
+        lbox = np.empty(6, np.float32)
+        rbox = np.empty(6, np.float32)
+        axis, boundary, nl, nr, _ = best_split(binbox, bincnt, bins, lbox, rbox)
+        if axis < 0:
+            nl = cnt // 2
+            nr = cnt - nl
+            lbox = range_bounds_parallel(bb[buf], s, s + nl, nchunks)
+            rbox = range_bounds_parallel(bb[buf], s + nl, s + cnt, nchunks)
+            node[1] = AXIS_FALLBACK
+            fallback += 1
+            cbuf = buf
+        else:
+            chunk_left = chunk_cnt[:, axis, :boundary].sum(axis=1)
+            partition_range_parallel(bb[buf], bi[buf], bb[1 - buf], bi[1 - buf], s, s + cnt,
+                                     axis, boundary, box, bins, chunk_left)
+            node[1] = axis
+            cbuf = 1 - buf
+        # push right first so the left child is processed next (pre-order, S4)
+        stack.append((s + nl, nr, cbuf, rbox, depth + 1, k, 1))
+        stack.append((s, nl, cbuf, lbox, depth + 1, k, 0))
+
+    # ---- canonical arrays: task slots [0, 2N), upper nodes at 2N + k ----
+    m = 2 * n + len(top)
+    cbox = np.zeros((m, 6), dtype=np.float32)
+    cleft = np.full(m, -1, dtype=np.int32)
+    cright = np.full(m, -1, dtype=np.int32)
+    cstart = np.zeros(m, dtype=np.int32)
+    ccount = np.zeros(m, dtype=np.int32)
+    caxis = np.full(m, AXIS_LEAF, dtype=np.int8)
+
+    def slot_of(ref):
+        return 2 * ref[1] if ref[0] == "task" else 2 * n + ref[1]
+
+    for k, (box, axis, s, cnt, lref, rref) in enumerate(top):
+        j = 2 * n + k
+        cbox[j] = box
+        caxis[j] = axis
+        cstart[j] = s
+        ccount[j] = cnt
+        cleft[j] = slot_of(lref)
+        cright[j] = slot_of(rref)
+
+    stats = np.zeros(4, dtype=np.int64)
+    if tasks:
+        order = sorted(range(len(tasks)), key=lambda t: -tasks[t][1])
+        t_start = np.array([tasks[t][0] for t in order], dtype=np.int64)
+        t_count = np.array([tasks[t][1] for t in order], dtype=np.int64)
+        t_buf = np.array([tasks[t][2] for t in order], dtype=np.int64)
+        t_box = np.array([tasks[t][3] for t in order], dtype=np.float32).reshape(-1, 6)
+        t_depth = np.array([tasks[t][4] for t in order], dtype=np.int64)
+        per_thread = build_tasks(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
+                                 t_start, t_count, t_buf, t_box, t_depth, leaf_size, bins,
+                                 min(nthreads, len(tasks)))
+        stats = per_thread.sum(axis=0)
+        stats[3] = per_thread[:, 3].max()
+    root = 2 * n if top else 0
+    return CanonicalTree(
+        box=cbox, left=cleft, right=cright, start=cstart, count=ccount, axis=caxis,
+        root=root, ids=out_ids, n_prims=n, leaf_size=leaf_size, bins=bins,
+        stats={
+            "nodes": int(stats[0]) + len(top),
+            "leaves": int(stats[1]),
+            "fallback_splits": int(stats[2]) + fallback,
+            "max_depth": int(stats[3]),
+            "upper_phase_nodes": len(top),
+            "tasks": len(tasks),
+        })

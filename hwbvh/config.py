@@ -1,0 +1,44 @@
+"""Every knob and constant of the hardware builder, in one place, each with its source.
+
+Sources are Doyle 2014 (``../shared/seed/doyle-2014-hwbvh-thesis.txt``) and ``../shared/SPEC.md``.
+"""
+
+# --- Primitive records (thesis 3.3, SPEC 1) ---------------------------------------------
+PRIMITIVE_INDEX_BITS = 24                 # 24-bit primitive index in the 216-bit record
+MAX_PRIMITIVES = 1 << PRIMITIVE_INDEX_BITS  # 16,777,216 primitives per build
+PRIMITIVE_RECORD_BYTES = 27               # 192-bit float32 AABB + 24-bit index = 216 bits
+
+# Coordinates beyond this magnitude are rejected: float32 surface areas (extent^2, up to
+# 2e30 * 3) times a primitive count (<= 2^24) must stay finite for the SAH comparisons of
+# Eq. 3.3 to mean anything.
+MAX_COORDINATE = 1.0e15
+
+# --- Binned SAH (thesis 3.3.3-3.3.4, SPEC 2) --------------------------------------------
+DEFAULT_BINS = 16        # Table 4.1: both instantiations use 16 bins (hardware maximum)
+MAX_HARDWARE_BINS = 16   # the hardware supports at most 16 bins
+MAX_SOFTWARE_BINS = 64   # software allows more, for the accuracy studies
+DEFAULT_LEAF_SIZE = 4    # Table 4.1: leaf size 4
+MAX_LEAF_SIZE = 255      # leaves are fixed-size termination; 255 keeps the studies bounded
+
+# --- Upper builder / subtree builders (thesis 3.4, SPEC 3) ------------------------------
+DEFAULT_CAPACITY = 8192  # subtree capacity w * Psize (Table 4.1: 8192)
+DEFAULT_BLOCK_NODES = 256  # nodes per block handed out by the upper builder's pool (3.3.5)
+
+# --- Output format (thesis 3.3.5, SPEC 4) -----------------------------------------------
+NODE_BYTES = 48          # 384 bits = two 192-bit words
+WORD_BYTES = 24          # one 192-bit memory word
+INDEX_BYTES = 3          # 24-bit index entries
+INDICES_PER_WORD = 8     # 8 x 24 bits = 192 bits
+INDEX_PAD = 0xFFFFFF     # tail padding of the last index word
+LEAF_FLAG = 1            # flags bit 0
+
+# --- Reference sweep builder (thesis 4.3.3, SPEC 5) -------------------------------------
+SAH_T_TRAVERSAL = 1.0    # T1: cost of a box test, per child
+SAH_T_INTERSECT = 1.0    # T2: cost of a primitive test
+SWEEP_MAX_LEAF = 64      # forced split above this, so a pile of identical triangles stays bounded
+
+# --- Software build scheduling (not a hardware parameter) -------------------------------
+# Nodes with more primitives than this are split with data-parallel binning/partitioning;
+# smaller ones become independent tasks built in parallel. The tree does not depend on it.
+TASK_MIN_PRIMS = 2048
+TASKS_PER_THREAD = 16

@@ -1,0 +1,228 @@
+"""The output format of thesis 3.3.5, fixed by SPEC section 4 (little-endian).
+
+A node is 384 bits = 48 bytes = two 192-bit words::
+
+    bytes  0..23  word 0: float32 minx, miny, minz, maxx, maxy, maxz
+    bytes 24..27  uint32 a: internal -> left child node index; leaf -> first index-list position
+    bytes 28..31  uint32 b: internal -> right child node index; leaf -> primitive count
+    bytes 32..35  uint32 flags: bit 0 = leaf, all other bits 0
+    bytes 36..47  padding, all zero
+
+Node index = byte offset / 48; the root is node 0. The index list holds 24-bit little-endian
+entries, 8 per 192-bit word, the tail of the last word padded with 0xFFFFFF.
+"""
+import numpy as np
+from numba import njit
+
+from .config import INDEX_PAD, INDICES_PER_WORD, LEAF_FLAG, NODE_BYTES
+
+NODE_DTYPE = np.dtype([
+    ("bounds", "<f4", (6,)),   # 24 bytes: word 0, the node AABB
+    ("a", "<u4"),              #  4 bytes: left child / first index position
+    ("b", "<u4"),              #  4 bytes: right child / primitive count
+    ("flags", "<u4"),          #  4 bytes: bit 0 = leaf
+    ("pad", "<u4", (3,)),      # 12 bytes: zero
+])                             # total: 48 bytes = 384 bits
+assert NODE_DTYPE.itemsize == NODE_BYTES
+
+# Views the Numba kernels use: a node as 12 uint32 words / 12 float32 words.
+A, B, FLAGS = 6, 7, 8
+
+
+def node_views(nodes):
+    """(u32 (n, 12), f32 (n, 12)) views of a NODE_DTYPE array, sharing its memory."""
+    raw = nodes.view(np.uint32).reshape(len(nodes), 12)
+    return raw, raw.view(np.float32)
+
+
+def pack_indices(ids):
+    """Pack primitive indices (each < 2^24) into the 24-bit index list bytes."""
+    ids = np.asarray(ids, dtype=np.uint32)
+    n = len(ids)
+    padded = -(-n // INDICES_PER_WORD) * INDICES_PER_WORD
+    full = np.full(padded, INDEX_PAD, dtype="<u4")
+    full[:n] = ids
+    return full.view(np.uint8).reshape(-1, 4)[:, :3].tobytes()
+
+
+def unpack_indices(data):
+    """24-bit index list bytes -> uint32 entries (padding included)."""
+    raw = np.frombuffer(data, dtype=np.uint8)
+    if raw.size % 3:
+        raise ValueError("index list is not a whole number of 24-bit entries")
+    b = raw.reshape(-1, 3).astype(np.uint32)
+    return b[:, 0] | (b[:, 1] << 8) | (b[:, 2] << 16)
+
+
+# Validator error codes -> messages
+_ERRORS = {
+    1: "child pointer out of range",
+    2: "node reached twice (cycle or shared child)",
+    3: "flags has bits other than bit 0 set",
+    4: "padding is not zero",
+    5: "child AABB is not inside its parent's",
+    6: "leaf count outside 1..leaf size",
+    7: "leaf index range outside the index list",
+    8: "index-list entry used by two leaves",
+    9: "primitive index out of range",
+    10: "primitive referenced more than once",
+    11: "primitive never referenced",
+    12: "more than 2N-1 nodes",
+    13: "node AABB is inverted or not finite",
+    14: "leaf AABB does not contain its primitive's AABB",
+    15: "traversal stack overflow (tree deeper than 2N)",
+}
+
+
+@njit(cache=True)
+def _validate(u, f, entries, n_prims, max_leaf, prim_boxes, check_boxes):
+    nslots = u.shape[0]
+    seen = np.zeros(nslots, dtype=np.uint8)
+    used_entry = np.zeros(entries.shape[0], dtype=np.uint8)
+    prim_seen = np.zeros(n_prims, dtype=np.uint8)
+    stack = np.empty(2 * n_prims + 2, dtype=np.int64)
+    sp = 0
+    stack[sp] = 0
+    sp += 1
+    nodes = 0
+    while sp > 0:
+        sp -= 1
+        i = stack[sp]
+        if seen[i]:
+            return 2, i
+        seen[i] = 1
+        nodes += 1
+        if nodes > 2 * n_prims - 1:
+            return 12, i
+        if u[i, FLAGS] & ~np.uint32(1):
+            return 3, i
+        if u[i, 9] != 0 or u[i, 10] != 0 or u[i, 11] != 0:
+            return 4, i
+        for k in range(3):
+            lo = f[i, k]
+            hi = f[i, 3 + k]
+            if not (lo <= hi) or not np.isfinite(lo) or not np.isfinite(hi):
+                return 13, i
+        if u[i, FLAGS] & 1:
+            a = np.int64(u[i, A])
+            c = np.int64(u[i, B])
+            if c < 1 or c > max_leaf:
+                return 6, i
+            if a + c > entries.shape[0]:
+                return 7, i
+            for p in range(a, a + c):
+                if used_entry[p]:
+                    return 8, i
+                used_entry[p] = 1
+                pid = np.int64(entries[p])
+                if pid >= n_prims:
+                    return 9, i
+                if prim_seen[pid]:
+                    return 10, i
+                prim_seen[pid] = 1
+                if check_boxes:
+                    for k in range(3):
+                        if prim_boxes[pid, k] < f[i, k] or prim_boxes[pid, 3 + k] > f[i, 3 + k]:
+                            return 14, i
+        else:
+            for side in range(2):
+                c = np.int64(u[i, A + side])
+                if c >= nslots or c == 0:
+                    return 1, i
+                for k in range(3):
+                    if f[c, k] < f[i, k] or f[c, 3 + k] > f[i, 3 + k]:
+                        return 5, c
+                if sp >= stack.shape[0]:
+                    return 15, i
+                stack[sp] = c
+                sp += 1
+    for p in range(n_prims):
+        if not prim_seen[p]:
+            return 11, p
+    return 0, nodes
+
+
+def validate(nodes, entries, n_prims, max_leaf, prim_boxes=None, source="<tree>"):
+    """Check every invariant SPEC section 4 lists; raise InputError naming ``source``.
+
+    nodes : NODE_DTYPE array; entries : uint32 index-list entries (padding may be included).
+    Returns the number of reachable nodes.
+    """
+    from .errors import InputError
+
+    if len(nodes) == 0:
+        raise InputError(source, "no nodes")
+    u, f = node_views(np.ascontiguousarray(nodes))
+    check = prim_boxes is not None
+    pb = np.ascontiguousarray(prim_boxes, dtype=np.float32) if check else np.zeros((1, 6), np.float32)
+    code, where = _validate(u, f, np.ascontiguousarray(entries, dtype=np.uint32), int(n_prims),
+                            int(max_leaf), pb, check)
+    if code:
+        what = "primitive" if code == 11 else "node"
+        raise InputError(source, f"invalid tree: {_ERRORS[code]} ({what} {where})")
+    return int(where)
+
+
+@njit(cache=True)
+def _tree_stats(u, f):
+    """Depth-first walk: SAH cost terms (float64), node/leaf counts, max depth."""
+    nslots = u.shape[0]
+    stack = np.empty(nslots + 1, dtype=np.int64)
+    dstack = np.empty(nslots + 1, dtype=np.int64)
+    sp = 0
+    stack[0] = 0
+    dstack[0] = 0
+    sp = 1
+    internal_area = 0.0
+    leaf_area = 0.0
+    nodes = 0
+    leaves = 0
+    max_depth = 0
+    max_leaf = 0
+    while sp > 0:
+        sp -= 1
+        i = stack[sp]
+        d = dstack[sp]
+        dx = np.float64(f[i, 3]) - np.float64(f[i, 0])
+        dy = np.float64(f[i, 4]) - np.float64(f[i, 1])
+        dz = np.float64(f[i, 5]) - np.float64(f[i, 2])
+        area = 2.0 * (dx * dy + dy * dz + dz * dx)
+        nodes += 1
+        if d > max_depth:
+            max_depth = d
+        if u[i, FLAGS] & 1:
+            leaves += 1
+            c = np.int64(u[i, B])
+            leaf_area += c * area
+            if c > max_leaf:
+                max_leaf = c
+        else:
+            internal_area += 2.0 * area
+            if sp + 2 > stack.shape[0]:
+                break
+            stack[sp] = u[i, B]
+            dstack[sp] = d + 1
+            stack[sp + 1] = u[i, A]
+            dstack[sp + 1] = d + 1
+            sp += 2
+    return internal_area, leaf_area, nodes, leaves, max_depth, max_leaf
+
+
+def sah_cost(nodes):
+    """SAH cost of SPEC section 5 (thesis 4.3.3, [PL10]) with T1 = T2 = 1, in float64 on the
+    stored float32 AABBs: sum_internal 2*A(n)/A(root) + sum_leaves N_l*A(l)/A(root)."""
+    return tree_stats(nodes)["sah_cost"]
+
+
+def tree_stats(nodes):
+    u, f = node_views(np.ascontiguousarray(nodes))
+    internal, leaf, n, leaves, depth, max_leaf = _tree_stats(u, f)
+    b = nodes["bounds"][0].astype(np.float64)
+    d = b[3:] - b[:3]
+    root_area = 2.0 * (d[0] * d[1] + d[1] * d[2] + d[2] * d[0])
+    if root_area > 0:
+        cost = (internal + leaf) / root_area
+    else:  # a zero-area scene (all triangles on a point/segment): every ray tests everything
+        cost = float(n - leaves) * 2.0 + float(nodes["b"][0] if nodes["flags"][0] & 1 else 0)
+    return {"sah_cost": float(cost), "nodes": int(n), "leaves": int(leaves),
+            "max_depth": int(depth), "max_leaf_count": int(max_leaf)}
