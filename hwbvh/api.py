@@ -72,9 +72,9 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     if builder not in BUILDERS:
         raise InputError("--builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
     check_params(leaf_size, bins)
-    for name, v, lo in (("capacity", capacity, 1), ("subtree builders", subtree_builders, 1),
-                        ("block size", block_nodes, 1)):
-        if not isinstance(v, (int, np.integer)) or v < lo:
+    for name, v in (("--capacity", capacity), ("--subtree-builders", subtree_builders),
+                    ("--block-nodes", block_nodes)):
+        if not isinstance(v, (int, np.integer)) or v < 1:
             raise InputError(name, f"must be a positive integer, got {v}")
     tris, src = _triangles(source)
     t0 = time.perf_counter()
@@ -121,6 +121,9 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
 def _atomic_write(path, data, mode="wb"):
     d = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=d)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     try:
         with os.fdopen(fd, mode) as f:
             f.write(data)

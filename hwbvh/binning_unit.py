@@ -44,25 +44,33 @@ def clear_bins(binbox, bincnt):
 
 
 @njit(cache=True)
+def _accumulate(binbox, bincnt, a, b, boxes, i):
+    """SAH uni-collector update (Fig. 3.9): bin b of axis a grows by record i."""
+    bincnt[a, b] += 1
+    for k in range(3):
+        binbox[a, b, k] = min(binbox[a, b, k], boxes[i, k])
+        binbox[a, b, 3 + k] = max(binbox[a, b, 3 + k], boxes[i, 3 + k])
+
+
+@njit(cache=True)
 def bin_range(boxes, start, end, nodebox, nbins, binbox, bincnt):
     """Bin primitives ``boxes[start:end]`` (f32 (n, 6)) into ``binbox``/``bincnt`` (cleared
-    here). Axes with zero node extent are left empty."""
+    here). Axes with zero node extent are left empty. The three binning units of a group see
+    each record at the same time, so one pass serves all axes."""
     clear_bins(binbox, bincnt)
     s_f32 = np.float32(nbins)
-    for a in range(3):
-        lo = nodebox[a]
-        hi = nodebox[3 + a]
-        if not (hi > lo):
-            continue
-        for i in range(start, end):
-            c = centre(boxes[i, a], boxes[i, 3 + a])
-            b = bin_index(c, lo, hi, s_f32, nbins)
-            bincnt[a, b] += 1
-            for k in range(3):
-                if boxes[i, k] < binbox[a, b, k]:
-                    binbox[a, b, k] = boxes[i, k]
-                if boxes[i, 3 + k] > binbox[a, b, 3 + k]:
-                    binbox[a, b, 3 + k] = boxes[i, 3 + k]
+    lx = nodebox[0]; ly = nodebox[1]; lz = nodebox[2]
+    hx = nodebox[3]; hy = nodebox[4]; hz = nodebox[5]
+    ux = hx > lx
+    uy = hy > ly
+    uz = hz > lz
+    for i in range(start, end):
+        if ux:
+            _accumulate(binbox, bincnt, 0, bin_index(centre(boxes[i, 0], boxes[i, 3]), lx, hx, s_f32, nbins), boxes, i)
+        if uy:
+            _accumulate(binbox, bincnt, 1, bin_index(centre(boxes[i, 1], boxes[i, 4]), ly, hy, s_f32, nbins), boxes, i)
+        if uz:
+            _accumulate(binbox, bincnt, 2, bin_index(centre(boxes[i, 2], boxes[i, 5]), lz, hz, s_f32, nbins), boxes, i)
 
 
 @njit(cache=True, parallel=True)

@@ -70,6 +70,8 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
     bincnt = np.empty((3, nbins), dtype=np.int64)
     lbox = np.empty(6, dtype=np.float32)
     rbox = np.empty(6, dtype=np.float32)
+    left_sa = np.empty(nbins, dtype=np.float32)
+    left_n = np.empty(nbins, dtype=np.int64)
     cap = count + 2
     st_parent = np.empty(cap, dtype=np.int64)
     st_start = np.empty(cap, dtype=np.int64)
@@ -118,7 +120,7 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
         # -- binning units + SAH calculator --
         src_b = bb[cur_buf]
         bin_range(src_b, s, s + n, curbox, nbins, binbox, bincnt)
-        axis, boundary, nl, nr, cost = best_split(binbox, bincnt, nbins, lbox, rbox)
+        axis, boundary, nl, nr, cost = best_split(binbox, bincnt, nbins, lbox, rbox, left_sa, left_n)
         if axis < 0:
             # -- no valid candidate on any axis: midpoint of the list, in buffer order --
             nl = n // 2
@@ -131,7 +133,7 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
         else:
             # -- partitioning unit: into the opposite buffer of the pair --
             partition_range(src_b, bi[cur_buf], bb[1 - cur_buf], bi[1 - cur_buf],
-                            s, s + n, axis, boundary, curbox, nbins)
+                            s, s + n, axis, boundary, curbox, nbins, nl)
             caxis[slot] = axis
             child_buf = 1 - cur_buf
         # -- state S4: push right, continue left (pre-order output) --
@@ -171,11 +173,11 @@ def build_tasks(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
 # --------------------------------------------------------------------------------------
 # Public API
 # --------------------------------------------------------------------------------------
-def check_params(leaf_size, bins, source="arguments"):
+def check_params(leaf_size, bins):
     if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= config.MAX_LEAF_SIZE):
-        raise InputError(source, f"leaf size must be an integer in 1..{config.MAX_LEAF_SIZE}, got {leaf_size}")
+        raise InputError("--leaf-size", f"leaf size must be an integer in 1..{config.MAX_LEAF_SIZE}, got {leaf_size}")
     if not (isinstance(bins, (int, np.integer)) and 2 <= bins <= config.MAX_SOFTWARE_BINS):
-        raise InputError(source, f"bins must be an integer in 2..{config.MAX_SOFTWARE_BINS} "
+        raise InputError("--bins", f"bins must be an integer in 2..{config.MAX_SOFTWARE_BINS} "
                                  f"(the hardware has at most {config.MAX_HARDWARE_BINS}), got {bins}")
 
 
@@ -227,7 +229,8 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
         binbox, bincnt, chunk_cnt = bin_range_parallel(bb[buf], s, s + cnt, box, bins, nchunks)
         lbox = np.empty(6, np.float32)
         rbox = np.empty(6, np.float32)
-        axis, boundary, nl, nr, _ = best_split(binbox, bincnt, bins, lbox, rbox)
+        axis, boundary, nl, nr, _ = best_split(binbox, bincnt, bins, lbox, rbox,
+                                               np.empty(bins, np.float32), np.empty(bins, np.int64))
         if axis < 0:
             nl = cnt // 2
             nr = cnt - nl

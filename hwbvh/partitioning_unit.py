@@ -12,15 +12,12 @@ from .binning_unit import bin_index, centre
 
 
 @njit(cache=True)
-def partition_range(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, nodebox, nbins):
-    """Stable partition of records [start, end) from src into dst. Returns the left count."""
+def partition_range(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, nodebox, nbins, nl):
+    """Stable partition of records [start, end) from src into dst; ``nl`` records go left
+    (the SAH calculator's count). Returns the number that did."""
     lo = nodebox[axis]
     hi = nodebox[3 + axis]
     s_f32 = np.float32(nbins)
-    nl = 0
-    for i in range(start, end):
-        if bin_index(centre(src_b[i, axis], src_b[i, 3 + axis]), lo, hi, s_f32, nbins) < boundary:
-            nl += 1
     li = start
     ri = start + nl
     for i in range(start, end):

@@ -22,15 +22,13 @@ def surface_half_area(lox, loy, loz, hix, hiy, hiz):
 
 
 @njit(cache=True)
-def best_split(binbox, bincnt, nbins, out_lbox, out_rbox):
+def best_split(binbox, bincnt, nbins, out_lbox, out_rbox, left_sa, left_n):
     """Choose the split. Returns (axis, boundary, n_left, n_right, cost); axis -1 when no
     axis has a valid candidate. Fills out_lbox / out_rbox (f32 (6,)) with the child AABBs.
     Bins ``< boundary`` go left."""
     best_axis = -1
     best_b = 0
     best_cost = np.float32(0.0)
-    left_sa = np.empty(nbins, dtype=np.float32)
-    left_n = np.empty(nbins, dtype=np.int64)
     for a in range(3):
         # forward sweep: SA(V_L) * N_L for boundaries 1..S-1 (the FIFO of Fig. 3.11)
         lx = np.inf; ly = np.inf; lz = np.inf

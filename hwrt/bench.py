@@ -1,0 +1,141 @@
+"""Benchmarks: each figure is a median of repeated runs after warm-up, printed beside a peer
+measured in the same process (SPEC 8)."""
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hwbvh.errors import InputError
+from .paths import default_mesh_dir, mesh_files
+
+
+def machine():
+    import numba
+    try:
+        import embreex
+        emb = getattr(embreex, "__version__", None)
+    except Exception:  # pragma: no cover
+        emb = None
+    if emb is None:
+        try:
+            from importlib.metadata import version
+            emb = version("embreex")
+        except Exception:
+            emb = "unknown"
+    cpu = platform.processor() or ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "numba_threads": numba.get_num_threads(),
+            "python": platform.python_version(), "numba": numba.__version__,
+            "numpy": np.__version__, "embreex": emb}
+
+
+def mesh_inputs(args):
+    """[(name, loader)] from explicit paths, --mesh-dir, the default directory, or generated."""
+    from hwbvh.primitives import load_mesh_arrays
+    from scenes.meshes import GENERATED
+
+    paths = [Path(m) for m in args.meshes]
+    if not paths:
+        d = Path(args.mesh_dir) if args.mesh_dir else default_mesh_dir()
+        if d is not None:
+            if not d.is_dir():
+                raise InputError(d, "mesh directory does not exist")
+            paths = mesh_files(d)
+    if paths:
+        return [(p.stem, (lambda p=p: load_mesh_arrays(p))) for p in paths]
+
+    def indexed(fn):
+        tris = fn()
+        return tris.reshape(-1, 3).astype(np.float64), np.arange(3 * len(tris)).reshape(-1, 3)
+    return [(name, (lambda fn=fn: indexed(fn))) for name, fn in GENERATED.items()]
+
+
+def _median_time(fn, repeat):
+    fn()  # warm-up (JIT compilation, caches)
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times), times
+
+
+def bench_build(args):
+    from tqdm import tqdm
+    from hwbvh.api import build
+    from hwbvh.primitives import as_triangles
+    from traversal.embree_ref import embree_scene
+
+    rows = []
+    for name, load in tqdm(mesh_inputs(args), desc="bench build", file=sys.stderr, unit="mesh"):
+        verts, faces = load()
+        tris = as_triangles(verts[faces], source=name)
+        v32 = verts.astype(np.float32)
+        f32 = faces.astype(np.int32)
+        ours, ours_all = _median_time(lambda: build(tris), args.repeat)
+        emb, emb_all = _median_time(lambda: embree_scene(v32, f32), args.repeat)
+        bvh = build(tris)
+        rows.append({"mesh": name, "triangles": int(len(tris)), "hwbvh_seconds": ours,
+                     "embree_seconds": emb, "ratio": ours / emb,
+                     "hwbvh_spread": [min(ours_all), max(ours_all)],
+                     "embree_spread": [min(emb_all), max(emb_all)],
+                     "sah_cost": bvh.meta["sah_cost"], "nodes": bvh.meta["nodes"]})
+    return {"meshes": rows, "machine": machine(), "repeat": args.repeat}
+
+
+def human(what):
+    def fmt(r):
+        if what == "build":
+            lines = [f"{'mesh':<18}{'tris':>10}{'hwbvh ms':>11}{'embree ms':>11}{'ratio':>8}{'SAH':>9}"]
+            for m in r["meshes"]:
+                lines.append(f"{m['mesh']:<18}{m['triangles']:>10}{m['hwbvh_seconds']*1e3:>11.1f}"
+                             f"{m['embree_seconds']*1e3:>11.1f}{m['ratio']:>8.2f}{m['sah_cost']:>9.2f}")
+            return "\n".join(lines)
+        if what == "scale":
+            lines = [f"{'triangles':>10}{'build s':>10}{'SAH':>9}{'max RSS MiB':>13}"]
+            for m in r["rows"]:
+                lines.append(f"{m['triangles']:>10}{m['hwbvh_seconds']:>10.3f}{m['sah_cost']:>9.2f}"
+                             f"{m['max_rss_mib']:>13.0f}")
+            lines.append(f"exponent {r['exponent']:.3f} (N log N over this range: "
+                         f"{r['nlogn_exponent_same_range']:.3f})")
+            return "\n".join(lines)
+        return str(r)
+    return fmt
+
+
+def bench_scale(args):
+    """Build time from 10k to 2M generated triangles; the log-log slope is the exponent."""
+    import resource
+    from tqdm import tqdm
+    from hwbvh.api import build
+    from hwbvh.format import validate
+    from hwbvh.primitives import primitive_boxes
+    from scenes.meshes import bumpy_sphere
+
+    sizes = [10_000, 30_000, 100_000, 300_000, 1_000_000, 2_000_000]
+    rows = []
+    for n in tqdm(sizes, desc="bench scale", file=sys.stderr):
+        tris = bumpy_sphere(n)
+        med, all_t = _median_time(lambda: build(tris), max(1, min(args.repeat, 3)))
+        bvh = build(tris)
+        validate(bvh.nodes, bvh.indices, len(tris), 4, primitive_boxes(tris))
+        rows.append({"triangles": int(len(tris)), "hwbvh_seconds": med,
+                     "spread": [min(all_t), max(all_t)], "sah_cost": bvh.meta["sah_cost"],
+                     "nodes": bvh.meta["nodes"], "validated": True,
+                     "max_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024})
+    n = np.array([r["triangles"] for r in rows], float)
+    t = np.array([r["hwbvh_seconds"] for r in rows], float)
+    slope = float(np.polyfit(np.log(n), np.log(t), 1)[0])
+    nlogn = float(np.polyfit(np.log(n), np.log(n * np.log(n)), 1)[0])
+    return {"rows": rows, "exponent": slope, "nlogn_exponent_same_range": nlogn, "machine": machine()}

@@ -1,0 +1,248 @@
+"""The 384-bit node format, the 24-bit index list, files, the validator, and bad input."""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import hwbvh
+from hwbvh import NODE_DTYPE, InputError
+from hwbvh.format import pack_indices, unpack_indices
+from hwbvh.primitives import pack_records, primitive_boxes, unpack_records
+from scenes.meshes import random_soup, sphere
+
+from .conftest import shared_mesh
+
+
+def test_node_dtype_is_the_spec_layout():
+    assert NODE_DTYPE.itemsize == 48
+    assert [NODE_DTYPE.fields[k][1] for k in ("bounds", "a", "b", "flags", "pad")] == [0, 24, 28, 32, 36]
+    n = np.zeros(1, NODE_DTYPE)
+    n["bounds"] = [1, 2, 3, 4, 5, 6]
+    n["a"], n["b"], n["flags"] = 7, 8, 1
+    raw = n.tobytes()
+    assert np.frombuffer(raw[:24], "<f4").tolist() == [1, 2, 3, 4, 5, 6]
+    assert np.frombuffer(raw[24:36], "<u4").tolist() == [7, 8, 1]
+    assert raw[36:] == bytes(12)
+
+
+def test_index_list_is_24_bit_packed_8_per_word_with_ffffff_tail():
+    ids = np.array([0, 1, 0xABCDEF, 0xFFFFFE, 5, 6, 7, 8, 9, 10], np.uint32)
+    data = pack_indices(ids)
+    assert len(data) == 2 * 24                          # 10 entries -> two 192-bit words
+    assert data[6:9] == bytes([0xEF, 0xCD, 0xAB])       # little-endian
+    assert data[-18:] == b"\xff" * 18                    # 6 padding entries
+    back = unpack_indices(data)
+    assert back[:10].tolist() == ids.tolist() and (back[10:] == 0xFFFFFF).all()
+
+
+def test_primitive_records_are_27_bytes():
+    tris = random_soup(100, seed=1)
+    boxes = primitive_boxes(tris)
+    data = pack_records(boxes)
+    assert len(data) == 27 * 100
+    b, i = unpack_records(data)
+    assert np.array_equal(b, boxes) and np.array_equal(i, np.arange(100))
+
+
+def test_save_load_roundtrip(tmp_path):
+    tris = sphere(16, 24)
+    bvh = hwbvh.build(tris, validate_tree=True)
+    files = hwbvh.save(bvh, tmp_path / "s")
+    assert sorted(os.listdir(tmp_path)) == ["s.indices", "s.json", "s.nodes"]
+    back = hwbvh.load(tmp_path / "s", triangles=tris)
+    assert back.nodes.tobytes() == bvh.nodes.tobytes()
+    assert np.array_equal(back.indices, bvh.indices)
+    assert json.load(open(files[2]))["sah_cost"] == bvh.meta["sah_cost"]
+
+
+def corrupt(bvh, fn):
+    nodes = bvh.nodes.copy()
+    ids = bvh.indices.copy()
+    fn(nodes, ids)
+    return nodes, ids
+
+
+def _first(nodes, leaf):
+    return int(np.flatnonzero((nodes["flags"] & 1) == int(leaf))[0])
+
+
+def _set(field, index, value):
+    def fn(n, i):
+        n[field][index] = value(n) if callable(value) else value
+    return fn
+
+
+def _set_leaf_count(n, i):
+    n["b"][_first(n, 1)] = 9
+
+
+def _cycle(n, i):
+    n["b"][_first(n, 0)] = n["a"][0]      # the root's left child is reached twice
+
+
+def _child_outside(n, i):
+    n["bounds"][int(n["a"][0]), 3] = n["bounds"][0][3] + 1
+
+
+CORRUPTIONS = {
+    "pointer out of range": lambda n, i: _set("a", _first(n, 0), len(n) + 5)(n, i),
+    "cycle": _cycle,
+    "flag bits": _set("flags", 3, lambda n: n["flags"][3] | 4),
+    "padding": lambda n, i: n["pad"].__setitem__((2, 1), 9),
+    "child outside parent": _child_outside,
+    "leaf too big": _set_leaf_count,
+    "duplicate primitive": lambda n, i: i.__setitem__(1, i[0]),
+    "index out of range": lambda n, i: i.__setitem__(0, 1 << 20),
+    "inverted box": lambda n, i: n["bounds"].__setitem__((5, 0), 1e9),
+}
+
+
+@pytest.mark.parametrize("what", list(CORRUPTIONS))
+def test_validator_catches(what):
+    tris = random_soup(500, seed=3)
+    bvh = hwbvh.build(tris)
+    hwbvh.validate(bvh.nodes, bvh.indices, len(tris), 4, primitive_boxes(tris))
+    nodes, ids = corrupt(bvh, CORRUPTIONS[what])
+    with pytest.raises(InputError, match="invalid tree"):
+        hwbvh.validate(nodes, ids, len(tris), 4, primitive_boxes(tris))
+
+
+def test_validator_catches_leaf_box_missing_its_primitive():
+    tris = random_soup(200, seed=4)
+    bvh = hwbvh.build(tris)
+    nodes = bvh.nodes.copy()
+    leaf = _first(nodes, 1)
+    p = bvh.indices[nodes["a"][leaf]]
+    tris2 = tris.copy()
+    tris2[p] += 100.0                       # the stored tree no longer bounds this triangle
+    with pytest.raises(InputError, match="contain its primitive"):
+        hwbvh.validate(nodes, bvh.indices, len(tris), 4, primitive_boxes(tris2))
+
+
+# ---- bad input ------------------------------------------------------------------------
+def test_nan_and_inf_are_refused():
+    t = random_soup(10)
+    t[4, 1, 2] = np.nan
+    with pytest.raises(InputError, match="triangle 4 has a NaN"):
+        hwbvh.build(t)
+    t[4, 1, 2] = np.inf
+    with pytest.raises(InputError, match="NaN or infinite"):
+        hwbvh.build(t)
+
+
+def test_empty_and_wrong_shape_and_huge():
+    with pytest.raises(InputError, match="no triangles"):
+        hwbvh.build(np.zeros((0, 3, 3), np.float32))
+    with pytest.raises(InputError, match="shape"):
+        hwbvh.build(np.zeros((5, 3), np.float32))
+    with pytest.raises(InputError, match="exceeds"):
+        hwbvh.build(np.full((2, 3, 3), 1e20, np.float32))
+
+
+def test_more_than_2_24_primitives_is_refused_without_copying():
+    many = np.broadcast_to(np.zeros((1, 3, 3), np.float32), ((1 << 24) + 1, 3, 3))
+    with pytest.raises(InputError, match="2\\^24"):
+        hwbvh.build(many)
+
+
+@pytest.mark.parametrize("kw,match", [({"leaf_size": 0}, "leaf"), ({"leaf_size": 1000}, "leaf"),
+                                      ({"bins": 1}, "bins"), ({"bins": 65}, "bins"),
+                                      ({"capacity": 0}, "capacity"), ({"builder": "x"}, "builder")])
+def test_parameters_out_of_range(kw, match):
+    with pytest.raises(InputError, match=match):
+        hwbvh.build(random_soup(10), **kw)
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "hwrt.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=300)
+
+
+def write_ply_header_only(path, faces):
+    path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+                     b"property float y\nproperty float z\nelement face %d\n"
+                     b"property list uchar int vertex_indices\nend_header\n" % faces)
+
+
+@pytest.mark.parametrize("setup,match", [
+    (lambda d: d / "missing.ply", "no such file"),
+    (lambda d: (d / "garbage.ply").write_bytes(b"\x00\x01 not a mesh") and d / "garbage.ply", "cannot read"),
+    (lambda d: (d / "empty.obj").write_text("# nothing\n") and d / "empty.obj", "no triangles"),
+    (lambda d: (d / "nan.obj").write_text("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n") and d / "nan.obj", "NaN"),
+    (lambda d: write_ply_header_only(d / "big.ply", (1 << 24) + 1) or d / "big.ply", "2\\^24"),
+])
+def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, setup, match):
+    src_dir = tmp_path / "in"
+    src_dir.mkdir()
+    mesh = setup(src_dir)
+    out = tmp_path / "out"
+    r = run_cli("build", mesh, "--out", out / "x", "--dump-aabbs", out / "a.bin", "--json")
+    assert r.returncode == 2, r.stderr
+    assert r.stdout == ""
+    line = r.stderr.strip()
+    assert "\n" not in line and str(mesh) in line
+    import re
+    assert re.search(match, line)
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_cli_bad_parameter_exits_2(tmp_path):
+    p = tmp_path / "m.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    r = run_cli("build", p, "--leaf-size", "0")
+    assert r.returncode == 2 and "--leaf-size" in r.stderr
+
+
+def test_cli_build_json_and_files(tmp_path):
+    import trimesh
+    tris = sphere(20, 30)
+    mesh = trimesh.Trimesh(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3), process=False)
+    p = tmp_path / "sphere.ply"
+    mesh.export(p)
+    r = run_cli("build", p, "--json", "--out", tmp_path / "o" / "s", "--dump-aabbs", tmp_path / "a.bin",
+                "--dump-handoff", tmp_path / "h.bin", "--capacity", "256")
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    for k in ("triangles", "nodes", "leaves", "max_depth", "sah_cost", "build_seconds", "fallback_splits"):
+        assert k in res
+    assert res["triangles"] == len(tris)
+    back = hwbvh.load(tmp_path / "o" / "s", triangles=tris)
+    assert len(back.indices) == len(tris)
+    boxes, order = unpack_records((tmp_path / "h.bin").read_bytes())
+    assert sorted(order.tolist()) == list(range(len(tris)))
+    sizes = json.loads((tmp_path / "h.bin.json").read_text())["handoff_sizes"]
+    assert sum(sizes) == len(tris) and max(sizes) <= 256
+    _, aorder = unpack_records((tmp_path / "a.bin").read_bytes())
+    assert aorder.tolist() == list(range(len(tris)))
+
+
+def test_loader_reads_other_formats(tmp_path):
+    import trimesh
+    tris = sphere(6, 8)
+    m = trimesh.Trimesh(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3), process=False)
+    for ext in ("obj", "stl", "off", "glb", "ply"):
+        p = tmp_path / f"m.{ext}"
+        m.export(p)
+        got = hwbvh.load_triangles(p)
+        assert got.shape == tris.shape
+
+
+def test_bunny_reproduces_thesis_table_4_4():
+    """Table 4.4: HWBVH 57.85 / 42,469 nodes; sweep 57.24 / 49,157 nodes."""
+    p = shared_mesh("bunny.ply")
+    hw = hwbvh.build(p, validate_tree=True).meta
+    sw = hwbvh.build(p, builder="sweep", validate_tree=True).meta
+    assert hw["sah_cost"] == pytest.approx(57.85, rel=2e-3)
+    assert hw["nodes"] == pytest.approx(42469, rel=2e-3)
+    assert sw["sah_cost"] == pytest.approx(57.24, rel=2e-3)
+    assert sw["nodes"] == pytest.approx(49157, rel=2e-3)
+
+
+def test_sweep_beats_binned_on_a_smooth_mesh():
+    tris = sphere(60, 90)
+    hw = hwbvh.build(tris).meta["sah_cost"]
+    sw = hwbvh.build(tris, builder="sweep", validate_tree=True).meta["sah_cost"]
+    assert sw < hw
