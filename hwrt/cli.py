@@ -69,6 +69,47 @@ def cmd_build(args):
     _emit(args, result, lambda r: _kv(r, keys))
 
 
+def _scene_geometry(name):
+    """(label, triangles f32, vertices f32, faces i32) of a scene name/file or mesh file."""
+    from hwbvh.primitives import as_triangles, load_mesh_arrays
+    import numpy as np
+    try:
+        from scenes import is_scene, load_scene_geometry
+    except ImportError:          # scenes not available: meshes only
+        is_scene = None
+    if is_scene is not None and is_scene(name):
+        return load_scene_geometry(name)
+    verts, faces = load_mesh_arrays(name)
+    tris = as_triangles(verts[faces], source=name)
+    return os.path.splitext(os.path.basename(name))[0], tris, verts.astype(np.float32), \
+        faces.astype(np.int32)
+
+
+def cmd_verify(args):
+    import numpy as np
+    from traversal.verify import verify_mesh
+    from hwbvh.api import write_files
+    import io
+
+    if args.rays < 1:
+        raise InputError("--rays", "must be at least 1")
+    label, tris, verts, faces = _scene_geometry(args.scene)
+    counts, labels, (O, D, tmax), h, (te, pe) = verify_mesh(tris, verts, faces, args.kind, args.rays)
+    result = dict(counts)
+    result.update({"kind": args.kind, "scene": label})
+    bad = np.flatnonzero(labels == 2)
+    if len(bad):
+        out = args.mismatches or os.path.join("renders", f"verify-{label}-{args.kind}-mismatches.npz")
+        buf = io.BytesIO()
+        np.savez(buf, origins=O[bad], dirs=D[bad], ours_prim=h.prim[bad], ours_t=h.t[bad],
+                 embree_prim=pe[bad], embree_t=te[bad],
+                 tmax=(np.full(len(bad), np.inf) if tmax is None else np.asarray(tmax)[bad]))
+        write_files([(out, buf.getvalue())])
+        result["mismatch_file"] = out
+    _emit(args, result, lambda r: _kv(r, ["scene", "kind", "rays", "agree", "tie", "mismatch",
+                                          "mismatch_file"]))
+
+
 def cmd_bench(args):
     from . import bench
     fn = {"build": bench.bench_build, "scale": bench.bench_scale}.get(args.what)
@@ -105,6 +146,14 @@ def make_parser():
     b.add_argument("--dump-handoff", metavar="F", help="records in upper-builder hand-off order")
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_build)
+
+    v = sub.add_parser("verify", help="trace rays with our units and with Embree; classify each")
+    v.add_argument("scene", help="built-in scene name, scene file, or mesh file")
+    v.add_argument("--rays", type=_positive, default=100_000)
+    v.add_argument("--kind", choices=["primary", "random", "bounces", "shadow"], default="random")
+    v.add_argument("--mismatches", metavar="F.npz", help="where mismatching rays are written")
+    v.add_argument("--json", action="store_true")
+    v.set_defaults(func=cmd_verify)
 
     be = sub.add_parser("bench", help="benchmarks against peers measured in the same run")
     be.add_argument("what", choices=["build", "scale", "trace", "tti", "accuracy"])

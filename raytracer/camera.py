@@ -1,0 +1,46 @@
+"""Pinhole camera (look-at, vertical field of view, resolution) producing ray arrays."""
+import numpy as np
+
+
+def look_at_basis(eye, target, up):
+    eye = np.asarray(eye, np.float64)
+    w = np.asarray(target, np.float64) - eye
+    w /= np.linalg.norm(w)
+    u = np.cross(w, np.asarray(up, np.float64))
+    if np.linalg.norm(u) < 1e-12:                      # looking along up: pick another up
+        u = np.cross(w, [1.0, 0.0, 0.0] if abs(w[0]) < 0.9 else [0.0, 0.0, 1.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(u, w)
+    return u, v, w
+
+
+def primary_rays(eye, target, up, fov_deg, width, height, jitter=None):
+    """Rays through pixel centres (or centre + jitter in [-0.5, 0.5)^2, shape (h*w, 2)), row-major
+    from the top-left. Returns (origins (n,3) float64, dirs (n,3) float64 normalised)."""
+    u, v, w = look_at_basis(eye, target, up)
+    half = np.tan(np.radians(fov_deg) / 2)
+    aspect = width / height
+    ys, xs = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
+    px = xs.ravel() + 0.5
+    py = ys.ravel() + 0.5
+    if jitter is not None:
+        px = px + jitter[:, 0]
+        py = py + jitter[:, 1]
+    sx = (2 * px / width - 1) * half * aspect
+    sy = (1 - 2 * py / height) * half
+    d = sx[:, None] * u + sy[:, None] * v + w
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = np.broadcast_to(np.asarray(eye, np.float64), d.shape).copy()
+    return o, d
+
+
+def frame_bounds(lo, hi, fov_deg=40.0, direction=(0.35, 0.45, 1.0)):
+    """A camera (eye, target, up) that frames the box [lo, hi] from ``direction``."""
+    lo = np.asarray(lo, np.float64)
+    hi = np.asarray(hi, np.float64)
+    c = (lo + hi) / 2
+    r = max(np.linalg.norm(hi - lo) / 2, 1e-30)
+    d = np.asarray(direction, np.float64)
+    d /= np.linalg.norm(d)
+    dist = r / np.sin(np.radians(fov_deg) / 2) * 1.05
+    return c + d * dist, c, np.array([0.0, 1.0, 0.0])

@@ -1,0 +1,223 @@
+"""The appendix-A units and the raw-format traversal: hard cases, a float64 reference, and
+every hit checked against Embree on generated meshes."""
+import numpy as np
+import pytest
+
+import hwbvh
+from traversal import Tracer
+from traversal.aabb_unit import GAMMA3_F32, aabb_batch
+from traversal.embree_ref import embree_occluded, embree_scene
+from traversal.triangle_unit import band_eps2, mt_batch, preprocess
+from traversal.verify import verify_mesh
+from scenes.meshes import grid_sheet, random_soup, uv_sphere
+
+from .naive import ray_triangle_f64
+
+F32 = np.float32
+WIDEN = F32(1 + 2 * GAMMA3_F32)
+
+
+def aabb(box, o, d, tmin=0.0, tmax=np.inf):
+    n = len(o)
+    hit, tn = aabb_batch(np.asarray(box, F32).reshape(1, 6).repeat(n, 0), np.asarray(o, F32),
+                         np.asarray(d, F32), np.full(n, tmin, F32), np.full(n, tmax, F32), WIDEN,
+                         F32(1))
+    return hit, tn
+
+
+def test_aabb_unit_signed_zero_directions():
+    box = [0, 0, 0, 1, 1, 1]
+    # d = (+0, +0, 1) and (-0, -0, 1) from inside the x/y slabs: hit; from outside: miss
+    o = [[0.5, 0.5, -1], [0.5, 0.5, -1], [1.5, 0.5, -1], [0.5, -0.5, -1]]
+    d = [[0.0, 0.0, 1], [-0.0, -0.0, 1], [-0.0, 0.0, 1], [0.0, -0.0, 1]]
+    hit, tn = aabb(box, o, d)
+    assert hit.tolist() == [True, True, False, False]
+    assert tn[0] == pytest.approx(1.0)
+
+
+def test_aabb_unit_origin_on_slab_plane_with_zero_direction_is_not_a_false_miss():
+    box = [0, 0, 0, 1, 1, 1]
+    for plane in (0.0, 1.0):
+        for z in (0.0, -0.0):
+            hit, _ = aabb(box, [[plane, 0.5, -2]], [[z, 0.0, 1.0]])
+            assert hit[0], (plane, z)
+            hit, _ = aabb(box, [[0.5, plane, -2]], [[0.0, z, 1.0]])
+            assert hit[0], (plane, z)
+
+
+def test_aabb_unit_interval_and_flat_boxes():
+    box = [0, 0, 0, 1, 1, 1]
+    assert not aabb(box, [[0.5, 0.5, -2]], [[0, 0, 1]], tmax=1.5)[0][0]   # box starts at t=2
+    assert aabb(box, [[0.5, 0.5, -2]], [[0, 0, 1]], tmax=2.0)[0][0]
+    assert not aabb(box, [[0.5, 0.5, 2]], [[0, 0, 1]])[0][0]              # behind the ray
+    flat = [0, 0, 0.3, 1, 1, 0.3]                                         # zero z extent
+    o = np.random.default_rng(0).uniform(0, 1, (1000, 3)).astype(F32)
+    o[:, 2] = -1
+    d = np.tile([[0.1, -0.05, 1.0]], (1000, 1)).astype(F32)
+    o[:, :2] -= 0.13 * d[:, :2] / 1.0                                     # stay inside in x/y
+    hit, _ = aabb(flat, np.clip(o, 0.15, 0.85).astype(F32) * [1, 1, 0] + [0, 0, -1], d)
+    assert hit.all()
+
+
+def test_triangle_unit_against_float64_reference():
+    rng = np.random.default_rng(3)
+    n = 3000
+    tris = rng.uniform(-1, 1, (n, 3, 3)).astype(F32)
+    o = rng.uniform(-2, 2, (n, 3)).astype(F32)
+    target = tris.mean(1) + rng.normal(0, 0.3, (n, 3))
+    d = (target - o).astype(F32)
+    pre = preprocess(tris)
+    hit, t, u, v = mt_batch(pre, o, d, np.zeros(n, F32), np.full(n, np.inf, F32), band_eps2(F32),
+                            F32(1), F32(0))
+    T_TOL = 1e-4    # float32 t of a unit-scale scene: a few hundred ulps covers the chain
+    checked = 0
+    for i in range(n):
+        ok, tr, ur, vr = ray_triangle_f64(o[i], d[i], tris[i])
+        margin = min(ur, vr, 1 - ur - vr) if ok else 0
+        if ok and tr >= 0 and margin > 1e-4:
+            assert hit[i] and abs(t[i] - tr) <= T_TOL * max(1, tr), i
+            checked += 1
+        elif not ok or tr < 0:
+            if abs(margin) > 1e-4 or tr < -1e-4:
+                assert not hit[i], i
+    assert checked > 500
+
+
+def test_tiny_triangles_keep_their_hits():
+    # 1e-4-sized triangles: det ~ 1e-8; an absolute epsilon (1e-6) would drop them all
+    rng = np.random.default_rng(4)
+    tris = (rng.uniform(0, 1, (200, 1, 3)) + rng.uniform(-1e-4, 1e-4, (200, 3, 3))).astype(F32)
+    c = tris.mean(1)
+    o = (c + [0, 0, -1]).astype(F32)
+    d = np.tile([[0, 0, 1]], (200, 1)).astype(F32)
+    tri = Tracer(hwbvh.build(tris))
+    h = tri.intersect(o, d)
+    assert (h.prim >= 0).mean() > 0.95
+
+
+def closed_sphere(n_lat=24, n_lon=40, scale=1.0, shift=0.0):
+    V, F = uv_sphere(n_lat, n_lon)
+    V = V * scale + shift
+    return V[F].astype(F32), V.astype(F32), F.astype(np.int32)
+
+
+@pytest.mark.parametrize("scale,shift", [(1.0, 0.0), (1e-4, 0.0), (1.0, 1e5), (1e3, -3e3)])
+def test_closed_mesh_does_not_leak_through_edges_and_vertices(scale, shift):
+    tris, V, F = closed_sphere(scale=scale, shift=shift)
+    centre = np.full(3, shift, np.float64)
+    tracer = Tracer(hwbvh.build(tris))
+    # targets: every vertex and every edge midpoint, in float32 as stored
+    e = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]).astype(np.float64)
+    targets = np.concatenate([V.astype(np.float64), e.mean(1)])
+    d = targets - centre
+    # from inside: every ray must hit (nothing escapes)
+    h = tracer.intersect(np.tile(centre, (len(d), 1)), d)
+    assert (h.prim >= 0).all()
+    # from outside, aimed back through the same points: must hit before reaching the centre
+    outside = centre + 3 * d
+    h = tracer.intersect(outside, -d, 0.0, 3.0)
+    assert (h.prim >= 0).all()
+
+
+def test_axis_parallel_rays_through_grid_vertices_and_edges():
+    tris = grid_sheet(16, 16, wave=0.0)                       # flat: y = 0 exactly
+    tracer = Tracer(hwbvh.build(tris))
+    xs = np.linspace(-1, 1, 33)                               # vertices and edge midpoints
+    X, Z = np.meshgrid(xs, xs)
+    o = np.stack([X.ravel(), np.ones(X.size), Z.ravel()], 1)
+    for d in ([0.0, -1.0, 0.0], [-0.0, -1.0, -0.0]):
+        h = tracer.intersect(o, np.tile(d, (len(o), 1)))
+        assert (h.prim >= 0).all()
+        assert np.allclose(h.t, 1.0)
+
+
+def test_rays_in_the_plane_and_grazing_rays():
+    tris = grid_sheet(8, 8, wave=0.0)
+    tracer = Tracer(hwbvh.build(tris))
+    o = np.array([[-2, 0, 0.1], [-2, 0, 0.0], [-2, 1e-7, 0.3]])
+    d = np.array([[1, 0, 0], [1, 0, 0], [1, 0, 0]])
+    h = tracer.intersect(o, d)            # in the plane: parallel band -> no hit, no crash
+    assert (h.prim < 0).all()
+    # grazing: 1e-3 rad above the plane, aimed at it -> hits near the expected t
+    g = np.array([[-1.5, 1e-3 * 1.0, 0.2]])
+    h = tracer.intersect(g, np.array([[1.0, -1e-3, 0.0]]))
+    assert h.prim[0] >= 0 and abs(h.t[0] - 1.0) < 1e-3
+
+
+def test_nan_inf_and_zero_rays_miss_quickly():
+    tracer = Tracer(hwbvh.build(random_soup(2000)))
+    o = np.array([[np.nan, 0, 0], [0, 0, 0], [np.inf, 0, 0], [0, 0, 0], [0, 0, 0]])
+    d = np.array([[1, 0, 0], [np.nan, 1, 0], [1, 0, 0], [0, 0, 0], [0, -np.inf, 0]])
+    h = tracer.intersect(o, d, counters=True)
+    assert (h.prim == -1).all() and np.isinf(h.t).all()
+    assert (h.counters == 0).all()
+
+
+def test_tmin_tmax_boundaries():
+    tris = grid_sheet(2, 2, wave=0.0)
+    tracer = Tracer(hwbvh.build(tris))
+    o = np.tile([[0.1, 1.0, 0.2]], (4, 1))
+    d = np.tile([[0.0, -1.0, 0.0]], (4, 1))
+    h = tracer.intersect(o, d, tmin=np.array([0, 0, 1.0001, 0.9999]), tmax=np.array([0.9999, 1.0, 5, 1.0001]))
+    assert (h.prim >= 0).tolist() == [False, True, False, True]
+    occ = tracer.occluded(o, d, tmin=np.array([0, 0, 1.0001, 0.9999]), tmax=np.array([0.9999, 1.0, 5, 1.0001]))
+    assert occ.tolist() == [False, True, False, True]
+
+
+def test_occluded_matches_intersect_and_embree():
+    tris, V, F = closed_sphere()
+    extra = random_soup(3000, seed=2, size=0.05)
+    tris = np.concatenate([tris, extra])
+    V2 = np.concatenate([V, extra.reshape(-1, 3)])
+    F2 = np.concatenate([F, len(V) + np.arange(len(extra) * 3).reshape(-1, 3)]).astype(np.int32)
+    tracer = Tracer(hwbvh.build(tris))
+    rng = np.random.default_rng(5)
+    o = rng.uniform(-1.5, 1.5, (20000, 3))
+    d = rng.normal(size=(20000, 3))
+    tmax = rng.uniform(0.05, 2.0, 20000)
+    occ = tracer.occluded(o, d, 0.0, tmax)
+    h = tracer.intersect(o, d, 0.0, tmax)
+    assert np.array_equal(occ, h.prim >= 0)
+    emb = embree_occluded(embree_scene(V2, F2), o, d, tmax)
+    assert (occ != emb).sum() <= 2            # edge ties only (checked by verify tests)
+
+
+@pytest.mark.parametrize("mesh", ["sphere", "soup", "sheet", "sphere-1e5", "sphere-1e-4"])
+@pytest.mark.parametrize("kind", ["primary", "random", "bounces", "shadow"])
+def test_zero_mismatches_against_embree(mesh, kind):
+    if mesh.startswith("sphere"):
+        scale, shift = {"sphere": (1, 0), "sphere-1e5": (1, 1e5), "sphere-1e-4": (1e-4, 0)}[mesh]
+        tris, V, F = closed_sphere(40, 64, scale, shift)
+    else:
+        tris = random_soup(5000, seed=1) if mesh == "soup" else grid_sheet(60, 60)
+        V, F = tris.reshape(-1, 3), np.arange(len(tris) * 3, dtype=np.int32).reshape(-1, 3)
+    counts, *_ = verify_mesh(tris, V, F, kind, 20_000)
+    assert counts["mismatch"] == 0, counts
+    assert counts["agree"] >= 0.99 * counts["rays"]
+
+
+def test_float64_units_agree_with_float32():
+    tris = random_soup(3000, seed=8)
+    bvh = hwbvh.build(tris)
+    rng = np.random.default_rng(1)
+    o = rng.uniform(-1, 1, (5000, 3))
+    d = rng.normal(size=(5000, 3))
+    a = Tracer(bvh).intersect(o, d)
+    b = Tracer(bvh, precision="float64").intersect(o, d)
+    assert b.t.dtype == np.float64
+    assert (a.prim == b.prim).mean() > 0.999
+
+
+def test_stack_overflow_is_an_error_not_a_wrong_answer():
+    tracer = Tracer(hwbvh.build(random_soup(5000)))
+    tracer.depth = 1                                  # pretend the tree were shallower
+    rng = np.random.default_rng(2)
+    with pytest.raises(RuntimeError, match="stack overflow"):
+        tracer.intersect(rng.uniform(-1, 1, (1000, 3)), rng.normal(size=(1000, 3)))
+
+
+def test_counters_count_work():
+    tracer = Tracer(hwbvh.build(random_soup(5000)))
+    rng = np.random.default_rng(2)
+    h = tracer.intersect(rng.uniform(-1, 1, (1000, 3)), rng.normal(size=(1000, 3)), counters=True)
+    assert (h.counters[:, 0] >= 1).mean() > 0.9 and h.counters[:, 1].sum() > 0

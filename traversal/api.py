@@ -1,0 +1,102 @@
+"""Batched ray queries on an hwbvh tree: the public wrapper validates, the kernels trust.
+
+>>> tracer = Tracer(bvh)                        # hwbvh.Bvh (nodes, index list, triangles)
+>>> hits = tracer.intersect(origins, dirs)      # Hits: t, prim (-1 miss), u, v, ng
+>>> blocked = tracer.occluded(origins, dirs, tmax=dist)
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from hwbvh.format import node_views, pack_indices, tree_stats
+from .aabb_unit import GAMMA3_F32, GAMMA3_F64
+from .traverse import trace_batch
+from .triangle_unit import band_eps2, preprocess
+
+# Barycentric slack of the valid check, in units of the triangle. The float32 Moller-Trumbore
+# unit computes u and v from different edge vectors in the two triangles sharing an edge, so a
+# ray exactly through the edge can fail both strict checks (a leak). A slack of 2^-18 (~4e-6,
+# tens of float32 ulps of a barycentric coordinate) closes those cracks; it dilates each
+# triangle by that fraction of its size, far below a pixel. Set to 0 for the strict unit.
+EDGE_EPS_F32 = 2.0**-18
+EDGE_EPS_F64 = 2.0**-40
+
+
+@dataclass
+class Hits:
+    """Closest hits of a batch. t: (n,) with inf for a miss; prim: (n,) int32, -1 for a miss;
+    u, v: (n,) barycentrics; ng: (n, 3) unnormalised geometric normal e1 x e2 (0 for a miss);
+    counters: (n, 2) nodes visited / triangles tested, when asked for."""
+    t: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    ng: np.ndarray
+    counters: np.ndarray = None
+
+
+def _rays(origins, dirs, tmin, tmax, dtype):
+    o = np.ascontiguousarray(origins, dtype=dtype)
+    d = np.ascontiguousarray(dirs, dtype=dtype)
+    if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
+        raise ValueError(f"origins and dirs must both be (n, 3), got {o.shape} and {d.shape}")
+    n = len(o)
+    lo = np.ascontiguousarray(np.broadcast_to(np.asarray(tmin, dtype=dtype), (n,)))
+    hi = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=dtype), (n,)))
+    return o, d, lo, hi
+
+
+class Tracer:
+    """Ray queries on one BVH. precision: "float32" (the hardware units) or "float64"."""
+
+    def __init__(self, bvh, triangles=None, precision="float32", edge_eps=None):
+        if precision not in ("float32", "float64"):
+            raise ValueError("precision must be 'float32' or 'float64'")
+        self.dtype = np.float32 if precision == "float32" else np.float64
+        tris = bvh.triangles if triangles is None else triangles
+        if tris is None:
+            raise ValueError("the BVH has no triangles attached; pass triangles=")
+        self.nodes = np.ascontiguousarray(bvh.nodes)
+        self.u, self.f = node_views(self.nodes)
+        self.index_bytes = np.frombuffer(pack_indices(bvh.indices), dtype=np.uint8)
+        self.tris = preprocess(tris, self.dtype)
+        self.depth = tree_stats(self.nodes)["max_depth"]
+        f32 = self.dtype == np.float32
+        self.eps2 = band_eps2(self.dtype)
+        self.one = self.dtype(1)
+        self.widen = self.dtype(1.0 + 2.0 * (GAMMA3_F32 if f32 else GAMMA3_F64))
+        if edge_eps is None:
+            edge_eps = EDGE_EPS_F32 if f32 else EDGE_EPS_F64
+        self.edge = self.dtype(edge_eps)
+
+    def _run(self, origins, dirs, tmin, tmax, anyhit, counters):
+        o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)
+        n = len(o)
+        prim = np.empty(n, np.int32)
+        t = np.empty(n, self.dtype)
+        u = np.empty(n, self.dtype)
+        v = np.empty(n, self.dtype)
+        cnt = np.zeros((n if counters else 0, 2), np.int64)
+        over = trace_batch(self.u, self.f, self.index_bytes, self.tris, o, d, lo, hi, self.eps2,
+                           self.one, self.widen, self.edge, self.depth, anyhit, prim, t, u, v, cnt)
+        if over:
+            raise RuntimeError(f"traversal stack overflow on {over} rays: the tree is deeper "
+                               f"than its recorded depth {self.depth} (corrupted tree?)")
+        return prim, t, u, v, (cnt if counters else None)
+
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False):
+        """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays)."""
+        prim, t, u, v, cnt = self._run(origins, dirs, tmin, tmax, False, counters)
+        hit = prim >= 0
+        ng = np.zeros((len(prim), 3), self.dtype)
+        if hit.any():
+            tr = self.tris[prim[hit]]
+            ng[hit] = np.cross(tr[:, 3:6], tr[:, 6:9])
+        return Hits(t=t, prim=prim, u=np.where(hit, u, 0), v=np.where(hit, v, 0), ng=ng,
+                    counters=cnt)
+
+    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False):
+        """True where any triangle is hit in [tmin, tmax]; returns (blocked, counters or None)
+        when counters=True."""
+        prim, _, _, _, cnt = self._run(origins, dirs, tmin, tmax, True, counters)
+        return (prim >= 0, cnt) if counters else prim >= 0

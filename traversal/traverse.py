@@ -1,0 +1,136 @@
+"""Stack traversal of the raw hwbvh output: 48-byte nodes and the packed 24-bit index list,
+read as written (no conversion to another layout).
+
+Two queries, as in every serious tracer: ``intersect`` (closest hit) and ``occluded`` (any hit
+in ``[t_min, t_max]``, early exit, for shadow rays). Batches run in parallel over rays.
+
+Traversal order: at an internal node both children go through the AABB unit; the nearer hit
+child is visited next and the farther pushed with its entry distance, which is re-checked
+against the closest hit when popped. The stack is sized from the tree's depth, so it cannot
+overflow on a valid tree; if it would (a corrupted tree), the batch raises instead of
+answering wrongly. Exact-t ties between triangles go to the lower primitive index, so the
+answer does not depend on the visiting order.
+"""
+import numpy as np
+from numba import njit, prange
+
+from .aabb_unit import aabb_hit_at, near_far_planes
+from .triangle_unit import mt_hit_at
+
+CHUNK = 64            # rays per parallel work item (one stack allocation each)
+
+
+@njit(cache=True, error_model="numpy")
+def read_index(ib, p):
+    """Entry p of the 24-bit little-endian index list (raw bytes)."""
+    q = 3 * p
+    return np.int64(ib[q]) | (np.int64(ib[q + 1]) << 8) | (np.int64(ib[q + 2]) << 16)
+
+
+@njit(cache=True, error_model="numpy")
+def _ray_ok(ox, oy, oz, dx, dy, dz, tmin, tmax):
+    if not (np.isfinite(ox) and np.isfinite(oy) and np.isfinite(oz)):
+        return False
+    if not (np.isfinite(dx) and np.isfinite(dy) and np.isfinite(dz)):
+        return False
+    if dx == 0 and dy == 0 and dz == 0:
+        return False
+    return tmin <= tmax and not np.isnan(tmin)
+
+
+@njit(cache=True, error_model="numpy")
+def trace_ray(u, f, ib, tris, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one, widen, edge,
+              stack, stack_t, anyhit):
+    """One ray. Returns (prim, t, bu, bv, nodes_visited, tris_tested, overflow)."""
+    best_t = tmax
+    prim = -1
+    bu = tmax - tmax if np.isfinite(tmax) else one - one
+    bv = bu
+    nodes = 0
+    tested = 0
+    if not _ray_ok(ox, oy, oz, dx, dy, dz, tmin, tmax):
+        return prim, best_t, bu, bv, nodes, tested, False
+    ix = one / dx
+    iy = one / dy
+    iz = one / dz
+    kx, ky, kz = near_far_planes(ix, iy, iz)
+    dd = dx * dx + dy * dy + dz * dz
+    hit, tn = aabb_hit_at(f, 0, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
+    if not hit:
+        return prim, best_t, bu, bv, nodes, tested, False
+    node = 0
+    sp = 0
+    while True:
+        nodes += 1
+        if u[node, 8] & 1:
+            # -- leaf: primitives through the triangle unit --
+            first = np.int64(u[node, 6])
+            for p in range(first, first + np.int64(u[node, 7])):
+                j = read_index(ib, p)
+                tested += 1
+                ok, t, tu, tv = mt_hit_at(tris, j, ox, oy, oz, dx, dy, dz, dd, tmin, best_t,
+                                          eps2, one, edge)
+                if ok and (t < best_t or prim < 0 or j < prim):
+                    best_t = t
+                    prim = j
+                    bu = tu
+                    bv = tv
+                    if anyhit:
+                        return prim, best_t, bu, bv, nodes, tested, False
+            node = -1
+        else:
+            # -- internal: both children through the AABB unit --
+            l = np.int64(u[node, 6])
+            r = np.int64(u[node, 7])
+            hl, tl = aabb_hit_at(f, l, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
+            hr, tr = aabb_hit_at(f, r, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
+            if hl and hr:
+                if tr < tl:
+                    l, r = r, l
+                    tl, tr = tr, tl
+                if sp >= stack.shape[0]:
+                    return -1, tmax, bu, bv, nodes, tested, True
+                stack[sp] = r
+                stack_t[sp] = tr
+                sp += 1
+                node = l
+            elif hl:
+                node = l
+            elif hr:
+                node = r
+            else:
+                node = -1
+        while node < 0:
+            if sp == 0:
+                return prim, best_t, bu, bv, nodes, tested, False
+            sp -= 1
+            if stack_t[sp] <= best_t:          # cull subtrees behind the closest hit
+                node = stack[sp]
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def trace_batch(u, f, ib, tris, O, D, tmin, tmax, eps2, one, widen, edge, depth, anyhit,
+                out_prim, out_t, out_u, out_v, counters):
+    """All rays; ``counters`` is (n, 2) int (nodes visited, triangles tested) or (0, 2).
+    Returns the number of rays whose stack would have overflowed (0 on a valid tree)."""
+    n = O.shape[0]
+    nchunks = (n + CHUNK - 1) // CHUNK
+    overflow = np.zeros(nchunks, dtype=np.int64)
+    count = counters.shape[0] > 0
+    for c in prange(nchunks):
+        stack = np.empty(depth + 2, dtype=np.int64)
+        stack_t = np.empty(depth + 2, dtype=O.dtype)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            prim, t, bu, bv, nv, nt, of = trace_ray(
+                u, f, ib, tris, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
+                tmin[i], tmax[i], eps2, one, widen, edge, stack, stack_t, anyhit)
+            out_prim[i] = prim
+            out_t[i] = t if prim >= 0 else np.inf
+            out_u[i] = bu
+            out_v[i] = bv
+            if of:
+                overflow[c] += 1
+            if count:
+                counters[i, 0] = nv
+                counters[i, 1] = nt
+    return overflow.sum()

@@ -1,0 +1,155 @@
+"""Every hit checked against Embree.
+
+Each ray is classified:
+
+* ``agree``: same primitive and |t_ours - t_embree| <= tol_t, or both miss;
+* ``tie``: the answers differ but both are right to within the stated tolerances, judged by a
+  float64 brute-force re-test of the ray against every triangle: each answer's triangle
+  contains its hit point (barycentrics within ``BARY_TOL`` of the triangle) at that t, and no
+  triangle that contains the ray strictly (by more than ``BARY_TOL``) is hit closer. These are
+  the rays through shared edges and vertices (two triangles, one t) and rays grazing an edge
+  within the tolerance (one answer a hit on the edge, the other a miss);
+* ``mismatch``: anything else.
+
+Tolerances and their reasons:
+
+* ``T_TOL_REL = 1e-5``: float32 hit distances carry about ``eps * (|o| + t|d|) / |d|`` of
+  rounding per operation; 1e-5 (~80 ulps) of ``t + |o|_max/|d|`` bounds the unit's error chain
+  while staying far below any real gap between surfaces.
+* ``BARY_TOL = 1e-4``: float32 Moller-Trumbore barycentrics are off by a few 1e-7 for
+  well-conditioned rays but by up to ~2e-5 on slivers (cancellation in ``s.p / det``), and our
+  valid check accepts 2^-18 (~3.8e-6) of slack to close cracks. A wrong triangle is off by far
+  more than that, and a closer strict hit still makes any answer a mismatch.
+"""
+import numpy as np
+from numba import njit, prange
+
+T_TOL_REL = 1e-5
+BARY_TOL = 1e-4
+
+
+@njit(cache=True, error_model="numpy")
+def _mt64(tri, o, d):
+    e1 = tri[1] - tri[0]
+    e2 = tri[2] - tri[0]
+    px = d[1] * e2[2] - d[2] * e2[1]
+    py = d[2] * e2[0] - d[0] * e2[2]
+    pz = d[0] * e2[1] - d[1] * e2[0]
+    det = e1[0] * px + e1[1] * py + e1[2] * pz
+    if det == 0.0:
+        return np.inf, -1.0, -1.0
+    inv = 1.0 / det
+    s = o - tri[0]
+    u = (s[0] * px + s[1] * py + s[2] * pz) * inv
+    qx = s[1] * e1[2] - s[2] * e1[1]
+    qy = s[2] * e1[0] - s[0] * e1[2]
+    qz = s[0] * e1[1] - s[1] * e1[0]
+    v = (d[0] * qx + d[1] * qy + d[2] * qz) * inv
+    t = (e2[0] * qx + e2[1] * qy + e2[2] * qz) * inv
+    return t, u, v
+
+
+@njit(cache=True, error_model="numpy")
+def _margin(u, v):
+    """Signed distance inside the triangle in barycentric units (>0 inside)."""
+    return min(u, min(v, 1.0 - u - v))
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _reference(tris, O, D, tmin, tmax, tol_t, pa, pb, out):
+    """For each disputed ray: closest strict hit t; and for answers pa/pb whether they hold.
+    out[i] = (t_strict, ok_a, ok_b)."""
+    for i in prange(O.shape[0]):
+        o = O[i]
+        d = D[i]
+        best = np.inf
+        for j in range(tris.shape[0]):
+            t, u, v = _mt64(tris[j], o, d)
+            # strict hits clearly inside the ray interval (ones within tol of t_min are
+            # neither required nor forbidden: the origin may sit on that surface)
+            if _margin(u, v) > BARY_TOL and t > tmin[i] + tol_t[i] and t < tmax[i] - tol_t[i]:
+                if t < best:
+                    best = t
+        out[i, 0] = best
+        for k in range(2):
+            p = pa[i] if k == 0 else pb[i]
+            if p < 0:
+                ok = best == np.inf
+            else:
+                t, u, v = _mt64(tris[p], o, d)
+                ok = _margin(u, v) >= -BARY_TOL and t >= tmin[i] - tol_t[i] and \
+                    t <= tmax[i] + tol_t[i] and not (best < t - tol_t[i])
+            out[i, 1 + k] = 1.0 if ok else 0.0
+
+
+def t_tolerance(O, D, t):
+    scale = np.abs(O).max(axis=1) / np.linalg.norm(D, axis=1)
+    return T_TOL_REL * (np.where(np.isfinite(t), np.abs(t), 0) + scale)
+
+
+def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
+    """Return (counts dict, labels (n,) int8: 0 agree, 1 tie, 2 mismatch). The float64
+    re-test uses the rays as both tracers saw them: rounded to float32."""
+    O = np.asarray(O, np.float32).astype(np.float64)
+    D = np.asarray(D, np.float32).astype(np.float64)
+    n = len(O)
+    tmin = np.broadcast_to(np.asarray(tmin, np.float64), (n,))
+    tmax = np.broadcast_to(np.asarray(tmax, np.float64), (n,))
+    ours_t = np.asarray(ours_t, np.float64)
+    ref_t = np.asarray(ref_t, np.float64)
+    tol = t_tolerance(O, D, np.where(ours_prim >= 0, ours_t, ref_t))
+    both_miss = (ours_prim < 0) & (ref_prim < 0)
+    with np.errstate(invalid="ignore"):
+        same = (ours_prim == ref_prim) & (ours_prim >= 0) & (np.abs(ours_t - ref_t) <= tol)
+    labels = np.where(both_miss | same, 0, 2).astype(np.int8)
+    disputed = np.flatnonzero(labels == 2)
+    if len(disputed):
+        t64 = np.ascontiguousarray(tris, np.float64)
+        out = np.empty((len(disputed), 3))
+        _reference(t64, np.ascontiguousarray(O[disputed]), np.ascontiguousarray(D[disputed]),
+                   np.ascontiguousarray(tmin[disputed]), np.ascontiguousarray(tmax[disputed]),
+                   np.ascontiguousarray(tol[disputed]),
+                   np.ascontiguousarray(ours_prim[disputed], np.int64),
+                   np.ascontiguousarray(ref_prim[disputed], np.int64), out)
+        ok = (out[:, 1] > 0) & (out[:, 2] > 0)
+        labels[disputed[ok]] = 1
+    counts = {"rays": int(n), "agree": int((labels == 0).sum()), "tie": int((labels == 1).sum()),
+              "mismatch": int((labels == 2).sum())}
+    return counts, labels
+
+
+def verify_rays(tracer, scene, tris, O, D, tmax=None):
+    """Trace (O, D) with our tracer and with Embree (tnear = 0), classify every ray.
+    Returns (counts, labels, ours Hits, embree (t, prim))."""
+    from .embree_ref import embree_intersect
+
+    h = tracer.intersect(O, D, 0.0, np.inf if tmax is None else tmax)
+    te, pe, *_ = embree_intersect(scene, O, D, tmax)
+    counts, labels = classify(tris, O, D, 0.0, np.inf if tmax is None else tmax,
+                              h.prim.astype(np.int64), h.t, pe, te)
+    return counts, labels, h, (te, pe)
+
+
+def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=0):
+    """Build (unless given), trace a ray set of ``kind`` and classify against Embree."""
+    import hwbvh
+    from . import raysets
+    from .api import Tracer
+    from .embree_ref import embree_scene
+
+    bvh = bvh or hwbvh.build(tris)
+    tracer = Tracer(bvh)
+    scene = embree_scene(vertices, faces)
+    tmax = None
+    if kind == "primary":
+        O, D = raysets.primary(tris, n)
+    elif kind == "random":
+        O, D = raysets.incoherent(tris, n, seed)
+    elif kind == "bounces":
+        O, D = raysets.bounces(tracer, tris, n, seed)
+    elif kind == "shadow":
+        O, D, tmax = raysets.shadow(tracer, tris, n)
+    else:
+        raise ValueError(f"unknown ray kind {kind!r}")
+    counts, labels, h, emb = verify_rays(tracer, scene, tris, O, D, tmax)
+    return counts, labels, (O, D, tmax), h, emb
