@@ -197,6 +197,8 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
     nthreads = get_num_threads()
     if task_prims is None:
         task_prims = max(config.TASK_MIN_PRIMS, n // (config.TASKS_PER_THREAD * nthreads))
+        if n <= config.SEQUENTIAL_MAX_PRIMS:
+            task_prims = n
     nchunks = max(1, 4 * nthreads)
 
     bb = np.empty((2, n, 6), dtype=np.float32)
@@ -205,11 +207,30 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
     bi[0] = np.arange(n, dtype=np.int32)
     out_ids = np.empty(n, dtype=np.int32)
 
+    rootbox = np.concatenate([boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)])
+    if n <= task_prims:
+        # small input: one subtree builder does it all (no parallel kernels to compile or run)
+        m = 2 * n
+        cbox = np.zeros((m, 6), dtype=np.float32)
+        cleft = np.full(m, -1, dtype=np.int32)
+        cright = np.full(m, -1, dtype=np.int32)
+        cstart = np.zeros(m, dtype=np.int32)
+        ccount = np.zeros(m, dtype=np.int32)
+        caxis = np.full(m, AXIS_LEAF, dtype=np.int8)
+        stats = np.zeros(4, dtype=np.int64)
+        build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis, 0, 0, n, 0,
+                      rootbox, 0, leaf_size, bins, stats)
+        return CanonicalTree(
+            box=cbox, left=cleft, right=cright, start=cstart, count=ccount, axis=caxis, root=0,
+            ids=out_ids, n_prims=n, leaf_size=leaf_size, bins=bins,
+            stats={"nodes": int(stats[0]), "leaves": int(stats[1]),
+                   "fallback_splits": int(stats[2]), "max_depth": int(stats[3]),
+                   "upper_phase_nodes": 0, "tasks": 1})
+
     # ---- upper levels: one node at a time, each data-parallel over chunks ----
     top = []            # [box, axis, start, count, left_ref, right_ref]; refs resolved below
     tasks = []          # (start, count, buf, box, depth)
     fallback = 0
-    rootbox = range_bounds_parallel(boxes, 0, n, nchunks)
     # stack entries: (start, count, buf, box, depth, parent_top_index, side)
     stack = [(0, n, 0, rootbox, 0, -1, 0)]
     while stack:

@@ -110,6 +110,64 @@ def cmd_verify(args):
                                           "mismatch_file"]))
 
 
+def cmd_render(args):
+    import time
+    from raytracer.render import make_tracer, render
+    from raytracer.output import write_exr, write_png
+    from scenes import compile_scene, load_scene
+
+    t_start = time.perf_counter()
+    d = load_scene(args.scene)
+    film = d.setdefault("film", {})
+    integ = d.setdefault("integrator", {"type": "whitted"})
+    for key, val, tgt in (("width", args.width, film), ("height", args.height, film),
+                          ("spp", args.spp, film), ("max_depth", args.max_depth, integ)):
+        if val is not None:
+            if val < 1:
+                raise InputError(f"--{key.replace('_', '-')}", f"must be at least 1, got {val}")
+            tgt[key] = val
+    scene = compile_scene(d)
+    out = args.output or os.path.join("renders", f"{scene.name}.exr")
+    if not out.lower().endswith(".exr"):
+        raise InputError("-o", f"{out}: the output must be an .exr file")
+    tracer, build_s, info = make_tracer(scene, args.builder, args.traversal)
+    verify = None
+    if args.verify:
+        if args.traversal == "embree":
+            raise InputError("--verify", "checks our traversal against Embree; use --traversal numba")
+        from traversal.embree_ref import embree_scene
+        verify = embree_scene(scene.vertices, scene.faces)
+    from tqdm import tqdm
+    bar = tqdm(total=scene.spp, desc=f"render {scene.name}", unit="spp", file=sys.stderr,
+               disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
+    t0 = time.perf_counter()
+    res = render(scene, tracer, seed=args.seed, verify=verify, progress=bar.update)
+    render_s = time.perf_counter() - t0
+    bar.close()
+    result = {"output": out, "scene": scene.name, "builder": args.builder, "traversal": args.traversal,
+              "triangles": int(len(scene.triangles)), "width": scene.width, "height": scene.height,
+              "spp": scene.spp, "max_depth": scene.max_depth,
+              "build_seconds": build_s, "render_seconds": render_s,
+              "time_to_image_seconds": build_s + render_s,
+              "simulated_build_seconds": None, "rays": res.stats["rays"],
+              "passes": res.stats["passes"]}
+    result.update({k: v for k, v in info.items() if k in ("nodes", "sah_cost")})
+    if "verify" in res.stats:
+        result["verify"] = res.stats["verify"]
+    meta = {"scene": scene.name, "builder": args.builder, "traversal": args.traversal,
+            "build_seconds": build_s, "render_seconds": render_s, "spp": scene.spp,
+            "max_depth": scene.max_depth}
+    meta.update({f"rays_{k}": v for k, v in res.stats["rays"].items()})
+    write_exr(out, res, meta, layers=not args.no_layers)
+    if args.png:
+        png = os.path.splitext(out)[0] + ".png"
+        write_png(png, res.image)
+        result["png"] = png
+    result["wall_seconds"] = time.perf_counter() - t_start
+    _emit(args, result, lambda r: _kv(r, ["output", "png", "scene", "triangles", "build_seconds",
+                                          "render_seconds", "time_to_image_seconds", "rays", "verify"]))
+
+
 def cmd_bench(args):
     from . import bench
     fn = {"build": bench.bench_build, "scale": bench.bench_scale}.get(args.what)
@@ -146,6 +204,23 @@ def make_parser():
     b.add_argument("--dump-handoff", metavar="F", help="records in upper-builder hand-off order")
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_build)
+
+    r = sub.add_parser("render", help="render a scene (Whitted) to EXR")
+    r.add_argument("scene", nargs="?", default="cornell",
+                   help="built-in scene (cornell, marbles, cloth, room), scene file, or mesh file")
+    r.add_argument("-o", "--output", help="EXR path (default renders/<scene>.exr)")
+    r.add_argument("--width", type=_positive)
+    r.add_argument("--height", type=_positive)
+    r.add_argument("--spp", type=_positive)
+    r.add_argument("--max-depth", type=_positive)
+    r.add_argument("--builder", choices=["hwbvh", "sweep", "embree"], default="hwbvh")
+    r.add_argument("--traversal", choices=["numba", "embree"], default="numba")
+    r.add_argument("--verify", action="store_true", help="check every ray against Embree")
+    r.add_argument("--png", action="store_true", help="also write a tone-mapped PNG preview")
+    r.add_argument("--no-layers", action="store_true", help="RGB only (no Z, N, prim.id)")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--json", action="store_true")
+    r.set_defaults(func=cmd_render)
 
     v = sub.add_parser("verify", help="trace rays with our units and with Embree; classify each")
     v.add_argument("scene", help="built-in scene name, scene file, or mesh file")

@@ -1,0 +1,7 @@
+"""scenes: scene dicts (Mitsuba style), built-in scenes generated in code, loaders (trimesh)."""
+from .builtin import BUILTIN
+from .loader import (CompiledScene, compile_scene, is_scene, load_scene, load_scene_geometry,
+                     mesh_scene, transform_scene)
+
+__all__ = ["BUILTIN", "CompiledScene", "compile_scene", "is_scene", "load_scene",
+           "load_scene_geometry", "mesh_scene", "transform_scene"]

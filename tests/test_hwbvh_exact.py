@@ -73,6 +73,8 @@ def test_matches_literal_reference(make, leaf, bins):
     ref, ref_fallback = naive_hwbvh(primitive_boxes(tris), leaf, bins)
     bvh, got = tree_of(tris, leaf_size=leaf, bins=bins, capacity=64)
     assert got == ref
+    _, got_parallel = tree_of(tris, leaf_size=leaf, bins=bins, capacity=64, task_prims=32)
+    assert got_parallel == ref
     assert bvh.meta["fallback_splits"] == ref_fallback
 
 
@@ -114,7 +116,7 @@ def test_fallback_is_counted():
 
 
 def test_same_tree_whatever_the_placement():
-    tris = random_soup(20_000, seed=5)
+    tris = random_soup(30_000, seed=5)
     base, ref = tree_of(tris, capacity=8192)
     seen_layouts = set()
     for kw in [dict(capacity=1 << 30), dict(capacity=4096, subtree_builders=2),
@@ -166,7 +168,9 @@ def _soup(n, seed, size, flat, quant):
 def test_property_invariants_and_exactness(tris, leaf, bins):
     ref, _ = naive_hwbvh(primitive_boxes(tris), leaf, bins) if len(tris) <= 120 else (None, 0)
     a, pa = tree_of(tris, leaf_size=leaf, bins=bins, capacity=1 << 30)
-    b, pb = tree_of(tris, leaf_size=leaf, bins=bins, capacity=7, subtree_builders=2, block_nodes=5)
+    # the data-parallel upper phase and parallel tasks (task_prims) must give the same tree
+    b, pb = tree_of(tris, leaf_size=leaf, bins=bins, capacity=7, subtree_builders=2, block_nodes=5,
+                    task_prims=16)
     assert pa == pb
     if ref is not None:
         assert pa == ref

@@ -61,3 +61,31 @@ def embree_occluded(scene, origins, dirs, tmax):
     d = np.ascontiguousarray(dirs, dtype=np.float32)
     dist = np.ascontiguousarray(np.broadcast_to(tmax, (len(o),)), dtype=np.float32)
     return scene.run(o, d, dists=dist, query="OCCLUDED") == 0
+
+
+class EmbreeTracer:
+    """The renderer's tracer interface on Embree (tnear is fixed at 0 in embreex, so a t_min
+    is applied by moving the origin along the ray)."""
+
+    def __init__(self, vertices, faces, robust=True):
+        self.scene = embree_scene(vertices, faces, robust)
+
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False):
+        from .api import Hits
+        o = np.asarray(origins, np.float64)
+        d = np.asarray(dirs, np.float64)
+        tmin = np.broadcast_to(np.asarray(tmin, np.float64), (len(o),))
+        if tmin.any():
+            o = o + d * tmin[:, None]
+        tm = None if np.all(np.isinf(tmax)) else np.asarray(tmax, np.float64) - tmin
+        t, prim, u, v, ng = embree_intersect(self.scene, o, d, tm)
+        return Hits(t=(t + tmin).astype(np.float32), prim=prim.astype(np.int32), u=u, v=v, ng=ng)
+
+    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
+        o = np.asarray(origins, np.float64)
+        d = np.asarray(dirs, np.float64)
+        tmin = np.broadcast_to(np.asarray(tmin, np.float64), (len(o),))
+        if tmin.any():
+            o = o + d * tmin[:, None]
+        tm = np.broadcast_to(np.asarray(tmax, np.float64), (len(o),)) - tmin
+        return embree_occluded(self.scene, o, d, np.minimum(tm, 3e38))

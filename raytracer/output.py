@@ -1,0 +1,89 @@
+"""EXR (OpenImageIO) and PNG preview output, written atomically: a temporary file in the
+target directory, renamed into place only when complete, so an interrupted render leaves no
+broken image."""
+import os
+import tempfile
+
+import numpy as np
+
+
+def _atomic(path, write):
+    path = os.fspath(path)
+    d = os.path.dirname(os.path.abspath(path))
+    os.makedirs(d, exist_ok=True)
+    ext = os.path.splitext(path)[1]
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=ext, dir=d)
+    os.close(fd)
+    try:
+        write(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_exr(path, result, metadata, layers=True):
+    """Float RGB, plus depth (Z), shading normal (N.X/N.Y/N.Z) and primitive id (prim.id, exact
+    in float32 below 2^24) when ``layers``; ``metadata`` goes into the header as hwrt:* keys."""
+    import OpenImageIO as oiio
+
+    H, W, _ = result.image.shape
+    chans = [result.image[..., 0], result.image[..., 1], result.image[..., 2]]
+    names = ["R", "G", "B"]
+    if layers:
+        chans += [result.depth, result.normal[..., 0], result.normal[..., 1], result.normal[..., 2],
+                  result.prim.astype(np.float32)]
+        names += ["Z", "N.X", "N.Y", "N.Z", "prim.id"]
+    pixels = np.ascontiguousarray(np.stack(chans, axis=-1), dtype=np.float32)
+
+    def write(tmp):
+        spec = oiio.ImageSpec(W, H, len(names), "float")
+        spec.channelnames = tuple(names)
+        spec.attribute("compression", "zip")
+        for k, v in metadata.items():
+            spec.attribute(f"hwrt:{k}", str(v) if not isinstance(v, (int, float)) else v)
+        out = oiio.ImageOutput.create(tmp)
+        if out is None or not out.open(tmp, spec) or not out.write_image(pixels):
+            msg = oiio.geterror() if out is None else out.geterror()
+            raise OSError(f"OpenImageIO could not write {path}: {msg}")
+        out.close()
+    _atomic(path, write)
+
+
+def tonemap(image):
+    """Clamp and sRGB-encode to 8 bits (for people who just want to look)."""
+    x = np.clip(image, 0.0, 1.0)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return (srgb * 255 + 0.5).astype(np.uint8)
+
+
+def write_png(path, image):
+    import OpenImageIO as oiio
+
+    px = np.ascontiguousarray(tonemap(image))
+    H, W, _ = px.shape
+
+    def write(tmp):
+        out = oiio.ImageOutput.create(tmp)
+        if out is None or not out.open(tmp, oiio.ImageSpec(W, H, 3, "uint8")) or not out.write_image(px):
+            raise OSError(f"OpenImageIO could not write {path}")
+        out.close()
+    _atomic(path, write)
+
+
+def read_exr(path):
+    """(pixels (h, w, c) float32, channel names, metadata dict of hwrt:* keys)."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(os.fspath(path))
+    if inp is None:
+        raise OSError(oiio.geterror())
+    spec = inp.spec()
+    px = inp.read_image("float")
+    meta = {a.name[5:]: a.value for a in spec.extra_attribs if a.name.startswith("hwrt:")}
+    inp.close()
+    return px, list(spec.channelnames), meta

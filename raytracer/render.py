@@ -1,0 +1,275 @@
+"""Whitted-style ray tracing (Whitted 1980; thesis 2.2.2) on the simulated hardware's trees.
+
+Rays travel as arrays, one wavefront per bounce; the Numba traversal (or Embree, for
+comparison) does every intersection and every shadow test. Shading per hit:
+
+    L = kd * ambient + sum_lights V * E * (kd/pi * cos + ks * (s+8)/(8 pi) * cos_h^s * cos)
+        + kr * L(reflected)                                   (mirrors, plastics)
+    L = F * L(reflected) + (1 - F) * L(refracted)             (dielectrics, exact Fresnel)
+
+with E = I / r^2 for a point light of intensity I and E = irradiance for a directional light,
+V the hard-shadow visibility (one ``occluded`` ray per light), Blinn-Phong highlights, total
+internal reflection, a recursion depth limit and a contribution cut-off. Dielectrics block
+shadow rays (classic Whitted). Supersampling uses stratified jitter from a seeded generator,
+so a render is reproducible.
+
+Only the passes a scene calls for exist: no shadow rays without lights, no reflection rays
+without a reflective material, no refraction rays without a dielectric, and no bounce past the
+first when nothing reflects or refracts.
+"""
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .camera import primary_rays
+from .offset import offset_origins
+
+
+@dataclass
+class RenderResult:
+    image: np.ndarray                 # (h, w, 3) float32 radiance
+    depth: np.ndarray                 # (h, w) float32 first-hit distance (inf: miss)
+    normal: np.ndarray                # (h, w, 3) float32 first-hit shading normal
+    prim: np.ndarray                  # (h, w) int32 first-hit primitive (-1: miss)
+    stats: dict = field(default_factory=dict)
+
+
+def fresnel_dielectric(cos_i, eta_i, eta_t):
+    """Unpolarised Fresnel reflectance; cos_i >= 0. Returns (F, cos_t, tir mask)."""
+    sin_t2 = (eta_i / eta_t) ** 2 * np.maximum(0.0, 1.0 - cos_i * cos_i)
+    tir = sin_t2 >= 1.0
+    cos_t = np.sqrt(np.maximum(0.0, 1.0 - sin_t2))
+    rs = (eta_i * cos_i - eta_t * cos_t) / (eta_i * cos_i + eta_t * cos_t)
+    rp = (eta_t * cos_i - eta_i * cos_t) / (eta_t * cos_i + eta_i * cos_t)
+    F = np.where(tir, 1.0, 0.5 * (rs * rs + rp * rp))
+    return F, cos_t, tir
+
+
+def refract(d, n, eta, cos_i, cos_t):
+    """Snell's law: d (k, 3) incident unit directions, n (k, 3) unit normals facing the incident
+    side, eta = n1/n2, cos_i, cos_t: (k,)."""
+    return eta[:, None] * d + (eta * cos_i - cos_t)[:, None] * n
+
+
+def _accumulate(img, pix, values):
+    """img[pix] += values, with repeated pixels (np.add.at is an order slower than bincount)."""
+    n = img.shape[0]
+    for c in range(3):
+        img[:, c] += np.bincount(pix, weights=values[:, c], minlength=n)
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _unit(v):
+    return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
+
+
+def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16):
+    """(tracer, build_seconds, build_info). Builders: hwbvh, sweep, embree."""
+    from hwbvh.errors import InputError
+
+    if builder == "embree":
+        if traversal != "embree":
+            raise InputError("--traversal", "Embree's tree can only be traversed by Embree: "
+                             "use --builder embree with --traversal embree")
+        from traversal.embree_ref import EmbreeTracer
+        t = time.perf_counter()
+        tr = EmbreeTracer(scene.vertices, scene.faces)
+        return tr, time.perf_counter() - t, {"builder": "embree"}
+    import hwbvh
+    from traversal import Tracer
+    t = time.perf_counter()
+    bvh = hwbvh.build(scene.triangles, builder=builder, leaf_size=leaf_size, bins=bins)
+    secs = time.perf_counter() - t
+    info = {"builder": builder, "nodes": bvh.meta["nodes"], "sah_cost": bvh.meta["sah_cost"],
+            "build_seconds_core": bvh.meta["build_seconds"]}
+    if traversal == "numba":
+        return Tracer(bvh), secs, info
+    if traversal == "embree":
+        raise InputError("--traversal", "Embree traverses its own tree only: use "
+                         "--builder embree --traversal embree, or --traversal numba")
+    raise InputError("--traversal", f"unknown traversal {traversal!r}")
+
+
+def scene_passes(scene):
+    used = np.unique(scene.material)
+    reflective = bool((scene.kr[used].max(axis=1) > 0).any() or (scene.ior[used] > 0).any())
+    refractive = bool((scene.ior[used] > 0).any())
+    shades = bool(((scene.kd[used].max(axis=1) > 0) | (scene.ks[used] > 0)).any())
+    return {"shadow": bool(scene.lights) and shades, "reflection": reflective,
+            "refraction": refractive,
+            "depth": scene.max_depth if (reflective or refractive) else 1}
+
+
+def render(scene, tracer, seed=0, verify=None, progress=None):
+    """Render a CompiledScene with ``tracer``. ``verify``: an Embree scene to check every ray
+    against (counts go to stats['verify']). ``progress``: a callable(n) per finished pass."""
+    from traversal.verify import classify
+    from traversal.embree_ref import embree_intersect
+
+    W, H, spp = scene.width, scene.height, scene.spp
+    npix = W * H
+    passes = scene_passes(scene)
+    img = np.zeros((npix, 3))
+    depth_aov = np.full(npix, np.inf, np.float32)
+    normal_aov = np.zeros((npix, 3), np.float32)
+    prim_aov = np.full(npix, -1, np.int32)
+    rays = {"primary": 0, "shadow": 0, "reflection": 0, "refraction": 0}
+    ver = {"rays": 0, "agree": 0, "tie": 0, "mismatch": 0}
+    tris64 = scene.triangles.astype(np.float64)
+    tri_mag = np.abs(scene.triangles).reshape(-1, 9).max(axis=1).astype(np.float64)
+    e1 = tris64[:, 1] - tris64[:, 0]
+    e2 = tris64[:, 2] - tris64[:, 0]
+    face_n = _unit(np.cross(e1, e2))
+    ambient = np.asarray(scene.ambient, np.float64)
+    cam = scene.camera
+
+    def trace(o, d, kind, tmax=None):
+        if kind == "shadow":
+            blocked = tracer.occluded(o, d, 0.0, tmax)
+            if verify is not None:
+                h = tracer.intersect(o, d, 0.0, tmax) if hasattr(tracer, "depth") else None
+                if h is not None:
+                    te, pe, *_ = embree_intersect(verify, o, d, tmax)
+                    c, _ = classify(scene.triangles, o, d, 0.0, tmax, h.prim.astype(np.int64), h.t, pe, te)
+                    for k in ver:
+                        ver[k] += c[k]
+            return blocked
+        h = tracer.intersect(o, d)
+        if verify is not None:
+            te, pe, *_ = embree_intersect(verify, o, d)
+            c, _ = classify(scene.triangles, o, d, 0.0, np.inf, h.prim.astype(np.int64), h.t, pe, te)
+            for k in ver:
+                ver[k] += c[k]
+        return h
+
+    gx = int(np.ceil(np.sqrt(spp)))
+    gy = int(np.ceil(spp / gx))
+    for s in range(spp):
+        rng = np.random.default_rng([seed, s])
+        cx, cy = s % gx, s // gx
+        jit = np.stack([(cx + rng.random(npix)) / gx - 0.5, (cy + rng.random(npix)) / gy - 0.5], 1)
+        O, D = primary_rays(cam["eye"], cam["target"], cam["up"], cam["fov"], W, H, jit)
+        wgt = np.ones((npix, 3))
+        pix = np.arange(npix)
+        kind = "primary"
+        for bounce in range(passes["depth"]):
+            if len(O) == 0:
+                break
+            if kind == "primary":
+                rays["primary"] += len(O)
+            h = trace(O, D, "closest")
+            hit = h.prim >= 0
+            # -- misses see the background --
+            miss = ~hit
+            if miss.any():
+                _accumulate(img, pix[miss], wgt[miss] * scene.background)
+            O, D, wgt, pix = O[hit], D[hit], wgt[hit], pix[hit]
+            prim = h.prim[hit].astype(np.int64)
+            t = h.t[hit].astype(np.float64)
+            u = h.u[hit].astype(np.float64)[:, None]
+            v = h.v[hit].astype(np.float64)[:, None]
+            P = O + D * t[:, None]
+            ng = face_n[prim]
+            nsh = scene.normals[prim].astype(np.float64)
+            ns = _unit((1 - u - v) * nsh[:, 0] + u * nsh[:, 1] + v * nsh[:, 2])
+            if bounce == 0 and s == 0:
+                depth_aov[pix] = t
+                normal_aov[pix] = ns
+                prim_aov[pix] = prim
+            mat = scene.material[prim]
+            ior = scene.ior[mat]
+            diel = ior > 0
+            # facing: normals toward the incoming ray (two-sided surfaces)
+            facing = np.where(_dot(ng, D)[:, None] > 0, -1.0, 1.0)
+            ngf = ng * facing
+            nsf = ns * np.sign(_dot(ns, ngf))[:, None]
+            nsf = np.where(np.isfinite(nsf) & (np.abs(nsf).sum(1, keepdims=True) > 0), nsf, ngf)
+            # -- local shading: ambient + direct light with hard shadows --
+            kd = scene.kd[mat]
+            local = kd * ambient
+            if passes["shadow"]:
+                ks = scene.ks[mat][:, None]
+                shin = scene.shininess[mat]
+                V = -D
+                for L in scene.lights:
+                    if L["type"] == "point":
+                        to = L["position"] - P
+                        dist = np.linalg.norm(to, axis=1)
+                        ldir = to / np.maximum(dist, 1e-300)[:, None]
+                        E = L["intensity"] / np.maximum(dist * dist, 1e-300)[:, None]
+                    else:
+                        ldir = np.broadcast_to(-L["direction"], P.shape)
+                        dist = np.full(len(P), np.inf)
+                        E = np.broadcast_to(L["irradiance"], P.shape)
+                    cos = _dot(nsf, ldir)
+                    lit = (cos > 0) & (_dot(ngf, ldir) > 0) & ~diel
+                    if not lit.any():
+                        continue
+                    idx = np.flatnonzero(lit)
+                    org = offset_origins(P[idx], ngf[idx], ldir[idx], tri_mag[prim[idx]])
+                    tm = np.linalg.norm(L["position"] - org, axis=1) if L["type"] == "point" \
+                        else np.full(len(idx), np.inf)
+                    rays["shadow"] += len(idx)
+                    blocked = trace(org, ldir[idx], "shadow", tm)
+                    vis = idx[~blocked]
+                    c = cos[vis][:, None]
+                    hv = _unit(ldir[vis] + V[vis])
+                    spec = ks[vis] * ((shin[vis] + 8) / (8 * np.pi))[:, None] * \
+                        np.maximum(_dot(nsf[vis], hv), 0)[:, None] ** shin[vis][:, None]
+                    local[vis] += E[vis] * c * (kd[vis] / np.pi + spec)
+            _accumulate(img, pix, wgt * local)
+            if bounce + 1 >= passes["depth"]:
+                break
+            # -- secondary rays: mirror reflection, dielectric reflection/refraction --
+            newO, newD, newW, newP, newK = [], [], [], [], []
+            refl_d = D - 2 * _dot(D, nsf)[:, None] * nsf
+            kr = scene.kr[mat]
+            m = (kr.max(axis=1) > 0) & ~diel
+            if m.any():
+                w = wgt[m] * kr[m]
+                newO.append(offset_origins(P[m], ngf[m], refl_d[m], tri_mag[prim[m]]))
+                newD.append(refl_d[m]); newW.append(w); newP.append(pix[m])
+                newK.append(np.zeros(m.sum(), np.int8))
+            if diel.any():
+                di = np.flatnonzero(diel)
+                entering = _dot(D[di], ns[di]) < 0           # ns points out of the object
+                n_in = np.where(entering[:, None], ns[di], -ns[di])
+                eta_i = np.where(entering, 1.0, ior[di])
+                eta_t = np.where(entering, ior[di], 1.0)
+                cos_i = np.clip(-_dot(D[di], n_in), 0.0, 1.0)
+                F, cos_t, tir = fresnel_dielectric(cos_i, eta_i, eta_t)
+                rd = D[di] - 2 * _dot(D[di], n_in)[:, None] * n_in
+                newO.append(offset_origins(P[di], ngf[di], rd, tri_mag[prim[di]]))
+                newD.append(rd); newW.append(wgt[di] * F[:, None]); newP.append(pix[di])
+                newK.append(np.zeros(len(di), np.int8))
+                ok = ~tir
+                if ok.any():
+                    eta = (eta_i / eta_t)[ok]
+                    td = _unit(refract(D[di][ok], n_in[ok], eta, cos_i[ok], cos_t[ok]))
+                    newO.append(offset_origins(P[di][ok], ngf[di][ok], td, tri_mag[prim[di][ok]]))
+                    newD.append(td); newW.append(wgt[di][ok] * (1 - F[ok])[:, None]); newP.append(pix[di][ok])
+                    newK.append(np.ones(ok.sum(), np.int8))
+            if not newO:
+                break
+            O = np.concatenate(newO)
+            D = np.concatenate(newD)
+            wgt = np.concatenate(newW)
+            pix = np.concatenate(newP)
+            K = np.concatenate(newK)
+            keep = wgt.max(axis=1) >= scene.cutoff           # contribution cut-off
+            O, D, wgt, pix, K = O[keep], D[keep], wgt[keep], pix[keep], K[keep]
+            rays["reflection"] += int((K == 0).sum())
+            rays["refraction"] += int((K == 1).sum())
+            kind = "secondary"
+        if progress:
+            progress(1)
+    image = (img / spp).astype(np.float32).reshape(H, W, 3)
+    stats = {"rays": rays, "passes": passes}
+    if verify is not None:
+        stats["verify"] = ver
+    return RenderResult(image=image, depth=depth_aov.reshape(H, W),
+                        normal=normal_aov.reshape(H, W, 3), prim=prim_aov.reshape(H, W), stats=stats)

@@ -1,0 +1,367 @@
+"""Scene dicts in, arrays out.
+
+``load_scene(spec)`` accepts a built-in name, a JSON/TOML scene file (the same dict on disk) or
+a mesh file (framed automatically, one point light, a plain diffuse material). ``compile_scene``
+turns the dict into triangle, normal, material and light arrays for the renderer. Malformed
+scene files raise :class:`InputError` naming the file, the key and the problem.
+"""
+import json
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from hwbvh.errors import InputError
+from hwbvh.primitives import MESH_EXTENSIONS, as_triangles, load_mesh_arrays
+from .builtin import BUILTIN
+from .meshes import grid_sheet, uv_sphere
+
+SCENE_EXTENSIONS = (".json", ".toml")
+MATERIAL_TYPES = ("diffuse", "mirror", "dielectric", "plastic")
+SHAPE_TYPES = ("mesh", "quad", "box", "sphere", "sheet", "triangles")
+
+
+def is_scene(spec):
+    return spec in BUILTIN or str(spec).lower().endswith(SCENE_EXTENSIONS)
+
+
+def load_scene(spec, **overrides):
+    """A scene dict from a built-in name, a scene file or a mesh file."""
+    spec = os.fspath(spec)
+    if spec in BUILTIN:
+        d = BUILTIN[spec](**overrides)
+        d.setdefault("_source", spec)
+        return d
+    if not os.path.exists(spec):
+        raise InputError(spec, "no such scene or file (built-in scenes: " + ", ".join(BUILTIN) + ")")
+    low = spec.lower()
+    if low.endswith(".json"):
+        try:
+            with open(spec) as f:
+                d = json.load(f)
+        except json.JSONDecodeError as e:
+            raise InputError(spec, f"not valid JSON ({e.msg} at line {e.lineno})") from None
+    elif low.endswith(".toml"):
+        import tomllib
+        try:
+            with open(spec, "rb") as f:
+                d = tomllib.load(f)
+        except tomllib.TOMLDecodeError as e:
+            raise InputError(spec, f"not valid TOML ({e})") from None
+    elif low.endswith(MESH_EXTENSIONS):
+        return mesh_scene(spec)
+    else:
+        raise InputError(spec, "unknown file type (scene: .json/.toml; mesh: " +
+                         "/".join(MESH_EXTENSIONS) + ")")
+    if not isinstance(d, dict):
+        raise InputError(spec, "a scene file must hold an object at the top level")
+    d["_source"] = spec
+    d.setdefault("name", os.path.splitext(os.path.basename(spec))[0])
+    return d
+
+
+def mesh_scene(path):
+    """A mesh alone: default camera framing it, a point light, a plain diffuse material."""
+    from raytracer.camera import frame_bounds
+
+    verts, faces = load_mesh_arrays(path)
+    used = verts[np.unique(faces)]
+    lo, hi = used.min(0), used.max(0)
+    eye, target, up = frame_bounds(lo, hi, 40.0)
+    diag = float(np.linalg.norm(hi - lo)) or 1.0
+    light = (lo + hi) / 2 + np.array([0.4, 1.0, 0.8]) * diag
+    dist2 = float(np.sum((light - (lo + hi) / 2) ** 2))
+    return {
+        "type": "scene", "name": os.path.splitext(os.path.basename(path))[0], "_source": path,
+        "camera": {"type": "perspective", "eye": eye.tolist(), "target": target.tolist(),
+                   "up": up.tolist(), "fov": 40.0},
+        "film": {"width": 640, "height": 480, "spp": 1},
+        "integrator": {"type": "whitted", "max_depth": 5, "ambient": [0.08] * 3},
+        "background": [0.15, 0.15, 0.18],
+        "lights": [{"type": "point", "position": light.tolist(), "intensity": [2.5 * dist2] * 3}],
+        "materials": {"default": {"type": "diffuse", "reflectance": [0.75, 0.72, 0.68]}},
+        "shapes": [{"type": "mesh", "filename": os.path.abspath(path), "material": "default",
+                    "smooth": False}],
+    }
+
+
+def transform_scene(d, scale=1.0, translate=(0.0, 0.0, 0.0)):
+    """The same scene scaled and translated as a whole (point intensities scale by s^2, so the
+    irradiance, and so the image, stays the same)."""
+    import copy
+
+    s = float(scale)
+    t = np.asarray(translate, np.float64)
+    d = copy.deepcopy(d)
+    P = lambda p: (np.asarray(p, np.float64) * s + t).tolist()
+    d["camera"]["eye"] = P(d["camera"]["eye"])
+    d["camera"]["target"] = P(d["camera"]["target"])
+    for L in d.get("lights", []):
+        if L["type"] == "point":
+            L["position"] = P(L["position"])
+            L["intensity"] = (np.asarray(L["intensity"], float) * s * s).tolist()
+    for sh in d["shapes"]:
+        sh["world"] = {"scale": s, "translate": t.tolist()}
+    return d
+
+
+# --------------------------------------------------------------------------------------
+@dataclass
+class CompiledScene:
+    name: str
+    triangles: np.ndarray     # (n, 3, 3) float32
+    normals: np.ndarray       # (n, 3, 3) float32 shading normals per vertex
+    material: np.ndarray      # (n,) int32
+    mat_names: list
+    kd: np.ndarray            # (m, 3) diffuse reflectance
+    ks: np.ndarray            # (m,) Blinn-Phong highlight weight
+    shininess: np.ndarray     # (m,)
+    kr: np.ndarray            # (m, 3) mirror reflectance
+    ior: np.ndarray           # (m,) index of refraction, 0 = not a dielectric
+    lights: list              # dicts: type, position/direction, intensity/irradiance (np arrays)
+    camera: dict
+    width: int
+    height: int
+    spp: int
+    max_depth: int
+    ambient: np.ndarray
+    background: np.ndarray
+    cutoff: float
+    vertices: np.ndarray = None  # indexed form for Embree: (v, 3) float32
+    faces: np.ndarray = None     # (n, 3) int32
+
+
+class _Ctx:
+    def __init__(self, source):
+        self.source = source
+
+    def fail(self, key, problem):
+        raise InputError(self.source, f"key '{key}': {problem}")
+
+    def vec(self, obj, key, path, n=3, default=None):
+        if key not in obj:
+            if default is None:
+                self.fail(f"{path}.{key}", "missing")
+            return np.asarray(default, np.float64)
+        v = obj[key]
+        if isinstance(v, (int, float)) and n == 3:
+            v = [v, v, v]
+        try:
+            a = np.asarray(v, np.float64)
+        except (TypeError, ValueError):
+            self.fail(f"{path}.{key}", f"expected {n} numbers, got {v!r}")
+        if a.shape != (n,) or not np.isfinite(a).all():
+            self.fail(f"{path}.{key}", f"expected {n} finite numbers, got {v!r}")
+        return a
+
+    def num(self, obj, key, path, default=None, lo=None, hi=None, integer=False):
+        if key not in obj:
+            if default is None:
+                self.fail(f"{path}.{key}", "missing")
+            return default
+        v = obj[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or (integer and int(v) != v):
+            self.fail(f"{path}.{key}", f"expected {'an integer' if integer else 'a number'}, got {v!r}")
+        if not np.isfinite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
+            self.fail(f"{path}.{key}", f"{v!r} is out of range [{lo}, {hi}]")
+        return int(v) if integer else float(v)
+
+
+def _flat_normals(tris):
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0)
+    return np.repeat(n[:, None, :], 3, axis=1)
+
+
+def _quad(c):
+    c = np.asarray(c, np.float64)
+    return np.stack([c[[0, 1, 2]], c[[0, 2, 3]]])
+
+
+def _box(lo, hi, rot_y):
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    x0, y0, z0 = lo
+    x1, y1, z1 = hi
+    P = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
+                  [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]])
+    quads = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 4, 7, 3], [1, 2, 6, 5], [0, 1, 5, 4], [3, 7, 6, 2]]
+    if rot_y:
+        c = (lo + hi) / 2
+        a = np.radians(rot_y)
+        R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+        P = (P - c) @ R.T + c
+    return np.concatenate([_quad(P[q]) for q in quads])
+
+
+def _shape(ctx, sh, i, scene_dir):
+    path = f"shapes[{i}]"
+    if not isinstance(sh, dict):
+        ctx.fail(path, "expected an object")
+    typ = sh.get("type")
+    if typ not in SHAPE_TYPES:
+        ctx.fail(f"{path}.type", f"unknown shape type {typ!r} (choose from {', '.join(SHAPE_TYPES)})")
+    if typ == "quad":
+        c = sh.get("corners")
+        try:
+            c = np.asarray(c, np.float64)
+        except (TypeError, ValueError):
+            c = None
+        if c is None or c.shape != (4, 3) or not np.isfinite(c).all():
+            ctx.fail(f"{path}.corners", "expected 4 corners of 3 finite numbers")
+        tris = _quad(c)
+        normals = _flat_normals(tris)
+    elif typ == "box":
+        lo, hi = ctx.vec(sh, "min", path), ctx.vec(sh, "max", path)
+        if not (lo <= hi).all():
+            ctx.fail(f"{path}.min", "min must not exceed max")
+        tris = _box(lo, hi, ctx.num(sh, "rotate_y", path, default=0.0))
+        normals = _flat_normals(tris)
+    elif typ == "sphere":
+        c = ctx.vec(sh, "center", path)
+        r = ctx.num(sh, "radius", path, lo=1e-30)
+        sub = sh.get("subdiv", [32, 64])
+        if not (isinstance(sub, (list, tuple)) and len(sub) == 2 and all(isinstance(x, int) and x >= 3 for x in sub)):
+            ctx.fail(f"{path}.subdiv", f"expected [n_lat, n_lon] integers >= 3, got {sub!r}")
+        V, F = uv_sphere(sub[0], sub[1])
+        tris = V[F] * r + c
+        normals = V[F]                                   # radial, outward
+    elif typ == "sheet":
+        res = sh.get("resolution", [64, 64])
+        if not (isinstance(res, (list, tuple)) and len(res) == 2 and all(isinstance(x, int) and x >= 1 for x in res)):
+            ctx.fail(f"{path}.resolution", f"expected [nx, ny] positive integers, got {res!r}")
+        tris = grid_sheet(res[0], res[1], size=ctx.num(sh, "size", path, default=2.0, lo=0),
+                          wave=ctx.num(sh, "wave", path, default=0.15)).astype(np.float64)
+        tris[:, :, 1] += ctx.num(sh, "height", path, default=0.0)
+        normals = _flat_normals(tris)
+    elif typ == "triangles":
+        try:
+            tris = np.asarray(sh.get("data"), np.float64).reshape(-1, 3, 3)
+        except (TypeError, ValueError):
+            ctx.fail(f"{path}.data", "expected a list of triangles (3 points of 3 numbers)")
+        normals = _flat_normals(tris)
+    else:  # mesh
+        fn = sh.get("filename")
+        if not isinstance(fn, str):
+            ctx.fail(f"{path}.filename", "missing or not a string")
+        full = fn if os.path.isabs(fn) else os.path.join(scene_dir, fn)
+        verts, faces = load_mesh_arrays(full)
+        tris = verts[faces]
+        if sh.get("smooth", False):
+            import trimesh
+            m = trimesh.Trimesh(verts, faces, process=False)
+            normals = np.asarray(m.vertex_normals)[faces]
+        else:
+            normals = _flat_normals(tris)
+        tf = sh.get("transform", {})
+        if not isinstance(tf, dict):
+            ctx.fail(f"{path}.transform", "expected an object with scale/rotate_y/translate")
+        if tf:
+            s = ctx.vec(tf, "scale", f"{path}.transform", default=[1, 1, 1])
+            a = np.radians(ctx.num(tf, "rotate_y", f"{path}.transform", default=0.0))
+            R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+            t = ctx.vec(tf, "translate", f"{path}.transform", default=[0, 0, 0])
+            tris = (tris * s) @ R.T + t
+            normals = (normals / np.where(s == 0, 1, s)) @ R.T
+            normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-30)
+    w = sh.get("world")
+    if w:
+        tris = tris * float(w["scale"]) + np.asarray(w["translate"], np.float64)
+        if float(w["scale"]) < 0:
+            normals = -normals
+    return tris, normals
+
+
+def compile_scene(d, source=None):
+    """Validate a scene dict and turn it into arrays (see :class:`CompiledScene`)."""
+    source = source or d.get("_source", "<scene>")
+    ctx = _Ctx(source)
+    for key in ("camera", "shapes", "materials"):
+        if key not in d:
+            ctx.fail(key, "missing")
+    if d.get("type", "scene") != "scene":
+        ctx.fail("type", f"expected 'scene', got {d.get('type')!r}")
+    mats = d["materials"]
+    if not isinstance(mats, dict) or not mats:
+        ctx.fail("materials", "expected a non-empty object of named materials")
+    names = list(mats)
+    kd = np.zeros((len(names), 3)); ks = np.zeros(len(names)); sh_ = np.full(len(names), 32.0)
+    kr = np.zeros((len(names), 3)); ior = np.zeros(len(names))
+    for k, name in enumerate(names):
+        m = mats[name]
+        p = f"materials.{name}"
+        if not isinstance(m, dict) or m.get("type") not in MATERIAL_TYPES:
+            ctx.fail(f"{p}.type", f"unknown material type {m.get('type') if isinstance(m, dict) else m!r} "
+                                  f"(choose from {', '.join(MATERIAL_TYPES)})")
+        t = m["type"]
+        if t in ("diffuse", "plastic"):
+            kd[k] = ctx.vec(m, "reflectance", p, default=[0.7, 0.7, 0.7])
+            ks[k] = ctx.num(m, "specular", p, default=0.0 if t == "diffuse" else 0.3, lo=0, hi=1)
+            sh_[k] = ctx.num(m, "shininess", p, default=32.0, lo=1)
+            kr[k] = ctx.vec(m, "mirror", p, default=[0, 0, 0] if t == "diffuse" else [0.04] * 3)
+        elif t == "mirror":
+            kr[k] = ctx.vec(m, "reflectance", p, default=[0.9, 0.9, 0.9])
+        else:
+            ior[k] = ctx.num(m, "ior", p, default=1.5, lo=1.0, hi=4.0)
+            if ior[k] == 1.0:
+                ior[k] = 1.0 + 1e-6
+        if (kd[k] < 0).any() or (kd[k] > 1).any() or (kr[k] < 0).any() or (kr[k] > 1).any():
+            ctx.fail(p, "reflectances must lie in [0, 1]")
+    shapes = d["shapes"]
+    if not isinstance(shapes, list) or not shapes:
+        ctx.fail("shapes", "expected a non-empty list")
+    scene_dir = os.path.dirname(os.path.abspath(source)) if os.path.exists(str(source)) else os.getcwd()
+    all_t, all_n, all_m = [], [], []
+    for i, sh in enumerate(shapes):
+        tris, normals = _shape(ctx, sh, i, scene_dir)
+        mname = sh.get("material")
+        if mname not in mats:
+            ctx.fail(f"shapes[{i}].material", f"unknown material {mname!r} (defined: {', '.join(names)})")
+        all_t.append(tris)
+        all_n.append(normals)
+        all_m.append(np.full(len(tris), names.index(mname), np.int32))
+    tris = as_triangles(np.concatenate(all_t), source=source)
+    cam = d["camera"]
+    if not isinstance(cam, dict):
+        ctx.fail("camera", "expected an object")
+    camera = {"eye": ctx.vec(cam, "eye", "camera"), "target": ctx.vec(cam, "target", "camera"),
+              "up": ctx.vec(cam, "up", "camera", default=[0, 1, 0]),
+              "fov": ctx.num(cam, "fov", "camera", default=40.0, lo=1e-3, hi=179.0)}
+    if np.allclose(camera["eye"], camera["target"]):
+        ctx.fail("camera.target", "must differ from camera.eye")
+    film = d.get("film", {})
+    integ = d.get("integrator", {})
+    lights = []
+    for i, L in enumerate(d.get("lights", [])):
+        p = f"lights[{i}]"
+        if not isinstance(L, dict) or L.get("type") not in ("point", "directional"):
+            ctx.fail(f"{p}.type", "expected 'point' or 'directional'")
+        if L["type"] == "point":
+            lights.append({"type": "point", "position": ctx.vec(L, "position", p),
+                           "intensity": ctx.vec(L, "intensity", p)})
+        else:
+            dv = ctx.vec(L, "direction", p)
+            if not np.linalg.norm(dv) > 0:
+                ctx.fail(f"{p}.direction", "must not be zero")
+            lights.append({"type": "directional", "direction": dv / np.linalg.norm(dv),
+                           "irradiance": ctx.vec(L, "irradiance", p)})
+    V = tris.reshape(-1, 3)
+    return CompiledScene(
+        name=str(d.get("name", "scene")), triangles=tris,
+        normals=np.concatenate(all_n).astype(np.float32), material=np.concatenate(all_m),
+        mat_names=names, kd=kd, ks=ks, shininess=sh_, kr=kr, ior=ior, lights=lights,
+        camera=camera,
+        width=ctx.num(film, "width", "film", default=640, lo=1, hi=1 << 15, integer=True),
+        height=ctx.num(film, "height", "film", default=480, lo=1, hi=1 << 15, integer=True),
+        spp=ctx.num(film, "spp", "film", default=1, lo=1, hi=4096, integer=True),
+        max_depth=ctx.num(integ, "max_depth", "integrator", default=5, lo=1, hi=64, integer=True),
+        ambient=ctx.vec(integ, "ambient", "integrator", default=[0.03] * 3),
+        background=ctx.vec(d, "background", "scene", default=[0, 0, 0]),
+        cutoff=ctx.num(integ, "cutoff", "integrator", default=1e-3, lo=0, hi=1),
+        vertices=V, faces=np.arange(len(V), dtype=np.int32).reshape(-1, 3))
+
+
+def load_scene_geometry(spec):
+    """(name, triangles, vertices, faces) of a scene, for verification."""
+    c = compile_scene(load_scene(spec))
+    return c.name, c.triangles, c.vertices, c.faces
