@@ -151,7 +151,10 @@ def render(scene, tracer, seed=0, verify=None, progress=None):
     for s in range(spp):
         rng = np.random.default_rng([seed, s])
         cx, cy = s % gx, s // gx
-        jit = np.stack([(cx + rng.random(npix)) / gx - 0.5, (cy + rng.random(npix)) / gy - 0.5], 1)
+        if scene.jitter:
+            jit = np.stack([(cx + rng.random(npix)) / gx - 0.5, (cy + rng.random(npix)) / gy - 0.5], 1)
+        else:
+            jit = None
         O, D = primary_rays(cam["eye"], cam["target"], cam["up"], cam["fov"], W, H, jit)
         wgt = np.ones((npix, 3))
         pix = np.arange(npix)

@@ -127,6 +127,7 @@ class CompiledScene:
     ambient: np.ndarray
     background: np.ndarray
     cutoff: float
+    jitter: bool = True
     vertices: np.ndarray = None  # indexed form for Embree: (v, 3) float32
     faces: np.ndarray = None     # (n, 3) int32
 
@@ -358,6 +359,7 @@ def compile_scene(d, source=None):
         ambient=ctx.vec(integ, "ambient", "integrator", default=[0.03] * 3),
         background=ctx.vec(d, "background", "scene", default=[0, 0, 0]),
         cutoff=ctx.num(integ, "cutoff", "integrator", default=1e-3, lo=0, hi=1),
+        jitter=bool(film.get("jitter", True)),
         vertices=V, faces=np.arange(len(V), dtype=np.int32).reshape(-1, 3))
 
 
