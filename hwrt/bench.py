@@ -102,6 +102,21 @@ def human(what):
                 lines.append(f"{m['mesh']:<18}{m['triangles']:>10}{m['hwbvh_seconds']*1e3:>11.1f}"
                              f"{m['embree_seconds']*1e3:>11.1f}{m['ratio']:>8.2f}{m['sah_cost']:>9.2f}")
             return "\n".join(lines)
+        if what == "render":
+            lines = [f"{'path':<16}{'build s':>9}{'render s':>10}{'total s':>9}"]
+            for m in r["rows"]:
+                lines.append(f"{m['builder'] + '+' + m['traversal']:<16}{m['build_seconds']:>9.3f}"
+                             f"{m['render_seconds']:>10.3f}{m['total_seconds']:>9.3f}")
+            lines.append(f"ratio (ours / embree): {r['ratio']:.2f}")
+            return "\n".join(lines)
+        if what == "trace":
+            lines = [f"{'mesh':<14}{'set':<12}{'rays':>9}{'ours Mr/s':>11}{'embreex':>9}{'ratio':>7}{'open3d':>8}"]
+            for m in r["meshes"]:
+                for k, s in m["sets"].items():
+                    o3 = f"{s['open3d_mrays']:>8.2f}" if "open3d_mrays" in s else f"{'-':>8}"
+                    lines.append(f"{m['mesh']:<14}{k:<12}{s['rays']:>9}{s['ours_mrays']:>11.2f}"
+                                 f"{s['embreex_mrays']:>9.2f}{s['ratio_vs_embreex']:>7.2f}{o3}")
+            return "\n".join(lines)
         if what == "scale":
             lines = [f"{'triangles':>10}{'build s':>10}{'SAH':>9}{'max RSS MiB':>13}"]
             for m in r["rows"]:
@@ -139,3 +154,98 @@ def bench_scale(args):
     slope = float(np.polyfit(np.log(n), np.log(t), 1)[0])
     nlogn = float(np.polyfit(np.log(n), np.log(n * np.log(n)), 1)[0])
     return {"rows": rows, "exponent": slope, "nlogn_exponent_same_range": nlogn, "machine": machine()}
+
+
+def _open3d_scene(verts, faces):
+    try:
+        import open3d as o3d
+    except Exception:
+        return None
+    sc = o3d.t.geometry.RaycastingScene()
+    sc.add_triangles(o3d.core.Tensor(verts.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
+    return sc
+
+
+def bench_trace(args):
+    """Throughput (Mrays/s) of our intersect/occluded against embreex (and Open3D when it is
+    importable) on identical ray sets: primary, incoherent, shadow."""
+    from tqdm import tqdm
+    import hwbvh
+    from hwbvh.primitives import as_triangles
+    from traversal import Tracer, raysets
+    from traversal.embree_ref import embree_intersect, embree_occluded, embree_scene
+
+    n = args.rays
+    rows = []
+    for name, load in tqdm(mesh_inputs(args), desc="bench trace", file=sys.stderr, unit="mesh"):
+        verts, faces = load()
+        tris = as_triangles(verts[faces], source=name)
+        v32, f32 = verts.astype(np.float32), faces.astype(np.int32)
+        tracer = Tracer(hwbvh.build(tris))
+        emb = embree_scene(v32, f32)
+        o3d = _open3d_scene(v32, f32)
+        sets = {}
+        O, D = raysets.primary(tris, n)
+        sets["primary"] = (O, D, None)
+        O, D = raysets.incoherent(tris, n)
+        sets["incoherent"] = (O, D, None)
+        O, D, tmax = raysets.shadow(tracer, tris, n * 2)
+        sets["shadow"] = (O, D, tmax)
+        out = {}
+        for kind, (O, D, tmax) in sets.items():
+            O32 = np.ascontiguousarray(O, np.float32)
+            D32 = np.ascontiguousarray(D, np.float32)
+            if tmax is None:
+                ours = lambda: tracer.intersect(O32, D32)
+                peer = lambda: embree_intersect(emb, O32, D32)
+            else:
+                tm32 = np.ascontiguousarray(tmax, np.float32)
+                ours = lambda: tracer.occluded(O32, D32, 0.0, tm32)
+                peer = lambda: embree_occluded(emb, O32, D32, tm32)
+            t_ours, spread_o = _median_time(ours, args.repeat)
+            t_emb, spread_e = _median_time(peer, args.repeat)
+            row = {"rays": int(len(O)), "ours_mrays": len(O) / t_ours / 1e6,
+                   "embreex_mrays": len(O) / t_emb / 1e6, "ratio_vs_embreex": t_emb / t_ours,
+                   "ours_spread_s": [min(spread_o), max(spread_o)],
+                   "embreex_spread_s": [min(spread_e), max(spread_e)]}
+            if o3d is not None:
+                import open3d as o3
+                r = o3.core.Tensor(np.hstack([O32, D32]))
+                if tmax is None:
+                    f = lambda: o3d.cast_rays(r)
+                else:
+                    r = o3.core.Tensor(np.hstack([O32, D32 * tm32[:, None]]))
+                    f = lambda: o3d.test_occlusions(r, tfar=1.0)
+                t_o3, _ = _median_time(f, args.repeat)
+                row["open3d_mrays"] = len(O) / t_o3 / 1e6
+                row["ratio_vs_open3d"] = t_o3 / t_ours
+            out[kind] = row
+        rows.append({"mesh": name, "triangles": int(len(tris)), "sets": out})
+    return {"meshes": rows, "machine": machine(), "repeat": args.repeat}
+
+
+def bench_render(args):
+    """The default scene (640x480, 4 spp, depth 5) with our build + traversal against
+    Embree's build + traversal, in one process after warm-up; median of repeats."""
+    from raytracer.render import make_tracer, render, warm_up
+    from scenes import compile_scene, load_scene
+
+    scene = compile_scene(load_scene(args.meshes[0] if args.meshes else "cornell"))
+    rows = []
+    for builder, traversal in (("hwbvh", "numba"), ("embree", "embree")):
+        warm_up(builder, traversal)
+        builds, renders = [], []
+        for _ in range(args.repeat + 1):
+            tracer, b, _ = make_tracer(scene, builder, traversal)
+            t = time.perf_counter()
+            res = render(scene, tracer)
+            renders.append(time.perf_counter() - t)
+            builds.append(b)
+        builds, renders = builds[1:], renders[1:]          # first run is the warm-up
+        rows.append({"builder": builder, "traversal": traversal,
+                     "build_seconds": statistics.median(builds),
+                     "render_seconds": statistics.median(renders),
+                     "total_seconds": statistics.median(np.add(builds, renders)),
+                     "render_spread": [min(renders), max(renders)], "rays": res.stats["rays"]})
+    ratio = rows[0]["total_seconds"] / rows[1]["total_seconds"]
+    return {"scene": scene.name, "rows": rows, "ratio": ratio, "machine": machine()}

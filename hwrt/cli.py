@@ -112,7 +112,7 @@ def cmd_verify(args):
 
 def cmd_render(args):
     import time
-    from raytracer.render import make_tracer, render
+    from raytracer.render import make_tracer, render, warm_up
     from raytracer.output import write_exr, write_png
     from scenes import compile_scene, load_scene
 
@@ -130,6 +130,7 @@ def cmd_render(args):
     out = args.output or os.path.join("renders", f"{scene.name}.exr")
     if not out.lower().endswith(".exr"):
         raise InputError("-o", f"{out}: the output must be an .exr file")
+    startup_s = warm_up(args.builder, args.traversal)
     tracer, build_s, info = make_tracer(scene, args.builder, args.traversal)
     verify = None
     if args.verify:
@@ -149,7 +150,8 @@ def cmd_render(args):
               "spp": scene.spp, "max_depth": scene.max_depth,
               "build_seconds": build_s, "render_seconds": render_s,
               "time_to_image_seconds": build_s + render_s,
-              "simulated_build_seconds": None, "rays": res.stats["rays"],
+              "simulated_build_seconds": None, "startup_seconds": startup_s,
+              "rays": res.stats["rays"],
               "passes": res.stats["passes"]}
     result.update({k: v for k, v in info.items() if k in ("nodes", "sah_cost")})
     if "verify" in res.stats:
@@ -170,7 +172,8 @@ def cmd_render(args):
 
 def cmd_bench(args):
     from . import bench
-    fn = {"build": bench.bench_build, "scale": bench.bench_scale}.get(args.what)
+    fn = {"build": bench.bench_build, "scale": bench.bench_scale,
+          "trace": bench.bench_trace, "render": bench.bench_render}.get(args.what)
     if fn is None:
         raise InputError("bench", f"'{args.what}' is not available yet")
     result = fn(args)
@@ -231,10 +234,11 @@ def make_parser():
     v.set_defaults(func=cmd_verify)
 
     be = sub.add_parser("bench", help="benchmarks against peers measured in the same run")
-    be.add_argument("what", choices=["build", "scale", "trace", "tti", "accuracy"])
+    be.add_argument("what", choices=["build", "scale", "trace", "render", "tti", "accuracy"])
     be.add_argument("meshes", nargs="*", help="mesh files (default: every mesh in --mesh-dir)")
     be.add_argument("--mesh-dir", help="default: $HWRT_MESHES or ../shared/meshes, else generated")
     be.add_argument("--repeat", type=_positive, default=5)
+    be.add_argument("--rays", type=_positive, default=500_000, help="rays per set (bench trace)")
     be.add_argument("--json", action="store_true")
     be.set_defaults(func=cmd_bench)
     return p

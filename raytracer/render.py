@@ -67,6 +67,23 @@ def _unit(v):
     return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
 
 
+def warm_up(builder="hwbvh", traversal="numba"):
+    """Load (or, the first time ever, compile) the Numba kernels a render uses, on a tiny
+    input, so that build and render timings measure work, not JIT start-up. Returns seconds."""
+    t = time.perf_counter()
+    if builder != "embree":
+        import hwbvh
+        from traversal import Tracer
+        from scenes.meshes import sphere
+        tris = sphere(4, 6)
+        tr = Tracer(hwbvh.build(tris, builder=builder))
+        o = np.zeros((2, 3))
+        d = np.array([[0, 0, 1.0], [0, 1.0, 0]])
+        tr.intersect(o, d)
+        tr.occluded(o, d, 0.0, 1.0)
+    return time.perf_counter() - t
+
+
 def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16):
     """(tracer, build_seconds, build_info). Builders: hwbvh, sweep, embree."""
     from hwbvh.errors import InputError
@@ -138,7 +155,7 @@ def render(scene, tracer, seed=0, verify=None, progress=None):
                     for k in ver:
                         ver[k] += c[k]
             return blocked
-        h = tracer.intersect(o, d)
+        h = tracer.intersect(o, d, normals=False)
         if verify is not None:
             te, pe, *_ = embree_intersect(verify, o, d)
             c, _ = classify(scene.triangles, o, d, 0.0, np.inf, h.prim.astype(np.int64), h.t, pe, te)

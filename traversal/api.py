@@ -84,16 +84,20 @@ class Tracer:
                                f"than its recorded depth {self.depth} (corrupted tree?)")
         return prim, t, u, v, (cnt if counters else None)
 
-    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False):
-        """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays)."""
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False, normals=True):
+        """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays). ``normals=False``
+        skips the geometric normals (ng is then None) for callers that look them up."""
         prim, t, u, v, cnt = self._run(origins, dirs, tmin, tmax, False, counters)
         hit = prim >= 0
-        ng = np.zeros((len(prim), 3), self.dtype)
-        if hit.any():
-            tr = self.tris[prim[hit]]
-            ng[hit] = np.cross(tr[:, 3:6], tr[:, 6:9])
-        return Hits(t=t, prim=prim, u=np.where(hit, u, 0), v=np.where(hit, v, 0), ng=ng,
-                    counters=cnt)
+        ng = None
+        if normals:
+            ng = np.zeros((len(prim), 3), self.dtype)
+            if hit.any():
+                tr = self.tris[prim[hit]]
+                ng[hit] = np.cross(tr[:, 3:6], tr[:, 6:9])
+        u[~hit] = 0
+        v[~hit] = 0
+        return Hits(t=t, prim=prim, u=u, v=v, ng=ng, counters=cnt)
 
     def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False):
         """True where any triangle is hit in [tmin, tmax]; returns (blocked, counters or None)

@@ -44,7 +44,7 @@ def embree_intersect(scene, origins, dirs, tmax=None):
     d = np.ascontiguousarray(dirs, dtype=np.float32)
     kw = {}
     if tmax is not None:
-        kw["dists"] = np.ascontiguousarray(np.broadcast_to(tmax, (len(o),)), dtype=np.float32)
+        kw["dists"] = np.array(np.broadcast_to(tmax, (len(o),)), dtype=np.float32)  # writable copy
     r = scene.run(o, d, output=1, **kw)
     prim = r["primID"].astype(np.int64)
     miss = prim < 0
@@ -59,7 +59,7 @@ def embree_intersect(scene, origins, dirs, tmax=None):
 def embree_occluded(scene, origins, dirs, tmax):
     o = np.ascontiguousarray(origins, dtype=np.float32)
     d = np.ascontiguousarray(dirs, dtype=np.float32)
-    dist = np.ascontiguousarray(np.broadcast_to(tmax, (len(o),)), dtype=np.float32)
+    dist = np.array(np.broadcast_to(tmax, (len(o),)), dtype=np.float32)  # embreex writes tfar
     return scene.run(o, d, dists=dist, query="OCCLUDED") == 0
 
 
@@ -70,7 +70,7 @@ class EmbreeTracer:
     def __init__(self, vertices, faces, robust=True):
         self.scene = embree_scene(vertices, faces, robust)
 
-    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False):
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False, normals=True):
         from .api import Hits
         o = np.asarray(origins, np.float64)
         d = np.asarray(dirs, np.float64)
