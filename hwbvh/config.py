@@ -41,6 +41,6 @@ SWEEP_MAX_LEAF = 64      # forced split above this, so a pile of identical trian
 # Nodes with more primitives than this are split with data-parallel binning/partitioning;
 # smaller ones become independent tasks built in parallel. The tree does not depend on it.
 TASK_MIN_PRIMS = 2048
-SEQUENTIAL_MAX_PRIMS = 20000   # below this one sequential subtree build is as fast, and needs
+SEQUENTIAL_MAX_PRIMS = 10000   # below this one sequential subtree build is as fast, and needs
                                # no parallel kernels compiled (first-run time)
 TASKS_PER_THREAD = 16
