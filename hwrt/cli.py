@@ -110,6 +110,19 @@ def cmd_verify(args):
                                           "mismatch_file"]))
 
 
+def cmd_simulate(args):
+    from hwbvh.cycle_model import simulate_mesh, sweep
+
+    if args.sweep:
+        result = sweep(args.mesh, args.out_dir, leaf_sizes=args.leaf_sizes, jobs=args.jobs)
+        return _emit(args, result, lambda r: f"wrote {r['csv']} and {', '.join(r['plots'])}")
+    result = simulate_mesh(args.mesh, args.preset, w=args.w, tsize=args.tsize, psize=args.psize,
+                           subtree_builders=args.subtree_builders, ram_pairs=args.ram_pairs,
+                           clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins)
+    _emit(args, result, lambda r: _kv(r, ["preset", "triangles", "cycles", "seconds", "energy_joules",
+                                          "traffic_bytes", "footprint_bytes", "utilisation", "sah_cost"]))
+
+
 def cmd_render(args):
     import time
     from raytracer.render import make_tracer, render, warm_up
@@ -150,10 +163,14 @@ def cmd_render(args):
               "spp": scene.spp, "max_depth": scene.max_depth,
               "build_seconds": build_s, "render_seconds": render_s,
               "time_to_image_seconds": build_s + render_s,
-              "simulated_build_seconds": None, "startup_seconds": startup_s,
+              "simulated_build_seconds": info.get("simulated_build_seconds"),
+              "startup_seconds": startup_s,
               "rays": res.stats["rays"],
               "passes": res.stats["passes"]}
     result.update({k: v for k, v in info.items() if k in ("nodes", "sah_cost")})
+    sim = info.get("simulated_build_seconds")
+    if sim:
+        result["time_to_image_simulated_seconds"] = {k: v + render_s for k, v in sim.items()}
     if "verify" in res.stats:
         result["verify"] = res.stats["verify"]
     meta = {"scene": scene.name, "builder": args.builder, "traversal": args.traversal,
@@ -207,6 +224,20 @@ def make_parser():
     b.add_argument("--dump-handoff", metavar="F", help="records in upper-builder hand-off order")
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_build)
+
+    s = sub.add_parser("simulate", help="cycles, traffic, footprint and energy of the hardware build")
+    s.add_argument("mesh")
+    s.add_argument("--preset", default="HWBVH-C", choices=["HWBVH-C", "HWBVH-HP"])
+    for name in ("w", "tsize", "psize", "subtree-builders", "ram-pairs", "leaf-size", "bins"):
+        s.add_argument(f"--{name}", type=_positive)
+    s.add_argument("--clock-mhz", type=float)
+    s.add_argument("--sweep", action="store_true",
+                   help="design-space sweep (thesis 4.2.1): w, Tsize in {2,4,8,16} x leaf sizes")
+    s.add_argument("--leaf-sizes", type=_positive, nargs="+", default=[4, 8, 16, 32, 64])
+    s.add_argument("--out-dir", default="renders/sweep")
+    s.add_argument("--jobs", type=_positive, default=os.cpu_count() or 1)
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_simulate)
 
     r = sub.add_parser("render", help="render a scene (Whitted) to EXR")
     r.add_argument("scene", nargs="?", default="cornell",

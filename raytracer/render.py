@@ -103,6 +103,11 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16)
     secs = time.perf_counter() - t
     info = {"builder": builder, "nodes": bvh.meta["nodes"], "sah_cost": bvh.meta["sah_cost"],
             "build_seconds_core": bvh.meta["build_seconds"]}
+    if builder == "hwbvh" and leaf_size == 4 and bins == 16:
+        # the simulated hardware build time of the thesis' instantiations (Table 4.1)
+        from hwbvh.cycle_model import PRESETS, simulate
+        info["simulated_build_seconds"] = {name: simulate(bvh.tree, p)["seconds"]
+                                           for name, p in PRESETS.items()}
     if traversal == "numba":
         return Tracer(bvh), secs, info
     if traversal == "embree":

@@ -1,0 +1,443 @@
+"""Transaction-level timing model of the HWBVH (thesis ch. 3 and 4.2-4.3; SPEC section 6).
+
+The model is driven by the functional builder's real work: every node's primitive count,
+every split and every leaf of the canonical tree. What it times:
+
+* Upper builder (one thread, DRAM): the initial AABB pass (one 192-bit word per primitive), the
+  root binning pass, and, for every node above the subtree capacity, one streaming partition
+  pass that reads and writes its 216-bit records. Each RAM pair has a read channel and a write
+  channel, one 192-bit word per cycle each. After each pass the split of the next node waits
+  out the partitioning, binning and SAH latencies (Table 3.3); with one thread nothing hides
+  them.
+* Hand-off: a node that fits a subtree builder is read back from DRAM into the first idle
+  subtree builder, through its w fill ports. When none is idle, the upper builder stalls.
+* Subtree builder (on chip): an initial split phase, then for every internal node a partition
+  pass on the w partitioning units, plus a 2-cycle thread switch. Records stay in the buffer
+  pair the fill put them in (at random, 3.3.1), so a pass takes as many cycles as the busiest
+  unit holds records of that node, not count / w. The
+  children are binned as the records stream out (partitioning latency 36, binning 32), then the
+  thread's SAH calculator pair computes both children's splits in 73 cycles (not pipelined).
+  Tsize threads hide these latencies. A thread keeps its left internal child, a free thread
+  takes the right one, and otherwise it waits on a stack. The partitioning units serve the
+  thread whose split has been ready longest.
+* Output: node records (48 bytes) and the 24-bit index list are written through the write
+  channels, overlapped with construction; they count as traffic.
+
+Only what a build calls for is simulated. A mesh that fits one subtree builder never starts the
+upper builder's DRAM model, and its AABB pass is the fill itself.
+"""
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from . import config
+
+# --- constants (each with its source) -------------------------------------------------
+LAT_PARTITION = 36       # Table 3.3: partitioning unit latency
+LAT_BINNING = 32         # Table 3.3: binning unit latency
+LAT_SAH = 73             # Table 3.3: SAH calculator latency, and one node per 73 cycles
+LAT_PRIM_BUFFER = 2      # Table 3.3: primitive buffer latency
+THREAD_SWITCH = 2        # 3.3.2: "within two cycles" the partitioning unit switches thread
+WORD_BYTES = 24          # one 192-bit DRAM word per channel per cycle (3.5.3, SPEC 6)
+RECORD_BYTES = 27        # a 216-bit primitive record
+AABB_BYTES = 24          # the AABB alone (initial scene-AABB pass)
+NODE_BYTES = 48
+ACTIVE_POWER_W = {"HWBVH-C": 5.902, "HWBVH-HP": 25.179}    # Table 4.10, active power, 90 nm
+
+
+@dataclass
+class HwParams:
+    """One instantiation (Table 4.1 for the presets)."""
+    w: int = 4                 # partitioning units (and buffer pairs) per subtree builder
+    tsize: int = 8             # threads per subtree builder (2*Tsize SAH calculators)
+    psize: int = 2048          # primitives per buffer; capacity = w * psize
+    subtree_builders: int = 1
+    ram_pairs: int = 1
+    clock_mhz: float = 250.0
+    leaf_size: int = 4
+    bins: int = 16
+    active_power_w: float = ACTIVE_POWER_W["HWBVH-C"]
+
+    @property
+    def capacity(self):
+        return self.w * self.psize
+
+
+PRESETS = {
+    "HWBVH-C": HwParams(w=4, tsize=8, psize=2048, subtree_builders=1, ram_pairs=1,
+                        clock_mhz=250.0, active_power_w=ACTIVE_POWER_W["HWBVH-C"]),
+    "HWBVH-HP": HwParams(w=4, tsize=8, psize=2048, subtree_builders=2, ram_pairs=2,
+                         clock_mhz=500.0, active_power_w=ACTIVE_POWER_W["HWBVH-HP"]),
+}
+
+
+def footprint_bytes(n):
+    """Table 4.2: two copies of the AABBs and of the index list, 2 * (24 + 3) * N bytes."""
+    return 2 * (24 + 3) * int(n)
+
+
+@njit(cache=True)
+def max_share(unit_pos, start, count, w):
+    """Records of a node held by its busiest partitioning unit (each record stays in the buffer
+    pair it was filled into, 3.3.1), i.e. the unit-cycles a partition pass takes."""
+    if w == 1:
+        return count
+    share = np.zeros(w, dtype=np.int64)
+    for i in range(start, start + count):
+        share[unit_pos[i]] += 1
+    return share.max()
+
+
+@njit(cache=True)
+def simulate_subtree(cleft, cright, ccount, cstart, unit_pos, root, w, tsize):
+    """Cycles a subtree builder needs for the subtree at canonical node ``root`` (after its
+    fill), and the busy cycles of its partitioning units and SAH calculators.
+    Returns (cycles, pu_busy, sah_busy, partitioned_records)."""
+    # the initial split phase: every unit reads its share, the root is binned, then its split
+    c0 = ccount[root]
+    d0 = max_share(unit_pos, cstart[root], c0, w)
+    t0 = LAT_PRIM_BUFFER + d0 + LAT_BINNING + LAT_SAH
+    pu_busy = d0
+    sah_busy = LAT_SAH
+    if cleft[root] < 0:
+        return np.int64(LAT_PRIM_BUFFER + d0 + LAT_PARTITION), pu_busy, 0, np.int64(c0)
+    n_alloc = 2 * c0 + 4
+    t_node = np.empty(tsize, dtype=np.int64)      # node held by each thread (-1: idle)
+    t_ready = np.empty(tsize, dtype=np.int64)     # when its split is ready
+    for k in range(tsize):
+        t_node[k] = -1
+        t_ready[k] = 0
+    st_node = np.empty(n_alloc, dtype=np.int64)   # deferred internal nodes (splits computed)
+    st_ready = np.empty(n_alloc, dtype=np.int64)
+    sp = 0
+    t_node[0] = root
+    t_ready[0] = t0
+    pu_free = 0
+    end = t0
+    records = 0
+    while True:
+        # the partitioning units serve the thread whose split has been ready longest
+        k = -1
+        for j in range(tsize):
+            if t_node[j] >= 0 and (k < 0 or t_ready[j] < t_ready[k]):
+                k = j
+        if k < 0:
+            break
+        x = t_node[k]
+        c = ccount[x]
+        start = max(pu_free, t_ready[k])
+        dur = max_share(unit_pos, cstart[x], c, w)
+        pu_free = start + dur + THREAD_SWITCH
+        pu_busy += dur
+        records += c
+        out = start + dur + LAT_PARTITION            # records (and leaf indices) written
+        if out > end:
+            end = out
+        ready = out + LAT_BINNING + LAT_SAH          # both children's splits, in parallel
+        l = cleft[x]
+        r = cright[x]
+        li = cleft[l] >= 0
+        ri = cleft[r] >= 0
+        if li or ri:
+            sah_busy += LAT_SAH * ((1 if li else 0) + (1 if ri else 0))
+            if ready > end:
+                end = ready
+        # state S4: continue with an internal child, hand the other to a free thread or stack
+        if li and ri:
+            t_node[k] = l
+            t_ready[k] = ready
+            free = -1
+            for j in range(tsize):
+                if t_node[j] < 0:
+                    free = j
+                    break
+            if free >= 0:
+                t_node[free] = r
+                t_ready[free] = ready
+            else:
+                st_node[sp] = r
+                st_ready[sp] = ready
+                sp += 1
+        elif li or ri:
+            t_node[k] = l if li else r
+            t_ready[k] = ready
+        else:
+            if sp > 0:
+                sp -= 1
+                t_node[k] = st_node[sp]
+                t_ready[k] = max(st_ready[sp], out)
+            else:
+                t_node[k] = -1
+        # idle threads pick up deferred work
+        for j in range(tsize):
+            if t_node[j] < 0 and sp > 0:
+                sp -= 1
+                t_node[j] = st_node[sp]
+                t_ready[j] = st_ready[sp]
+    return end, pu_busy, sah_busy, records
+
+
+def _upper_plan(tree, capacity):
+    """Upper nodes (count > capacity) and hand-off roots, in the upper builder's depth-first
+    order: a list of ("upper", node) / ("handoff", node) events."""
+    events = []
+    stack = [tree.root]
+    while stack:
+        i = stack.pop()
+        if tree.count[i] > capacity:
+            events.append(("upper", i))
+            stack.append(int(tree.right[i]))
+            stack.append(int(tree.left[i]))
+        else:
+            events.append(("handoff", i))
+    return events
+
+
+def simulate(tree, params, node_count=None):
+    """Simulate one build of ``tree`` (a CanonicalTree from the functional builder) on the
+    instantiation ``params``. Returns a dict with the SPEC-8 keys and more."""
+    p = params
+    n = int(tree.n_prims)
+    cap = p.capacity
+    R = p.ram_pairs
+    prims_per_cycle_dram = R * WORD_BYTES / RECORD_BYTES      # records/cycle through R channels
+    events = _upper_plan(tree, cap)
+    # the fill spreads records over the w buffer pairs at random (3.3.1); a fixed hash of the
+    # primitive index stands in for that, so a simulation is reproducible
+    unit_pos = ((tree.ids.astype(np.uint64) * np.uint64(2654435761)) >> np.uint64(7)) % np.uint64(p.w)
+    unit_pos = unit_pos.astype(np.int64)
+    traffic = {"aabb": 0, "upper_sort": 0, "nodes": 0, "indices": 0}
+    t = 0                              # the upper builder's clock
+    upper_nodes = 0
+    upper_records = 0
+    stall = 0
+    uses_upper = tree.count[tree.root] > cap
+    if uses_upper:
+        # initial scene-AABB pass: one 192-bit word per primitive, over R read channels
+        t += math.ceil(n / R)
+        traffic["aabb"] = n * AABB_BYTES
+        # root binning pass, then the root's split
+        t += math.ceil(n / prims_per_cycle_dram) + LAT_BINNING + LAT_SAH
+        traffic["upper_sort"] += n * RECORD_BYTES
+    builder_free = [0] * p.subtree_builders
+    builder_busy = [0] * p.subtree_builders
+    pu_busy = 0
+    sah_busy = 0
+    sub_cycles_total = 0
+    records_sub = 0
+    handoff_sizes = []
+    for kind, i in events:
+        c = int(tree.count[i])
+        if kind == "upper":
+            # one streaming partition pass: read and write every record once
+            t += math.ceil(c / prims_per_cycle_dram) + LAT_PARTITION + LAT_BINNING + LAT_SAH
+            traffic["upper_sort"] += 2 * c * RECORD_BYTES
+            upper_nodes += 1
+            upper_records += c
+            continue
+        handoff_sizes.append(c)
+        # first idle subtree builder; stall the upper builder while none is
+        k = int(np.argmin(builder_free))
+        if builder_free[k] > t:
+            stall += builder_free[k] - t
+            t = builder_free[k]
+        if uses_upper:
+            fill = max(math.ceil(c / prims_per_cycle_dram), math.ceil(c / p.w))
+            traffic["upper_sort"] += c * RECORD_BYTES
+        else:
+            # the whole scene fits: the fill is the only read, and it is the AABB pass
+            fill = max(math.ceil(c * RECORD_BYTES / (R * WORD_BYTES)), math.ceil(c / p.w))
+            traffic["aabb"] = c * RECORD_BYTES
+        t += fill
+        cyc, pb, sb, rec = simulate_subtree(tree.left, tree.right, tree.count, tree.start,
+                                            unit_pos, int(i), p.w, p.tsize)
+        builder_free[k] = t + int(cyc)
+        builder_busy[k] += int(cyc) + fill
+        pu_busy += int(pb)
+        sah_busy += int(sb)
+        sub_cycles_total += int(cyc)
+        records_sub += int(rec)
+    cycles = max([t] + builder_free)
+    nodes = int(node_count if node_count is not None else tree.stats["nodes"])
+    traffic["nodes"] = nodes * NODE_BYTES
+    traffic["indices"] = -(-n // 8) * WORD_BYTES
+    seconds = cycles / (p.clock_mhz * 1e6)
+    sub_time = max(1, sum(builder_busy))
+    return {
+        "cycles": int(cycles),
+        "clock_hz": p.clock_mhz * 1e6,
+        "seconds": seconds,
+        "traffic_bytes": traffic,
+        "traffic_total_bytes": int(sum(traffic.values())),
+        "footprint_bytes": footprint_bytes(n),
+        "energy_joules": seconds * p.active_power_w,
+        "upper_builder": {"used": bool(uses_upper), "nodes": upper_nodes,
+                          "records_partitioned": int(upper_records), "stall_cycles": int(stall),
+                          "finished_at_cycle": int(t)},
+        "subtree_builders": {"handoffs": len(handoff_sizes),
+                             "largest_handoff": max(handoff_sizes) if handoff_sizes else 0,
+                             "records_partitioned": int(records_sub),
+                             "busy_cycles": [int(b) for b in builder_busy]},
+        "utilisation": {"partitioning_units": pu_busy / sub_time,
+                        "sah_calculators": sah_busy / (sub_time * 2 * p.tsize)},
+        "parameters": asdict(p) | {"capacity": cap},
+    }
+
+
+def params_for(preset="HWBVH-C", **overrides):
+    """A preset with some parameters replaced (None values are ignored)."""
+    from dataclasses import replace
+    from .errors import InputError
+
+    if preset not in PRESETS:
+        raise InputError("--preset", f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+    kw = {k: v for k, v in overrides.items() if v is not None}
+    for k, v in kw.items():
+        if k in ("w", "tsize", "psize", "subtree_builders", "ram_pairs", "leaf_size", "bins") and \
+                (not isinstance(v, (int, np.integer)) or v < 1):
+            raise InputError(f"--{k.replace('_', '-')}", f"must be a positive integer, got {v}")
+        if k == "clock_mhz" and not v > 0:
+            raise InputError("--clock-mhz", f"must be positive, got {v}")
+    for k in ("w", "tsize"):
+        v = kw.get(k)
+        if v is not None and v & (v - 1):
+            raise InputError(f"--{k}", f"must be a power of two (thesis 3.3), got {v}")
+    return replace(PRESETS[preset], **kw)
+
+
+def simulate_mesh(source, preset="HWBVH-C", **overrides):
+    """Build ``source`` (mesh path or (n,3,3) triangles) functionally, then simulate it."""
+    import time
+    from .api import _triangles
+    from .builder import build_canonical
+    from .format import tree_stats
+    from .layout import lay_out
+    from .primitives import primitive_boxes
+
+    p = params_for(preset, **overrides)
+    tris, _ = _triangles(source)
+    tree = build_canonical(primitive_boxes(tris), leaf_size=p.leaf_size, bins=p.bins)
+    t = time.perf_counter()
+    out = simulate(tree, p)
+    out["simulation_seconds"] = time.perf_counter() - t
+    nodes, _, _ = lay_out(tree, p.capacity, p.subtree_builders)
+    out["sah_cost"] = tree_stats(nodes)["sah_cost"]
+    out["triangles"] = int(len(tris))
+    out["preset"] = preset
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _sweep_kernel(cleft, cright, ccount, cstart, unit_pos_by_w, roots, ws, ts):
+    """Cycles for every (w, Tsize) pair over the given subtree roots, in parallel."""
+    out = np.zeros((ws.shape[0], ts.shape[0]), dtype=np.int64)
+    for q in prange(ws.shape[0] * ts.shape[0]):
+        a = q // ts.shape[0]
+        b = q % ts.shape[0]
+        w = ws[a]
+        total = 0
+        for r in roots:
+            cyc, _, _, _ = simulate_subtree(cleft, cright, ccount, cstart, unit_pos_by_w[a], r, w, ts[b])
+            total += cyc + (ccount[r] + w - 1) // w          # plus the fill through w ports
+        out[a, b] = total
+    return out
+
+
+def sweep(mesh, out_dir, leaf_sizes=(4, 8, 16, 32, 64), grid=(2, 4, 8, 16), jobs=None,
+          n_subtrees=5, lo=4096, hi=8192):
+    """Design-space exploration like thesis 4.2.1 on subtrees of lo..hi primitives cut from a
+    real mesh: a CSV of cycles per (leaf size, w, Tsize) and plots in the style of Figs. 4.2
+    (speedup over w = Tsize = 2) and 4.3 (cycles against leaf size)."""
+    import csv
+    import io
+    import os
+    from .api import _triangles, write_files
+    from .builder import build_canonical
+    from .primitives import primitive_boxes
+
+    tris, src = _triangles(mesh)
+    boxes = primitive_boxes(tris)
+    base = build_canonical(boxes)
+    # subtrees the upper builder would hand off, restricted to lo..hi primitives
+    cands = [i for kind, i in _upper_plan(base, hi) if kind == "handoff" and lo <= base.count[i] <= hi]
+    if not cands:
+        cands = [base.root]
+    cands = cands[:n_subtrees]
+    ws = np.array(grid, dtype=np.int64)
+    ts = np.array(grid, dtype=np.int64)
+    rows = []
+    for leaf in leaf_sizes:
+        total = np.zeros((len(ws), len(ts)), dtype=np.int64)
+        for root in cands:
+            ids = base.ids[base.start[root]:base.start[root] + base.count[root]]
+            sub = build_canonical(boxes[ids], leaf_size=int(leaf))
+            upw = np.stack([(((sub.ids.astype(np.uint64) * np.uint64(2654435761)) >> np.uint64(7))
+                             % np.uint64(w)).astype(np.int64) for w in ws])
+            total += _sweep_kernel(sub.left, sub.right, sub.count, sub.start, upw,
+                                   np.array([sub.root], dtype=np.int64), ws, ts)
+        ref = total[0, 0]
+        for a, w in enumerate(ws):
+            for b, t in enumerate(ts):
+                rows.append({"leaf_size": int(leaf), "w": int(w), "tsize": int(t),
+                             "cycles": int(total[a, b]), "speedup": float(ref / total[a, b])})
+    buf = io.StringIO()
+    wr = csv.DictWriter(buf, fieldnames=list(rows[0]))
+    wr.writeheader()
+    wr.writerows(rows)
+    os.makedirs(out_dir, exist_ok=True)
+    csv_path = os.path.join(out_dir, "sweep.csv")
+    plots = _sweep_plots(rows, out_dir, leaf_sizes, grid)
+    write_files([(csv_path, buf.getvalue())] + plots)
+    return {"csv": csv_path, "plots": [p for p, _ in plots], "subtrees": [int(base.count[c]) for c in cands],
+            "rows": rows, "mesh": src}
+
+
+def _sweep_plots(rows, out_dir, leaf_sizes, grid):
+    import io
+    import os
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def get(leaf, w, t, key):
+        return next(r[key] for r in rows if r["leaf_size"] == leaf and r["w"] == w and r["tsize"] == t)
+
+    files = []
+    # Fig. 4.2 style: speedup over w = Tsize = 2 against Tsize, one line per w, per leaf size
+    shown = [l for l in leaf_sizes if l in (4, 8, 32, 64)] or list(leaf_sizes)[:4]
+    fig, axes = plt.subplots(2, 2, figsize=(9, 7), squeeze=False)
+    for ax, leaf in zip(axes.ravel(), shown):
+        for w in grid:
+            ax.plot(grid, [get(leaf, w, t, "speedup") for t in grid], marker="o", label=f"w = {w}")
+        ax.set_xscale("log", base=2)
+        ax.set_xticks(grid, [str(g) for g in grid])
+        ax.set_title(f"leaf size {leaf}")
+        ax.set_xlabel("Tsize")
+        ax.set_ylabel("speedup over w=2, Tsize=2")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    b = io.BytesIO()
+    fig.savefig(b, format="png", dpi=110)
+    plt.close(fig)
+    files.append((os.path.join(out_dir, "fig4_2_speedup.png"), b.getvalue()))
+    # Fig. 4.3 style: cycles against leaf size, one panel per Tsize, one line per w
+    fig, axes = plt.subplots(2, 2, figsize=(9, 7), squeeze=False)
+    for ax, t in zip(axes.ravel(), grid):
+        for w in grid:
+            ax.plot(leaf_sizes, [get(l, w, t, "cycles") for l in leaf_sizes], marker="o", label=f"w = {w}")
+        ax.set_xscale("log", base=2)
+        ax.set_xticks(list(leaf_sizes), [str(l) for l in leaf_sizes])
+        ax.set_title(f"Tsize = {t}")
+        ax.set_xlabel("leaf size")
+        ax.set_ylabel("cycles (sum over subtrees)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    b = io.BytesIO()
+    fig.savefig(b, format="png", dpi=110)
+    plt.close(fig)
+    files.append((os.path.join(out_dir, "fig4_3_leaf_size.png"), b.getvalue()))
+    return files
