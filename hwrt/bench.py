@@ -102,6 +102,8 @@ def human(what):
                 lines.append(f"{m['mesh']:<18}{m['triangles']:>10}{m['hwbvh_seconds']*1e3:>11.1f}"
                              f"{m['embree_seconds']*1e3:>11.1f}{m['ratio']:>8.2f}{m['sah_cost']:>9.2f}")
             return "\n".join(lines)
+        if what in ("tti", "accuracy"):
+            return "wrote " + ", ".join(r["files"])
         if what == "render":
             lines = [f"{'path':<16}{'build s':>9}{'render s':>10}{'total s':>9}"]
             for m in r["rows"]:
@@ -233,7 +235,7 @@ def bench_render(args):
     scene = compile_scene(load_scene(args.meshes[0] if args.meshes else "cornell"))
     rows = []
     for builder, traversal in (("hwbvh", "numba"), ("embree", "embree")):
-        warm_up(builder, traversal)
+        warm_up(builder, traversal, parallel_build=True)
         builds, renders = [], []
         for _ in range(args.repeat + 1):
             tracer, b, _ = make_tracer(scene, builder, traversal)

@@ -189,8 +189,10 @@ def cmd_render(args):
 
 def cmd_bench(args):
     from . import bench
+    from . import study
     fn = {"build": bench.bench_build, "scale": bench.bench_scale,
-          "trace": bench.bench_trace, "render": bench.bench_render}.get(args.what)
+          "trace": bench.bench_trace, "render": bench.bench_render,
+          "tti": study.bench_tti, "accuracy": study.bench_accuracy}.get(args.what)
     if fn is None:
         raise InputError("bench", f"'{args.what}' is not available yet")
     result = fn(args)
@@ -270,6 +272,13 @@ def make_parser():
     be.add_argument("--mesh-dir", help="default: $HWRT_MESHES or ../shared/meshes, else generated")
     be.add_argument("--repeat", type=_positive, default=5)
     be.add_argument("--rays", type=_positive, default=500_000, help="rays per set (bench trace)")
+    be.add_argument("--quick", action="store_true", help="tti/accuracy: a few small cells (< 3 min)")
+    be.add_argument("--fresh", action="store_true", help="tti/accuracy: ignore finished cells")
+    be.add_argument("--out-dir", default="renders/bench", help="tti/accuracy results")
+    be.add_argument("--width", type=_positive, default=320)
+    be.add_argument("--height", type=_positive, default=240)
+    be.add_argument("--spp", type=_positive, default=1)
+    be.add_argument("--max-depth", type=_positive, default=5)
     be.add_argument("--json", action="store_true")
     be.set_defaults(func=cmd_bench)
     return p

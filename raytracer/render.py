@@ -67,15 +67,19 @@ def _unit(v):
     return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
 
 
-def warm_up(builder="hwbvh", traversal="numba"):
+def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
     """Load (or, the first time ever, compile) the Numba kernels a render uses, on a tiny
-    input, so that build and render timings measure work, not JIT start-up. Returns seconds."""
+    input, so that build and render timings measure work, not JIT start-up. Returns seconds.
+    ``parallel_build`` also loads the data-parallel builder kernels that meshes above
+    SEQUENTIAL_MAX_PRIMS use (benchmarks want them; a first render of a small scene does not)."""
     t = time.perf_counter()
     if builder != "embree":
         import hwbvh
         from traversal import Tracer
         from scenes.meshes import sphere
         tris = sphere(4, 6)
+        if parallel_build and builder == "hwbvh":
+            hwbvh.build(sphere(12, 16), task_prims=16)
         tr = Tracer(hwbvh.build(tris, builder=builder))
         o = np.zeros((2, 3))
         d = np.array([[0, 0, 1.0], [0, 1.0, 0]])
@@ -84,7 +88,8 @@ def warm_up(builder="hwbvh", traversal="numba"):
     return time.perf_counter() - t
 
 
-def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16):
+def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
+                precision="float32"):
     """(tracer, build_seconds, build_info). Builders: hwbvh, sweep, embree."""
     from hwbvh.errors import InputError
 
@@ -109,7 +114,7 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16)
         info["simulated_build_seconds"] = {name: simulate(bvh.tree, p)["seconds"]
                                            for name, p in PRESETS.items()}
     if traversal == "numba":
-        return Tracer(bvh), secs, info
+        return Tracer(bvh, precision=precision), secs, info
     if traversal == "embree":
         raise InputError("--traversal", "Embree traverses its own tree only: use "
                          "--builder embree --traversal embree, or --traversal numba")
@@ -126,9 +131,11 @@ def scene_passes(scene):
             "depth": scene.max_depth if (reflective or refractive) else 1}
 
 
-def render(scene, tracer, seed=0, verify=None, progress=None):
+def render(scene, tracer, seed=0, verify=None, progress=None, offset="relative", counters=False):
     """Render a CompiledScene with ``tracer``. ``verify``: an Embree scene to check every ray
-    against (counts go to stats['verify']). ``progress``: a callable(n) per finished pass."""
+    against (counts go to stats['verify']). ``progress``: a callable(n) per finished pass.
+    ``offset``: secondary-ray offset strategy (raytracer.offset.STRATEGIES). ``counters``: count
+    nodes visited and triangles tested by closest-hit queries (stats['work'])."""
     from traversal.verify import classify
     from traversal.embree_ref import embree_intersect
 
@@ -141,6 +148,7 @@ def render(scene, tracer, seed=0, verify=None, progress=None):
     prim_aov = np.full(npix, -1, np.int32)
     rays = {"primary": 0, "shadow": 0, "reflection": 0, "refraction": 0}
     ver = {"rays": 0, "agree": 0, "tie": 0, "mismatch": 0}
+    work = np.zeros(3, np.int64)
     tris64 = scene.triangles.astype(np.float64)
     tri_mag = np.abs(scene.triangles).reshape(-1, 9).max(axis=1).astype(np.float64)
     e1 = tris64[:, 1] - tris64[:, 0]
@@ -160,7 +168,13 @@ def render(scene, tracer, seed=0, verify=None, progress=None):
                     for k in ver:
                         ver[k] += c[k]
             return blocked
-        h = tracer.intersect(o, d, normals=False)
+        if counters and hasattr(tracer, "depth"):
+            h = tracer.intersect(o, d, normals=False, counters=True)
+            work[0] += h.counters[:, 0].sum()
+            work[1] += h.counters[:, 1].sum()
+            work[2] += len(o)
+        else:
+            h = tracer.intersect(o, d, normals=False)
         if verify is not None:
             te, pe, *_ = embree_intersect(verify, o, d)
             c, _ = classify(scene.triangles, o, d, 0.0, np.inf, h.prim.astype(np.int64), h.t, pe, te)
@@ -235,7 +249,7 @@ def render(scene, tracer, seed=0, verify=None, progress=None):
                     if not lit.any():
                         continue
                     idx = np.flatnonzero(lit)
-                    org = offset_origins(P[idx], ngf[idx], ldir[idx], tri_mag[prim[idx]])
+                    org = offset_origins(P[idx], ngf[idx], ldir[idx], tri_mag[prim[idx]], offset)
                     tm = np.linalg.norm(L["position"] - org, axis=1) if L["type"] == "point" \
                         else np.full(len(idx), np.inf)
                     rays["shadow"] += len(idx)
@@ -256,7 +270,7 @@ def render(scene, tracer, seed=0, verify=None, progress=None):
             m = (kr.max(axis=1) > 0) & ~diel
             if m.any():
                 w = wgt[m] * kr[m]
-                newO.append(offset_origins(P[m], ngf[m], refl_d[m], tri_mag[prim[m]]))
+                newO.append(offset_origins(P[m], ngf[m], refl_d[m], tri_mag[prim[m]], offset))
                 newD.append(refl_d[m]); newW.append(w); newP.append(pix[m])
                 newK.append(np.zeros(m.sum(), np.int8))
             if diel.any():
@@ -268,14 +282,14 @@ def render(scene, tracer, seed=0, verify=None, progress=None):
                 cos_i = np.clip(-_dot(D[di], n_in), 0.0, 1.0)
                 F, cos_t, tir = fresnel_dielectric(cos_i, eta_i, eta_t)
                 rd = D[di] - 2 * _dot(D[di], n_in)[:, None] * n_in
-                newO.append(offset_origins(P[di], ngf[di], rd, tri_mag[prim[di]]))
+                newO.append(offset_origins(P[di], ngf[di], rd, tri_mag[prim[di]], offset))
                 newD.append(rd); newW.append(wgt[di] * F[:, None]); newP.append(pix[di])
                 newK.append(np.zeros(len(di), np.int8))
                 ok = ~tir
                 if ok.any():
                     eta = (eta_i / eta_t)[ok]
                     td = _unit(refract(D[di][ok], n_in[ok], eta, cos_i[ok], cos_t[ok]))
-                    newO.append(offset_origins(P[di][ok], ngf[di][ok], td, tri_mag[prim[di][ok]]))
+                    newO.append(offset_origins(P[di][ok], ngf[di][ok], td, tri_mag[prim[di][ok]], offset))
                     newD.append(td); newW.append(wgt[di][ok] * (1 - F[ok])[:, None]); newP.append(pix[di][ok])
                     newK.append(np.ones(ok.sum(), np.int8))
             if not newO:
@@ -294,6 +308,8 @@ def render(scene, tracer, seed=0, verify=None, progress=None):
             progress(1)
     image = (img / spp).astype(np.float32).reshape(H, W, 3)
     stats = {"rays": rays, "passes": passes}
+    if counters and work[2]:
+        stats["work"] = {"nodes_per_ray": work[0] / work[2], "tris_per_ray": work[1] / work[2]}
     if verify is not None:
         stats["verify"] = ver
     return RenderResult(image=image, depth=depth_aov.reshape(H, W),
