@@ -57,6 +57,13 @@ class CanonicalTree:
     stats: dict = field(default_factory=dict)
 
 
+def alloc_canonical(m):
+    """Empty canonical node arrays of m slots: (box, left, right, start, count, axis)."""
+    return (np.zeros((m, 6), dtype=np.float32), np.full(m, -1, dtype=np.int32),
+            np.full(m, -1, dtype=np.int32), np.zeros(m, dtype=np.int32),
+            np.zeros(m, dtype=np.int32), np.full(m, AXIS_LEAF, dtype=np.int8))
+
+
 # --------------------------------------------------------------------------------------
 # Subtree builder: one task, sequential, depth-first (Fig. 3.3)
 # --------------------------------------------------------------------------------------
@@ -210,13 +217,7 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
     rootbox = np.concatenate([boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)])
     if n <= task_prims:
         # small input: one subtree builder does it all (no parallel kernels to compile or run)
-        m = 2 * n
-        cbox = np.zeros((m, 6), dtype=np.float32)
-        cleft = np.full(m, -1, dtype=np.int32)
-        cright = np.full(m, -1, dtype=np.int32)
-        cstart = np.zeros(m, dtype=np.int32)
-        ccount = np.zeros(m, dtype=np.int32)
-        caxis = np.full(m, AXIS_LEAF, dtype=np.int8)
+        cbox, cleft, cright, cstart, ccount, caxis = alloc_canonical(2 * n)
         stats = np.zeros(4, dtype=np.int64)
         build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis, 0, 0, n, 0,
                       rootbox, 0, leaf_size, bins, stats)
@@ -271,13 +272,7 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
         stack.append((s, nl, cbuf, lbox, depth + 1, k, 0))
 
     # ---- canonical arrays: task slots [0, 2N), upper nodes at 2N + k ----
-    m = 2 * n + len(top)
-    cbox = np.zeros((m, 6), dtype=np.float32)
-    cleft = np.full(m, -1, dtype=np.int32)
-    cright = np.full(m, -1, dtype=np.int32)
-    cstart = np.zeros(m, dtype=np.int32)
-    ccount = np.zeros(m, dtype=np.int32)
-    caxis = np.full(m, AXIS_LEAF, dtype=np.int8)
+    cbox, cleft, cright, cstart, ccount, caxis = alloc_canonical(2 * n + len(top))
 
     def slot_of(ref):
         return 2 * ref[1] if ref[0] == "task" else 2 * n + ref[1]

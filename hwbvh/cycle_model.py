@@ -394,6 +394,16 @@ def sweep(mesh, out_dir, leaf_sizes=(4, 8, 16, 32, 64), grid=(2, 4, 8, 16), jobs
             "rows": rows, "mesh": src}
 
 
+def _png(fig):
+    import io
+    import matplotlib.pyplot as plt
+    fig.tight_layout()
+    b = io.BytesIO()
+    fig.savefig(b, format="png", dpi=110)
+    plt.close(fig)
+    return b.getvalue()
+
+
 def _sweep_plots(rows, out_dir, leaf_sizes, grid):
     import io
     import os
@@ -418,11 +428,7 @@ def _sweep_plots(rows, out_dir, leaf_sizes, grid):
         ax.set_ylabel("speedup over w=2, Tsize=2")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    b = io.BytesIO()
-    fig.savefig(b, format="png", dpi=110)
-    plt.close(fig)
-    files.append((os.path.join(out_dir, "fig4_2_speedup.png"), b.getvalue()))
+    files.append((os.path.join(out_dir, "fig4_2_speedup.png"), _png(fig)))
     # Fig. 4.3 style: cycles against leaf size, one panel per Tsize, one line per w
     fig, axes = plt.subplots(2, 2, figsize=(9, 7), squeeze=False)
     for ax, t in zip(axes.ravel(), grid):
@@ -435,9 +441,5 @@ def _sweep_plots(rows, out_dir, leaf_sizes, grid):
         ax.set_ylabel("cycles (sum over subtrees)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    b = io.BytesIO()
-    fig.savefig(b, format="png", dpi=110)
-    plt.close(fig)
-    files.append((os.path.join(out_dir, "fig4_3_leaf_size.png"), b.getvalue()))
+    files.append((os.path.join(out_dir, "fig4_3_leaf_size.png"), _png(fig)))
     return files

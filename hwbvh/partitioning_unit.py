@@ -12,16 +12,14 @@ from .binning_unit import bin_index, centre
 
 
 @njit(cache=True)
-def partition_range(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, nodebox, nbins, nl):
-    """Stable partition of records [start, end) from src into dst; ``nl`` records go left
-    (the SAH calculator's count). Returns the number that did."""
-    lo = nodebox[axis]
-    hi = nodebox[3 + axis]
+def _partition_chunk(src_b, src_i, dst_b, dst_i, lo, hi, li, ri, axis, boundary, nodebox, nbins):
+    """Records [lo, hi): left-going ones to dst from li up, the rest from ri up (in order).
+    Returns the next free left position."""
+    lo_ax = nodebox[axis]
+    hi_ax = nodebox[3 + axis]
     s_f32 = np.float32(nbins)
-    li = start
-    ri = start + nl
-    for i in range(start, end):
-        if bin_index(centre(src_b[i, axis], src_b[i, 3 + axis]), lo, hi, s_f32, nbins) < boundary:
+    for i in range(lo, hi):
+        if bin_index(centre(src_b[i, axis], src_b[i, 3 + axis]), lo_ax, hi_ax, s_f32, nbins) < boundary:
             j = li
             li += 1
         else:
@@ -30,7 +28,15 @@ def partition_range(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, node
         for k in range(6):
             dst_b[j, k] = src_b[i, k]
         dst_i[j] = src_i[i]
-    return nl
+    return li
+
+
+@njit(cache=True)
+def partition_range(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, nodebox, nbins, nl):
+    """Stable partition of records [start, end) from src into dst; ``nl`` records go left
+    (the SAH calculator's count). Returns the number that did."""
+    return _partition_chunk(src_b, src_i, dst_b, dst_i, start, end, start, start + nl, axis,
+                            boundary, nodebox, nbins) - start
 
 
 @njit(cache=True, parallel=True)
@@ -41,9 +47,6 @@ def partition_range_parallel(src_b, src_i, dst_b, dst_i, start, end, axis, bound
     where to write without a second counting pass."""
     n = end - start
     nchunks = chunk_left.shape[0]
-    lo_ax = nodebox[axis]
-    hi_ax = nodebox[3 + axis]
-    s_f32 = np.float32(nbins)
     left_off = np.empty(nchunks, dtype=np.int64)
     right_off = np.empty(nchunks, dtype=np.int64)
     total_left = 0
@@ -58,20 +61,9 @@ def partition_range_parallel(src_b, src_i, dst_b, dst_i, start, end, axis, bound
         acc_l += chunk_left[c]
         acc_r += size - chunk_left[c]
     for c in prange(nchunks):
-        lo = start + (n * c) // nchunks
-        hi = start + (n * (c + 1)) // nchunks
-        li = left_off[c]
-        ri = right_off[c]
-        for i in range(lo, hi):
-            if bin_index(centre(src_b[i, axis], src_b[i, 3 + axis]), lo_ax, hi_ax, s_f32, nbins) < boundary:
-                j = li
-                li += 1
-            else:
-                j = ri
-                ri += 1
-            for k in range(6):
-                dst_b[j, k] = src_b[i, k]
-            dst_i[j] = src_i[i]
+        _partition_chunk(src_b, src_i, dst_b, dst_i, start + (n * c) // nchunks,
+                         start + (n * (c + 1)) // nchunks, left_off[c], right_off[c], axis,
+                         boundary, nodebox, nbins)
     return total_left
 
 

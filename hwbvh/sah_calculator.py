@@ -14,7 +14,8 @@ from numba import njit
 
 @njit(cache=True)
 def surface_half_area(lox, loy, loz, hix, hiy, hiz):
-    """dx*dy + dy*dz + dz*dx in float32 (half the surface area; the factor 2 cancels)."""
+    """dx*dy + dy*dz + dz*dx (half the surface area; the factor 2 cancels), in the type of
+    its arguments: float32 in the SAH calculator, float64 in the sweep reference."""
     dx = hix - lox
     dy = hiy - loy
     dz = hiz - loz

@@ -14,15 +14,8 @@ import numpy as np
 from numba import njit
 
 from . import config
-from .builder import AXIS_LEAF, CanonicalTree
-
-
-@njit(cache=True)
-def _half_area(lx, ly, lz, hx, hy, hz):
-    dx = hx - lx
-    dy = hy - ly
-    dz = hz - lz
-    return dx * dy + dy * dz + dz * dx
+from .builder import AXIS_LEAF, CanonicalTree, alloc_canonical
+from .sah_calculator import surface_half_area as _half_area
 
 
 @njit(cache=True)
@@ -142,13 +135,7 @@ def build_sweep(boxes, max_leaf=config.SWEEP_MAX_LEAF):
     orders = np.empty((3, n), dtype=np.int32)
     for a in range(3):
         orders[a] = np.argsort(cen[:, a], kind="stable")
-    m = 2 * n
-    cbox = np.zeros((m, 6), dtype=np.float32)
-    cleft = np.full(m, -1, dtype=np.int32)
-    cright = np.full(m, -1, dtype=np.int32)
-    cstart = np.zeros(m, dtype=np.int32)
-    ccount = np.zeros(m, dtype=np.int32)
-    caxis = np.full(m, AXIS_LEAF, dtype=np.int8)
+    cbox, cleft, cright, cstart, ccount, caxis = alloc_canonical(2 * n)
     used, leaves, depth = _sweep_build(boxes, orders, int(max_leaf), cbox, cleft, cright, cstart,
                                        ccount, caxis)
     return CanonicalTree(box=cbox, left=cleft, right=cright, start=cstart, count=ccount,
