@@ -89,7 +89,7 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
 
 
 def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
-                precision="float32"):
+                precision="float32", watertight=False):
     """(tracer, build_seconds, build_info). Builders: hwbvh, sweep, embree."""
     from hwbvh.errors import InputError
 
@@ -114,7 +114,7 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
         info["simulated_build_seconds"] = {name: simulate(bvh.tree, p)["seconds"]
                                            for name, p in PRESETS.items()}
     if traversal == "numba":
-        return Tracer(bvh, precision=precision), secs, info
+        return Tracer(bvh, precision=precision, watertight=watertight), secs, info
     if traversal == "embree":
         raise InputError("--traversal", "Embree traverses its own tree only: use "
                          "--builder embree --traversal embree, or --traversal numba")

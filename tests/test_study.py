@@ -52,7 +52,8 @@ def test_accuracy_quick(tmp_path, mesh_dir):
     assert r.returncode == 0, r.stderr
     rows = json.loads(r.stdout)["rows"]
     knobs = {x["knob"] for x in rows}
-    assert knobs == {"bins", "leaf_size", "builder", "precision", "offset", "max_depth", "spp"}
+    assert knobs == {"bins", "leaf_size", "builder", "precision", "triangle_test", "offset",
+                     "max_depth", "spp"}
     get = {(x["knob"], str(x["value"])): x for x in rows}
     # starting secondary rays on the surface causes acne; the robust offset does not
     assert get[("offset", "none")]["rmse"] > 10 * get[("offset", "relative")]["rmse"]

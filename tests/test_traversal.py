@@ -221,3 +221,21 @@ def test_counters_count_work():
     rng = np.random.default_rng(2)
     h = tracer.intersect(rng.uniform(-1, 1, (1000, 3)), rng.normal(size=(1000, 3)), counters=True)
     assert (h.counters[:, 0] >= 1).mean() > 0.9 and h.counters[:, 1].sum() > 0
+
+
+@pytest.mark.parametrize("scale,shift", [(1.0, 0.0), (1e-4, 0.0), (1.0, 1e5)])
+def test_watertight_unit_does_not_leak_and_agrees(scale, shift):
+    tris, V, F = closed_sphere(scale=scale, shift=shift)
+    centre = np.full(3, shift, np.float64)
+    bvh = hwbvh.build(tris)
+    tracer = Tracer(bvh, watertight=True)
+    e = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]).astype(np.float64)
+    targets = np.concatenate([V.astype(np.float64), e.mean(1)])
+    h = tracer.intersect(np.tile(centre, (len(targets), 1)), targets - centre)
+    assert (h.prim >= 0).all()
+    rng = np.random.default_rng(3)
+    o = centre + rng.uniform(-2, 2, (5000, 3)) * scale
+    d = rng.normal(size=(5000, 3))
+    a = Tracer(bvh).intersect(o, d)
+    b = tracer.intersect(o, d)
+    assert (a.prim == b.prim).mean() > 0.999

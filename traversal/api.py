@@ -47,9 +47,10 @@ def _rays(origins, dirs, tmin, tmax, dtype):
 
 
 class Tracer:
-    """Ray queries on one BVH. precision: "float32" (the hardware units) or "float64"."""
+    """Ray queries on one BVH. precision: "float32" (the hardware units) or "float64";
+    watertight=True swaps the Moller-Trumbore unit for the Woop et al. 2013 test."""
 
-    def __init__(self, bvh, triangles=None, precision="float32", edge_eps=None):
+    def __init__(self, bvh, triangles=None, precision="float32", edge_eps=None, watertight=False):
         if precision not in ("float32", "float64"):
             raise ValueError("precision must be 'float32' or 'float64'")
         self.dtype = np.float32 if precision == "float32" else np.float64
@@ -60,6 +61,10 @@ class Tracer:
         self.u, self.f = node_views(self.nodes)
         self.index_bytes = np.frombuffer(pack_indices(bvh.indices), dtype=np.uint8)
         self.tris = preprocess(tris, self.dtype)
+        # the watertight test (accuracy study) needs the original vertices, not v0 + e1
+        self.watertight = bool(watertight)
+        self.raw = np.ascontiguousarray(np.asarray(tris, self.dtype).reshape(len(tris), 9)) \
+            if watertight else np.zeros((1, 9), self.dtype)
         self.depth = tree_stats(self.nodes)["max_depth"]
         f32 = self.dtype == np.float32
         self.eps2 = band_eps2(self.dtype)
@@ -77,7 +82,8 @@ class Tracer:
         u = np.empty(n, self.dtype)
         v = np.empty(n, self.dtype)
         cnt = np.zeros((n if counters else 0, 2), np.int64)
-        over = trace_batch(self.u, self.f, self.index_bytes, self.tris, o, d, lo, hi, self.eps2,
+        over = trace_batch(self.u, self.f, self.index_bytes, self.tris, self.raw, self.watertight,
+                           o, d, lo, hi, self.eps2,
                            self.one, self.widen, self.edge, self.depth, anyhit, prim, t, u, v, cnt)
         if over:
             raise RuntimeError(f"traversal stack overflow on {over} rays: the tree is deeper "

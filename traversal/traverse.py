@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit, prange
 
 from .aabb_unit import aabb_hit_at, near_far_planes
-from .triangle_unit import mt_hit_at
+from .triangle_unit import mt_hit_at, wt_hit_at
 
 CHUNK = 64            # rays per parallel work item (one stack allocation each)
 
@@ -39,9 +39,11 @@ def _ray_ok(ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 
 @njit(cache=True, error_model="numpy")
-def trace_ray(u, f, ib, tris, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one, widen, edge,
-              stack, stack_t, anyhit):
-    """One ray. Returns (prim, t, bu, bv, nodes_visited, tris_tested, overflow)."""
+def trace_ray(u, f, ib, tris, raw, watertight, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one,
+              widen, edge, stack, stack_t, anyhit):
+    """One ray. Returns (prim, t, bu, bv, nodes_visited, tris_tested, overflow).
+    ``watertight`` selects the Woop et al. test on ``raw`` vertices instead of the
+    Moller-Trumbore unit (accuracy study)."""
     best_t = tmax
     prim = -1
     bu = tmax - tmax if np.isfinite(tmax) else one - one
@@ -55,6 +57,22 @@ def trace_ray(u, f, ib, tris, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one, wid
     iz = one / dz
     kx, ky, kz = near_far_planes(ix, iy, iz)
     dd = dx * dx + dy * dy + dz * dz
+    # watertight set-up: permute so that z is the largest |d| component, then shear
+    wz = 0
+    if abs(dy) > abs(dx):
+        wz = 1
+    if abs(dz) > max(abs(dx), abs(dy)):
+        wz = 2
+    wx = (wz + 1) % 3
+    wy = (wx + 1) % 3
+    dwz = dz if wz == 2 else (dy if wz == 1 else dx)
+    if dwz < 0:
+        wx, wy = wy, wx
+    dwx = dz if wx == 2 else (dy if wx == 1 else dx)
+    dwy = dz if wy == 2 else (dy if wy == 1 else dx)
+    shx = dwx / dwz
+    shy = dwy / dwz
+    shz = one / dwz
     hit, tn = aabb_hit_at(f, 0, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
     if not hit:
         return prim, best_t, bu, bv, nodes, tested, False
@@ -68,8 +86,12 @@ def trace_ray(u, f, ib, tris, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one, wid
             for p in range(first, first + np.int64(u[node, 7])):
                 j = read_index(ib, p)
                 tested += 1
-                ok, t, tu, tv = mt_hit_at(tris, j, ox, oy, oz, dx, dy, dz, dd, tmin, best_t,
-                                          eps2, one, edge)
+                if watertight:
+                    ok, t, tu, tv = wt_hit_at(raw, j, ox, oy, oz, wx, wy, wz, shx, shy, shz,
+                                              tmin, best_t)
+                else:
+                    ok, t, tu, tv = mt_hit_at(tris, j, ox, oy, oz, dx, dy, dz, dd, tmin, best_t,
+                                              eps2, one, edge)
                 if ok and (t < best_t or prim < 0 or j < prim):
                     best_t = t
                     prim = j
@@ -109,8 +131,8 @@ def trace_ray(u, f, ib, tris, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one, wid
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def trace_batch(u, f, ib, tris, O, D, tmin, tmax, eps2, one, widen, edge, depth, anyhit,
-                out_prim, out_t, out_u, out_v, counters):
+def trace_batch(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one, widen, edge,
+                depth, anyhit, out_prim, out_t, out_u, out_v, counters):
     """All rays; ``counters`` is (n, 2) int (nodes visited, triangles tested) or (0, 2).
     Returns the number of rays whose stack would have overflowed (0 on a valid tree)."""
     n = O.shape[0]
@@ -122,7 +144,7 @@ def trace_batch(u, f, ib, tris, O, D, tmin, tmax, eps2, one, widen, edge, depth,
         stack_t = np.empty(depth + 2, dtype=O.dtype)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             prim, t, bu, bv, nv, nt, of = trace_ray(
-                u, f, ib, tris, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
+                u, f, ib, tris, raw, watertight, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
                 tmin[i], tmax[i], eps2, one, widen, edge, stack, stack_t, anyhit)
             out_prim[i] = prim
             out_t[i] = t if prim >= 0 else np.inf

@@ -84,3 +84,50 @@ def mt_batch(tris, origins, dirs, tmin, tmax, eps2, one, edge):
         u[i] = ui
         v[i] = vi
     return hit, t, u, v
+
+
+@njit(cache=True, error_model="numpy")
+def wt_hit_at(raw, j, ox, oy, oz, kx, ky, kz, sx, sy, sz, tmin, tmax):
+    """Watertight ray/triangle test (Woop, Benthin & Wald 2013), for the accuracy study.
+
+    ``raw`` holds the original vertices (n, 9); (kx, ky, kz) is the ray's axis permutation
+    (kz = largest |d| component, kx/ky swapped when d[kz] < 0 to keep the winding) and
+    (sx, sy, sz) its shear constants. The edge functions are evaluated in the ray's sheared
+    space, and an exact zero is recomputed in float64, so a ray through a shared edge or vertex
+    hits at least one of the triangles that share it. Returns (valid, t, u, v)."""
+    # vertices relative to the origin, permuted and sheared
+    ax = raw[j, kx] - ox if kx == 0 else (raw[j, kx] - oy if kx == 1 else raw[j, kx] - oz)
+    ay = raw[j, ky] - ox if ky == 0 else (raw[j, ky] - oy if ky == 1 else raw[j, ky] - oz)
+    az = raw[j, kz] - ox if kz == 0 else (raw[j, kz] - oy if kz == 1 else raw[j, kz] - oz)
+    bx = raw[j, 3 + kx] - ox if kx == 0 else (raw[j, 3 + kx] - oy if kx == 1 else raw[j, 3 + kx] - oz)
+    by = raw[j, 3 + ky] - ox if ky == 0 else (raw[j, 3 + ky] - oy if ky == 1 else raw[j, 3 + ky] - oz)
+    bz = raw[j, 3 + kz] - ox if kz == 0 else (raw[j, 3 + kz] - oy if kz == 1 else raw[j, 3 + kz] - oz)
+    cx = raw[j, 6 + kx] - ox if kx == 0 else (raw[j, 6 + kx] - oy if kx == 1 else raw[j, 6 + kx] - oz)
+    cy = raw[j, 6 + ky] - ox if ky == 0 else (raw[j, 6 + ky] - oy if ky == 1 else raw[j, 6 + ky] - oz)
+    cz = raw[j, 6 + kz] - ox if kz == 0 else (raw[j, 6 + kz] - oy if kz == 1 else raw[j, 6 + kz] - oz)
+    Ax = ax - sx * az
+    Ay = ay - sy * az
+    Bx = bx - sx * bz
+    By = by - sy * bz
+    Cx = cx - sx * cz
+    Cy = cy - sy * cz
+    U = Cx * By - Cy * Bx
+    V = Ax * Cy - Ay * Cx
+    W = Bx * Ay - By * Ax
+    if U == 0 or V == 0 or W == 0:          # on an edge in float32: decide in float64
+        U = np.float64(Cx) * np.float64(By) - np.float64(Cy) * np.float64(Bx)
+        V = np.float64(Ax) * np.float64(Cy) - np.float64(Ay) * np.float64(Cx)
+        W = np.float64(Bx) * np.float64(Ay) - np.float64(By) * np.float64(Ax)
+    if (U < 0 or V < 0 or W < 0) and (U > 0 or V > 0 or W > 0):
+        return False, tmax, tmax, tmax
+    det = U + V + W
+    if det == 0:
+        return False, tmax, tmax, tmax
+    Az = sz * az
+    Bz = sz * bz
+    Cz = sz * cz
+    T = U * Az + V * Bz + W * Cz
+    t = T / det
+    if not (t >= tmin and t <= tmax):
+        return False, tmax, tmax, tmax
+    return True, t, V / det, W / det
