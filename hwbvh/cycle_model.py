@@ -17,9 +17,11 @@ every split and every leaf of the canonical tree. What it times:
   unit holds records of that node, not count / w. The
   children are binned as the records stream out (partitioning latency 36, binning 32), then the
   thread's SAH calculator pair computes both children's splits in 73 cycles (not pipelined).
-  Tsize threads hide these latencies. A thread keeps its left internal child, a free thread
-  takes the right one, and otherwise it waits on a stack. The partitioning units serve the
-  thread whose split has been ready longest.
+  Tsize threads hide these latencies. A thread keeps its left internal child; the right one
+  spawns a new thread while a thread context is free, and otherwise waits on this thread's own
+  stack (3.3.1: each context has its own stack). A thread whose stack empties ends; it does not
+  take work from other threads. The partitioning units visit the
+  threads in a fixed round-robin order and wait for a thread whose split is not ready (3.3.2).
 * Output: node records (48 bytes) and the 24-bit index list are written through the write
   channels, overlapped with construction; they count as traffic.
 
@@ -109,22 +111,30 @@ def simulate_subtree(cleft, cright, ccount, cstart, unit_pos, root, w, tsize):
     for k in range(tsize):
         t_node[k] = -1
         t_ready[k] = 0
-    st_node = np.empty(n_alloc, dtype=np.int64)   # deferred internal nodes (splits computed)
-    st_ready = np.empty(n_alloc, dtype=np.int64)
-    sp = 0
+    # each thread context has its own stack (3.3.1) of deferred nodes with computed splits
+    depth_cap = n_alloc // 2 + 2
+    st_node = np.empty((tsize, depth_cap), dtype=np.int64)
+    st_ready = np.empty((tsize, depth_cap), dtype=np.int64)
+    sp = np.zeros(tsize, dtype=np.int64)
     t_node[0] = root
     t_ready[0] = t0
     pu_free = 0
     end = t0
     records = 0
+    rr = 0
     while True:
-        # the partitioning units serve the thread whose split has been ready longest
+        # the partitioning units visit the threads in a fixed round-robin order (3.3.2: "until
+        # all threads have been processed", then "from the beginning"), waiting for a thread
+        # whose split is not ready yet; idle thread slots are skipped
         k = -1
-        for j in range(tsize):
-            if t_node[j] >= 0 and (k < 0 or t_ready[j] < t_ready[k]):
+        for step in range(tsize):
+            j = (rr + step) % tsize
+            if t_node[j] >= 0:
                 k = j
+                break
         if k < 0:
             break
+        rr = (k + 1) % tsize
         x = t_node[k]
         c = ccount[x]
         start = max(pu_free, t_ready[k])
@@ -153,29 +163,23 @@ def simulate_subtree(cleft, cright, ccount, cstart, unit_pos, root, w, tsize):
                 if t_node[j] < 0:
                     free = j
                     break
-            if free >= 0:
+            if free >= 0:                    # a new child spawns a new thread while one is free
                 t_node[free] = r
                 t_ready[free] = ready
-            else:
-                st_node[sp] = r
-                st_ready[sp] = ready
-                sp += 1
+            else:                            # otherwise it waits on this thread's own stack
+                st_node[k, sp[k]] = r
+                st_ready[k, sp[k]] = ready
+                sp[k] += 1
         elif li or ri:
             t_node[k] = l if li else r
             t_ready[k] = ready
         else:
-            if sp > 0:
-                sp -= 1
-                t_node[k] = st_node[sp]
-                t_ready[k] = max(st_ready[sp], out)
+            if sp[k] > 0:                    # pop this thread's stack; an empty stack ends it
+                sp[k] -= 1
+                t_node[k] = st_node[k, sp[k]]
+                t_ready[k] = max(st_ready[k, sp[k]], out)
             else:
                 t_node[k] = -1
-        # idle threads pick up deferred work
-        for j in range(tsize):
-            if t_node[j] < 0 and sp > 0:
-                sp -= 1
-                t_node[j] = st_node[sp]
-                t_ready[j] = st_ready[sp]
     return end, pu_busy, sah_busy, records
 
 
