@@ -209,13 +209,15 @@ def _tti_rows(cells, specs, W, H, spp, depth, repeat):
 
 def _tti_markdown(rows, summary, W, H, spp, depth):
     lines = [f"Time to image (build + render), Whitted {W}x{H}, {spp} spp, depth {depth}.\n",
-             "| scene | path | build s | render s | total s | rays | SAH | verify |",
+             "Medians of the repeated runs; the render spread is min-max over them.\n",
+             "| scene | path | build s | render s (spread) | total s | rays | SAH | verify |",
              "|---|---|---:|---:|---:|---:|---:|---|"]
     for r in rows:
         sah = f"{r['sah_cost']:.1f}" if r["sah_cost"] else "-"
         ver = {True: "clean", False: "MISMATCH", None: "n/a"}[r["verify_clean"]]
+        lo, hi = r["render_spread"]
         lines.append(f"| {r['scene']} | {r['path']} | {r['build_seconds']:.4f} | {r['render_seconds']:.3f} "
-                     f"| {r['total_seconds']:.3f} | {r['rays']} | {sah} | {ver} |")
+                     f"({lo:.3f}-{hi:.3f}) | {r['total_seconds']:.3f} | {r['rays']} | {sah} | {ver} |")
     lines += ["", "Break-even ray budget: the hardware build saves `build_saved` seconds against Embree's "
               "build; with our slower traversal it stays ahead up to `break_even_rays` rays.", "",
               "| scene | preset | build saved s | break-even rays |", "|---|---|---:|---:|"]
@@ -356,12 +358,14 @@ def bench_accuracy(args):
 
 
 def _accuracy_markdown(rows):
-    lines = ["| scene | knob | value | build s | render s | SAH | nodes/ray | tris/ray | mismatch | tie | holes | RMSE | max err |",
+    lines = ["Medians of the repeated runs; the render spread is min-max over them.\n",
+             "| scene | knob | value | build s | render s (spread) | SAH | nodes/ray | tris/ray | mismatch | tie | holes | RMSE | max err |",
              "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         f = lambda v, p=3: "-" if v is None else f"{v:.{p}f}"
+        lo, hi = r["render_spread"]
         lines.append(f"| {r['scene']} | {r['knob']} | {r['value']} | {f(r['build_seconds'], 4)} | "
-                     f"{f(r['render_seconds'])} | {f(r['sah_cost'], 1)} | {f(r['nodes_per_ray'], 1)} | "
+                     f"{f(r['render_seconds'])} ({lo:.3f}-{hi:.3f}) | {f(r['sah_cost'], 1)} | {f(r['nodes_per_ray'], 1)} | "
                      f"{f(r['tris_per_ray'], 1)} | {r['mismatch_rate']:.2e} | {r['tie_rate']:.2e} | "
                      f"{r['holes']}/{r['hole_probes']} | {r['rmse']:.4f} | {r['max_error']:.3f} |")
     return "\n".join(lines) + "\n"
