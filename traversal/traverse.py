@@ -130,6 +130,29 @@ def trace_ray(u, f, ib, tris, raw, watertight, ox, oy, oz, dx, dy, dz, tmin, tma
                 node = stack[sp]
 
 
+@njit(cache=True, error_model="numpy")
+def _trace_range(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one, widen, edge,
+                 lo, hi, anyhit, stack, stack_t, out_prim, out_t, out_u, out_v, counters):
+    """Rays [lo, hi) in a plain (non-parfor) function, so LLVM optimises the loop fully.
+    Returns the number of rays whose stack would have overflowed."""
+    count = counters.shape[0] > 0
+    over = 0
+    for i in range(lo, hi):
+        prim, t, bu, bv, nv, nt, of = trace_ray(
+            u, f, ib, tris, raw, watertight, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
+            tmin[i], tmax[i], eps2, one, widen, edge, stack, stack_t, anyhit)
+        out_prim[i] = prim
+        out_t[i] = t if prim >= 0 else np.inf
+        out_u[i] = bu
+        out_v[i] = bv
+        if of:
+            over += 1
+        if count:
+            counters[i, 0] = nv
+            counters[i, 1] = nt
+    return over
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def trace_batch(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one, widen, edge,
                 depth, anyhit, out_prim, out_t, out_u, out_v, counters):
@@ -138,21 +161,10 @@ def trace_batch(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one, wi
     n = O.shape[0]
     nchunks = (n + CHUNK - 1) // CHUNK
     overflow = np.zeros(nchunks, dtype=np.int64)
-    count = counters.shape[0] > 0
     for c in prange(nchunks):
         stack = np.empty(depth + 2, dtype=np.int64)
         stack_t = np.empty(depth + 2, dtype=O.dtype)
-        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-            prim, t, bu, bv, nv, nt, of = trace_ray(
-                u, f, ib, tris, raw, watertight, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
-                tmin[i], tmax[i], eps2, one, widen, edge, stack, stack_t, anyhit)
-            out_prim[i] = prim
-            out_t[i] = t if prim >= 0 else np.inf
-            out_u[i] = bu
-            out_v[i] = bv
-            if of:
-                overflow[c] += 1
-            if count:
-                counters[i, 0] = nv
-                counters[i, 1] = nt
+        overflow[c] = _trace_range(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one,
+                                   widen, edge, c * CHUNK, min(n, (c + 1) * CHUNK), anyhit, stack,
+                                   stack_t, out_prim, out_t, out_u, out_v, counters)
     return overflow.sum()
