@@ -88,7 +88,12 @@ def room(width=640, height=480, spp=4, max_depth=3, slats=120):
         {"type": "quad", "corners": [[-4, 0, -3], [4, 0, -3], [4, 0, 3], [-4, 0, 3]], "material": "white"},
         {"type": "quad", "corners": [[-4, 3, -3], [-4, 3, 3], [4, 3, 3], [4, 3, -3]], "material": "white"},
         {"type": "quad", "corners": [[-4, 0, -3], [-4, 3, -3], [4, 3, -3], [4, 0, -3]], "material": "white"},
-        {"type": "quad", "corners": [[4, 0.5, -2], [4, 2.5, -2], [4, 2.5, 1], [4, 0.5, 1]], "material": "mirror"},
+        {"type": "quad", "corners": [[4, 0, -3], [4, 3, -3], [4, 3, 3], [4, 0, 3]], "material": "white"},
+        {"type": "quad", "corners": [[-4, 0, -3], [-4, 0, 3], [-4, 3, 3], [-4, 3, -3]], "material": "white"},
+        {"type": "quad", "corners": [[-4, 0, 3], [4, 0, 3], [4, 3, 3], [-4, 3, 3]], "material": "white"},
+        # the mirror hangs 1 cm in front of the right wall
+        {"type": "quad", "corners": [[3.99, 0.5, -2], [3.99, 2.5, -2], [3.99, 2.5, 1], [3.99, 0.5, 1]],
+         "material": "mirror"},
     ]
     for i in range(slats):
         x = -4 + 8 * (i + 0.5) / slats
