@@ -33,8 +33,6 @@ INDEX_PAD = 0xFFFFFF     # tail padding of the last index word
 LEAF_FLAG = 1            # flags bit 0
 
 # --- Reference sweep builder (thesis 4.3.3, SPEC 5) -------------------------------------
-SAH_T_TRAVERSAL = 1.0    # T1: cost of a box test, per child
-SAH_T_INTERSECT = 1.0    # T2: cost of a primitive test
 SWEEP_MAX_LEAF = 64      # forced split above this, so a pile of identical triangles stays bounded
 
 # --- Software build scheduling (not a hardware parameter) -------------------------------

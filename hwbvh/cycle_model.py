@@ -42,10 +42,10 @@ LAT_BINNING = 32         # Table 3.3: binning unit latency
 LAT_SAH = 73             # Table 3.3: SAH calculator latency, and one node per 73 cycles
 LAT_PRIM_BUFFER = 2      # Table 3.3: primitive buffer latency
 THREAD_SWITCH = 2        # 3.3.2: "within two cycles" the partitioning unit switches thread
-WORD_BYTES = 24          # one 192-bit DRAM word per channel per cycle (3.5.3, SPEC 6)
-RECORD_BYTES = 27        # a 216-bit primitive record
-AABB_BYTES = 24          # the AABB alone (initial scene-AABB pass)
-NODE_BYTES = 48
+WORD_BYTES = config.WORD_BYTES              # one 192-bit DRAM word per channel per cycle
+RECORD_BYTES = config.PRIMITIVE_RECORD_BYTES  # a 216-bit primitive record
+AABB_BYTES = 24                              # the AABB alone (initial scene-AABB pass)
+NODE_BYTES = config.NODE_BYTES
 ACTIVE_POWER_W = {"HWBVH-C": 5.902, "HWBVH-HP": 25.179}    # Table 4.10, active power, 90 nm
 
 

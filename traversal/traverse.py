@@ -46,7 +46,7 @@ def trace_ray(u, f, ib, tris, raw, watertight, ox, oy, oz, dx, dy, dz, tmin, tma
     Moller-Trumbore unit (accuracy study)."""
     best_t = tmax
     prim = -1
-    bu = tmax - tmax if np.isfinite(tmax) else one - one
+    bu = one - one                  # a zero of the working float type
     bv = bu
     nodes = 0
     tested = 0
