@@ -85,6 +85,30 @@ def _scene_geometry(name):
         faces.astype(np.int32)
 
 
+def _replay(path, tris, verts, faces):
+    """Re-trace the rays of a mismatch file with both tracers and the float64 reference."""
+    import numpy as np
+    import hwbvh
+    from traversal import Tracer
+    from traversal.embree_ref import embree_intersect, embree_scene
+    from traversal.verify import classify
+
+    try:
+        data = np.load(path)
+        O, D, tmax = data["origins"], data["dirs"], data["tmax"]
+    except (OSError, KeyError, ValueError) as e:
+        raise InputError(path, f"not a mismatch file from hwrt verify ({e})") from None
+    h = Tracer(hwbvh.build(tris)).intersect(O, D, 0.0, tmax)
+    te, pe, *_ = embree_intersect(embree_scene(verts, faces), O, D,
+                                  None if np.isinf(tmax).all() else tmax)
+    counts, labels = classify(tris, O, D, 0.0, tmax, h.prim.astype(np.int64), h.t, pe, te)
+    names = {0: "agree", 1: "tie", 2: "mismatch"}
+    rows = [{"origin": O[i].tolist(), "dir": D[i].tolist(), "ours": [int(h.prim[i]), float(h.t[i])],
+             "embree": [int(pe[i]), float(te[i])], "class": names[int(labels[i])]}
+            for i in range(len(O))]
+    return dict(counts, replayed=rows, file=str(path))
+
+
 def cmd_verify(args):
     import numpy as np
     from traversal.verify import verify_mesh
@@ -94,6 +118,9 @@ def cmd_verify(args):
     if args.rays < 1:
         raise InputError("--rays", "must be at least 1")
     label, tris, verts, faces = _scene_geometry(args.scene)
+    if args.replay:
+        return _emit(args, _replay(args.replay, tris, verts, faces),
+                     lambda r: "\n".join(json.dumps(x) for x in r["replayed"]))
     counts, labels, (O, D, tmax), h, (te, pe) = verify_mesh(tris, verts, faces, args.kind, args.rays)
     result = dict(counts)
     result.update({"kind": args.kind, "scene": label})
@@ -263,6 +290,7 @@ def make_parser():
     v.add_argument("--rays", type=_positive, default=100_000)
     v.add_argument("--kind", choices=["primary", "random", "bounces", "shadow"], default="random")
     v.add_argument("--mismatches", metavar="F.npz", help="where mismatching rays are written")
+    v.add_argument("--replay", metavar="F.npz", help="re-trace the rays of a mismatch file")
     v.add_argument("--json", action="store_true")
     v.set_defaults(func=cmd_verify)
 

@@ -239,3 +239,42 @@ def test_watertight_unit_does_not_leak_and_agrees(scale, shift):
     a = Tracer(bvh).intersect(o, d)
     b = tracer.intersect(o, d)
     assert (a.prim == b.prim).mean() > 0.999
+
+
+def test_zero_area_triangles_are_never_hit():
+    rng = np.random.default_rng(11)
+    good = random_soup(500, seed=4)
+    pts = rng.uniform(-1, 1, (100, 1, 3))
+    degenerate = np.concatenate([pts.repeat(3, axis=1),                                   # points
+                                 np.stack([pts[:, 0], pts[:, 0] + 0.1, pts[:, 0] + 0.2], 1)])  # segments
+    tris = np.concatenate([good, degenerate]).astype(np.float32)
+    tracer = Tracer(hwbvh.build(tris))
+    # aim straight at the degenerate ones: their point, or the middle of their segment
+    targets = np.concatenate([degenerate[:100, 0], degenerate[100:, 1]]).astype(np.float64)
+    o = targets + rng.normal(size=targets.shape)
+    h = tracer.intersect(o, targets - o)
+    assert not (h.prim >= len(good)).any()
+
+
+def test_verify_replay_of_a_mismatch_file(tmp_path):
+    import json
+    import subprocess
+    import sys
+    import trimesh
+    tris, V, F = closed_sphere(8, 12)
+    mesh = tmp_path / "s.ply"
+    trimesh.Trimesh(V, F, process=False).export(mesh)
+    rays = tmp_path / "m.npz"
+    np.savez(rays, origins=np.zeros((3, 3)), dirs=np.eye(3), tmax=np.full(3, np.inf),
+             ours_prim=np.zeros(3), ours_t=np.zeros(3), embree_prim=np.zeros(3), embree_t=np.zeros(3))
+    r = subprocess.run([sys.executable, "-m", "hwrt.cli", "verify", str(mesh), "--replay", str(rays), "--json"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert res["rays"] == 3 and res["mismatch"] == 0 and len(res["replayed"]) == 3
+    assert all(x["ours"][0] >= 0 for x in res["replayed"])        # from inside, every ray hits
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not an npz")
+    r = subprocess.run([sys.executable, "-m", "hwrt.cli", "verify", str(mesh), "--replay", str(bad)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2 and "bad.npz" in r.stderr
