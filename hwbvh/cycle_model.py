@@ -22,8 +22,10 @@ every split and every leaf of the canonical tree. What it times:
   stack (3.3.1: each context has its own stack). A thread whose stack empties ends; it does not
   take work from other threads. The partitioning units visit the
   threads in a fixed round-robin order and wait for a thread whose split is not ready (3.3.2).
-* Output: node records (48 bytes) and the 24-bit index list are written through the write
-  channels, overlapped with construction; they count as traffic.
+* Output: node records (two 192-bit words) and the 24-bit index list (8 per word) leave
+  through the write channels, overlapped with construction. A subtree builder cannot finish
+  before its share of the channels has carried its output, and the build cannot finish before
+  the channels have carried every word written, upper-sort writes included.
 
 Only what a build calls for is simulated. A mesh that fits one subtree builder never starts the
 upper builder's DRAM model, and its AABB pass is the fill itself.
@@ -183,6 +185,24 @@ def simulate_subtree(cleft, cright, ccount, cstart, unit_pos, root, w, tsize):
     return end, pu_busy, sah_busy, records
 
 
+def sub_nodes(tree, root):
+    """Number of nodes in the canonical subtree at ``root``."""
+    return int(_count_nodes(tree.left, tree.right, root))
+
+
+@njit(cache=True)
+def _count_nodes(cleft, cright, root):
+    stack = [root]
+    n = 0
+    while stack:
+        i = stack.pop()
+        n += 1
+        if cleft[i] >= 0:
+            stack.append(cleft[i])
+            stack.append(cright[i])
+    return n
+
+
 def _upper_plan(tree, capacity):
     """Upper nodes (count > capacity) and hand-off roots, in the upper builder's depth-first
     order: a list of ("upper", node) / ("handoff", node) events."""
@@ -216,6 +236,7 @@ def simulate(tree, params, node_count=None):
     t = 0                              # the upper builder's clock
     upper_nodes = 0
     upper_records = 0
+    upper_write_bytes = 0
     stall = 0
     uses_upper = tree.count[tree.root] > cap
     if uses_upper:
@@ -238,6 +259,7 @@ def simulate(tree, params, node_count=None):
             # one streaming partition pass: read and write every record once
             t += math.ceil(c / prims_per_cycle_dram) + LAT_PARTITION + LAT_BINNING + LAT_SAH
             traffic["upper_sort"] += 2 * c * RECORD_BYTES
+            upper_write_bytes += c * RECORD_BYTES
             upper_nodes += 1
             upper_records += c
             continue
@@ -257,14 +279,21 @@ def simulate(tree, params, node_count=None):
         t += fill
         cyc, pb, sb, rec = simulate_subtree(tree.left, tree.right, tree.count, tree.start,
                                             unit_pos, int(i), p.w, p.tsize)
+        # the subtree's output (two words per node, 8 indices per word) leaves through this
+        # builder's share of the write channels while it builds; it can only delay the end
+        out_words = 2 * sub_nodes(tree, int(i)) + -(-c // 8)
+        share = max(1.0, p.subtree_builders / R)
+        cyc = max(int(cyc), math.ceil(out_words * share))
         builder_free[k] = t + int(cyc)
         builder_busy[k] += int(cyc) + fill
         pu_busy += int(pb)
         sah_busy += int(sb)
         sub_cycles_total += int(cyc)
         records_sub += int(rec)
-    cycles = max([t] + builder_free)
     nodes = int(node_count if node_count is not None else tree.stats["nodes"])
+    # every word written (upper-sort writes, nodes, indices) crosses the R write channels
+    write_words = -(-upper_write_bytes // WORD_BYTES) + 2 * nodes + -(-n // 8)
+    cycles = max([t] + builder_free + [math.ceil(write_words / R)])
     traffic["nodes"] = nodes * NODE_BYTES
     traffic["indices"] = -(-n // 8) * WORD_BYTES
     seconds = cycles / (p.clock_mhz * 1e6)
