@@ -21,16 +21,17 @@ from .format import A, B, FLAGS, NODE_DTYPE, node_views
 
 
 @njit(cache=True)
-def assign_slots(cleft, cright, ccount, root, capacity, n_builders, block_nodes):
+def assign_slots(cleft, cright, ccount, root, capacity, n_builders, block_nodes, max_depth):
     m = cleft.shape[0]
     final = np.full(m, -1, dtype=np.int64)
     cur_block = np.full(n_builders + 1, -1, dtype=np.int64)
     fill = np.zeros(n_builders + 1, dtype=np.int64)
     next_block = 0
-    handoff = np.empty(m, dtype=np.int64)       # canonical root of each hand-off
+    handoff = np.empty(m, dtype=np.int32)       # canonical root of each hand-off
     n_handoff = 0
-    stack = np.empty(m + 1, dtype=np.int64)
-    sstream = np.empty(m + 1, dtype=np.int64)
+    # a pre-order stack never holds more than depth + 1 pending nodes
+    stack = np.empty(max_depth + 3, dtype=np.int64)
+    sstream = np.empty(max_depth + 3, dtype=np.int64)
     sp = 1
     stack[0] = root
     sstream[0] = 0
@@ -55,6 +56,13 @@ def assign_slots(cleft, cright, ccount, root, capacity, n_builders, block_nodes)
         if slot > max_slot:
             max_slot = slot
         if cleft[i] >= 0:
+            if sp + 2 > stack.shape[0]:         # never on a correct depth; grow, don't trust
+                bigger = np.empty(2 * stack.shape[0] + 2, dtype=np.int64)
+                bigger[:sp] = stack[:sp]
+                stack = bigger
+                bigger = np.empty(2 * sstream.shape[0] + 2, dtype=np.int64)
+                bigger[:sp] = sstream[:sp]
+                sstream = bigger
             stack[sp] = cright[i]
             sstream[sp] = st
             stack[sp + 1] = cleft[i]
@@ -87,7 +95,8 @@ def lay_out(tree, capacity, n_builders=1, block_nodes=256):
     Returns (nodes NODE_DTYPE array, handoff (h,) int64 canonical roots, info dict).
     """
     final, handoff, nslots, blocks = assign_slots(tree.left, tree.right, tree.count, tree.root,
-                                                  int(capacity), int(n_builders), int(block_nodes))
+                                                  int(capacity), int(n_builders), int(block_nodes),
+                                                  int(tree.stats["max_depth"]))
     nodes = np.zeros(nslots, dtype=NODE_DTYPE)
     u, f = node_views(nodes)
     write_records(tree.box, tree.left, tree.right, tree.start, tree.count, final, u, f)
