@@ -265,6 +265,8 @@ KNOBS = {
     "precision": ["float32", "float64"],
     "triangle_test": ["moller-trumbore", "watertight"],
     "offset": ["relative", "fixed", "none"],
+    # the same scene scaled: a fixed epsilon breaks, the relative offset does not
+    "offset_at_scale": ["relative@0.001", "fixed@0.001", "relative@1000", "fixed@1000"],
     "max_depth": [1, 2, 3, 5, 8],
     "spp": [1, 2, 4, 8],
 }
@@ -292,7 +294,7 @@ def _holes(setting):
 def bench_accuracy(args):
     from tqdm import tqdm
     from raytracer.render import make_tracer, render, warm_up
-    from scenes import compile_scene
+    from scenes import compile_scene, transform_scene
     from traversal.api import Tracer
     from traversal.verify import classify
     from traversal.embree_ref import embree_intersect, embree_scene
@@ -310,7 +312,11 @@ def bench_accuracy(args):
     refs = {}
     bar = tqdm(total=len(work), desc="bench accuracy", file=sys.stderr, unit="cell")
     for name, load, knob, val in work:
-        setting = dict(BASE, **{knob: val})
+        setting = dict(BASE, **({knob: val} if knob != "offset_at_scale" else {}))
+        scale = 1.0
+        if knob == "offset_at_scale":
+            strategy, scale = val.split("@")
+            setting["offset"], scale = strategy, float(scale)
         key = json.dumps([name, knob, val, W, H, repeat])
         if cells.get(key):
             bar.update(1)
@@ -320,7 +326,8 @@ def bench_accuracy(args):
             rs = compile_scene(_setting(load(), W, H, ref_spp, 8))
             tr, _, _ = make_tracer(rs, "sweep", "numba", precision="float64")
             refs[(name, ref_spp)] = render(rs, tr, seed=0).image
-        scene = compile_scene(_setting(load(), W, H, setting["spp"], setting["max_depth"]))
+        scene = compile_scene(_setting(transform_scene(load(), scale) if scale != 1.0 else load(),
+                                       W, H, setting["spp"], setting["max_depth"]))
         builds, renders = [], []
         for _ in range(repeat):
             tracer, b, info = make_tracer(scene, setting["builder"], "numba", setting["leaf_size"],

@@ -53,10 +53,13 @@ def test_accuracy_quick(tmp_path, mesh_dir):
     rows = json.loads(r.stdout)["rows"]
     knobs = {x["knob"] for x in rows}
     assert knobs == {"bins", "leaf_size", "builder", "precision", "triangle_test", "offset",
-                     "max_depth", "spp"}
+                     "offset_at_scale", "max_depth", "spp"}
     get = {(x["knob"], str(x["value"])): x for x in rows}
     # starting secondary rays on the surface causes acne; the robust offset does not
     assert get[("offset", "none")]["rmse"] > 10 * get[("offset", "relative")]["rmse"]
+    # a fixed epsilon breaks when the scene is scaled; the relative offset does not
+    for sc in ("0.001", "1000"):
+        assert get[("offset_at_scale", f"fixed@{sc}")]["rmse"] > 5 * get[("offset_at_scale", f"relative@{sc}")]["rmse"]
     # more samples converge toward the 16-spp reference
     assert get[("spp", "8")]["rmse"] < get[("spp", "1")]["rmse"]
     assert all(x["holes"] == 0 for x in rows)
