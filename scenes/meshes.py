@@ -27,22 +27,18 @@ def uv_sphere(n_lat, n_lon, radius=1.0, center=(0.0, 0.0, 0.0)):
     T, P = np.meshgrid(th, ph, indexing="ij")
     ring = np.stack([np.sin(T) * np.cos(P), np.cos(T), np.sin(T) * np.sin(P)], -1).reshape(-1, 3)
     V = np.concatenate([[[0, 1, 0]], ring, [[0, -1, 0]]]) * radius + np.asarray(center)
-    F = []
     top, bot = 0, len(V) - 1
-    for j in range(n_lon):
-        jn = (j + 1) % n_lon
-        F.append([top, 1 + jn, 1 + j])
-    for i in range(n_lat - 2):
-        r0, r1 = 1 + i * n_lon, 1 + (i + 1) * n_lon
-        for j in range(n_lon):
-            jn = (j + 1) % n_lon
-            F.append([r0 + j, r0 + jn, r1 + jn])
-            F.append([r0 + j, r1 + jn, r1 + j])
+    j = np.arange(n_lon)
+    jn = (j + 1) % n_lon
+    cap_top = np.stack([np.full(n_lon, top), 1 + jn, 1 + j], 1)
+    r0 = 1 + np.arange(n_lat - 2)[:, None] * n_lon            # ring starts, (n_lat-2, 1)
+    r1 = r0 + n_lon
+    a = np.stack([r0 + j, r0 + jn, r1 + jn], -1).reshape(-1, 3)
+    b = np.stack([r0 + j, r1 + jn, r1 + j], -1).reshape(-1, 3)
+    band = np.stack([a, b], 1).reshape(-1, 3)                 # a, b interleaved per quad
     last = 1 + (n_lat - 2) * n_lon
-    for j in range(n_lon):
-        jn = (j + 1) % n_lon
-        F.append([last + j, last + jn, bot])
-    return V, np.asarray(F, dtype=np.int64)
+    cap_bot = np.stack([last + j, last + jn, np.full(n_lon, bot)], 1)
+    return V, np.concatenate([cap_top, band, cap_bot]).astype(np.int64)
 
 
 def sphere(n_lat=32, n_lon=64, radius=1.0, center=(0.0, 0.0, 0.0)):
