@@ -163,7 +163,8 @@ def _soup(n, seed, size, flat, quant):
     return t.astype(np.float32)
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=60, deadline=None, derandomize=True,  # reproducible in CI
+          suppress_health_check=[HealthCheck.too_slow])
 @given(soups, st.sampled_from([1, 2, 4, 8]), st.sampled_from([2, 5, 16]))
 def test_property_invariants_and_exactness(tris, leaf, bins):
     ref, _ = naive_hwbvh(primitive_boxes(tris), leaf, bins) if len(tris) <= 120 else (None, 0)
