@@ -168,9 +168,34 @@ def _open3d_scene(verts, faces):
     return sc
 
 
+def _open3d_phase(cells, repeat):
+    """Open3D's column, timed after all of ours (see bench_trace)."""
+    try:
+        import open3d as o3
+    except Exception:
+        return
+    current, sc = None, None
+    for row, v32, f32, O32, D32, tm32, t_ours in cells:
+        if current is not v32:                      # one mesh's scene alive at a time
+            current, sc = v32, _open3d_scene(v32, f32)
+        if tm32 is None:
+            r = o3.core.Tensor(np.hstack([O32, D32]))
+            f = lambda: sc.cast_rays(r)
+        else:
+            r = o3.core.Tensor(np.hstack([O32, D32 * tm32[:, None]]))
+            f = lambda: sc.test_occlusions(r, tfar=1.0)
+        t_o3, _ = _median_time(f, repeat)
+        row["open3d_mrays"] = len(O32) / t_o3 / 1e6
+        row["ratio_vs_open3d"] = t_o3 / t_ours
+
+
 def bench_trace(args):
     """Throughput (Mrays/s) of our intersect/occluded against embreex (and Open3D when it is
-    importable) on identical ray sets: primary, incoherent, shadow."""
+    importable) on identical ray sets: primary, incoherent, shadow.
+
+    Open3D is timed in a second phase, after every mesh's ours/embreex figures: its TBB worker
+    threads keep spinning after a call and, timed in between, took CPU from the next
+    measurement (up to 25% of ours on this 2-core machine)."""
     from tqdm import tqdm
     import hwbvh
     from hwbvh.primitives import as_triangles
@@ -178,14 +203,13 @@ def bench_trace(args):
     from traversal.embree_ref import embree_intersect, embree_occluded, embree_scene
 
     n = args.rays
-    rows = []
+    rows, later = [], []
     for name, load in tqdm(mesh_inputs(args), desc="bench trace", file=sys.stderr, unit="mesh"):
         verts, faces = load()
         tris = as_triangles(verts[faces], source=name)
         v32, f32 = verts.astype(np.float32), faces.astype(np.int32)
         tracer = Tracer(hwbvh.build(tris))
         emb = embree_scene(v32, f32)
-        o3d = _open3d_scene(v32, f32)
         sets = {}
         O, D = raysets.primary(tris, n)
         sets["primary"] = (O, D, None)
@@ -197,32 +221,22 @@ def bench_trace(args):
         for kind, (O, D, tmax) in sets.items():
             O32 = np.ascontiguousarray(O, np.float32)
             D32 = np.ascontiguousarray(D, np.float32)
+            tm32 = None if tmax is None else np.ascontiguousarray(tmax, np.float32)
             if tmax is None:
                 ours = lambda: tracer.intersect(O32, D32)
                 peer = lambda: embree_intersect(emb, O32, D32)
             else:
-                tm32 = np.ascontiguousarray(tmax, np.float32)
                 ours = lambda: tracer.occluded(O32, D32, 0.0, tm32)
                 peer = lambda: embree_occluded(emb, O32, D32, tm32)
             t_ours, spread_o = _median_time(ours, args.repeat)
             t_emb, spread_e = _median_time(peer, args.repeat)
-            row = {"rays": int(len(O)), "ours_mrays": len(O) / t_ours / 1e6,
-                   "embreex_mrays": len(O) / t_emb / 1e6, "ratio_vs_embreex": t_emb / t_ours,
-                   "ours_spread_s": [min(spread_o), max(spread_o)],
-                   "embreex_spread_s": [min(spread_e), max(spread_e)]}
-            if o3d is not None:
-                import open3d as o3
-                r = o3.core.Tensor(np.hstack([O32, D32]))
-                if tmax is None:
-                    f = lambda: o3d.cast_rays(r)
-                else:
-                    r = o3.core.Tensor(np.hstack([O32, D32 * tm32[:, None]]))
-                    f = lambda: o3d.test_occlusions(r, tfar=1.0)
-                t_o3, _ = _median_time(f, args.repeat)
-                row["open3d_mrays"] = len(O) / t_o3 / 1e6
-                row["ratio_vs_open3d"] = t_o3 / t_ours
-            out[kind] = row
+            out[kind] = {"rays": int(len(O)), "ours_mrays": len(O) / t_ours / 1e6,
+                         "embreex_mrays": len(O) / t_emb / 1e6, "ratio_vs_embreex": t_emb / t_ours,
+                         "ours_spread_s": [min(spread_o), max(spread_o)],
+                         "embreex_spread_s": [min(spread_e), max(spread_e)]}
+            later.append((out[kind], v32, f32, O32, D32, tm32, t_ours))
         rows.append({"mesh": name, "triangles": int(len(tris)), "sets": out})
+    _open3d_phase(later, args.repeat)
     return {"meshes": rows, "machine": machine(), "repeat": args.repeat}
 
 

@@ -30,20 +30,20 @@ def near_far_planes(ix, iy, iz):
     return (3 if ix < 0 else 0), (3 if iy < 0 else 0), (3 if iz < 0 else 0)
 
 
-@njit(cache=True, error_model="numpy")
-def aabb_hit_at(f, i, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, tmax, widen):
-    """Box ``f[i, 0:6]`` against a ray with reciprocal direction ``(ix, iy, iz)``, near-plane
+@njit(cache=True, error_model="numpy", inline="always")
+def aabb_hit_at(f, b, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, tmax, widen):
+    """Box ``f[b:b + 6]`` (min xyz, max xyz in a flat array) against a ray with reciprocal direction ``(ix, iy, iz)``, near-plane
     offsets ``(kx, ky, kz)`` and interval [tmin, tmax]. Returns (hit, tnear).
 
     Subtract, then multiply, per plane (the unit's subtractors and multipliers). A NaN plane
     distance (origin on a slab plane with d = 0: 0 * inf) compares false in the selects below
     and is ignored, so the ray counts as inside that closed slab."""
-    nx = (f[i, kx] - ox) * ix
-    fx = (f[i, 3 - kx] - ox) * ix
-    ny = (f[i, 1 + ky] - oy) * iy
-    fy = (f[i, 4 - ky] - oy) * iy
-    nz = (f[i, 2 + kz] - oz) * iz
-    fz = (f[i, 5 - kz] - oz) * iz
+    nx = (f[b + kx] - ox) * ix
+    fx = (f[b + 3 - kx] - ox) * ix
+    ny = (f[b + 1 + ky] - oy) * iy
+    fy = (f[b + 4 - ky] - oy) * iy
+    nz = (f[b + 2 + kz] - oz) * iz
+    fz = (f[b + 5 - kz] - oz) * iz
     tnear = nx if nx > tmin else tmin
     tnear = ny if ny > tnear else tnear
     tnear = nz if nz > tnear else tnear
@@ -60,12 +60,13 @@ def aabb_batch(boxes, origins, dirs, tmin, tmax, widen, one):
     n = origins.shape[0]
     hit = np.empty(n, dtype=np.bool_)
     tn = np.empty(n, dtype=origins.dtype)
+    flat = boxes.ravel()
     for i in prange(n):
         ix = one / dirs[i, 0]
         iy = one / dirs[i, 1]
         iz = one / dirs[i, 2]
         kx, ky, kz = near_far_planes(ix, iy, iz)
-        h, t = aabb_hit_at(boxes, i, origins[i, 0], origins[i, 1], origins[i, 2],
+        h, t = aabb_hit_at(flat, 6 * i, origins[i, 0], origins[i, 1], origins[i, 2],
                            ix, iy, iz, kx, ky, kz, tmin[i], tmax[i], widen)
         hit[i] = h
         tn[i] = t

@@ -59,12 +59,16 @@ class Tracer:
             raise ValueError("the BVH has no triangles attached; pass triangles=")
         self.nodes = np.ascontiguousarray(bvh.nodes)
         self.u, self.f = node_views(self.nodes)
+        # flat word views of the same bytes for the kernels (no copy, no other layout)
+        self._u1 = self.u.reshape(-1)
+        self._f1 = self.f.reshape(-1)
         self.index_bytes = np.frombuffer(pack_indices(bvh.indices), dtype=np.uint8)
         self.tris = preprocess(tris, self.dtype)
+        self._tris1 = self.tris.reshape(-1)
         # the watertight test (accuracy study) needs the original vertices, not v0 + e1
         self.watertight = bool(watertight)
         self.raw = np.ascontiguousarray(np.asarray(tris, self.dtype).reshape(len(tris), 9)) \
-            if watertight else np.zeros((1, 9), self.dtype)
+            if watertight else None
         self.depth = tree_stats(self.nodes)["max_depth"]
         f32 = self.dtype == np.float32
         self.eps2 = band_eps2(self.dtype)
@@ -74,7 +78,7 @@ class Tracer:
             edge_eps = EDGE_EPS_F32 if f32 else EDGE_EPS_F64
         self.edge = self.dtype(edge_eps)
 
-    def _run(self, origins, dirs, tmin, tmax, anyhit, counters):
+    def _run(self, origins, dirs, tmin, tmax, anyhit, counters, normals=False):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)
         n = len(o)
         prim = np.empty(n, np.int32)
@@ -82,31 +86,23 @@ class Tracer:
         u = np.empty(n, self.dtype)
         v = np.empty(n, self.dtype)
         cnt = np.zeros((n if counters else 0, 2), np.int64)
-        over = trace_batch(self.u, self.f, self.index_bytes, self.tris, self.raw, self.watertight,
+        ng = np.empty((n if normals else 0, 3), self.dtype)
+        over = trace_batch(self._u1, self._f1, self.index_bytes, self._tris1, self.raw,
                            o, d, lo, hi, self.eps2,
-                           self.one, self.widen, self.edge, self.depth, anyhit, prim, t, u, v, cnt)
+                           self.one, self.widen, self.edge, self.depth, anyhit, prim, t, u, v, ng, cnt)
         if over:
             raise RuntimeError(f"traversal stack overflow on {over} rays: the tree is deeper "
                                f"than its recorded depth {self.depth} (corrupted tree?)")
-        return prim, t, u, v, (cnt if counters else None)
+        return prim, t, u, v, (ng if normals else None), (cnt if counters else None)
 
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False, normals=True):
         """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays). ``normals=False``
         skips the geometric normals (ng is then None) for callers that look them up."""
-        prim, t, u, v, cnt = self._run(origins, dirs, tmin, tmax, False, counters)
-        hit = prim >= 0
-        ng = None
-        if normals:
-            ng = np.zeros((len(prim), 3), self.dtype)
-            if hit.any():
-                tr = self.tris[prim[hit]]
-                ng[hit] = np.cross(tr[:, 3:6], tr[:, 6:9])
-        u[~hit] = 0
-        v[~hit] = 0
+        prim, t, u, v, ng, cnt = self._run(origins, dirs, tmin, tmax, False, counters, normals)
         return Hits(t=t, prim=prim, u=u, v=v, ng=ng, counters=cnt)
 
     def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False):
         """True where any triangle is hit in [tmin, tmax]; returns (blocked, counters or None)
         when counters=True."""
-        prim, _, _, _, cnt = self._run(origins, dirs, tmin, tmax, True, counters)
+        prim, _, _, _, _, cnt = self._run(origins, dirs, tmin, tmax, True, counters)
         return (prim >= 0, cnt) if counters else prim >= 0

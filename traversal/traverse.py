@@ -15,12 +15,14 @@ import numpy as np
 from numba import njit, prange
 
 from .aabb_unit import aabb_hit_at, near_far_planes
-from .triangle_unit import mt_hit_at, wt_hit_at
+from .triangle_unit import mt_hit_at, wt_hit_ray
 
 CHUNK = 64            # rays per parallel work item (one stack allocation each)
+W = 12                # 32-bit words per 48-byte node; u[W*i + 6] = a, u[W*i + 7] = b, u[W*i + 8] = flags
+TW = 10               # words per preprocessed triangle row (triangle_unit.preprocess)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def read_index(ib, p):
     """Entry p of the 24-bit little-endian index list (raw bytes)."""
     q = 3 * p
@@ -39,11 +41,14 @@ def _ray_ok(ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 
 @njit(cache=True, error_model="numpy")
-def trace_ray(u, f, ib, tris, raw, watertight, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one,
+def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one,
               widen, edge, stack, stack_t, anyhit):
-    """One ray. Returns (prim, t, bu, bv, nodes_visited, tris_tested, overflow).
-    ``watertight`` selects the Woop et al. test on ``raw`` vertices instead of the
-    Moller-Trumbore unit (accuracy study)."""
+    """One ray. ``u``/``f`` are the node buffer seen as flat uint32/float32 words (the raw bytes,
+    12 words per node), ``tris`` the flattened preprocessed triangles. Returns (prim, t, bu, bv,
+    nodes_visited, tris_tested, overflow). ``raw`` = None selects the Moller-Trumbore unit; an
+    (n, 9) vertex array selects the Woop et al. watertight test on it (accuracy study). The
+    choice is made at compile time (Numba prunes the ``raw is None`` branch), so the hardware
+    path carries no code of the other test."""
     best_t = tmax
     prim = -1
     bu = one - one                  # a zero of the working float type
@@ -57,22 +62,6 @@ def trace_ray(u, f, ib, tris, raw, watertight, ox, oy, oz, dx, dy, dz, tmin, tma
     iz = one / dz
     kx, ky, kz = near_far_planes(ix, iy, iz)
     dd = dx * dx + dy * dy + dz * dz
-    # watertight set-up: permute so that z is the largest |d| component, then shear
-    wz = 0
-    if abs(dy) > abs(dx):
-        wz = 1
-    if abs(dz) > max(abs(dx), abs(dy)):
-        wz = 2
-    wx = (wz + 1) % 3
-    wy = (wx + 1) % 3
-    dwz = dz if wz == 2 else (dy if wz == 1 else dx)
-    if dwz < 0:
-        wx, wy = wy, wx
-    dwx = dz if wx == 2 else (dy if wx == 1 else dx)
-    dwy = dz if wy == 2 else (dy if wy == 1 else dx)
-    shx = dwx / dwz
-    shy = dwy / dwz
-    shz = one / dwz
     hit, tn = aabb_hit_at(f, 0, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
     if not hit:
         return prim, best_t, bu, bv, nodes, tested, False
@@ -80,17 +69,16 @@ def trace_ray(u, f, ib, tris, raw, watertight, ox, oy, oz, dx, dy, dz, tmin, tma
     sp = 0
     while True:
         nodes += 1
-        if u[node, 8] & 1:
+        if u[W * node + 8] & 1:
             # -- leaf: primitives through the triangle unit --
-            first = np.int64(u[node, 6])
-            for p in range(first, first + np.int64(u[node, 7])):
+            first = np.int64(u[W * node + 6])
+            for p in range(first, first + np.int64(u[W * node + 7])):
                 j = read_index(ib, p)
                 tested += 1
-                if watertight:
-                    ok, t, tu, tv = wt_hit_at(raw, j, ox, oy, oz, wx, wy, wz, shx, shy, shz,
-                                              tmin, best_t)
+                if raw is not None:
+                    ok, t, tu, tv = wt_hit_ray(raw, j, ox, oy, oz, dx, dy, dz, one, tmin, best_t)
                 else:
-                    ok, t, tu, tv = mt_hit_at(tris, j, ox, oy, oz, dx, dy, dz, dd, tmin, best_t,
+                    ok, t, tu, tv = mt_hit_at(tris, TW * j, ox, oy, oz, dx, dy, dz, dd, tmin, best_t,
                                               eps2, one, edge)
                 if ok and (t < best_t or prim < 0 or j < prim):
                     best_t = t
@@ -102,10 +90,10 @@ def trace_ray(u, f, ib, tris, raw, watertight, ox, oy, oz, dx, dy, dz, tmin, tma
             node = -1
         else:
             # -- internal: both children through the AABB unit --
-            l = np.int64(u[node, 6])
-            r = np.int64(u[node, 7])
-            hl, tl = aabb_hit_at(f, l, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
-            hr, tr = aabb_hit_at(f, r, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
+            l = np.int64(u[W * node + 6])
+            r = np.int64(u[W * node + 7])
+            hl, tl = aabb_hit_at(f, W * l, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
+            hr, tr = aabb_hit_at(f, W * r, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
             if hl and hr:
                 if tr < tl:
                     l, r = r, l
@@ -131,15 +119,16 @@ def trace_ray(u, f, ib, tris, raw, watertight, ox, oy, oz, dx, dy, dz, tmin, tma
 
 
 @njit(cache=True, error_model="numpy")
-def _trace_range(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one, widen, edge,
-                 lo, hi, anyhit, stack, stack_t, out_prim, out_t, out_u, out_v, counters):
+def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
+                 lo, hi, anyhit, stack, stack_t, out_prim, out_t, out_u, out_v, out_ng, counters):
     """Rays [lo, hi) in a plain (non-parfor) function, so LLVM optimises the loop fully.
     Returns the number of rays whose stack would have overflowed."""
     count = counters.shape[0] > 0
+    normals = out_ng.shape[0] > 0
     over = 0
     for i in range(lo, hi):
         prim, t, bu, bv, nv, nt, of = trace_ray(
-            u, f, ib, tris, raw, watertight, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
+            u, f, ib, tris, raw, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
             tmin[i], tmax[i], eps2, one, widen, edge, stack, stack_t, anyhit)
         out_prim[i] = prim
         out_t[i] = t if prim >= 0 else np.inf
@@ -147,6 +136,19 @@ def _trace_range(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one, w
         out_v[i] = bv
         if of:
             over += 1
+        if normals:
+            # geometric normal e1 x e2 of the hit triangle (0 for a miss)
+            gx = one - one
+            gy = gx
+            gz = gx
+            if prim >= 0:
+                b = TW * np.int64(prim)
+                gx = tris[b + 4] * tris[b + 8] - tris[b + 5] * tris[b + 7]
+                gy = tris[b + 5] * tris[b + 6] - tris[b + 3] * tris[b + 8]
+                gz = tris[b + 3] * tris[b + 7] - tris[b + 4] * tris[b + 6]
+            out_ng[i, 0] = gx
+            out_ng[i, 1] = gy
+            out_ng[i, 2] = gz
         if count:
             counters[i, 0] = nv
             counters[i, 1] = nt
@@ -154,9 +156,10 @@ def _trace_range(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one, w
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def trace_batch(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one, widen, edge,
-                depth, anyhit, out_prim, out_t, out_u, out_v, counters):
-    """All rays; ``counters`` is (n, 2) int (nodes visited, triangles tested) or (0, 2).
+def trace_batch(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
+                depth, anyhit, out_prim, out_t, out_u, out_v, out_ng, counters):
+    """All rays; ``out_ng`` is (n, 3) for geometric normals or (0, 3); ``counters`` is (n, 2)
+    int (nodes visited, triangles tested) or (0, 2).
     Returns the number of rays whose stack would have overflowed (0 on a valid tree)."""
     n = O.shape[0]
     nchunks = (n + CHUNK - 1) // CHUNK
@@ -164,7 +167,8 @@ def trace_batch(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one, wi
     for c in prange(nchunks):
         stack = np.empty(depth + 2, dtype=np.int64)
         stack_t = np.empty(depth + 2, dtype=O.dtype)
-        overflow[c] = _trace_range(u, f, ib, tris, raw, watertight, O, D, tmin, tmax, eps2, one,
+        overflow[c] = _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one,
                                    widen, edge, c * CHUNK, min(n, (c + 1) * CHUNK), anyhit, stack,
-                                   stack_t, out_prim, out_t, out_u, out_v, counters)
+                                   stack_t, out_prim, out_t, out_u, out_v, out_ng,
+                                   counters)
     return overflow.sum()

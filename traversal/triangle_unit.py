@@ -36,22 +36,23 @@ def band_eps2(dtype):
     return dtype((BAND_K * eps) ** 2)
 
 
-@njit(cache=True, error_model="numpy")
-def mt_hit_at(tris, j, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge):
-    """Returns (valid, t, u, v). ``dd`` = |d|^2, ``eps2`` = (k*eps)^2 and ``one`` = 1 in the
+@njit(cache=True, error_model="numpy", inline="always")
+def mt_hit_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge):
+    """Triangle row ``tris[b:b + 10]`` of the flattened preprocessed array (``b = 10 * j``).
+    Returns (valid, t, u, v). ``dd`` = |d|^2, ``eps2`` = (k*eps)^2 and ``one`` = 1 in the
     working float type (so that the divider stays in that precision); ``edge`` >= 0 widens the
     barycentric checks (see ``EDGE_EPS``)."""
-    e1x = tris[j, 3]; e1y = tris[j, 4]; e1z = tris[j, 5]
-    e2x = tris[j, 6]; e2y = tris[j, 7]; e2z = tris[j, 8]
+    e1x = tris[b + 3]; e1y = tris[b + 4]; e1z = tris[b + 5]
+    e2x = tris[b + 6]; e2y = tris[b + 7]; e2z = tris[b + 8]
     # p = d x e2 ; det = e1 . p
     px = dy * e2z - dz * e2y
     py = dz * e2x - dx * e2z
     pz = dx * e2y - dy * e2x
     det = e1x * px + e1y * py + e1z * pz
-    if det * det <= eps2 * tris[j, 9] * dd:          # parallel band (relative), also det == 0
+    if det * det <= eps2 * tris[b + 9] * dd:          # parallel band (relative), also det == 0
         return False, tmax, tmax, tmax
     inv = one / det                              # the divider (Fig. A.4)
-    sx = ox - tris[j, 0]; sy = oy - tris[j, 1]; sz = oz - tris[j, 2]
+    sx = ox - tris[b + 0]; sy = oy - tris[b + 1]; sz = oz - tris[b + 2]
     u = (sx * px + sy * py + sz * pz) * inv
     if not (u >= -edge and u <= one + edge):
         return False, tmax, tmax, tmax
@@ -75,9 +76,10 @@ def mt_batch(tris, origins, dirs, tmin, tmax, eps2, one, edge):
     t = np.empty(n, dtype=origins.dtype)
     u = np.empty(n, dtype=origins.dtype)
     v = np.empty(n, dtype=origins.dtype)
+    flat = tris.ravel()
     for i in prange(n):
         dx = dirs[i, 0]; dy = dirs[i, 1]; dz = dirs[i, 2]
-        h, ti, ui, vi = mt_hit_at(tris, i, origins[i, 0], origins[i, 1], origins[i, 2], dx, dy, dz,
+        h, ti, ui, vi = mt_hit_at(flat, 10 * i, origins[i, 0], origins[i, 1], origins[i, 2], dx, dy, dz,
                                dx * dx + dy * dy + dz * dz, tmin[i], tmax[i], eps2, one, edge)
         hit[i] = h
         t[i] = ti
@@ -131,3 +133,31 @@ def wt_hit_at(raw, j, ox, oy, oz, kx, ky, kz, sx, sy, sz, tmin, tmax):
     if not (t >= tmin and t <= tmax):
         return False, tmax, tmax, tmax
     return True, t, V / det, W / det
+
+
+@njit(cache=True, error_model="numpy")
+def wt_setup(dx, dy, dz, one):
+    """Per-ray constants of the watertight test: the axis permutation (kx, ky, kz), kz the
+    largest |d| component and kx/ky swapped when d[kz] < 0 to keep the winding, and the shear
+    (sx, sy, sz)."""
+    kz = 0
+    if abs(dy) > abs(dx):
+        kz = 1
+    if abs(dz) > max(abs(dx), abs(dy)):
+        kz = 2
+    kx = (kz + 1) % 3
+    ky = (kx + 1) % 3
+    dkz = dz if kz == 2 else (dy if kz == 1 else dx)
+    if dkz < 0:
+        kx, ky = ky, kx
+    dkx = dz if kx == 2 else (dy if kx == 1 else dx)
+    dky = dz if ky == 2 else (dy if ky == 1 else dx)
+    return kx, ky, kz, dkx / dkz, dky / dkz, one / dkz
+
+
+@njit(cache=True, error_model="numpy")
+def wt_hit_ray(raw, j, ox, oy, oz, dx, dy, dz, one, tmin, tmax):
+    """``wt_hit_at`` with the per-ray set-up done here (kept out of the traversal loop, whose
+    hot path is the Moller-Trumbore unit)."""
+    kx, ky, kz, sx, sy, sz = wt_setup(dx, dy, dz, one)
+    return wt_hit_at(raw, j, ox, oy, oz, kx, ky, kz, sx, sy, sz, tmin, tmax)
