@@ -40,7 +40,7 @@ def _ray_ok(ox, oy, oz, dx, dy, dz, tmin, tmax):
     return tmin <= tmax and not np.isnan(tmin)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one,
               widen, edge, stack, stack_t, anyhit):
     """One ray. ``u``/``f`` are the node buffer seen as flat uint32/float32 words (the raw bytes,
