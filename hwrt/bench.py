@@ -242,26 +242,34 @@ def bench_trace(args):
 
 def bench_render(args):
     """The default scene (640x480, 4 spp, depth 5) with our build + traversal against
-    Embree's build + traversal, in one process after warm-up; median of repeats."""
+    Embree's build + traversal, in one process after warm-up; median of repeats. The two
+    paths alternate run by run, so that drift in the machine's speed (about 10% on this 2-core
+    VM) falls on both alike."""
     from raytracer.render import make_tracer, render, warm_up
     from scenes import compile_scene, load_scene
 
     scene = compile_scene(load_scene(args.meshes[0] if args.meshes else "cornell"))
-    rows = []
-    for builder, traversal in (("hwbvh", "numba"), ("embree", "embree")):
+    paths = (("hwbvh", "numba"), ("embree", "embree"))
+    runs = {p: {"builds": [], "renders": [], "rays": None} for p in paths}
+    for builder, traversal in paths:
         warm_up(builder, traversal, parallel_build=True)
-        builds, renders = [], []
-        for _ in range(args.repeat + 1):
-            tracer, b, _ = make_tracer(scene, builder, traversal)
+        tracer, _, _ = make_tracer(scene, builder, traversal)
+        render(scene, tracer)                          # first render of each path: warm-up
+    for _ in range(args.repeat):
+        for p in paths:
+            tracer, b, _ = make_tracer(scene, *p)
             t = time.perf_counter()
             res = render(scene, tracer)
-            renders.append(time.perf_counter() - t)
-            builds.append(b)
-        builds, renders = builds[1:], renders[1:]          # first run is the warm-up
+            runs[p]["renders"].append(time.perf_counter() - t)
+            runs[p]["builds"].append(b)
+            runs[p]["rays"] = res.stats["rays"]
+    rows = []
+    for (builder, traversal), r in runs.items():
+        builds, renders = r["builds"], r["renders"]
         rows.append({"builder": builder, "traversal": traversal,
                      "build_seconds": statistics.median(builds),
                      "render_seconds": statistics.median(renders),
                      "total_seconds": statistics.median(np.add(builds, renders)),
-                     "render_spread": [min(renders), max(renders)], "rays": res.stats["rays"]})
+                     "render_spread": [min(renders), max(renders)], "rays": r["rays"]})
     ratio = rows[0]["total_seconds"] / rows[1]["total_seconds"]
     return {"scene": scene.name, "rows": rows, "ratio": ratio, "machine": machine()}

@@ -82,9 +82,10 @@ class Tracer:
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)
         n = len(o)
         prim = np.empty(n, np.int32)
-        t = np.empty(n, self.dtype)
-        u = np.empty(n, self.dtype)
-        v = np.empty(n, self.dtype)
+        m = 0 if anyhit else n                 # occluded() needs the primitive only
+        t = np.empty(m, self.dtype)
+        u = np.empty(m, self.dtype)
+        v = np.empty(m, self.dtype)
         cnt = np.zeros((n if counters else 0, 2), np.int64)
         ng = np.empty((n if normals else 0, 3), self.dtype)
         over = trace_batch(self._u1, self._f1, self.index_bytes, self._tris1, self.raw,

@@ -125,15 +125,17 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
     Returns the number of rays whose stack would have overflowed."""
     count = counters.shape[0] > 0
     normals = out_ng.shape[0] > 0
+    hits_out = out_t.shape[0] > 0            # occluded() asks for out_prim only
     over = 0
     for i in range(lo, hi):
         prim, t, bu, bv, nv, nt, of = trace_ray(
             u, f, ib, tris, raw, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
             tmin[i], tmax[i], eps2, one, widen, edge, stack, stack_t, anyhit)
         out_prim[i] = prim
-        out_t[i] = t if prim >= 0 else np.inf
-        out_u[i] = bu
-        out_v[i] = bv
+        if hits_out:
+            out_t[i] = t if prim >= 0 else np.inf
+            out_u[i] = bu
+            out_v[i] = bv
         if of:
             over += 1
         if normals:
@@ -158,7 +160,8 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
 @njit(cache=True, parallel=True, error_model="numpy")
 def trace_batch(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
                 depth, anyhit, out_prim, out_t, out_u, out_v, out_ng, counters):
-    """All rays; ``out_ng`` is (n, 3) for geometric normals or (0, 3); ``counters`` is (n, 2)
+    """All rays; ``out_t``, ``out_u``, ``out_v`` are (n,) or, when only ``out_prim`` is wanted,
+    (0,); ``out_ng`` is (n, 3) for geometric normals or (0, 3); ``counters`` is (n, 2)
     int (nodes visited, triangles tested) or (0, 2).
     Returns the number of rays whose stack would have overflowed (0 on a valid tree)."""
     n = O.shape[0]
@@ -169,6 +172,5 @@ def trace_batch(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
         stack_t = np.empty(depth + 2, dtype=O.dtype)
         overflow[c] = _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one,
                                    widen, edge, c * CHUNK, min(n, (c + 1) * CHUNK), anyhit, stack,
-                                   stack_t, out_prim, out_t, out_u, out_v, out_ng,
-                                   counters)
+                                   stack_t, out_prim, out_t, out_u, out_v, out_ng, counters)
     return overflow.sum()
