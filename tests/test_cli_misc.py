@@ -35,6 +35,22 @@ def test_bench_build_on_generated_meshes_prints_ratios(tmp_path):
     assert row["ratio"] == pytest.approx(row["hwbvh_seconds"] / row["embree_seconds"])
 
 
+def test_bench_trace_prints_throughput_and_ratios(tmp_path):
+    import trimesh
+    from scenes.meshes import bumpy_sphere
+    tris = bumpy_sphere(4000)
+    p = tmp_path / "b.ply"
+    trimesh.Trimesh(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3), process=False).export(p)
+    r = subprocess.run([sys.executable, "-m", "hwrt.cli", "bench", "trace", str(p), "--rays", "3000",
+                        "--repeat", "1", "--json"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    sets = json.loads(r.stdout)["meshes"][0]["sets"]
+    assert set(sets) == {"primary", "incoherent", "shadow"}
+    for row in sets.values():
+        assert row["rays"] > 0 and row["ours_mrays"] > 0 and row["embreex_mrays"] > 0
+        assert row["ratio_vs_embreex"] == pytest.approx(row["ours_mrays"] / row["embreex_mrays"])
+
+
 @pytest.mark.slow
 def test_two_million_triangles_build_and_validate():
     import hwbvh

@@ -278,3 +278,22 @@ def test_verify_replay_of_a_mismatch_file(tmp_path):
     r = subprocess.run([sys.executable, "-m", "hwrt.cli", "verify", str(mesh), "--replay", str(bad)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 2 and "bad.npz" in r.stderr
+
+
+def test_geometric_normals_are_the_hit_triangles_and_zero_on_a_miss():
+    # the kernel writes e1 x e2 of the hit triangle (in the working precision); a miss gets 0
+    tris = random_soup(2000, seed=11)
+    tracer = Tracer(hwbvh.build(tris))
+    rng = np.random.default_rng(4)
+    o = rng.uniform(-1.2, 1.2, (5000, 3))
+    d = rng.normal(size=(5000, 3))
+    h = tracer.intersect(o, d)
+    hit = h.prim >= 0
+    assert 0 < hit.sum() < len(hit)
+    t64 = np.asarray(tris, np.float64)[h.prim[hit]]
+    ref = np.cross(t64[:, 1] - t64[:, 0], t64[:, 2] - t64[:, 0])
+    np.testing.assert_allclose(h.ng[hit], ref, rtol=1e-4, atol=1e-6 * np.abs(ref).max())
+    assert not h.ng[~hit].any()
+    assert not h.u[~hit].any() and not h.v[~hit].any() and np.isinf(h.t[~hit]).all()
+    bare = tracer.intersect(o, d, normals=False)
+    assert bare.ng is None and np.array_equal(bare.prim, h.prim) and np.array_equal(bare.t, h.t)
