@@ -6,6 +6,7 @@
 """
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from hwbvh.format import node_views, pack_indices, tree_stats
@@ -90,7 +91,8 @@ class Tracer:
         ng = np.empty((n if normals else 0, 3), self.dtype)
         over = trace_batch(self._u1, self._f1, self.index_bytes, self._tris1, self.raw,
                            o, d, lo, hi, self.eps2,
-                           self.one, self.widen, self.edge, self.depth, anyhit, prim, t, u, v, ng, cnt)
+                           self.one, self.widen, self.edge, self.depth, anyhit, prim, t, u, v, ng, cnt,
+                           numba.get_num_threads())
         if over:
             raise RuntimeError(f"traversal stack overflow on {over} rays: the tree is deeper "
                                f"than its recorded depth {self.depth} (corrupted tree?)")

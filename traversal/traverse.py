@@ -159,18 +159,26 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def trace_batch(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
-                depth, anyhit, out_prim, out_t, out_u, out_v, out_ng, counters):
+                depth, anyhit, out_prim, out_t, out_u, out_v, out_ng, counters, nthreads):
     """All rays; ``out_t``, ``out_u``, ``out_v`` are (n,) or, when only ``out_prim`` is wanted,
     (0,); ``out_ng`` is (n, 3) for geometric normals or (0, 3); ``counters`` is (n, 2)
-    int (nodes visited, triangles tested) or (0, 2).
+    int (nodes visited, triangles tested) or (0, 2). ``nthreads``: Numba's thread count
+    (``numba.get_num_threads()``, passed in because calling it here would stop the caching).
     Returns the number of rays whose stack would have overflowed (0 on a valid tree)."""
     n = O.shape[0]
     nchunks = (n + CHUNK - 1) // CHUNK
-    overflow = np.zeros(nchunks, dtype=np.int64)
-    for c in prange(nchunks):
+    # One work item per thread, taking every T-th chunk: the static schedule of prange would
+    # give each thread a contiguous half of the batch, and a wavefront of secondary rays is
+    # ordered by kind (mirror, reflection, refraction), so one half can cost far more.
+    T = max(1, min(nthreads, nchunks))
+    overflow = np.zeros(T, dtype=np.int64)
+    for w in prange(T):
         stack = np.empty(depth + 2, dtype=np.int64)
         stack_t = np.empty(depth + 2, dtype=O.dtype)
-        overflow[c] = _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one,
-                                   widen, edge, c * CHUNK, min(n, (c + 1) * CHUNK), anyhit, stack,
-                                   stack_t, out_prim, out_t, out_u, out_v, out_ng, counters)
+        over = 0
+        for c in range(w, nchunks, T):
+            over += _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
+                                 c * CHUNK, min(n, (c + 1) * CHUNK), anyhit, stack, stack_t,
+                                 out_prim, out_t, out_u, out_v, out_ng, counters)
+        overflow[w] = over
     return overflow.sum()
