@@ -297,3 +297,26 @@ def test_geometric_normals_are_the_hit_triangles_and_zero_on_a_miss():
     assert not h.u[~hit].any() and not h.v[~hit].any() and np.isinf(h.t[~hit]).all()
     bare = tracer.intersect(o, d, normals=False)
     assert bare.ng is None and np.array_equal(bare.prim, h.prim) and np.array_equal(bare.t, h.t)
+
+
+def test_answers_do_not_depend_on_the_thread_count_or_batch_split():
+    # every ray is independent: one thread, two threads, and a batch cut into pieces agree
+    import numba
+    tris = random_soup(3000, seed=12)
+    tracer = Tracer(hwbvh.build(tris))
+    rng = np.random.default_rng(6)
+    o = rng.uniform(-1.2, 1.2, (7001, 3))            # not a multiple of the 64-ray chunk
+    d = rng.normal(size=(7001, 3))
+    both = tracer.intersect(o, d)
+    old = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = tracer.intersect(o, d)
+    finally:
+        numba.set_num_threads(old)
+    parts = [tracer.intersect(o[a:a + 1000], d[a:a + 1000]) for a in range(0, 7001, 1000)]
+    assert np.array_equal(one.prim, both.prim) and np.array_equal(one.t, both.t)
+    assert np.array_equal(one.u, both.u) and np.array_equal(one.ng, both.ng)
+    assert np.array_equal(np.concatenate([p.prim for p in parts]), both.prim)
+    assert np.array_equal(np.concatenate([p.t for p in parts]), both.t)
+    assert np.array_equal(tracer.occluded(o, d, 0.0, 0.5), tracer.intersect(o, d, 0.0, 0.5).prim >= 0)
