@@ -34,6 +34,17 @@ def primary_rays(eye, target, up, fov_deg, width, height, jitter=None):
     return o, d
 
 
+def tile_order(width, height, tile=4):
+    """Pixel indices (row-major numbering) listed tile by tile: ``tile`` x ``tile`` squares, row
+    by row inside a tile, tiles row by row; partial tiles at the right and bottom edges. A
+    renderer issues its camera rays in this order so that 16 consecutive rays are a 4x4 block
+    of neighbours, which the packet traversal needs (``traversal.packet``)."""
+    ys, xs = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
+    tiles_x = -(-width // tile)
+    key = ((ys // tile) * tiles_x + xs // tile) * (tile * tile) + (ys % tile) * tile + xs % tile
+    return np.argsort(key.ravel(), kind="stable")
+
+
 def frame_bounds(lo, hi, fov_deg=40.0, direction=(0.35, 0.45, 1.0)):
     """A camera (eye, target, up) that frames the box [lo, hi] from ``direction``."""
     lo = np.asarray(lo, np.float64)

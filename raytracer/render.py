@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .camera import primary_rays
+from .camera import primary_rays, tile_order
 from .offset import offset_origins
 
 
@@ -182,6 +182,7 @@ def render(scene, tracer, seed=0, verify=None, progress=None, offset="relative",
                 ver[k] += c[k]
         return h
 
+    order = tile_order(W, H)
     gx = int(np.ceil(np.sqrt(spp)))
     gy = int(np.ceil(spp / gx))
     for s in range(spp):
@@ -192,8 +193,9 @@ def render(scene, tracer, seed=0, verify=None, progress=None, offset="relative",
         else:
             jit = None
         O, D = primary_rays(cam["eye"], cam["target"], cam["up"], cam["fov"], W, H, jit)
+        pix = order                                     # camera rays in 4x4 tiles
+        O, D = O[pix], D[pix]
         wgt = np.ones((npix, 3))
-        pix = np.arange(npix)
         kind = "primary"
         for bounce in range(passes["depth"]):
             if len(O) == 0:

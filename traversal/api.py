@@ -49,9 +49,15 @@ def _rays(origins, dirs, tmin, tmax, dtype):
 
 class Tracer:
     """Ray queries on one BVH. precision: "float32" (the hardware units) or "float64";
-    watertight=True swaps the Moller-Trumbore unit for the Woop et al. 2013 test."""
+    watertight=True swaps the Moller-Trumbore unit for the Woop et al. 2013 test.
 
-    def __init__(self, bvh, triangles=None, precision="float32", edge_eps=None, watertight=False):
+    packets=True (default) traces each group of 16 consecutive rays that share a direction
+    octant as a packet (``traversal.packet``): the same answers, bit for bit, with the box and
+    triangle tests in SIMD. Give coherent rays in a coherent order (e.g. a camera's rays in
+    pixel order) to profit. Per-ray counters and the watertight test use the single-ray path."""
+
+    def __init__(self, bvh, triangles=None, precision="float32", edge_eps=None, watertight=False,
+                 packets=True):
         if precision not in ("float32", "float64"):
             raise ValueError("precision must be 'float32' or 'float64'")
         self.dtype = np.float32 if precision == "float32" else np.float64
@@ -78,6 +84,8 @@ class Tracer:
         if edge_eps is None:
             edge_eps = EDGE_EPS_F32 if f32 else EDGE_EPS_F64
         self.edge = self.dtype(edge_eps)
+        self.packets = bool(packets)
+        self.last_packets = 0          # packets the last query traced (the rest went ray by ray)
 
     def _run(self, origins, dirs, tmin, tmax, anyhit, counters, normals=False):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)
@@ -89,9 +97,10 @@ class Tracer:
         v = np.empty(m, self.dtype)
         cnt = np.zeros((n if counters else 0, 2), np.int64)
         ng = np.empty((n if normals else 0, 3), self.dtype)
-        over = trace_batch(self._u1, self._f1, self.index_bytes, self._tris1, self.raw,
+        over, self.last_packets = trace_batch(self._u1, self._f1, self.index_bytes, self._tris1, self.raw,
                            o, d, lo, hi, self.eps2,
-                           self.one, self.widen, self.edge, self.depth, anyhit, prim, t, u, v, ng, cnt,
+                           self.one, self.widen, self.edge, self.depth, anyhit,
+                           self.packets and not counters and self.raw is None, prim, t, u, v, ng, cnt,
                            numba.get_num_threads())
         if over:
             raise RuntimeError(f"traversal stack overflow on {over} rays: the tree is deeper "

@@ -1,7 +1,7 @@
 """The ray sets of the verification and the benchmarks: primary, incoherent, shadow, bounces."""
 import numpy as np
 
-from raytracer.camera import frame_bounds, primary_rays
+from raytracer.camera import frame_bounds, primary_rays, tile_order
 from raytracer.offset import offset_origins
 
 
@@ -11,11 +11,14 @@ def bounds_of(tris):
 
 
 def primary(tris, n):
+    """Camera rays of a view framing the mesh, about n of them, in 4x4 pixel tiles."""
     lo, hi = bounds_of(tris)
     eye, target, up = frame_bounds(lo, hi)
     w = max(1, int(round(np.sqrt(n * 4 / 3))))
     h = max(1, n // w)
-    return primary_rays(eye, target, up, 40.0, w, h)
+    o, d = primary_rays(eye, target, up, 40.0, w, h)
+    order = tile_order(w, h)                # in 4x4 pixel tiles, as a renderer issues them
+    return o[order], d[order]
 
 
 def incoherent(tris, n, seed=0):

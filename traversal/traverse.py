@@ -15,29 +15,11 @@ import numpy as np
 from numba import njit, prange
 
 from .aabb_unit import aabb_hit_at, near_far_planes
+from .packet import NF, NI, NM, P, coherent, trace_packet
+from .rawtree import W, TW, read_index, _ray_ok
 from .triangle_unit import mt_hit_at, wt_hit_ray
 
 CHUNK = 64            # rays per parallel work item (one stack allocation each)
-W = 12                # 32-bit words per 48-byte node; u[W*i + 6] = a, u[W*i + 7] = b, u[W*i + 8] = flags
-TW = 10               # words per preprocessed triangle row (triangle_unit.preprocess)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def read_index(ib, p):
-    """Entry p of the 24-bit little-endian index list (raw bytes)."""
-    q = 3 * p
-    return np.int64(ib[q]) | (np.int64(ib[q + 1]) << 8) | (np.int64(ib[q + 2]) << 16)
-
-
-@njit(cache=True, error_model="numpy")
-def _ray_ok(ox, oy, oz, dx, dy, dz, tmin, tmax):
-    if not (np.isfinite(ox) and np.isfinite(oy) and np.isfinite(oz)):
-        return False
-    if not (np.isfinite(dx) and np.isfinite(dy) and np.isfinite(dz)):
-        return False
-    if dx == 0 and dy == 0 and dz == 0:
-        return False
-    return tmin <= tmax and not np.isnan(tmin)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -120,29 +102,48 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
 
 @njit(cache=True, error_model="numpy")
 def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
-                 lo, hi, anyhit, stack, stack_t, out_prim, out_t, out_u, out_v, out_ng, counters):
+                 lo, hi, anyhit, packets, stack, stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v,
+                 out_ng, counters):
     """Rays [lo, hi) in a plain (non-parfor) function, so LLVM optimises the loop fully.
-    Returns the number of rays whose stack would have overflowed."""
+    With ``packets``, each group of P consecutive rays that share a direction octant goes
+    through the packet kernel (same answers, SIMD box and triangle tests); other groups go
+    ray by ray. Returns (rays whose stack would have overflowed, packets traced)."""
     count = counters.shape[0] > 0
     normals = out_ng.shape[0] > 0
     hits_out = out_t.shape[0] > 0            # occluded() asks for out_prim only
     over = 0
-    for i in range(lo, hi):
-        prim, t, bu, bv, nv, nt, of = trace_ray(
-            u, f, ib, tris, raw, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
-            tmin[i], tmax[i], eps2, one, widen, edge, stack, stack_t, anyhit)
-        out_prim[i] = prim
-        if hits_out:
-            out_t[i] = t if prim >= 0 else np.inf
-            out_u[i] = bu
-            out_v[i] = bv
-        if of:
-            over += 1
-        if normals:
+    npk = 0
+    a = lo
+    while a < hi:
+        b = min(hi, a + P)
+        if packets and coherent(D, a, b):
+            over += trace_packet(u, f, ib, tris, O, D, tmin, tmax, eps2, one, widen, edge, a, b,
+                                 anyhit, stack, F, I, M, M64, out_prim, out_t, out_u, out_v) * (b - a)
+            npk += 1
+            a = b
+            continue
+        for i in range(a, b):
+            prim, t, bu, bv, nv, nt, of = trace_ray(
+                u, f, ib, tris, raw, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
+                tmin[i], tmax[i], eps2, one, widen, edge, stack, stack_t, anyhit)
+            out_prim[i] = prim
+            if hits_out:
+                out_t[i] = t if prim >= 0 else np.inf
+                out_u[i] = bu
+                out_v[i] = bv
+            if of:
+                over += 1
+            if count:
+                counters[i, 0] = nv
+                counters[i, 1] = nt
+        a = b
+    if normals:
+        for i in range(lo, hi):
             # geometric normal e1 x e2 of the hit triangle (0 for a miss)
             gx = one - one
             gy = gx
             gz = gx
+            prim = out_prim[i]
             if prim >= 0:
                 b = TW * np.int64(prim)
                 gx = tris[b + 4] * tris[b + 8] - tris[b + 5] * tris[b + 7]
@@ -151,20 +152,17 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
             out_ng[i, 0] = gx
             out_ng[i, 1] = gy
             out_ng[i, 2] = gz
-        if count:
-            counters[i, 0] = nv
-            counters[i, 1] = nt
-    return over
+    return over, npk
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def trace_batch(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
-                depth, anyhit, out_prim, out_t, out_u, out_v, out_ng, counters, nthreads):
+                depth, anyhit, packets, out_prim, out_t, out_u, out_v, out_ng, counters, nthreads):
     """All rays; ``out_t``, ``out_u``, ``out_v`` are (n,) or, when only ``out_prim`` is wanted,
     (0,); ``out_ng`` is (n, 3) for geometric normals or (0, 3); ``counters`` is (n, 2)
     int (nodes visited, triangles tested) or (0, 2). ``nthreads``: Numba's thread count
     (``numba.get_num_threads()``, passed in because calling it here would stop the caching).
-    Returns the number of rays whose stack would have overflowed (0 on a valid tree)."""
+    Returns (rays whose stack would have overflowed (0 on a valid tree), packets traced)."""
     n = O.shape[0]
     nchunks = (n + CHUNK - 1) // CHUNK
     # One work item per thread, taking every T-th chunk: the static schedule of prange would
@@ -172,13 +170,22 @@ def trace_batch(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
     # ordered by kind (mirror, reflection, refraction), so one half can cost far more.
     T = max(1, min(nthreads, nchunks))
     overflow = np.zeros(T, dtype=np.int64)
+    packets_traced = np.zeros(T, dtype=np.int64)
     for w in prange(T):
         stack = np.empty(depth + 2, dtype=np.int64)
         stack_t = np.empty(depth + 2, dtype=O.dtype)
+        F = np.empty(NF, dtype=O.dtype)
+        I = np.empty(NI, dtype=np.int32)
+        M = np.zeros(NM, dtype=np.uint8)
+        M64 = M.view(np.uint64)
         over = 0
+        npk = 0
         for c in range(w, nchunks, T):
-            over += _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
-                                 c * CHUNK, min(n, (c + 1) * CHUNK), anyhit, stack, stack_t,
-                                 out_prim, out_t, out_u, out_v, out_ng, counters)
+            o_, p_ = _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
+                                 c * CHUNK, min(n, (c + 1) * CHUNK), anyhit, packets, stack,
+                                 stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v, out_ng, counters)
+            over += o_
+            npk += p_
         overflow[w] = over
-    return overflow.sum()
+        packets_traced[w] = npk
+    return overflow.sum(), packets_traced.sum()

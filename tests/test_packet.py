@@ -1,0 +1,144 @@
+"""Packet traversal (traversal.packet): the same answers, bit for bit, as the single-ray path,
+on the rays that take it (coherent groups of 16), including the hard cases."""
+import numpy as np
+import pytest
+
+import hwbvh
+from raytracer.camera import frame_bounds, primary_rays, tile_order
+from scenes.meshes import grid_sheet, random_soup, uv_sphere
+from traversal import Tracer, raysets
+from traversal.packet import P, coherent
+
+
+def pair(tris, **kw):
+    bvh = hwbvh.build(tris)
+    return Tracer(bvh, **kw), Tracer(bvh, packets=False, **kw)
+
+
+def same_hits(a, b):
+    for name in ("prim", "t", "u", "v", "ng"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert np.array_equal(x, y), name          # bit for bit (inf == inf, no NaN in outputs)
+
+
+def scene():
+    V, F = uv_sphere(30, 48)
+    return np.concatenate([V[F], random_soup(4000, seed=3, size=0.08)]).astype(np.float32)
+
+
+def camera_rays(tris, w=97, h=61):                 # odd sizes: partial tiles and packets
+    lo, hi = raysets.bounds_of(tris)
+    eye, target, up = frame_bounds(lo, hi)
+    o, d = primary_rays(eye, target, up, 40.0, w, h)
+    order = tile_order(w, h)
+    return o[order], d[order]
+
+
+def test_tile_order_is_a_permutation_of_4x4_blocks():
+    order = tile_order(10, 7)
+    assert sorted(order) == list(range(70))
+    first = order[:16]
+    assert set(first % 10) == {0, 1, 2, 3} and set(first // 10) == {0, 1, 2, 3}
+    # the partial tile at the right edge (columns 8, 9) comes right after the first row of tiles'
+    # second tile, with 2 x 4 pixels
+    assert set(order[32:40] % 10) == {8, 9}
+
+
+def test_packets_give_the_single_ray_answers_on_camera_and_shadow_rays():
+    tris = scene()
+    pk, single = pair(tris)
+    o, d = camera_rays(tris)
+    a = pk.intersect(o, d)
+    assert pk.last_packets >= 0.9 * len(o) / P       # the packet path really ran
+    same_hits(a, single.intersect(o, d))
+    assert (a.prim >= 0).mean() > 0.1
+    so, sd, st = raysets.shadow(single, tris, 6000)
+    occ = pk.occluded(so, sd, 0.0, st)
+    assert pk.last_packets > 0
+    assert np.array_equal(occ, single.occluded(so, sd, 0.0, st))
+    assert 0.05 < occ.mean() < 0.95                # both answers occur
+
+
+def test_packets_with_per_ray_intervals_and_dead_lanes():
+    tris = scene()
+    pk, single = pair(tris)
+    o, d = camera_rays(tris)
+    rng = np.random.default_rng(4)
+    tmin = rng.uniform(0, 1.5, len(o))
+    tmax = tmin + rng.uniform(0, 3, len(o))
+    tmax[::7] = tmin[::7]                          # empty-width intervals
+    o = o.copy()
+    o[5] = np.nan                                  # invalid rays inside coherent groups
+    o[40, 1] = np.inf
+    tmin[77] = np.nan
+    tmax[90] = tmin[90] - 1
+    a = pk.intersect(o, d, tmin, tmax)
+    assert pk.last_packets > 0
+    same_hits(a, single.intersect(o, d, tmin, tmax))
+    assert a.prim[[5, 40, 77, 90]].tolist() == [-1] * 4
+    assert np.array_equal(pk.occluded(o, d, tmin, tmax), single.occluded(o, d, tmin, tmax))
+
+
+@pytest.mark.parametrize("z", [0.0, -0.0])
+def test_packets_of_axis_parallel_rays_through_vertices_and_edges(z):
+    tris = grid_sheet(16, 16, wave=0.0)            # flat: y = 0 exactly
+    pk, single = pair(tris)
+    xs = np.linspace(-1, 1, 33)                    # vertices and edge midpoints
+    X, Z = np.meshgrid(xs, xs)
+    o = np.stack([X.ravel(), np.ones(X.size), Z.ravel()], 1)
+    d = np.tile([z, -1.0, z], (len(o), 1))
+    a = pk.intersect(o, d)
+    assert pk.last_packets == -(-len(o) // P)
+    same_hits(a, single.intersect(o, d))
+    assert (a.prim >= 0).all() and np.allclose(a.t, 1.0)
+    # origins exactly on slab planes of the boxes, with zero direction components
+    o2 = np.stack([X.ravel(), np.zeros(X.size), Z.ravel()], 1)
+    d2 = np.tile([1.0, z, z], (len(o2), 1))
+    same_hits(pk.intersect(o2 - [2, 0, 0], d2), single.intersect(o2 - [2, 0, 0], d2))
+
+
+@pytest.mark.parametrize("scale,shift", [(1e-4, 0.0), (1.0, 1e5)])
+def test_packets_on_tiny_and_far_away_meshes(scale, shift):
+    tris = (scene().astype(np.float64) * scale + shift).astype(np.float32)
+    pk, single = pair(tris)
+    o, d = camera_rays(tris)
+    same_hits(pk.intersect(o, d), single.intersect(o, d))
+    assert pk.last_packets > 0
+
+
+def test_packets_in_float64():
+    tris = scene()
+    pk, single = pair(tris, precision="float64")
+    o, d = camera_rays(tris)
+    a = pk.intersect(o, d)
+    assert a.t.dtype == np.float64 and pk.last_packets > 0
+    same_hits(a, single.intersect(o, d))
+
+
+def test_incoherent_groups_and_counters_go_ray_by_ray():
+    tris = scene()
+    pk, single = pair(tris)
+    o, d = raysets.incoherent(tris, 3000)
+    same_hits(pk.intersect(o, d), single.intersect(o, d))
+    assert pk.last_packets == 0
+    oc, dc = camera_rays(tris)
+    h = pk.intersect(oc, dc, counters=True)       # counters model the single-ray unit
+    assert pk.last_packets == 0 and h.counters[:, 0].sum() > 0
+
+
+def test_coherence_test_is_the_direction_octant():
+    d = np.array([[1, 2, 3], [0.5, 0.1, 9], [1, 1, 1]], np.float32)
+    assert coherent(d, 0, 3)
+    d[2, 1] = -0.0                                  # -0 is not negative: same octant
+    assert coherent(d, 0, 3)
+    d[2, 1] = -1e-30
+    assert not coherent(d, 0, 3)
+
+
+def test_packet_stack_overflow_is_an_error():
+    tris = scene()
+    pk, _ = pair(tris)
+    pk.depth = 1
+    o, d = camera_rays(tris)
+    with pytest.raises(RuntimeError, match="stack overflow"):
+        pk.intersect(o, d)

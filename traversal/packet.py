@@ -1,0 +1,287 @@
+"""Packet traversal: 16 coherent rays walk the raw tree together (Wald et al. 2001).
+
+The units are the same as in ``traverse``: every lane's box test and Moller-Trumbore test
+does the operations of ``aabb_hit_at`` and ``mt_hit_at`` in the same order, so each lane's
+answer is bit for bit the single-ray answer (the closest hit is unique: exact-t ties go to
+the lower primitive index). What changes is the loop order: a node is fetched once for the
+packet and its boxes and triangles are tested against all 16 lanes in one branch-free loop,
+which LLVM's loop vectoriser turns into SIMD code (AVX2/AVX-512 on this machine). Scalar Numba
+has no other route to SIMD.
+
+A packet visits the union of its lanes' nodes, so it pays only when the rays are coherent.
+``trace_batch`` sends 16 consecutive rays through here when they share a direction octant
+(primary rays of a camera, shadow rays toward a light, a mirror's reflections); any other group
+goes ray by ray.
+"""
+import numpy as np
+from numba import njit
+
+from .rawtree import W, TW, read_index, _ray_ok
+
+P = 16                # rays per packet
+
+
+# Lane state lives in flat scratch arrays, one row of P per quantity at a constant offset, so
+# LLVM can prove that the rows do not overlap and vectorise the lane loops (with a dozen
+# separate arrays it would need more run-time alias checks than it allows, and gives up).
+OX, OY, OZ, DX, DY, DZ, IX, IY, IZ, DD, TMIN, BEST, BU, BV = [r * P for r in range(14)]
+NF = 14 * P           # floats per packet scratch
+SX, SY, SZ, PRIM = [r * P for r in range(4)]
+NI = 4 * P            # int32s per packet scratch
+# Lane masks are bytes, read back 8 lanes at a time through a uint64 view of the same bytes:
+# "does any lane hit" is then two loads, not a reduction loop (which Numba's integer typing
+# would widen to int64 and LLVM would leave scalar).
+ALIVE, MASK = 0, P    # M[ALIVE + k]: lane k still traced; M[MASK + k]: its box-test bits
+NM = 2 * P            # bytes per packet scratch
+NW = P // 8           # uint64 words per mask row
+LANES_L = 0x0101010101010101      # bit 0 of every byte: hits the (left) box
+LANES_R = 0x0202020202020202      # bit 1: hits the right box
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _slab(F, I, k, x0, y0, z0, x1, y1, z1, widen):
+    """Lane k against box (x0..z1): the AABB unit's operations in ``aabb_hit_at``'s order.
+    Returns the hit flag."""
+    ox = F[OX + k]; oy = F[OY + k]; oz = F[OZ + k]
+    ix = F[IX + k]; iy = F[IY + k]; iz = F[IZ + k]
+    sx = I[SX + k] != 0; sy = I[SY + k] != 0; sz = I[SZ + k] != 0
+    nx = ((x1 if sx else x0) - ox) * ix
+    fx = ((x0 if sx else x1) - ox) * ix
+    ny = ((y1 if sy else y0) - oy) * iy
+    fy = ((y0 if sy else y1) - oy) * iy
+    nz = ((z1 if sz else z0) - oz) * iz
+    fz = ((z0 if sz else z1) - oz) * iz
+    a = F[TMIN + k]
+    b = F[BEST + k]
+    tn = nx if nx > a else a
+    tn = ny if ny > tn else tn
+    tn = nz if nz > tn else tn
+    tf = fx if fx < b else b
+    tf = fy if fy < tf else tf
+    tf = fz if fz < tf else tf
+    return tn <= tf * widen
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _mask_bits(M64):
+    """OR of the mask row's words: bit 0 / bit 1 of some byte set = some lane hits."""
+    w = M64[NW]
+    for q in range(1, NW):
+        w |= M64[NW + q]
+    return w
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _children(f, bl, br, F, I, M, M64, widen):
+    """Both child boxes against every live lane: M[MASK + k] = (hits left) | (hits right) << 1.
+    Returns the OR of the mask words."""
+    lx0 = f[bl]; ly0 = f[bl + 1]; lz0 = f[bl + 2]; lx1 = f[bl + 3]; ly1 = f[bl + 4]; lz1 = f[bl + 5]
+    rx0 = f[br]; ry0 = f[br + 1]; rz0 = f[br + 2]; rx1 = f[br + 3]; ry1 = f[br + 4]; rz1 = f[br + 5]
+    for k in range(P):
+        hl = _slab(F, I, k, lx0, ly0, lz0, lx1, ly1, lz1, widen)
+        hr = _slab(F, I, k, rx0, ry0, rz0, rx1, ry1, rz1, widen)
+        live = M[ALIVE + k] != 0
+        M[MASK + k] = np.uint8(live & hl) | (np.uint8(live & hr) << 1)
+    return _mask_bits(M64)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _box(f, b, F, I, M, M64, widen):
+    """One box against every live lane: M[MASK + k] = 1 where lane k hits. Returns the OR of
+    the mask words (non-zero when some lane hits)."""
+    x0 = f[b]; y0 = f[b + 1]; z0 = f[b + 2]; x1 = f[b + 3]; y1 = f[b + 4]; z1 = f[b + 5]
+    for k in range(P):
+        h = _slab(F, I, k, x0, y0, z0, x1, y1, z1, widen)
+        M[MASK + k] = np.uint8((M[ALIVE + k] != 0) & h)
+    return _mask_bits(M64)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, lo, hi, one):
+    """Lane k against one triangle: the Moller-Trumbore unit's operations in ``mt_hit_at``'s
+    order, with every check evaluated (no early exit). Returns (valid, t, u, v)."""
+    dx = F[DX + k]; dy = F[DY + k]; dz = F[DZ + k]
+    px = dy * e2z - dz * e2y
+    py = dz * e2x - dx * e2z
+    pz = dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    inv = one / det
+    sx = F[OX + k] - v0x
+    sy = F[OY + k] - v0y
+    sz = F[OZ + k] - v0z
+    u = (sx * px + sy * py + sz * pz) * inv
+    qx = sy * e1z - sz * e1y
+    qy = sz * e1x - sx * e1z
+    qz = sx * e1y - sy * e1x
+    v = (dx * qx + dy * qy + dz * qz) * inv
+    t = (e2x * qx + e2y * qy + e2z * qz) * inv
+    ok = (det * det > band * F[DD + k]) & (u >= lo) & (u <= hi) & (v >= lo) & (u + v <= hi) \
+        & (t >= F[TMIN + k]) & (t <= F[BEST + k])
+    return ok, t, u, v
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _triangle(tris, j, F, I, M, bit, eps2, one, edge, anyhit):
+    """Triangle j against the live lanes with bit ``bit`` set in M[MASK]. Updates their closest
+    hits; for any-hit queries a lane that hits retires (M[ALIVE] = 0)."""
+    b = TW * j
+    v0x = tris[b]; v0y = tris[b + 1]; v0z = tris[b + 2]
+    e1x = tris[b + 3]; e1y = tris[b + 4]; e1z = tris[b + 5]
+    e2x = tris[b + 6]; e2y = tris[b + 7]; e2z = tris[b + 8]
+    band = eps2 * tris[b + 9]
+    lo = -edge
+    hi = one + edge
+    jj = np.int32(j)
+    if anyhit:
+        for k in range(P):
+            ok, t, u, v = _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, lo, hi, one)
+            a = M[ALIVE + k]
+            take = ok & (((M[MASK + k] >> bit) & a & 1) != 0)
+            I[PRIM + k] = jj if take else I[PRIM + k]
+            M[ALIVE + k] = a & np.uint8(not take)
+        return
+    for k in range(P):
+        ok, t, u, v = _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, lo, hi, one)
+        p = I[PRIM + k]
+        take = ok & (((M[MASK + k] >> bit) & M[ALIVE + k] & 1) != 0) & \
+            ((t < F[BEST + k]) | (p < 0) | (jj < p))
+        F[BEST + k] = t if take else F[BEST + k]
+        I[PRIM + k] = jj if take else p
+        F[BU + k] = u if take else F[BU + k]
+        F[BV + k] = v if take else F[BV + k]
+
+
+@njit(cache=True, error_model="numpy")
+def coherent(D, lo, hi):
+    """True when rays [lo, hi) all lie in one direction octant (sign bits of d equal)."""
+    sx = D[lo, 0] < 0
+    sy = D[lo, 1] < 0
+    sz = D[lo, 2] < 0
+    for i in range(lo + 1, hi):
+        if (D[i, 0] < 0) != sx or (D[i, 1] < 0) != sy or (D[i, 2] < 0) != sz:
+            return False
+    return True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _left_first(f, bl, br, negx, negy, negz):
+    """Front-to-back order for a packet whose rays share an octant: along the axis on which the
+    two child boxes' centres lie farthest apart, the child whose centre comes first in the
+    packet's direction along that axis."""
+    cx = (f[br] + f[br + 3]) - (f[bl] + f[bl + 3])      # twice the centre offset, right - left
+    cy = (f[br + 1] + f[br + 4]) - (f[bl + 1] + f[bl + 4])
+    cz = (f[br + 2] + f[br + 5]) - (f[bl + 2] + f[bl + 5])
+    ax = abs(cx)
+    ay = abs(cy)
+    az = abs(cz)
+    if ax >= ay and ax >= az:
+        return (cx >= 0) != negx
+    if ay >= az:
+        return (cy >= 0) != negy
+    return (cz >= 0) != negz
+
+
+@njit(cache=True, error_model="numpy")
+def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, lo, hi, anyhit,
+                 stack, F, I, M, M64, out_prim, out_t, out_u, out_v):
+    """Rays [lo, hi) (at most P, sharing a direction octant) as one packet. Scratch: ``F``
+    (NF,) of the working float type, ``I`` (NI,) int32, ``M`` (NM,) uint8 and ``M64`` its
+    uint64 view. Writes out_prim (and out_t/u/v when they are not empty). Returns 1 if the
+    stack would overflow (a corrupted tree), else 0."""
+    zero = one - one
+    nlive = 0
+    for k in range(P):
+        i = lo + k
+        ok = False
+        if i < hi:
+            ok = _ray_ok(O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2], tmin_in[i], tmax_in[i])
+        if ok:
+            F[OX + k] = O[i, 0]; F[OY + k] = O[i, 1]; F[OZ + k] = O[i, 2]
+            F[DX + k] = D[i, 0]; F[DY + k] = D[i, 1]; F[DZ + k] = D[i, 2]
+            F[TMIN + k] = tmin_in[i]
+            F[BEST + k] = tmax_in[i]
+        else:                                   # a dead lane: harmless values, never live
+            F[OX + k] = zero; F[OY + k] = zero; F[OZ + k] = zero
+            F[DX + k] = one; F[DY + k] = one; F[DZ + k] = one
+            F[TMIN + k] = zero
+            F[BEST + k] = zero
+        dx = F[DX + k]; dy = F[DY + k]; dz = F[DZ + k]
+        F[IX + k] = one / dx                    # the divider, once per ray
+        F[IY + k] = one / dy
+        F[IZ + k] = one / dz
+        I[SX + k] = 1 if F[IX + k] < 0 else 0   # the comparator on the sign of 1/d
+        I[SY + k] = 1 if F[IY + k] < 0 else 0
+        I[SZ + k] = 1 if F[IZ + k] < 0 else 0
+        F[DD + k] = dx * dx + dy * dy + dz * dz
+        M[ALIVE + k] = 1 if ok else 0
+        nlive += 1 if ok else 0
+        I[PRIM + k] = -1
+        F[BU + k] = zero
+        F[BV + k] = zero
+    negx = F[IX] < 0                            # the packet's octant (shared by its rays)
+    negy = F[IY] < 0
+    negz = F[IZ] < 0
+    over = 0
+    if nlive > 0 and _box(f, 0, F, I, M, M64, widen) != 0:
+        node = 0
+        bit = 0           # which bit of M[MASK] holds the current node's lanes; -1: not known
+        sp = 0
+        while True:
+            if u[W * node + 8] & 1:
+                # leaf: the lanes whose ray reaches its box test its primitives
+                if bit < 0:
+                    bit = 0 if _box(f, W * node, F, I, M, M64, widen) != 0 else -1
+                if bit >= 0:
+                    first = np.int64(u[W * node + 6])
+                    for p in range(first, first + np.int64(u[W * node + 7])):
+                        _triangle(tris, read_index(ib, p), F, I, M, bit, eps2, one, edge, anyhit)
+                    if anyhit:
+                        w = M64[0]
+                        for q in range(1, NW):
+                            w |= M64[q]
+                        if w == 0:              # every lane has found a blocker
+                            break
+                node = -1
+            else:
+                l = np.int64(u[W * node + 6])
+                r = np.int64(u[W * node + 7])
+                bits = _children(f, W * l, W * r, F, I, M, M64, widen)
+                hl = (bits & LANES_L) != 0
+                hr = (bits & LANES_R) != 0
+                if hl and hr:
+                    if sp >= stack.shape[0]:
+                        over = 1
+                        break
+                    if _left_first(f, W * l, W * r, negx, negy, negz):
+                        stack[sp] = r
+                        node = l
+                        bit = 0
+                    else:
+                        stack[sp] = l
+                        node = r
+                        bit = 1
+                    sp += 1
+                elif hl:
+                    node = l
+                    bit = 0
+                elif hr:
+                    node = r
+                    bit = 1
+                else:
+                    node = -1
+            if node < 0:
+                if sp == 0:
+                    break
+                sp -= 1
+                node = stack[sp]
+                bit = -1                        # a popped node's lanes are re-tested
+    hits_out = out_t.shape[0] > 0
+    for k in range(hi - lo):
+        i = lo + k
+        p = I[PRIM + k] if over == 0 else -1
+        out_prim[i] = p
+        if hits_out:
+            out_t[i] = F[BEST + k] if p >= 0 else np.inf
+            out_u[i] = F[BU + k] if p >= 0 else zero
+            out_v[i] = F[BV + k] if p >= 0 else zero
+    return over

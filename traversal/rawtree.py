@@ -1,0 +1,25 @@
+"""What every traversal kernel reads: the raw node words, the packed 24-bit index list, and
+the ray validity rule."""
+import numpy as np
+from numba import njit
+
+W = 12                # 32-bit words per 48-byte node; u[W*i + 6] = a, u[W*i + 7] = b, u[W*i + 8] = flags
+TW = 10               # words per preprocessed triangle row (triangle_unit.preprocess)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def read_index(ib, p):
+    """Entry p of the 24-bit little-endian index list (raw bytes)."""
+    q = 3 * p
+    return np.int64(ib[q]) | (np.int64(ib[q + 1]) << 8) | (np.int64(ib[q + 2]) << 16)
+
+
+@njit(cache=True, error_model="numpy")
+def _ray_ok(ox, oy, oz, dx, dy, dz, tmin, tmax):
+    if not (np.isfinite(ox) and np.isfinite(oy) and np.isfinite(oz)):
+        return False
+    if not (np.isfinite(dx) and np.isfinite(dy) and np.isfinite(dz)):
+        return False
+    if dx == 0 and dy == 0 and dz == 0:
+        return False
+    return tmin <= tmax and not np.isnan(tmin)
