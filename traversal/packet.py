@@ -181,43 +181,76 @@ def _left_first(f, bl, br, negx, negy, negz):
     return (cz >= 0) != negz
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one):
+    """Lane k's ray state; a dead lane (ok False) gets harmless values and is never live."""
+    dx = dx if ok else one
+    dy = dy if ok else one
+    dz = dz if ok else one
+    F[OX + k] = ox if ok else zero
+    F[OY + k] = oy if ok else zero
+    F[OZ + k] = oz if ok else zero
+    F[DX + k] = dx
+    F[DY + k] = dy
+    F[DZ + k] = dz
+    F[TMIN + k] = a if ok else zero
+    F[BEST + k] = b if ok else zero
+    ix = one / dx                               # the divider, once per ray
+    iy = one / dy
+    iz = one / dz
+    F[IX + k] = ix
+    F[IY + k] = iy
+    F[IZ + k] = iz
+    I[SX + k] = np.int32(ix < 0)                # the comparator on the sign of 1/d
+    I[SY + k] = np.int32(iy < 0)
+    I[SZ + k] = np.int32(iz < 0)
+    F[DD + k] = dx * dx + dy * dy + dz * dz
+    M[ALIVE + k] = np.uint8(ok)
+    I[PRIM + k] = -1
+    F[BU + k] = zero
+    F[BV + k] = zero
+
+
 @njit(cache=True, error_model="numpy")
 def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, lo, hi, anyhit,
                  stack, F, I, M, M64, out_prim, out_t, out_u, out_v):
-    """Rays [lo, hi) (at most P, sharing a direction octant) as one packet. Scratch: ``F``
+    """Rays [lo, hi) (at most P, sharing a direction octant) as one packet; ``O``/``D`` are the
+    (n, 3) origins and directions seen flat (3n,). Scratch: ``F``
     (NF,) of the working float type, ``I`` (NI,) int32, ``M`` (NM,) uint8 and ``M64`` its
     uint64 view. Writes out_prim (and out_t/u/v when they are not empty). Returns 1 if the
     stack would overflow (a corrupted tree), else 0."""
     zero = one - one
-    nlive = 0
-    for k in range(P):
-        i = lo + k
-        ok = False
-        if i < hi:
-            ok = _ray_ok(O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2], tmin_in[i], tmax_in[i])
-        if ok:
-            F[OX + k] = O[i, 0]; F[OY + k] = O[i, 1]; F[OZ + k] = O[i, 2]
-            F[DX + k] = D[i, 0]; F[DY + k] = D[i, 1]; F[DZ + k] = D[i, 2]
-            F[TMIN + k] = tmin_in[i]
-            F[BEST + k] = tmax_in[i]
-        else:                                   # a dead lane: harmless values, never live
-            F[OX + k] = zero; F[OY + k] = zero; F[OZ + k] = zero
-            F[DX + k] = one; F[DY + k] = one; F[DZ + k] = one
-            F[TMIN + k] = zero
-            F[BEST + k] = zero
-        dx = F[DX + k]; dy = F[DY + k]; dz = F[DZ + k]
-        F[IX + k] = one / dx                    # the divider, once per ray
-        F[IY + k] = one / dy
-        F[IZ + k] = one / dz
-        I[SX + k] = 1 if F[IX + k] < 0 else 0   # the comparator on the sign of 1/d
-        I[SY + k] = 1 if F[IY + k] < 0 else 0
-        I[SZ + k] = 1 if F[IZ + k] < 0 else 0
-        F[DD + k] = dx * dx + dy * dy + dz * dz
-        M[ALIVE + k] = 1 if ok else 0
-        nlive += 1 if ok else 0
-        I[PRIM + k] = -1
-        F[BU + k] = zero
-        F[BV + k] = zero
+    if hi - lo == P:
+        # a full packet: branch-free, so the loads, the checks and the dividers run in SIMD
+        # (indices from 0 on views: with lo + k, LLVM cannot bound the addresses)
+        Os = O[3 * lo:3 * lo + 3 * P]
+        Ds = D[3 * lo:3 * lo + 3 * P]
+        As = tmin_in[lo:lo + P]
+        Bs = tmax_in[lo:lo + P]
+        for k in range(P):
+            ox = Os[3 * k]; oy = Os[3 * k + 1]; oz = Os[3 * k + 2]
+            dx = Ds[3 * k]; dy = Ds[3 * k + 1]; dz = Ds[3 * k + 2]
+            a = As[k]
+            b = Bs[k]
+            # _ray_ok without branches: x - x == 0 exactly when x is finite
+            ok = ((ox - ox) == 0) & ((oy - oy) == 0) & ((oz - oz) == 0) & ((dx - dx) == 0) \
+                & ((dy - dy) == 0) & ((dz - dz) == 0) & ((dx != 0) | (dy != 0) | (dz != 0)) \
+                & (a <= b)
+            _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one)
+    else:
+        for k in range(P):
+            i = lo + k
+            if i < hi and _ray_ok(O[3 * i], O[3 * i + 1], O[3 * i + 2], D[3 * i], D[3 * i + 1],
+                                  D[3 * i + 2], tmin_in[i], tmax_in[i]):
+                _lane_setup(F, I, M, k, True, O[3 * i], O[3 * i + 1], O[3 * i + 2], D[3 * i],
+                            D[3 * i + 1], D[3 * i + 2], tmin_in[i], tmax_in[i], zero, one)
+            else:
+                _lane_setup(F, I, M, k, False, zero, zero, zero, one, one, one, zero, zero,
+                            zero, one)
+    w = M64[0]
+    for q in range(1, NW):
+        w |= M64[q]
+    nlive = 1 if w != 0 else 0
     negx = F[IX] < 0                            # the packet's octant (shared by its rays)
     negy = F[IY] < 0
     negz = F[IZ] < 0
@@ -276,12 +309,21 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
                 node = stack[sp]
                 bit = -1                        # a popped node's lanes are re-tested
     hits_out = out_t.shape[0] > 0
-    for k in range(hi - lo):
-        i = lo + k
-        p = I[PRIM + k] if over == 0 else -1
-        out_prim[i] = p
-        if hits_out:
-            out_t[i] = F[BEST + k] if p >= 0 else np.inf
-            out_u[i] = F[BU + k] if p >= 0 else zero
-            out_v[i] = F[BV + k] if p >= 0 else zero
+    if over:
+        for k in range(P):
+            I[PRIM + k] = -1
+    n = hi - lo
+    outp = out_prim[lo:hi]                      # views indexed from 0 (see the set-up)
+    for k in range(n):
+        outp[k] = I[PRIM + k]
+    if hits_out:
+        inf = one / zero
+        outt = out_t[lo:hi]
+        outu = out_u[lo:hi]
+        outv = out_v[lo:hi]
+        for k in range(n):
+            h = I[PRIM + k] >= 0
+            outt[k] = F[BEST + k] if h else inf
+            outu[k] = F[BU + k] if h else zero
+            outv[k] = F[BV + k] if h else zero
     return over

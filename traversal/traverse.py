@@ -117,7 +117,7 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
     while a < hi:
         b = min(hi, a + P)
         if packets and coherent(D, a, b):
-            over += trace_packet(u, f, ib, tris, O, D, tmin, tmax, eps2, one, widen, edge, a, b,
+            over += trace_packet(u, f, ib, tris, O.reshape(-1), D.reshape(-1), tmin, tmax, eps2, one, widen, edge, a, b,
                                  anyhit, stack, F, I, M, M64, out_prim, out_t, out_u, out_v) * (b - a)
             npk += 1
             a = b
