@@ -13,6 +13,8 @@ A packet visits the union of its lanes' nodes, so it pays only when the rays are
 (primary rays of a camera, shadow rays toward a light, a mirror's reflections); any other group
 goes ray by ray.
 """
+import math
+
 import numpy as np
 from numba import njit
 
@@ -26,8 +28,8 @@ P = 16                # rays per packet
 # separate arrays it would need more run-time alias checks than it allows, and gives up).
 OX, OY, OZ, DX, DY, DZ, IX, IY, IZ, DD, TMIN, BEST, BU, BV = [r * P for r in range(14)]
 NF = 14 * P           # floats per packet scratch
-SX, SY, SZ, PRIM = [r * P for r in range(4)]
-NI = 4 * P            # int32s per packet scratch
+PRIM = 0
+NI = P            # int32s per packet scratch
 # Lane masks are bytes, read back 8 lanes at a time through a uint64 view of the same bytes:
 # "does any lane hit" is then two loads, not a reduction loop (which Numba's integer typing
 # would widen to int64 and LLVM would leave scalar).
@@ -39,18 +41,19 @@ LANES_R = 0x0202020202020202      # bit 1: hits the right box
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _slab(F, I, k, x0, y0, z0, x1, y1, z1, widen):
-    """Lane k against box (x0..z1): the AABB unit's operations in ``aabb_hit_at``'s order.
-    Returns the hit flag."""
+def _slab(F, k, nx_, ny_, nz_, fx_, fy_, fz_, widen):
+    """Lane k against a box given by its near planes (nx_, ny_, nz_) and far planes for the
+    packet's octant: the AABB unit's operations in ``aabb_hit_at``'s order. Returns the hit
+    flag. (The comparator on the sign of 1/d picks the same planes for every lane, since the
+    lanes share the sign bits of d.)"""
     ox = F[OX + k]; oy = F[OY + k]; oz = F[OZ + k]
     ix = F[IX + k]; iy = F[IY + k]; iz = F[IZ + k]
-    sx = I[SX + k] != 0; sy = I[SY + k] != 0; sz = I[SZ + k] != 0
-    nx = ((x1 if sx else x0) - ox) * ix
-    fx = ((x0 if sx else x1) - ox) * ix
-    ny = ((y1 if sy else y0) - oy) * iy
-    fy = ((y0 if sy else y1) - oy) * iy
-    nz = ((z1 if sz else z0) - oz) * iz
-    fz = ((z0 if sz else z1) - oz) * iz
+    nx = (nx_ - ox) * ix
+    fx = (fx_ - ox) * ix
+    ny = (ny_ - oy) * iy
+    fy = (fy_ - oy) * iy
+    nz = (nz_ - oz) * iz
+    fz = (fz_ - oz) * iz
     a = F[TMIN + k]
     b = F[BEST + k]
     tn = nx if nx > a else a
@@ -63,6 +66,13 @@ def _slab(F, I, k, x0, y0, z0, x1, y1, z1, widen):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _planes(f, b, kx, ky, kz):
+    """Near and far planes of box f[b:b + 6] for near-plane offsets (kx, ky, kz) (0 or 3)."""
+    return (f[b + kx], f[b + 1 + ky], f[b + 2 + kz],
+            f[b + 3 - kx], f[b + 4 - ky], f[b + 5 - kz])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _mask_bits(M64):
     """OR of the mask row's words: bit 0 / bit 1 of some byte set = some lane hits."""
     w = M64[NW]
@@ -72,26 +82,26 @@ def _mask_bits(M64):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _children(f, bl, br, F, I, M, M64, widen):
+def _children(f, bl, br, kx, ky, kz, F, M, M64, widen):
     """Both child boxes against every live lane: M[MASK + k] = (hits left) | (hits right) << 1.
     Returns the OR of the mask words."""
-    lx0 = f[bl]; ly0 = f[bl + 1]; lz0 = f[bl + 2]; lx1 = f[bl + 3]; ly1 = f[bl + 4]; lz1 = f[bl + 5]
-    rx0 = f[br]; ry0 = f[br + 1]; rz0 = f[br + 2]; rx1 = f[br + 3]; ry1 = f[br + 4]; rz1 = f[br + 5]
+    lnx, lny, lnz, lfx, lfy, lfz = _planes(f, bl, kx, ky, kz)
+    rnx, rny, rnz, rfx, rfy, rfz = _planes(f, br, kx, ky, kz)
     for k in range(P):
-        hl = _slab(F, I, k, lx0, ly0, lz0, lx1, ly1, lz1, widen)
-        hr = _slab(F, I, k, rx0, ry0, rz0, rx1, ry1, rz1, widen)
+        hl = _slab(F, k, lnx, lny, lnz, lfx, lfy, lfz, widen)
+        hr = _slab(F, k, rnx, rny, rnz, rfx, rfy, rfz, widen)
         live = M[ALIVE + k] != 0
         M[MASK + k] = np.uint8(live & hl) | (np.uint8(live & hr) << 1)
     return _mask_bits(M64)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _box(f, b, F, I, M, M64, widen):
+def _box(f, b, kx, ky, kz, F, M, M64, widen):
     """One box against every live lane: M[MASK + k] = 1 where lane k hits. Returns the OR of
     the mask words (non-zero when some lane hits)."""
-    x0 = f[b]; y0 = f[b + 1]; z0 = f[b + 2]; x1 = f[b + 3]; y1 = f[b + 4]; z1 = f[b + 5]
+    nx, ny, nz, fx, fy, fz = _planes(f, b, kx, ky, kz)
     for k in range(P):
-        h = _slab(F, I, k, x0, y0, z0, x1, y1, z1, widen)
+        h = _slab(F, k, nx, ny, nz, fx, fy, fz, widen)
         M[MASK + k] = np.uint8((M[ALIVE + k] != 0) & h)
     return _mask_bits(M64)
 
@@ -151,14 +161,16 @@ def _triangle(tris, j, F, I, M, bit, eps2, one, edge, anyhit):
         F[BV + k] = v if take else F[BV + k]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def coherent(D, lo, hi):
-    """True when rays [lo, hi) all lie in one direction octant (sign bits of d equal)."""
-    sx = D[lo, 0] < 0
-    sy = D[lo, 1] < 0
-    sz = D[lo, 2] < 0
+    """True when rays [lo, hi) all lie in one direction octant: the sign bits of d agree, so
+    1/d has the same signs (d = -0 gives 1/d = -inf: -0 counts as negative)."""
+    sx = math.copysign(1.0, D[lo, 0])
+    sy = math.copysign(1.0, D[lo, 1])
+    sz = math.copysign(1.0, D[lo, 2])
     for i in range(lo + 1, hi):
-        if (D[i, 0] < 0) != sx or (D[i, 1] < 0) != sy or (D[i, 2] < 0) != sz:
+        if math.copysign(1.0, D[i, 0]) != sx or math.copysign(1.0, D[i, 1]) != sy or \
+                math.copysign(1.0, D[i, 2]) != sz:
             return False
     return True
 
@@ -201,9 +213,6 @@ def _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one):
     F[IX + k] = ix
     F[IY + k] = iy
     F[IZ + k] = iz
-    I[SX + k] = np.int32(ix < 0)                # the comparator on the sign of 1/d
-    I[SY + k] = np.int32(iy < 0)
-    I[SZ + k] = np.int32(iz < 0)
     F[DD + k] = dx * dx + dy * dy + dz * dz
     M[ALIVE + k] = np.uint8(ok)
     I[PRIM + k] = -1
@@ -211,7 +220,7 @@ def _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one):
     F[BV + k] = zero
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, lo, hi, anyhit,
                  stack, F, I, M, M64, out_prim, out_t, out_u, out_v):
     """Rays [lo, hi) (at most P, sharing a direction octant) as one packet; ``O``/``D`` are the
@@ -251,11 +260,16 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
     for q in range(1, NW):
         w |= M64[q]
     nlive = 1 if w != 0 else 0
-    negx = F[IX] < 0                            # the packet's octant (shared by its rays)
-    negy = F[IY] < 0
-    negz = F[IZ] < 0
+    # the packet's octant, shared by its rays (``coherent``): the comparator on the sign of
+    # 1/d, once for the packet
+    negx = math.copysign(1.0, D[3 * lo]) < 0
+    negy = math.copysign(1.0, D[3 * lo + 1]) < 0
+    negz = math.copysign(1.0, D[3 * lo + 2]) < 0
+    kx = 3 if negx else 0
+    ky = 3 if negy else 0
+    kz = 3 if negz else 0
     over = 0
-    if nlive > 0 and _box(f, 0, F, I, M, M64, widen) != 0:
+    if nlive > 0 and _box(f, 0, kx, ky, kz, F, M, M64, widen) != 0:
         node = 0
         bit = 0           # which bit of M[MASK] holds the current node's lanes; -1: not known
         sp = 0
@@ -263,7 +277,7 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
             if u[W * node + 8] & 1:
                 # leaf: the lanes whose ray reaches its box test its primitives
                 if bit < 0:
-                    bit = 0 if _box(f, W * node, F, I, M, M64, widen) != 0 else -1
+                    bit = 0 if _box(f, W * node, kx, ky, kz, F, M, M64, widen) != 0 else -1
                 if bit >= 0:
                     first = np.int64(u[W * node + 6])
                     for p in range(first, first + np.int64(u[W * node + 7])):
@@ -278,7 +292,7 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
             else:
                 l = np.int64(u[W * node + 6])
                 r = np.int64(u[W * node + 7])
-                bits = _children(f, W * l, W * r, F, I, M, M64, widen)
+                bits = _children(f, W * l, W * r, kx, ky, kz, F, M, M64, widen)
                 hl = (bits & LANES_L) != 0
                 hr = (bits & LANES_R) != 0
                 if hl and hr:

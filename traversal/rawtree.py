@@ -1,5 +1,11 @@
 """What every traversal kernel reads: the raw node words, the packed 24-bit index list, and
-the ray validity rule."""
+the ray validity rule.
+
+Kernels that are called once per ray group and allocate nothing are compiled with
+``_nrt=False`` (Numba's option to leave out its reference counting): otherwise every call
+increments and decrements the reference counts of its ~20 array arguments with atomic
+instructions, and with two threads on the same arrays those cache lines bounce between cores.
+Measured on dragon_res2 shadow packets: 424 -> 164 ns of fixed cost per 16-ray packet."""
 import numpy as np
 from numba import njit
 
@@ -14,7 +20,7 @@ def read_index(ib, p):
     return np.int64(ib[q]) | (np.int64(ib[q + 1]) << 8) | (np.int64(ib[q + 2]) << 16)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _ray_ok(ox, oy, oz, dx, dy, dz, tmin, tmax):
     if not (np.isfinite(ox) and np.isfinite(oy) and np.isfinite(oz)):
         return False

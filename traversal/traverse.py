@@ -100,7 +100,7 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
                 node = stack[sp]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
                  lo, hi, anyhit, packets, stack, stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v,
                  out_ng, counters):
