@@ -36,15 +36,24 @@ class Hits:
     counters: np.ndarray = None
 
 
+def _interval(x, n, dtype):
+    """A per-ray bound as a writable contiguous (n,) array (a scalar is broadcast)."""
+    a = np.asarray(x, dtype=dtype)
+    if a.shape == (n,):
+        return np.require(a, requirements=("C", "W"))
+    return np.ascontiguousarray(np.broadcast_to(a, (n,)))   # a copy, so writable
+
+
 def _rays(origins, dirs, tmin, tmax, dtype):
-    o = np.ascontiguousarray(origins, dtype=dtype)
-    d = np.ascontiguousarray(dirs, dtype=dtype)
+    """Kernel inputs: C-contiguous, writable arrays of ``dtype``. Writable even when the caller's
+    arrays are read-only views, since Numba compiles (and caches) a separate copy of every
+    kernel for read-only arguments: that had doubled the first render's compile time."""
+    o = np.require(np.asarray(origins, dtype=dtype), requirements=("C", "W"))
+    d = np.require(np.asarray(dirs, dtype=dtype), requirements=("C", "W"))
     if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
         raise ValueError(f"origins and dirs must both be (n, 3), got {o.shape} and {d.shape}")
     n = len(o)
-    lo = np.ascontiguousarray(np.broadcast_to(np.asarray(tmin, dtype=dtype), (n,)))
-    hi = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, dtype=dtype), (n,)))
-    return o, d, lo, hi
+    return o, d, _interval(tmin, n, dtype), _interval(tmax, n, dtype)
 
 
 class Tracer:

@@ -18,7 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .rawtree import W, TW, read_index, _ray_ok
+from .rawtree import W, TW, read_index
 
 P = 16                # rays per packet
 
@@ -223,39 +223,28 @@ def _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one):
 @njit(cache=True, error_model="numpy", _nrt=False)
 def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, lo, hi, anyhit,
                  stack, F, I, M, M64, out_prim, out_t, out_u, out_v):
-    """Rays [lo, hi) (at most P, sharing a direction octant) as one packet; ``O``/``D`` are the
+    """Rays [lo, hi) (exactly P, sharing a direction octant) as one packet; ``O``/``D`` are the
     (n, 3) origins and directions seen flat (3n,). Scratch: ``F``
     (NF,) of the working float type, ``I`` (NI,) int32, ``M`` (NM,) uint8 and ``M64`` its
     uint64 view. Writes out_prim (and out_t/u/v when they are not empty). Returns 1 if the
     stack would overflow (a corrupted tree), else 0."""
     zero = one - one
-    if hi - lo == P:
-        # a full packet: branch-free, so the loads, the checks and the dividers run in SIMD
-        # (indices from 0 on views: with lo + k, LLVM cannot bound the addresses)
-        Os = O[3 * lo:3 * lo + 3 * P]
-        Ds = D[3 * lo:3 * lo + 3 * P]
-        As = tmin_in[lo:lo + P]
-        Bs = tmax_in[lo:lo + P]
-        for k in range(P):
-            ox = Os[3 * k]; oy = Os[3 * k + 1]; oz = Os[3 * k + 2]
-            dx = Ds[3 * k]; dy = Ds[3 * k + 1]; dz = Ds[3 * k + 2]
-            a = As[k]
-            b = Bs[k]
-            # _ray_ok without branches: x - x == 0 exactly when x is finite
-            ok = ((ox - ox) == 0) & ((oy - oy) == 0) & ((oz - oz) == 0) & ((dx - dx) == 0) \
-                & ((dy - dy) == 0) & ((dz - dz) == 0) & ((dx != 0) | (dy != 0) | (dz != 0)) \
-                & (a <= b)
-            _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one)
-    else:
-        for k in range(P):
-            i = lo + k
-            if i < hi and _ray_ok(O[3 * i], O[3 * i + 1], O[3 * i + 2], D[3 * i], D[3 * i + 1],
-                                  D[3 * i + 2], tmin_in[i], tmax_in[i]):
-                _lane_setup(F, I, M, k, True, O[3 * i], O[3 * i + 1], O[3 * i + 2], D[3 * i],
-                            D[3 * i + 1], D[3 * i + 2], tmin_in[i], tmax_in[i], zero, one)
-            else:
-                _lane_setup(F, I, M, k, False, zero, zero, zero, one, one, one, zero, zero,
-                            zero, one)
+    # a full packet: branch-free, so the loads, the checks and the dividers run in SIMD
+    # (indices from 0 on views: with lo + k, LLVM cannot bound the addresses)
+    Os = O[3 * lo:3 * lo + 3 * P]
+    Ds = D[3 * lo:3 * lo + 3 * P]
+    As = tmin_in[lo:lo + P]
+    Bs = tmax_in[lo:lo + P]
+    for k in range(P):
+        ox = Os[3 * k]; oy = Os[3 * k + 1]; oz = Os[3 * k + 2]
+        dx = Ds[3 * k]; dy = Ds[3 * k + 1]; dz = Ds[3 * k + 2]
+        a = As[k]
+        b = Bs[k]
+        # _ray_ok without branches: x - x == 0 exactly when x is finite
+        ok = ((ox - ox) == 0) & ((oy - oy) == 0) & ((oz - oz) == 0) & ((dx - dx) == 0) \
+            & ((dy - dy) == 0) & ((dz - dz) == 0) & ((dx != 0) | (dy != 0) | (dz != 0)) \
+            & (a <= b)
+        _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one)
     w = M64[0]
     for q in range(1, NW):
         w |= M64[q]

@@ -105,7 +105,7 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
                  lo, hi, anyhit, packets, stack, stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v,
                  out_ng, counters):
     """Rays [lo, hi) in a plain (non-parfor) function, so LLVM optimises the loop fully.
-    With ``packets``, each group of P consecutive rays that share a direction octant goes
+    With ``packets``, each full group of P consecutive rays that share a direction octant goes
     through the packet kernel (same answers, SIMD box and triangle tests); other groups go
     ray by ray. Returns (rays whose stack would have overflowed, packets traced)."""
     count = counters.shape[0] > 0
@@ -116,7 +116,7 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
     a = lo
     while a < hi:
         b = min(hi, a + P)
-        if packets and coherent(D, a, b):
+        if packets and b - a == P and coherent(D, a, b):
             over += trace_packet(u, f, ib, tris, O.reshape(-1), D.reshape(-1), tmin, tmax, eps2, one, widen, edge, a, b,
                                  anyhit, stack, F, I, M, M64, out_prim, out_t, out_u, out_v) * (b - a)
             npk += 1
