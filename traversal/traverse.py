@@ -17,7 +17,7 @@ from numba import njit, prange
 from .aabb_unit import aabb_hit_at, near_far_planes
 from .packet import NF, NI, NM, P, coherent, trace_packet
 from .rawtree import W, TW, read_index, _ray_ok
-from .triangle_unit import mt_hit_at, wt_hit_ray
+from .triangle_unit import mt_valid_at, wt_hit_ray
 
 CHUNK = 64            # rays per parallel work item (one stack allocation each)
 
@@ -60,15 +60,17 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
                 if raw is not None:
                     ok, t, tu, tv = wt_hit_ray(raw, j, ox, oy, oz, dx, dy, dz, one, tmin, best_t)
                 else:
-                    ok, t, tu, tv = mt_hit_at(tris, TW * j, ox, oy, oz, dx, dy, dz, dd, tmin, best_t,
-                                              eps2, one, edge)
-                if ok and (t < best_t or prim < 0 or j < prim):
-                    best_t = t
-                    prim = j
-                    bu = tu
-                    bv = tv
-                    if anyhit:
-                        return prim, best_t, bu, bv, nodes, tested, False
+                    ok, t, tu, tv = mt_valid_at(tris, TW * j, ox, oy, oz, dx, dy, dz, dd, tmin, best_t,
+                                                eps2, one, edge)
+                # accept a nearer hit, or an exact-t tie with a lower primitive index; as
+                # selects, not branches (the outcome is unpredictable for random rays)
+                acc = ok & ((t < best_t) | (prim < 0) | (j < prim))
+                if anyhit and acc:
+                    return j, t, tu, tv, nodes, tested, False
+                best_t = t if acc else best_t
+                prim = j if acc else prim
+                bu = tu if acc else bu
+                bv = tv if acc else bv
             node = -1
         else:
             # -- internal: both children through the AABB unit --
@@ -96,7 +98,10 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
             if sp == 0:
                 return prim, best_t, bu, bv, nodes, tested, False
             sp -= 1
-            if stack_t[sp] <= best_t:          # cull subtrees behind the closest hit
+            # cull subtrees behind the closest hit, with the box test's slack: a triangle on
+            # the box's entry face can round an ulp nearer than the box (as the packet kernel,
+            # which re-tests boxes on pop)
+            if stack_t[sp] <= best_t * widen:
                 node = stack[sp]
 
 

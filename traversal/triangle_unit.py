@@ -68,6 +68,33 @@ def mt_hit_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge):
     return True, t, u, v
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def mt_valid_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge):
+    """``mt_hit_at`` as the hardware evaluates it: every datapath output is computed and the
+    valid check is one AND of its conditions, with no early exit. Same operations in the same
+    order, so (valid, t, u, v) agree with ``mt_hit_at`` whenever valid (t, u, v are not
+    meaningful otherwise). Traversal uses this form: a random ray makes each early exit an
+    unpredictable branch, and one branch costs more than the rest of the test (measured on
+    incoherent rays: 3-12% of the whole trace)."""
+    e1x = tris[b + 3]; e1y = tris[b + 4]; e1z = tris[b + 5]
+    e2x = tris[b + 6]; e2y = tris[b + 7]; e2z = tris[b + 8]
+    px = dy * e2z - dz * e2y
+    py = dz * e2x - dx * e2z
+    pz = dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    inv = one / det
+    sx = ox - tris[b + 0]; sy = oy - tris[b + 1]; sz = oz - tris[b + 2]
+    u = (sx * px + sy * py + sz * pz) * inv
+    qx = sy * e1z - sz * e1y
+    qy = sz * e1x - sx * e1z
+    qz = sx * e1y - sy * e1x
+    v = (dx * qx + dy * qy + dz * qz) * inv
+    t = (e2x * qx + e2y * qy + e2z * qz) * inv
+    valid = (not (det * det <= eps2 * tris[b + 9] * dd)) & (u >= -edge) & (u <= one + edge) \
+        & (v >= -edge) & (u + v <= one + edge) & (t >= tmin) & (t <= tmax)
+    return valid, t, u, v
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def mt_batch(tris, origins, dirs, tmin, tmax, eps2, one, edge):
     """Batch form: ray i against preprocessed triangle i -> (hit, t, u, v)."""
