@@ -119,6 +119,25 @@ def human(what):
                     lines.append(f"{m['mesh']:<14}{k:<12}{s['rays']:>9}{s['ours_mrays']:>11.2f}"
                                  f"{s['embreex_mrays']:>9.2f}{s['ratio_vs_embreex']:>7.2f}{o3}")
             return "\n".join(lines)
+        if what == "model":
+            f = r["fit"]
+            lines = [f"control latency: shipped {f['shipped']}, fitted here {f.get('fitted', '-')} "
+                     f"(range {f.get('fitted_range', '-')}) on {f['subtrees']} subtrees; Marbles rate "
+                     f"{f['target_cycles_per_primitive']:.2f} cycles/primitive",
+                     f"{'mesh':<16}{'preset':<10}{'text-only ms':>13}{'calibrated ms':>15}{'thesis ms':>11}"
+                     f"{'ratios':>14}"]
+            for m in r["rows"]:
+                th = f"{m['thesis_seconds']*1e3:>11.2f}" if "thesis_seconds" in m else f"{'-':>11}"
+                ra = (f"{m['text_only_ratio']:>7.2f}{m['calibrated_ratio']:>7.2f}"
+                      if "thesis_seconds" in m else f"{'-':>14}")
+                lines.append(f"{m['mesh']:<16}{m['preset']:<10}{m['text_only_seconds']*1e3:>13.2f}"
+                             f"{m['calibrated_seconds']*1e3:>15.2f}{th}{ra}")
+            fs = r["fill_share"]
+            if fs:
+                lines.append(f"fill share on {fs['mesh']} (thesis 3.6% mean, 8.8% max): text-only "
+                             f"{fs['text_only']['mean']:.1%} / {fs['text_only']['max']:.1%}, calibrated "
+                             f"{fs['calibrated']['mean']:.1%} / {fs['calibrated']['max']:.1%}")
+            return "\n".join(lines)
         if what == "scale":
             lines = [f"{'triangles':>10}{'build s':>10}{'SAH':>9}{'max RSS MiB':>13}"]
             for m in r["rows"]:
@@ -273,3 +292,57 @@ def bench_render(args):
                      "render_spread": [min(renders), max(renders)], "rays": r["rays"]})
     ratio = rows[0]["total_seconds"] / rows[1]["total_seconds"]
     return {"scene": scene.name, "rows": rows, "ratio": ratio, "machine": machine()}
+
+
+def bench_model(args):
+    """The hardware model against the thesis: the fit of its one calibrated constant (on
+    subtrees cut from the given meshes, against Marbles' rate), then whole-scene build times
+    for HWBVH-C and HWBVH-HP with the text-only model (control latency 0) and the calibrated
+    one, beside the thesis' times where the mesh is a thesis scene, and the fill share of the
+    design-space sweep (thesis 4.2: 3.6% on average)."""
+    import tempfile
+    from dataclasses import replace
+    from tqdm import tqdm
+    from hwbvh import calibration as cal
+    from hwbvh.builder import build_canonical
+    from hwbvh.cycle_model import CONTROL_LATENCY, PRESETS, simulate, sweep
+    from hwbvh.primitives import as_triangles, primitive_boxes
+
+    meshes = []
+    for name, load in tqdm(mesh_inputs(args), desc="bench model: load", file=sys.stderr, unit="mesh"):
+        verts, faces = load()
+        meshes.append((name, as_triangles(verts[faces], source=name)))
+    subs = cal.fit_subtrees([t for _, t in meshes])
+    target, (t_lo, t_hi) = cal.target_rate()
+    fit = {"target_cycles_per_primitive": target, "target_range": [t_lo, t_hi],
+           "subtrees": len(subs), "shipped": CONTROL_LATENCY}
+    if subs:
+        fit.update(fitted=cal.fit_control_latency(subs, target),
+                   fitted_range=[cal.fit_control_latency(subs, t_lo), cal.fit_control_latency(subs, t_hi)],
+                   rate_text_only=cal.model_rate(subs, 0), rate_shipped=cal.model_rate(subs, CONTROL_LATENCY))
+    rows = []
+    for name, tris in tqdm(meshes, desc="bench model: simulate", file=sys.stderr, unit="mesh"):
+        tree = build_canonical(primitive_boxes(tris))
+        scene = cal.THESIS_SCENE_OF_MESH.get(name)
+        for preset, p in PRESETS.items():
+            row = {"mesh": name, "triangles": int(len(tris)), "preset": preset}
+            for key, ctl in (("text_only", 0), ("calibrated", CONTROL_LATENCY)):
+                t = time.perf_counter()
+                r = simulate(tree, replace(p, control_latency=ctl))
+                row[f"{key}_seconds"] = r["seconds"]
+                row[f"{key}_simulation_seconds"] = time.perf_counter() - t
+            row["traffic_bytes"] = r["traffic_total_bytes"]
+            if scene:
+                row["thesis_scene"] = scene
+                row["thesis_seconds"] = cal.thesis_seconds(scene, preset)
+                row["text_only_ratio"] = row["text_only_seconds"] / row["thesis_seconds"]
+                row["calibrated_ratio"] = row["calibrated_seconds"] / row["thesis_seconds"]
+            rows.append(row)
+    fill = {}
+    if meshes:
+        name, tris = next(((n, t) for n, t in meshes if n == "bunny"), meshes[0])
+        with tempfile.TemporaryDirectory() as d:
+            for key, ctl in (("text_only", 0), ("calibrated", CONTROL_LATENCY)):
+                fill[key] = sweep(tris, d, control_latency=ctl)["fill_share"]
+        fill["mesh"] = name
+    return {"fit": fit, "rows": rows, "fill_share": fill, "machine": machine()}

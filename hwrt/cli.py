@@ -141,11 +141,15 @@ def cmd_simulate(args):
     from hwbvh.cycle_model import simulate_mesh, sweep
 
     if args.sweep:
-        result = sweep(args.mesh, args.out_dir, leaf_sizes=args.leaf_sizes, jobs=args.jobs)
+        from hwbvh.cycle_model import params_for
+        ctl = params_for(args.preset, control_latency=args.control_latency).control_latency
+        result = sweep(args.mesh, args.out_dir, leaf_sizes=args.leaf_sizes, jobs=args.jobs,
+                       control_latency=ctl)
         return _emit(args, result, lambda r: f"wrote {r['csv']} and {', '.join(r['plots'])}")
     result = simulate_mesh(args.mesh, args.preset, w=args.w, tsize=args.tsize, psize=args.psize,
                            subtree_builders=args.subtree_builders, ram_pairs=args.ram_pairs,
-                           clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins)
+                           clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins,
+                           control_latency=args.control_latency)
     _emit(args, result, lambda r: _kv(r, ["preset", "triangles", "cycles", "seconds", "energy_joules",
                                           "traffic_bytes", "footprint_bytes", "utilisation", "sah_cost"]))
 
@@ -219,7 +223,8 @@ def cmd_bench(args):
     from . import study
     fn = {"build": bench.bench_build, "scale": bench.bench_scale,
           "trace": bench.bench_trace, "render": bench.bench_render,
-          "tti": study.bench_tti, "accuracy": study.bench_accuracy}.get(args.what)
+          "tti": study.bench_tti, "accuracy": study.bench_accuracy,
+          "model": bench.bench_model}.get(args.what)
     if fn is None:
         raise InputError("bench", f"'{args.what}' is not available yet")
     result = fn(args)
@@ -260,6 +265,9 @@ def make_parser():
     for name in ("w", "tsize", "psize", "subtree-builders", "ram-pairs", "leaf-size", "bins"):
         s.add_argument(f"--{name}", type=_positive)
     s.add_argument("--clock-mhz", type=float)
+    s.add_argument("--control-latency", type=_positive, metavar="CYCLES",
+                   help="control cycles per split beyond Table 3.3 (default: the calibrated "
+                        "value; 0 = the text-only model)")
     s.add_argument("--sweep", action="store_true",
                    help="design-space sweep (thesis 4.2.1): w, Tsize in {2,4,8,16} x leaf sizes")
     s.add_argument("--leaf-sizes", type=_positive, nargs="+", default=[4, 8, 16, 32, 64])
@@ -295,7 +303,7 @@ def make_parser():
     v.set_defaults(func=cmd_verify)
 
     be = sub.add_parser("bench", help="benchmarks against peers measured in the same run")
-    be.add_argument("what", choices=["build", "scale", "trace", "render", "tti", "accuracy"])
+    be.add_argument("what", choices=["build", "scale", "trace", "render", "tti", "accuracy", "model"])
     be.add_argument("meshes", nargs="*", help="mesh files (default: every mesh in --mesh-dir)")
     be.add_argument("--mesh-dir", help="default: $HWRT_MESHES or ../shared/meshes, else generated")
     be.add_argument("--repeat", type=_positive, default=5)
