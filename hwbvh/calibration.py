@@ -11,7 +11,8 @@ that size cut from real meshes. Bunny and Sponza then serve as checks, not input
 import numpy as np
 
 from .cycle_model import (ACTIVE_POWER_W, AABB_BYTES, LAT_BINNING, LAT_PARTITION, LAT_SAH,
-                          PRESETS, RECORD_BYTES, WORD_BYTES, _upper_plan, simulate_subtree)
+                          PRESETS, RECORD_BYTES, WORD_BYTES, _upper_plan, simulate_subtree,
+                          unit_positions)
 
 # Table 4.11: energy (J) of the core logic per build, (HWBVH-C, HWBVH-HP)
 THESIS_ENERGY_J = {
@@ -84,8 +85,7 @@ def model_rate(subs, ctl, w=4, tsize=8):
     """Mean cycles per primitive of the model's subtree builder over ``subs``."""
     rates = []
     for sub in subs:
-        up = (((sub.ids.astype(np.uint64) * np.uint64(2654435761)) >> np.uint64(7))
-              % np.uint64(w)).astype(np.int64)
+        up = unit_positions(sub.ids, w)
         cyc = simulate_subtree(sub.left, sub.right, sub.count, sub.start, up, int(sub.root), w, tsize, int(ctl))[0]
         rates.append(cyc / sub.n_prims)
     return float(np.mean(rates))

@@ -84,6 +84,13 @@ PRESETS = {
 }
 
 
+def unit_positions(ids, w):
+    """The buffer pair each record is filled into. The fill spreads records over the w pairs
+    at random (3.3.1); a fixed hash of the primitive index stands in for that, so a simulation
+    is reproducible."""
+    return (((ids.astype(np.uint64) * np.uint64(2654435761)) >> np.uint64(7)) % np.uint64(w)).astype(np.int64)
+
+
 def footprint_bytes(n):
     """Table 4.2: two copies of the AABBs and of the index list, 2 * (24 + 3) * N bytes."""
     return 2 * (24 + 3) * int(n)
@@ -236,10 +243,7 @@ def simulate(tree, params, node_count=None):
     R = p.ram_pairs
     prims_per_cycle_dram = R * WORD_BYTES / RECORD_BYTES      # records/cycle through R channels
     events = _upper_plan(tree, cap)
-    # the fill spreads records over the w buffer pairs at random (3.3.1); a fixed hash of the
-    # primitive index stands in for that, so a simulation is reproducible
-    unit_pos = ((tree.ids.astype(np.uint64) * np.uint64(2654435761)) >> np.uint64(7)) % np.uint64(p.w)
-    unit_pos = unit_pos.astype(np.int64)
+    unit_pos = unit_positions(tree.ids, p.w)
     traffic = {"aabb": 0, "upper_sort": 0, "nodes": 0, "indices": 0}
     t = 0                              # the upper builder's clock
     upper_nodes = 0
@@ -421,8 +425,7 @@ def sweep(mesh, out_dir, leaf_sizes=(4, 8, 16, 32, 64), grid=(2, 4, 8, 16), jobs
         for root in cands:
             ids = base.ids[base.start[root]:base.start[root] + base.count[root]]
             sub = build_canonical(boxes[ids], leaf_size=int(leaf))
-            upw = np.stack([(((sub.ids.astype(np.uint64) * np.uint64(2654435761)) >> np.uint64(7))
-                             % np.uint64(w)).astype(np.int64) for w in ws])
+            upw = np.stack([unit_positions(sub.ids, w) for w in ws])
             build = _sweep_kernel(sub.left, sub.right, sub.count, sub.start, upw, int(sub.root),
                                   ws, ts, int(control_latency))
             fill = -(-len(ids) // ws)[:, None]             # the fill through w ports
