@@ -5,8 +5,8 @@ Run from the project root:  python examples/narrated.py   (writes renders/narrat
 import numpy as np
 
 import hwbvh
-from raytracer.camera import primary_rays
-from raytracer.offset import offset_origins
+from traversal.camera import primary_rays
+from traversal.offset import offset_origins
 from raytracer.output import write_exr
 from raytracer.render import RenderResult
 from scenes.meshes import grid_sheet, sphere

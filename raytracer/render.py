@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .camera import primary_rays, tile_order
-from .offset import offset_origins
+from traversal.camera import primary_rays, tile_order
+from traversal.offset import offset_origins
 
 
 @dataclass

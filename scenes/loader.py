@@ -62,7 +62,7 @@ def load_scene(spec, **overrides):
 
 def mesh_scene(path):
     """A mesh alone: default camera framing it, a point light, a plain diffuse material."""
-    from raytracer.camera import frame_bounds
+    from traversal.camera import frame_bounds
 
     verts, faces = load_mesh_arrays(path)
     used = verts[np.unique(faces)]

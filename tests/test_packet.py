@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import hwbvh
-from raytracer.camera import frame_bounds, primary_rays, tile_order
+from traversal.camera import frame_bounds, primary_rays, tile_order
 from scenes.meshes import grid_sheet, random_soup, uv_sphere
 from traversal import Tracer, raysets
 from traversal.packet import P, coherent

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hwbvh.errors import InputError
-from raytracer.camera import primary_rays
+from traversal.camera import primary_rays
 from raytracer.output import read_exr, write_exr
 from raytracer.render import fresnel_dielectric, make_tracer, render
 from scenes import compile_scene, load_scene, transform_scene

@@ -1,8 +1,8 @@
 """The ray sets of the verification and the benchmarks: primary, incoherent, shadow, bounces."""
 import numpy as np
 
-from raytracer.camera import frame_bounds, primary_rays, tile_order
-from raytracer.offset import offset_origins
+from .camera import frame_bounds, primary_rays, tile_order
+from .offset import offset_origins
 
 
 def bounds_of(tris):
