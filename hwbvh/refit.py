@@ -1,0 +1,181 @@
+"""Bottom-up refit of a BVH in the 384-bit node format (thesis 2.4, "BVH Updating", after
+Lauterbach et al. [LYTM06]).
+
+The topology stays: every pointer, leaf range, flag and the index list are kept; only word 0 of
+each node, its float32 AABB, is rewritten from the primitives' new positions. Leaves first (the
+union of their triangles' float32 vertex boxes, exact), then every internal node from its two
+children, children always before their parent. With unchanged geometry a refit reproduces the
+builder's boxes bit for bit, since the builder's node boxes are unions of the same primitive
+boxes.
+
+A refit is only defined while the primitive count stays the same: a different count needs a
+rebuild.
+
+>>> r = Refitter(bvh)                 # walks the topology once
+>>> moved = r.refit(new_triangles)    # a new Bvh: same topology, new boxes
+>>> refit_cost(moved, PRESETS["HWBVH-C"])["seconds"]   # the hardware model of one refit pass
+"""
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from .errors import InputError
+from .config import LEAF_FLAG
+from .format import BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, node_views, tree_stats
+from .primitives import as_triangles
+
+
+@njit(cache=True)
+def _bottom_up_order(u):
+    """Reachable nodes in reverse pre-order from the root (every child before its parent),
+    split into leaves and internal nodes."""
+    nslots = u.shape[0]
+    pre = np.empty(nslots, dtype=np.int64)
+    stack = np.empty(nslots + 2, dtype=np.int64)
+    stack[0] = 0
+    sp = 1
+    n = 0
+    n_leaves = 0
+    while sp > 0:
+        sp -= 1
+        i = stack[sp]
+        pre[n] = i
+        n += 1
+        if u[i, WORD_FLAGS] & LEAF_FLAG:
+            n_leaves += 1
+        else:
+            stack[sp] = u[i, WORD_B]
+            stack[sp + 1] = u[i, WORD_A]
+            sp += 2
+    leaves = np.empty(n_leaves, dtype=np.int64)
+    internal = np.empty(n - n_leaves, dtype=np.int64)
+    nl = 0
+    ni = 0
+    for k in range(n - 1, -1, -1):
+        i = pre[k]
+        if u[i, WORD_FLAGS] & LEAF_FLAG:
+            leaves[nl] = i
+            nl += 1
+        else:
+            internal[ni] = i
+            ni += 1
+    return leaves, internal
+
+
+@njit(cache=True, parallel=True)
+def _refit_leaves(u, f, leaves, entries, tris):
+    """Leaf box = union of its triangles' vertex boxes (float32 min/max: exact)."""
+    for j in prange(leaves.shape[0]):
+        i = leaves[j]
+        a = np.int64(u[i, WORD_A])
+        c = np.int64(u[i, WORD_B])
+        for k in range(3):
+            lo = np.float32(np.inf)
+            hi = np.float32(-np.inf)
+            for p in range(a, a + c):
+                t = entries[p]
+                for v in range(3):
+                    x = tris[t, v, k]
+                    if x < lo:
+                        lo = x
+                    if x > hi:
+                        hi = x
+            f[i, WORD_BOX + k] = lo
+            f[i, WORD_BOX + BOX_MAX + k] = hi
+
+
+@njit(cache=True)
+def _refit_internal(u, f, internal):
+    """Internal box = union of its children's boxes, children first (bottom-up order)."""
+    for j in range(internal.shape[0]):
+        i = internal[j]
+        l = u[i, WORD_A]
+        r = u[i, WORD_B]
+        for k in range(WORD_BOX, WORD_BOX + BOX_MAX):
+            f[i, k] = min(f[l, k], f[r, k])
+            f[i, k + BOX_MAX] = max(f[l, k + BOX_MAX], f[r, k + BOX_MAX])
+
+
+class Refitter:
+    """Refits one tree's topology to new primitive positions, as often as asked.
+
+    bvh : hwbvh.Bvh (nodes and index list; its triangles are the positions it was built on).
+    """
+
+    def __init__(self, bvh):
+        self.nodes = np.ascontiguousarray(bvh.nodes)
+        self.indices = np.ascontiguousarray(bvh.indices, dtype=np.int64)
+        self.meta = dict(bvh.meta)
+        self.n_prims = len(bvh.indices)
+        u, _ = node_views(self.nodes)
+        self.leaves, self.internal = _bottom_up_order(u)
+        self.max_depth = int(self.meta.get("max_depth") or tree_stats(self.nodes)["max_depth"])
+
+    @property
+    def node_count(self):
+        return len(self.leaves) + len(self.internal)
+
+    def check(self, triangles, source="triangles"):
+        """Validated float32 triangles of the same count as the tree's primitives."""
+        tris = as_triangles(triangles, source=source)
+        if len(tris) != self.n_prims:
+            raise InputError(source, f"{len(tris)} triangles, but the tree was built over "
+                                     f"{self.n_prims}: a refit keeps the topology, so a change "
+                                     "in triangle count needs a rebuild")
+        return tris
+
+    def refit_nodes(self, tris, out=None):
+        """Rewrite the boxes of ``out`` (default: a copy of the tree's nodes) for ``tris``, an
+        already checked (N, 3, 3) float32 array. Returns the node array."""
+        nodes = self.nodes.copy() if out is None else out
+        u, f = node_views(nodes)
+        _refit_leaves(u, f, self.leaves, self.indices, tris)
+        _refit_internal(u, f, self.internal)
+        return nodes
+
+    def refit(self, triangles):
+        """A new :class:`hwbvh.Bvh`: this topology, boxes for ``triangles`` ((N, 3, 3) float),
+        its SAH cost recomputed."""
+        from .api import Bvh
+
+        tris = self.check(triangles)
+        nodes = self.refit_nodes(tris)
+        st = tree_stats(nodes)
+        meta = dict(self.meta, sah_cost=st["sah_cost"], refitted=True)
+        return Bvh(nodes=nodes, indices=self.indices.astype(np.uint32), triangles=tris, meta=meta)
+
+
+def refit(bvh, triangles):
+    """One refit of ``bvh`` to ``triangles`` (see :class:`Refitter`)."""
+    return Refitter(bvh).refit(triangles)
+
+
+def refit_cost(n_prims, n_nodes, max_depth, params):
+    """The hardware cost of one refit pass, in the builder's DRAM model (SPEC 6).
+
+    A refit is a memory-bound streaming pass: per primitive one 192-bit word of AABB is read
+    (the same record word the builder's initial pass reads, so both start from the same
+    input), the 24-bit index list is read (8 entries a word), and every node's second word
+    (pointers and flags) is read and its first word (the AABB) written. Reads and writes use
+    the separate channels of each RAM pair, one word per channel per cycle, so the pass takes
+    max(reads, writes) / R cycles; min/max comparators (latency 1, Table 3.1) keep pace with
+    the stream, and a bottom-up pass adds one comparator latency per tree level at the end.
+    The model assumes the primitive words arrive in leaf order (as the builder's partitioned
+    records leave them), so it is a lower bound: gathers out of order would cost more. It
+    charges no energy: no power figure exists for such a unit, and a preset's power belongs
+    to the builder alone.
+
+    params : hwbvh.cycle_model.HwParams (its clock and RAM pairs). Returns a dict.
+    """
+    from .config import WORD_BYTES
+
+    index_words = -(-int(n_prims) // 8)
+    reads = int(n_prims) + index_words + int(n_nodes)
+    writes = int(n_nodes)
+    cycles = math.ceil(max(reads, writes) / params.ram_pairs) + int(max_depth)
+    seconds = cycles / (params.clock_mhz * 1e6)
+    return {"cycles": int(cycles), "seconds": seconds,
+            "traffic_bytes": {"aabb": int(n_prims) * WORD_BYTES, "indices": index_words * WORD_BYTES,
+                              "nodes": 2 * int(n_nodes) * WORD_BYTES},
+            "energy_joules": None}
