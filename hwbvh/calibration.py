@@ -10,9 +10,9 @@ that size cut from real meshes. Bunny and Sponza then serve as checks, not input
 """
 import numpy as np
 
-from .cycle_model import (ACTIVE_POWER_W, AABB_BYTES, LAT_BINNING, LAT_PARTITION, LAT_SAH,
-                          PRESETS, RECORD_BYTES, WORD_BYTES, _upper_plan, simulate_subtree,
-                          unit_positions)
+from .config import (AABB_BYTES, LAT_BINNING, LAT_PARTITION, LAT_SAH, PRIMITIVE_RECORD_BYTES,
+                     THESIS_ACTIVE_POWER_W, WORD_BYTES)
+from .cycle_model import PRESETS, _upper_plan, simulate_subtree, unit_positions
 
 # Table 4.11: energy (J) of the core logic per build, (HWBVH-C, HWBVH-HP)
 THESIS_ENERGY_J = {
@@ -31,7 +31,7 @@ MARBLES_TRIANGLES = (8193, 8500)
 def thesis_seconds(scene, preset):
     """Build time the thesis implies for ``scene`` on ``preset``: Table 4.11 / Table 4.10."""
     e = THESIS_ENERGY_J[scene][0 if preset == "HWBVH-C" else 1]
-    return e / ACTIVE_POWER_W[preset]
+    return e / THESIS_ACTIVE_POWER_W[preset]
 
 
 def _upper_overhead(n, p, ctl):
@@ -40,7 +40,7 @@ def _upper_overhead(n, p, ctl):
     them). With one subtree builder both fills are on the path; with two, the builds overlap and
     only the second build's start matters."""
     R = p.ram_pairs
-    rec = R * WORD_BYTES / RECORD_BYTES
+    rec = R * WORD_BYTES / PRIMITIVE_RECORD_BYTES
     t = n * AABB_BYTES / (R * WORD_BYTES) + 2 * n / rec + 2 * (LAT_BINNING + LAT_SAH + ctl)
     t += LAT_PARTITION
     fill = max(n / 2 / rec, n / 2 / p.w)

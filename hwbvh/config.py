@@ -35,6 +35,23 @@ LEAF_FLAG = 1            # flags bit 0
 # --- Reference sweep builder (thesis 4.3.3, SPEC 5) -------------------------------------
 SWEEP_MAX_LEAF = 64      # forced split above this, so a pile of identical triangles stays bounded
 
+# --- Timing model (thesis 3.5, Tables 3.1-3.3; SPEC 6) ---------------------------------
+LAT_PRIM_BUFFER = 2      # Table 3.3: primitive buffer latency
+LAT_PARTITION = 36       # Table 3.3: partitioning unit latency
+LAT_BINNING = 32         # Table 3.3: binning unit latency
+LAT_SAH = 73             # Table 3.3: SAH calculator latency, and one node per 73 cycles
+THREAD_SWITCH = 2        # 3.3.2: "within two cycles" the partitioning unit switches thread
+AABB_BYTES = 24          # a float32 AABB alone: the initial scene-AABB pass reads one per primitive
+# Control latency per split that the RTL spends and Table 3.3 does not list (bin-collector dump
+# and merge, READY/GO hand-shakes, FIFOs, thread-context reads). Not derived from the text:
+# fitted (hwbvh.calibration.fit_control_latency) so that subtrees of ~4.4k primitives take the
+# ~14.5 cycles per primitive that the thesis' Marbles build implies (Table 4.11 energies / Table
+# 4.10 powers). Bunny and Sponza are then predictions, not fits. 0 gives the text-only model.
+CONTROL_LATENCY = 148
+
+# --- Power (Table 4.10, InCyte, 90 nm) ----------------------------------------------------
+THESIS_ACTIVE_POWER_W = {"HWBVH-C": 5.902, "HWBVH-HP": 25.179}
+
 # --- Software build scheduling (not a hardware parameter) -------------------------------
 # Nodes with more primitives than this are split with data-parallel binning/partitioning;
 # smaller ones become independent tasks built in parallel. The tree does not depend on it.

@@ -36,25 +36,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numba import njit, prange
 
-from . import config
-
-# --- constants (each with its source) -------------------------------------------------
-LAT_PARTITION = 36       # Table 3.3: partitioning unit latency
-LAT_BINNING = 32         # Table 3.3: binning unit latency
-LAT_SAH = 73             # Table 3.3: SAH calculator latency, and one node per 73 cycles
-LAT_PRIM_BUFFER = 2      # Table 3.3: primitive buffer latency
-# Control latency per split that the RTL spends and Table 3.3 does not list (bin-collector dump
-# and merge, READY/GO hand-shakes, FIFOs, thread-context reads). Not derived from the text:
-# fitted (hwbvh.calibration.fit_control_latency) so that subtrees of ~4.4k primitives take the
-# ~14.5 cycles per primitive that the thesis' Marbles build implies (Table 4.11 energies / Table
-# 4.10 powers). Bunny and Sponza are then predictions, not fits. 0 gives the text-only model.
-CONTROL_LATENCY = 148
-THREAD_SWITCH = 2        # 3.3.2: "within two cycles" the partitioning unit switches thread
-WORD_BYTES = config.WORD_BYTES              # one 192-bit DRAM word per channel per cycle
-RECORD_BYTES = config.PRIMITIVE_RECORD_BYTES  # a 216-bit primitive record
-AABB_BYTES = 24                              # the AABB alone (initial scene-AABB pass)
-NODE_BYTES = config.NODE_BYTES
-ACTIVE_POWER_W = {"HWBVH-C": 5.902, "HWBVH-HP": 25.179}    # Table 4.10, active power, 90 nm
+from .config import (AABB_BYTES, CONTROL_LATENCY, LAT_BINNING, LAT_PARTITION, LAT_PRIM_BUFFER,
+                     LAT_SAH, NODE_BYTES, THESIS_ACTIVE_POWER_W, THREAD_SWITCH, WORD_BYTES)
+from .config import PRIMITIVE_RECORD_BYTES as RECORD_BYTES
 
 
 @dataclass
@@ -68,7 +52,7 @@ class HwParams:
     clock_mhz: float = 250.0
     leaf_size: int = 4
     bins: int = 16
-    active_power_w: float = ACTIVE_POWER_W["HWBVH-C"]
+    active_power_w: float = THESIS_ACTIVE_POWER_W["HWBVH-C"]
     control_latency: int = CONTROL_LATENCY   # cycles per split beyond Table 3.3 (calibrated)
 
     @property
@@ -78,9 +62,9 @@ class HwParams:
 
 PRESETS = {
     "HWBVH-C": HwParams(w=4, tsize=8, psize=2048, subtree_builders=1, ram_pairs=1,
-                        clock_mhz=250.0, active_power_w=ACTIVE_POWER_W["HWBVH-C"]),
+                        clock_mhz=250.0, active_power_w=THESIS_ACTIVE_POWER_W["HWBVH-C"]),
     "HWBVH-HP": HwParams(w=4, tsize=8, psize=2048, subtree_builders=2, ram_pairs=2,
-                         clock_mhz=500.0, active_power_w=ACTIVE_POWER_W["HWBVH-HP"]),
+                         clock_mhz=500.0, active_power_w=THESIS_ACTIVE_POWER_W["HWBVH-HP"]),
 }
 
 
