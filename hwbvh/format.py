@@ -14,7 +14,7 @@ entries, 8 per 192-bit word, the tail of the last word padded with 0xFFFFFF.
 import numpy as np
 from numba import njit
 
-from .config import INDEX_PAD, INDICES_PER_WORD, LEAF_FLAG, NODE_BYTES
+from .config import INDEX_BYTES, INDEX_PAD, INDICES_PER_WORD, LEAF_FLAG, NODE_BYTES
 
 NODE_DTYPE = np.dtype([
     ("bounds", "<f4", (6,)),   # 24 bytes: word 0, the node AABB
@@ -25,13 +25,25 @@ NODE_DTYPE = np.dtype([
 ])                             # total: 48 bytes = 384 bits
 assert NODE_DTYPE.itemsize == NODE_BYTES
 
-# Views the Numba kernels use: a node as 12 uint32 words / 12 float32 words.
-A, B, FLAGS = 6, 7, 8
+# The kernels read a node as 32-bit words (the same bytes seen as uint32 and as float32), at
+# these offsets, derived from NODE_DTYPE. Numba freezes module-level ints into the compiled
+# code, so naming the offsets costs nothing.
+_WORD = np.dtype("<u4").itemsize
+assert all(NODE_DTYPE.fields[k][1] % _WORD == 0 for k in NODE_DTYPE.names)
+WORDS_PER_NODE = NODE_DTYPE.itemsize // _WORD          # 12
+WORD_BOX = NODE_DTYPE.fields["bounds"][1] // _WORD     # 0: min x, y, z, then max x, y, z
+BOX_MAX = NODE_DTYPE["bounds"].shape[0] // 2           # 3: max xyz follow min xyz in a box
+WORD_A = NODE_DTYPE.fields["a"][1] // _WORD            # 6: left child / first index position
+WORD_B = NODE_DTYPE.fields["b"][1] // _WORD            # 7: right child / primitive count
+WORD_FLAGS = NODE_DTYPE.fields["flags"][1] // _WORD    # 8: LEAF_FLAG set on a leaf
+WORD_PAD = NODE_DTYPE.fields["pad"][1] // _WORD        # 9
+PAD_WORDS = NODE_DTYPE["pad"].shape[0]                 # 3, all zero
 
 
 def node_views(nodes):
-    """(u32 (n, 12), f32 (n, 12)) views of a NODE_DTYPE array, sharing its memory."""
-    raw = nodes.view(np.uint32).reshape(len(nodes), 12)
+    """(u32 (n, WORDS_PER_NODE), f32 (n, WORDS_PER_NODE)) views of a NODE_DTYPE array, sharing
+    its memory."""
+    raw = nodes.view(np.uint32).reshape(len(nodes), WORDS_PER_NODE)
     return raw, raw.view(np.float32)
 
 
@@ -42,15 +54,15 @@ def pack_indices(ids):
     padded = -(-n // INDICES_PER_WORD) * INDICES_PER_WORD
     full = np.full(padded, INDEX_PAD, dtype="<u4")
     full[:n] = ids
-    return full.view(np.uint8).reshape(-1, 4)[:, :3].tobytes()
+    return full.view(np.uint8).reshape(-1, 4)[:, :INDEX_BYTES].tobytes()
 
 
 def unpack_indices(data):
     """24-bit index list bytes -> uint32 entries (padding included)."""
     raw = np.frombuffer(data, dtype=np.uint8)
-    if raw.size % 3:
+    if raw.size % INDEX_BYTES:
         raise ValueError("index list is not a whole number of 24-bit entries")
-    b = raw.reshape(-1, 3).astype(np.uint32)
+    b = raw.reshape(-1, INDEX_BYTES).astype(np.uint32)
     return b[:, 0] | (b[:, 1] << 8) | (b[:, 2] << 16)
 
 
@@ -94,18 +106,19 @@ def _validate(u, f, entries, n_prims, max_leaf, prim_boxes, check_boxes):
         nodes += 1
         if nodes > 2 * n_prims - 1:
             return 12, i
-        if u[i, FLAGS] & ~np.uint32(1):
+        if u[i, WORD_FLAGS] & ~np.uint32(LEAF_FLAG):
             return 3, i
-        if u[i, 9] != 0 or u[i, 10] != 0 or u[i, 11] != 0:
-            return 4, i
-        for k in range(3):
+        for k in range(WORD_PAD, WORD_PAD + PAD_WORDS):
+            if u[i, k] != 0:
+                return 4, i
+        for k in range(WORD_BOX, WORD_BOX + 3):
             lo = f[i, k]
-            hi = f[i, 3 + k]
+            hi = f[i, k + BOX_MAX]
             if not (lo <= hi) or not np.isfinite(lo) or not np.isfinite(hi):
                 return 13, i
-        if u[i, FLAGS] & 1:
-            a = np.int64(u[i, A])
-            c = np.int64(u[i, B])
+        if u[i, WORD_FLAGS] & LEAF_FLAG:
+            a = np.int64(u[i, WORD_A])
+            c = np.int64(u[i, WORD_B])
             if c < 1 or c > max_leaf:
                 return 6, i
             if a + c > entries.shape[0]:
@@ -121,16 +134,16 @@ def _validate(u, f, entries, n_prims, max_leaf, prim_boxes, check_boxes):
                     return 10, i
                 prim_seen[pid] = 1
                 if check_boxes:
-                    for k in range(3):
-                        if prim_boxes[pid, k] < f[i, k] or prim_boxes[pid, 3 + k] > f[i, 3 + k]:
+                    for k in range(3):      # prim_boxes rows: min xyz, max xyz
+                        if prim_boxes[pid, k] < f[i, WORD_BOX + k] or \
+                                prim_boxes[pid, 3 + k] > f[i, WORD_BOX + BOX_MAX + k]:
                             return 14, i
         else:
-            for side in range(2):
-                c = np.int64(u[i, A + side])
+            for c in (np.int64(u[i, WORD_A]), np.int64(u[i, WORD_B])):
                 if c >= nslots or c == 0:
                     return 1, i
-                for k in range(3):
-                    if f[c, k] < f[i, k] or f[c, 3 + k] > f[i, 3 + k]:
+                for k in range(WORD_BOX, WORD_BOX + 3):
+                    if f[c, k] < f[i, k] or f[c, k + BOX_MAX] > f[i, k + BOX_MAX]:
                         return 5, c
                 if sp >= stack.shape[0]:
                     return 15, i
@@ -183,16 +196,18 @@ def _tree_stats(u, f):
         sp -= 1
         i = stack[sp]
         d = dstack[sp]
-        dx = np.float64(f[i, 3]) - np.float64(f[i, 0])
-        dy = np.float64(f[i, 4]) - np.float64(f[i, 1])
-        dz = np.float64(f[i, 5]) - np.float64(f[i, 2])
+        lo = WORD_BOX
+        hi = WORD_BOX + BOX_MAX
+        dx = np.float64(f[i, hi]) - np.float64(f[i, lo])
+        dy = np.float64(f[i, hi + 1]) - np.float64(f[i, lo + 1])
+        dz = np.float64(f[i, hi + 2]) - np.float64(f[i, lo + 2])
         area = 2.0 * (dx * dy + dy * dz + dz * dx)
         nodes += 1
         if d > max_depth:
             max_depth = d
-        if u[i, FLAGS] & 1:
+        if u[i, WORD_FLAGS] & LEAF_FLAG:
             leaves += 1
-            c = np.int64(u[i, B])
+            c = np.int64(u[i, WORD_B])
             leaf_area += c * area
             if c > max_leaf:
                 max_leaf = c
@@ -200,9 +215,9 @@ def _tree_stats(u, f):
             internal_area += 2.0 * area
             if sp + 2 > stack.shape[0]:
                 break
-            stack[sp] = u[i, B]
+            stack[sp] = u[i, WORD_B]
             dstack[sp] = d + 1
-            stack[sp + 1] = u[i, A]
+            stack[sp + 1] = u[i, WORD_A]
             dstack[sp + 1] = d + 1
             sp += 2
     return internal_area, leaf_area, nodes, leaves, max_depth, max_leaf
@@ -223,6 +238,6 @@ def tree_stats(nodes):
     if root_area > 0:
         cost = (internal + leaf) / root_area
     else:  # a zero-area scene (all triangles on a point/segment): every ray tests everything
-        cost = float(n - leaves) * 2.0 + float(nodes["b"][0] if nodes["flags"][0] & 1 else 0)
+        cost = float(n - leaves) * 2.0 + float(nodes["b"][0] if nodes["flags"][0] & LEAF_FLAG else 0)
     return {"sah_cost": float(cost), "nodes": int(n), "leaves": int(leaves),
             "max_depth": int(depth), "max_leaf_count": int(max_leaf)}

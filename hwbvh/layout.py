@@ -17,7 +17,8 @@ order, which is also the order the subtree builders write their index lists in.
 import numpy as np
 from numba import njit
 
-from .format import A, B, FLAGS, NODE_DTYPE, node_views
+from .config import LEAF_FLAG
+from .format import NODE_DTYPE, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, node_views
 
 
 @njit(cache=True)
@@ -78,15 +79,15 @@ def write_records(cbox, cleft, cright, cstart, ccount, final, u, f):
         if s < 0:
             continue
         for k in range(6):
-            f[s, k] = cbox[i, k]
+            f[s, WORD_BOX + k] = cbox[i, k]
         if cleft[i] < 0:
-            u[s, A] = cstart[i]
-            u[s, B] = ccount[i]
-            u[s, FLAGS] = 1
+            u[s, WORD_A] = cstart[i]
+            u[s, WORD_B] = ccount[i]
+            u[s, WORD_FLAGS] = LEAF_FLAG
         else:
-            u[s, A] = final[cleft[i]]
-            u[s, B] = final[cright[i]]
-            u[s, FLAGS] = 0
+            u[s, WORD_A] = final[cleft[i]]
+            u[s, WORD_B] = final[cright[i]]
+            u[s, WORD_FLAGS] = 0
 
 
 def lay_out(tree, capacity, n_builders=1, block_nodes=256):
