@@ -7,7 +7,6 @@
 """
 import json
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 
@@ -15,7 +14,8 @@ import numpy as np
 
 from . import config
 from .builder import build_canonical, check_params
-from .errors import InputError
+from .errors import InputError, ParameterError
+from .files import json_text, write_files
 from .format import NODE_DTYPE, pack_indices, tree_stats, unpack_indices, validate
 from .layout import lay_out
 from .primitives import as_triangles, load_triangles, primitive_boxes
@@ -55,28 +55,30 @@ class Bvh:
         return order, counts
 
 
-def _triangles(source):
+def _triangles(source, name=None):
     if isinstance(source, (str, os.PathLike)):
         return load_triangles(source), os.fspath(source)
-    return as_triangles(source), "<array>"
+    return as_triangles(source, source=name or "<array>"), name or "<array>"
 
 
 def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAULT_BINS,
           capacity=config.DEFAULT_CAPACITY, subtree_builders=1,
-          block_nodes=config.DEFAULT_BLOCK_NODES, validate_tree=False, task_prims=None):
+          block_nodes=config.DEFAULT_BLOCK_NODES, validate_tree=False, task_prims=None,
+          source_name=None):
     """Build a BVH over a mesh path or an ``(n, 3, 3)`` triangle array.
 
     builder : "hwbvh" (the hardware's binned SAH, exact) or "sweep" (full SAH reference).
     capacity, subtree_builders, block_nodes : where nodes land (never what the tree is).
+    source_name : what errors and ``meta["source"]`` call an array source (e.g. its file).
     """
     if builder not in BUILDERS:
-        raise InputError("--builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
+        raise ParameterError("builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
     check_params(leaf_size, bins)
-    for name, v in (("--capacity", capacity), ("--subtree-builders", subtree_builders),
-                    ("--block-nodes", block_nodes)):
+    for name, v in (("capacity", capacity), ("subtree_builders", subtree_builders),
+                    ("block_nodes", block_nodes)):
         if not isinstance(v, (int, np.integer)) or v < 1:
-            raise InputError(name, f"must be a positive integer, got {v}")
-    tris, src = _triangles(source)
+            raise ParameterError(name, f"must be a positive integer, got {v}")
+    tris, src = _triangles(source, source_name)
     t0 = time.perf_counter()
     boxes = primitive_boxes(tris)
     if builder == "hwbvh":
@@ -118,35 +120,18 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     return bvh
 
 
-def _atomic_write(path, data, mode="wb"):
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=d)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    try:
-        with os.fdopen(fd, mode) as f:
-            f.write(data)
-        return tmp
-    except BaseException:
-        os.unlink(tmp)
-        raise
-
-
-def write_files(pairs):
-    """Write several files so that either all appear or none: each goes to a temporary file in
-    its directory first; the renames happen only when every write succeeded."""
-    tmps = []
-    try:
-        for path, data in pairs:
-            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-            tmps.append((_atomic_write(path, data, "w" if isinstance(data, str) else "wb"), path))
-    except BaseException:
-        for tmp, _ in tmps:
-            os.unlink(tmp)
-        raise
-    for tmp, path in tmps:
-        os.replace(tmp, path)
+def warm_up(builder="hwbvh", parallel=False):
+    """Load (or, the first time ever, compile) a builder's Numba kernels on a tiny input, so
+    that a build timed next measures building, not kernel loading. ``parallel`` also loads the
+    data-parallel kernels that meshes above ``config.SEQUENTIAL_MAX_PRIMS`` use. Returns the
+    seconds it took."""
+    t = time.perf_counter()
+    rng = np.random.default_rng(0)
+    soup = rng.uniform(0.0, 1.0, (64, 1, 3)) + rng.uniform(-0.05, 0.05, (64, 3, 3))
+    build(soup, builder=builder)
+    if parallel and builder == "hwbvh":
+        build(soup, builder=builder, task_prims=16)
+    return time.perf_counter() - t
 
 
 def save(bvh, prefix):
@@ -155,7 +140,7 @@ def save(bvh, prefix):
     write_files([
         (prefix + ".nodes", bvh.nodes.tobytes()),
         (prefix + ".indices", pack_indices(bvh.indices)),
-        (prefix + ".json", json.dumps(bvh.meta, indent=2) + "\n"),
+        (prefix + ".json", json_text(bvh.meta, indent=2) + "\n"),
     ])
     return [prefix + ext for ext in (".nodes", ".indices", ".json")]
 

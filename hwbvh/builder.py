@@ -28,7 +28,7 @@ from numba import njit, prange, get_num_threads
 
 from . import config
 from .binning_unit import bin_range, bin_range_parallel
-from .errors import InputError
+from .errors import InputError, ParameterError
 from .partitioning_unit import (partition_range, partition_range_parallel, range_bounds,
                                 range_bounds_parallel)
 from .sah_calculator import best_split
@@ -182,9 +182,9 @@ def build_tasks(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
 # --------------------------------------------------------------------------------------
 def check_params(leaf_size, bins):
     if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= config.MAX_LEAF_SIZE):
-        raise InputError("--leaf-size", f"leaf size must be an integer in 1..{config.MAX_LEAF_SIZE}, got {leaf_size}")
+        raise ParameterError("leaf_size", f"leaf size must be an integer in 1..{config.MAX_LEAF_SIZE}, got {leaf_size}")
     if not (isinstance(bins, (int, np.integer)) and 2 <= bins <= config.MAX_SOFTWARE_BINS):
-        raise InputError("--bins", f"bins must be an integer in 2..{config.MAX_SOFTWARE_BINS} "
+        raise ParameterError("bins", f"bins must be an integer in 2..{config.MAX_SOFTWARE_BINS} "
                                  f"(the hardware has at most {config.MAX_HARDWARE_BINS}), got {bins}")
 
 

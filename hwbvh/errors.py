@@ -11,3 +11,12 @@ class InputError(ValueError):
         self.source = str(source)
         self.problem = str(problem)
         super().__init__(f"{self.source}: {self.problem}")
+
+
+class ParameterError(InputError):
+    """A function argument out of range. ``parameter`` is the argument's name as the function
+    spells it (``leaf_size``); a command line reports its own option for it (``--leaf-size``)."""
+
+    def __init__(self, parameter, problem):
+        self.parameter = str(parameter)
+        super().__init__(parameter, problem)

@@ -29,6 +29,23 @@ def _ply_face_count(path):
     return int(m.group(1)) if m else None
 
 
+# a 0 (or -0) among the indices of an OBJ face line ("f 1 2 0", "f 1/0/1 ..."); OBJ counts
+# from 1 (negative counts back from the end), so 0 is an error that trimesh reads silently
+_OBJ_ZERO_INDEX = re.compile(rb"(?m)^[ \t]*f[ \t][^\n#]*?(?<=[ \t/])-?0+(?=[ \t/\r#]|$)")
+
+
+def _check_obj_indices(path):
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError:
+        return
+    m = _OBJ_ZERO_INDEX.search(data)
+    if m:
+        line = data.count(b"\n", 0, m.start()) + 1
+        raise InputError(path, f"line {line}: face index 0 (OBJ indices start at 1)")
+
+
 def check_count(n, source):
     if n == 0:
         raise InputError(source, "mesh has no triangles")
@@ -74,6 +91,8 @@ def load_mesh_arrays(path):
     declared = _ply_face_count(path)
     if declared is not None:
         check_count(declared, path)
+    if path.lower().endswith(".obj"):
+        _check_obj_indices(path)
     try:
         mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files

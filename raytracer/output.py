@@ -1,34 +1,22 @@
-"""EXR (OpenImageIO) and PNG preview output, written atomically: a temporary file in the
-target directory, renamed into place only when complete, so an interrupted render leaves no
-broken image."""
+"""EXR (OpenImageIO) and PNG preview output, written atomically (``hwbvh.files.write_files``):
+a temporary file in the target directory, renamed into place only when complete, so an
+interrupted render leaves no broken image. ``exr_writer``/``png_writer`` give the writers, so
+that an EXR and its preview can be written as one set, both or neither."""
 import os
-import tempfile
 
 import numpy as np
 
-
-def _atomic(path, write):
-    path = os.fspath(path)
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    ext = os.path.splitext(path)[1]
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=ext, dir=d)
-    os.close(fd)
-    try:
-        write(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+from hwbvh.files import write_files
 
 
 def write_exr(path, result, metadata, layers=True):
     """Float RGB, plus depth (Z), shading normal (N.X/N.Y/N.Z) and primitive id (prim.id, exact
     in float32 below 2^24) when ``layers``; ``metadata`` goes into the header as hwrt:* keys."""
+    write_files([(path, exr_writer(path, result, metadata, layers))])
+
+
+def exr_writer(path, result, metadata, layers=True):
+    """A ``write(tmp_path)`` for :func:`hwbvh.files.write_files` (see :func:`write_exr`)."""
     import OpenImageIO as oiio
 
     H, W, _ = result.image.shape
@@ -51,7 +39,7 @@ def write_exr(path, result, metadata, layers=True):
             msg = oiio.geterror() if out is None else out.geterror()
             raise OSError(f"OpenImageIO could not write {path}: {msg}")
         out.close()
-    _atomic(path, write)
+    return write
 
 
 def tonemap(image):
@@ -62,6 +50,12 @@ def tonemap(image):
 
 
 def write_png(path, image):
+    """An 8-bit sRGB preview of ``image`` (see :func:`tonemap`)."""
+    write_files([(path, png_writer(path, image))])
+
+
+def png_writer(path, image):
+    """A ``write(tmp_path)`` for :func:`hwbvh.files.write_files` (see :func:`write_png`)."""
     import OpenImageIO as oiio
 
     px = np.ascontiguousarray(tonemap(image))
@@ -72,7 +66,7 @@ def write_png(path, image):
         if out is None or not out.open(tmp, oiio.ImageSpec(W, H, 3, "uint8")) or not out.write_image(px):
             raise OSError(f"OpenImageIO could not write {path}")
         out.close()
-    _atomic(path, write)
+    return write
 
 
 def read_exr(path):

@@ -1,0 +1,180 @@
+"""Output files: checked before the work starts, written whole or not at all, JSON kept strict.
+
+``check_outputs`` and ``check_output_dir`` fail at once, with an :class:`InputError` naming the
+path as it was given, when an output could not be written or would replace an input; so a
+long run never ends in an error about its output. ``write_files`` writes each file to a
+temporary file beside it and renames it into place only when every file of the set is complete;
+an exception (an interruption included) removes the temporary files. ``json_text`` is the one
+JSON encoder: strict JSON, with ``null`` for a number that is infinite or undefined.
+"""
+import json
+import math
+import os
+import signal
+import tempfile
+from contextlib import contextmanager
+
+import numpy as np
+
+from .errors import InputError
+
+
+# --------------------------------------------------------------------------------------
+# strict JSON
+# --------------------------------------------------------------------------------------
+def jsonable(obj):
+    """``obj`` with NumPy scalars and arrays turned into Python ones and every non-finite
+    float (inf, -inf, nan) turned into ``None``; dict keys become strings."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        x = float(obj)
+        return x if math.isfinite(x) else None
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    return obj
+
+
+def json_text(obj, indent=None):
+    """Strict JSON text of ``obj`` (see :func:`jsonable`); never ``NaN`` or ``Infinity``."""
+    return json.dumps(jsonable(obj), indent=indent, allow_nan=False)
+
+
+# --------------------------------------------------------------------------------------
+# checks before the work
+# --------------------------------------------------------------------------------------
+def _nearest_existing(path):
+    d = os.path.dirname(os.path.abspath(path))
+    while not os.path.exists(d):
+        parent = os.path.dirname(d)
+        if parent == d:
+            break
+        d = parent
+    return d
+
+
+def _directory_problem(d):
+    """Why files cannot be created in the existing path ``d``, or None."""
+    if not os.path.isdir(d):
+        return f"{d} is not a directory"
+    try:
+        # an unnamed file where the output will go: the real permission check (ACLs, read-only
+        # file systems), which os.access does not make for every user
+        tempfile.TemporaryFile(dir=d).close()
+    except OSError as e:
+        return f"cannot create files in {d} ({e.strerror or 'not writable'})"
+    return None
+
+
+def _same_file(a, b):
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_outputs(outputs, inputs=()):
+    """Fail before any work unless every path in ``outputs`` can be written and none of them
+    is one of ``inputs`` (or one another). Paths are reported as given. Raises InputError."""
+    outputs = [os.fspath(p) for p in outputs if p is not None]
+    inputs = [os.fspath(p) for p in inputs if p is not None and os.path.exists(p)]
+    for k, out in enumerate(outputs):
+        for src in inputs:
+            if _same_file(out, src):
+                raise InputError(out, f"is an input of this run; writing it would overwrite {src}")
+        for other in outputs[:k]:
+            if _same_file(out, other):
+                raise InputError(out, "is named twice as an output")
+        if os.path.isdir(out):
+            raise InputError(out, "is a directory; give a file path")
+        if os.path.exists(out) and not os.access(out, os.W_OK):
+            raise InputError(out, "exists and is read-only")
+        problem = _directory_problem(_nearest_existing(out))
+        if problem:
+            raise InputError(out, problem)
+
+
+def check_output_dir(directory, names=(), inputs=()):
+    """Like :func:`check_outputs` for a directory that will hold the files ``names``; a problem
+    with the directory itself names the directory."""
+    directory = os.fspath(directory)
+    if os.path.exists(directory):
+        problem = _directory_problem(directory)
+    else:
+        problem = _directory_problem(_nearest_existing(os.path.join(directory, "x")))
+    if problem:
+        raise InputError(directory, problem)
+    check_outputs([os.path.join(directory, n) for n in names], inputs)
+
+
+# --------------------------------------------------------------------------------------
+# atomic writes
+# --------------------------------------------------------------------------------------
+@contextmanager
+def _signals_held():
+    """Hold SIGINT/SIGTERM for the renames, so a set of files appears whole; a signal that
+    arrives meanwhile is delivered right after."""
+    sigs = {signal.SIGINT, signal.SIGTERM}
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    except (AttributeError, ValueError, OSError):      # no pthread_sigmask on this platform
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def _file_mode():
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+def write_files(pairs):
+    """Write several files so that either all appear or none.
+
+    pairs : iterable of ``(path, data)``; ``data`` is bytes, str (written as UTF-8 text), or a
+    callable ``write(tmp_path)`` that creates the file itself (e.g. an image library's writer).
+    Each file goes to a temporary file in its directory, named with the same extension (for
+    writers that choose the format by it); the renames happen only when every write succeeded.
+    """
+    tmps = []
+    try:
+        for path, data in pairs:
+            path = os.fspath(path)
+            d = os.path.dirname(os.path.abspath(path))
+            os.makedirs(d, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(path)[1], dir=d)
+            tmps.append((tmp, path))
+            if callable(data):
+                os.close(fd)
+                data(tmp)
+            else:
+                with os.fdopen(fd, "w" if isinstance(data, str) else "wb") as f:
+                    f.write(data)
+            os.chmod(tmp, _file_mode())
+    except BaseException:
+        for tmp, _ in tmps:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        raise
+    with _signals_held():
+        try:
+            for tmp, path in tmps:
+                os.replace(tmp, path)
+        finally:
+            for tmp, _ in tmps:
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
