@@ -5,6 +5,7 @@ a mesh file (framed automatically, one point light, a plain diffuse material). `
 turns the dict into triangle, normal, material and light arrays for the renderer. Malformed
 scene files raise :class:`InputError` naming the file, the key and the problem.
 """
+import difflib
 import json
 import os
 from dataclasses import dataclass
@@ -19,6 +20,27 @@ from .meshes import grid_sheet, uv_sphere
 SCENE_EXTENSIONS = (".json", ".toml")
 MATERIAL_TYPES = ("diffuse", "mirror", "dielectric", "plastic")
 SHAPE_TYPES = ("mesh", "quad", "box", "sphere", "sheet", "triangles")
+
+# The keys each object of a scene may hold; any other key is an error (a typo such as "light"
+# would otherwise be ignored and quietly change the picture). Keys with a leading underscore
+# are set by this module, not by scene files.
+SCENE_KEYS = ("type", "name", "camera", "film", "integrator", "background", "lights",
+              "materials", "shapes", "_source")
+CAMERA_KEYS = ("type", "eye", "target", "up", "fov")
+FILM_KEYS = ("width", "height", "spp", "jitter")
+INTEGRATOR_KEYS = ("type", "max_depth", "ambient", "cutoff")
+LIGHT_KEYS = {"point": ("type", "position", "intensity"),
+              "directional": ("type", "direction", "irradiance")}
+MATERIAL_KEYS = {"diffuse": ("type", "reflectance", "specular", "shininess", "mirror"),
+                 "plastic": ("type", "reflectance", "specular", "shininess", "mirror"),
+                 "mirror": ("type", "reflectance"),
+                 "dielectric": ("type", "ior")}
+_SHAPE_COMMON = ("type", "material", "_world")
+SHAPE_KEYS = {"quad": ("corners",), "box": ("min", "max", "rotate_y"),
+              "sphere": ("center", "radius", "subdiv"),
+              "sheet": ("resolution", "size", "wave", "height"),
+              "triangles": ("data",), "mesh": ("filename", "smooth", "transform")}
+TRANSFORM_KEYS = ("scale", "rotate_y", "translate")
 
 
 def is_scene(spec):
@@ -101,7 +123,7 @@ def transform_scene(d, scale=1.0, translate=(0.0, 0.0, 0.0)):
             L["position"] = P(L["position"])
             L["intensity"] = (np.asarray(L["intensity"], float) * s * s).tolist()
     for sh in d["shapes"]:
-        sh["world"] = {"scale": s, "translate": t.tolist()}
+        sh["_world"] = {"scale": s, "translate": t.tolist()}
     return d
 
 
@@ -139,6 +161,29 @@ class _Ctx:
     def fail(self, key, problem):
         raise InputError(self.source, f"key '{key}': {problem}")
 
+    def keys(self, obj, allowed, path):
+        """Fail on the first key of ``obj`` not in ``allowed``, suggesting the closest one."""
+        for key in obj:
+            if key not in allowed:
+                where = f"{path}.{key}" if path else str(key)
+                close = difflib.get_close_matches(str(key), [a for a in allowed if a[0] != "_"], 1)
+                hint = (f"did you mean '{close[0]}'?" if close else
+                        "known keys: " + ", ".join(a for a in allowed if a[0] != "_"))
+                self.fail(where, f"unknown key ({hint})")
+
+    def obj(self, d, key, path=None, default=None):
+        """``d[key]``, which must be an object (dict); ``default`` when absent."""
+        v = d.get(key, default)
+        if not isinstance(v, dict):
+            self.fail(path or key, "expected an object")
+        return v
+
+    def flag(self, obj, key, path, default):
+        v = obj.get(key, default)
+        if not isinstance(v, bool):
+            self.fail(f"{path}.{key}", f"expected true or false, got {v!r}")
+        return v
+
     def vec(self, obj, key, path, n=3, default=None):
         if key not in obj:
             if default is None:
@@ -168,11 +213,31 @@ class _Ctx:
         return int(v) if integer else float(v)
 
 
+def _unit_rows(v):
+    ln = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.where(ln > 0, v / np.where(ln > 0, ln, 1), 0)
+
+
 def _flat_normals(tris):
-    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    n = np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0)
+    n = _unit_rows(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]))
     return np.repeat(n[:, None, :], 3, axis=1)
+
+
+def smooth_normals(verts, faces):
+    """Per-corner shading normals ``(f, 3, 3)`` of an indexed mesh: at each vertex, the sum of
+    the normals of the faces around it, each weighted by its area (the cross product's length
+    is twice the area), normalised. A corner whose vertex sum vanishes (a degenerate fan) keeps
+    its face's own normal."""
+    v = np.asarray(verts, np.float64)
+    f = np.asarray(faces, np.int64)
+    tris = v[f]
+    area_n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    summed = np.zeros_like(v)
+    for corner in range(3):
+        np.add.at(summed, f[:, corner], area_n)
+    corner_n = _unit_rows(summed)[f]
+    flat = _flat_normals(tris)
+    return np.where(np.linalg.norm(corner_n, axis=-1, keepdims=True) > 0, corner_n, flat)
 
 
 def _quad(c):
@@ -202,6 +267,7 @@ def _shape(ctx, sh, i, scene_dir):
     typ = sh.get("type")
     if typ not in SHAPE_TYPES:
         ctx.fail(f"{path}.type", f"unknown shape type {typ!r} (choose from {', '.join(SHAPE_TYPES)})")
+    ctx.keys(sh, _SHAPE_COMMON + SHAPE_KEYS[typ], path)
     if typ == "quad":
         c = sh.get("corners")
         try:
@@ -246,17 +312,14 @@ def _shape(ctx, sh, i, scene_dir):
         if not isinstance(fn, str):
             ctx.fail(f"{path}.filename", "missing or not a string")
         full = fn if os.path.isabs(fn) else os.path.join(scene_dir, fn)
-        verts, faces = load_mesh_arrays(full)
-        tris = verts[faces]
-        if sh.get("smooth", False):
-            import trimesh
-            m = trimesh.Trimesh(verts, faces, process=False)
-            normals = np.asarray(m.vertex_normals)[faces]
-        else:
-            normals = _flat_normals(tris)
+        smooth = ctx.flag(sh, "smooth", path, False)
         tf = sh.get("transform", {})
         if not isinstance(tf, dict):
             ctx.fail(f"{path}.transform", "expected an object with scale/rotate_y/translate")
+        ctx.keys(tf, TRANSFORM_KEYS, f"{path}.transform")
+        verts, faces = load_mesh_arrays(full)
+        tris = verts[faces]
+        normals = smooth_normals(verts, faces) if smooth else _flat_normals(tris)
         if tf:
             s = ctx.vec(tf, "scale", f"{path}.transform", default=[1, 1, 1])
             a = np.radians(ctx.num(tf, "rotate_y", f"{path}.transform", default=0.0))
@@ -265,7 +328,7 @@ def _shape(ctx, sh, i, scene_dir):
             tris = (tris * s) @ R.T + t
             normals = (normals / np.where(s == 0, 1, s)) @ R.T
             normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-30)
-    w = sh.get("world")
+    w = sh.get("_world")
     if w:
         tris = tris * float(w["scale"]) + np.asarray(w["translate"], np.float64)
         if float(w["scale"]) < 0:
@@ -273,10 +336,18 @@ def _shape(ctx, sh, i, scene_dir):
     return tris, normals
 
 
+def _non_negative(ctx, v, path, key):
+    """Light and radiance values: a negative one would paint negative pixels."""
+    if (v < 0).any():
+        ctx.fail(f"{path}.{key}", f"must not be negative, got {v.tolist()}")
+    return v
+
+
 def compile_scene(d, source=None):
     """Validate a scene dict and turn it into arrays (see :class:`CompiledScene`)."""
     source = source or d.get("_source", "<scene>")
     ctx = _Ctx(source)
+    ctx.keys(d, SCENE_KEYS, "")
     for key in ("camera", "shapes", "materials"):
         if key not in d:
             ctx.fail(key, "missing")
@@ -295,6 +366,7 @@ def compile_scene(d, source=None):
             ctx.fail(f"{p}.type", f"unknown material type {m.get('type') if isinstance(m, dict) else m!r} "
                                   f"(choose from {', '.join(MATERIAL_TYPES)})")
         t = m["type"]
+        ctx.keys(m, MATERIAL_KEYS[t], p)
         if t in ("diffuse", "plastic"):
             kd[k] = ctx.vec(m, "reflectance", p, default=[0.7, 0.7, 0.7])
             ks[k] = ctx.num(m, "specular", p, default=0.0 if t == "diffuse" else 0.3, lo=0, hi=1)
@@ -322,30 +394,38 @@ def compile_scene(d, source=None):
         all_n.append(normals)
         all_m.append(np.full(len(tris), names.index(mname), np.int32))
     tris = as_triangles(np.concatenate(all_t), source=source)
-    cam = d["camera"]
-    if not isinstance(cam, dict):
-        ctx.fail("camera", "expected an object")
+    cam = ctx.obj(d, "camera")
+    ctx.keys(cam, CAMERA_KEYS, "camera")
+    if cam.get("type", "perspective") != "perspective":
+        ctx.fail("camera.type", f"unknown camera type {cam['type']!r} (the camera is 'perspective')")
     camera = {"eye": ctx.vec(cam, "eye", "camera"), "target": ctx.vec(cam, "target", "camera"),
               "up": ctx.vec(cam, "up", "camera", default=[0, 1, 0]),
               "fov": ctx.num(cam, "fov", "camera", default=40.0, lo=1e-3, hi=179.0)}
     if np.allclose(camera["eye"], camera["target"]):
         ctx.fail("camera.target", "must differ from camera.eye")
-    film = d.get("film", {})
-    integ = d.get("integrator", {})
+    film = ctx.obj(d, "film", default={})
+    ctx.keys(film, FILM_KEYS, "film")
+    integ = ctx.obj(d, "integrator", default={})
+    ctx.keys(integ, INTEGRATOR_KEYS, "integrator")
+    if integ.get("type", "whitted") != "whitted":
+        ctx.fail("integrator.type", f"unknown integrator {integ['type']!r} (the renderer is 'whitted')")
     lights = []
+    if not isinstance(d.get("lights", []), list):
+        ctx.fail("lights", "expected a list")
     for i, L in enumerate(d.get("lights", [])):
         p = f"lights[{i}]"
-        if not isinstance(L, dict) or L.get("type") not in ("point", "directional"):
+        if not isinstance(L, dict) or L.get("type") not in tuple(LIGHT_KEYS):
             ctx.fail(f"{p}.type", "expected 'point' or 'directional'")
+        ctx.keys(L, LIGHT_KEYS[L["type"]], p)
         if L["type"] == "point":
             lights.append({"type": "point", "position": ctx.vec(L, "position", p),
-                           "intensity": ctx.vec(L, "intensity", p)})
+                           "intensity": _non_negative(ctx, ctx.vec(L, "intensity", p), p, "intensity")})
         else:
             dv = ctx.vec(L, "direction", p)
             if not np.linalg.norm(dv) > 0:
                 ctx.fail(f"{p}.direction", "must not be zero")
             lights.append({"type": "directional", "direction": dv / np.linalg.norm(dv),
-                           "irradiance": ctx.vec(L, "irradiance", p)})
+                           "irradiance": _non_negative(ctx, ctx.vec(L, "irradiance", p), p, "irradiance")})
     V = tris.reshape(-1, 3)
     return CompiledScene(
         name=str(d.get("name", "scene")), triangles=tris,
@@ -356,10 +436,12 @@ def compile_scene(d, source=None):
         height=ctx.num(film, "height", "film", default=480, lo=1, hi=1 << 15, integer=True),
         spp=ctx.num(film, "spp", "film", default=1, lo=1, hi=4096, integer=True),
         max_depth=ctx.num(integ, "max_depth", "integrator", default=5, lo=1, hi=64, integer=True),
-        ambient=ctx.vec(integ, "ambient", "integrator", default=[0.03] * 3),
-        background=ctx.vec(d, "background", "scene", default=[0, 0, 0]),
+        ambient=_non_negative(ctx, ctx.vec(integ, "ambient", "integrator", default=[0.03] * 3),
+                              "integrator", "ambient"),
+        background=_non_negative(ctx, ctx.vec(d, "background", "scene", default=[0, 0, 0]),
+                                 "scene", "background"),
         cutoff=ctx.num(integ, "cutoff", "integrator", default=1e-3, lo=0, hi=1),
-        jitter=bool(film.get("jitter", True)),
+        jitter=ctx.flag(film, "jitter", "film", True),
         vertices=V, faces=np.arange(len(V), dtype=np.int32).reshape(-1, 3))
 
 

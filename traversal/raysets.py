@@ -1,4 +1,9 @@
-"""The ray sets of the verification and the benchmarks: primary, incoherent, shadow, bounces."""
+"""The ray sets of the verification and the benchmarks: primary, incoherent, shadow, bounces.
+
+Each returns exactly the ``n`` rays asked for. Shadow rays and bounces start at surface hits, so
+they are drawn from more first rays than ``n`` until ``n`` of them hit; only a mesh that almost
+no first ray hits can give fewer (``len`` of the result says how many).
+"""
 import numpy as np
 
 from .camera import frame_bounds, primary_rays, tile_order
@@ -10,14 +15,23 @@ def bounds_of(tris):
     return p.min(0), p.max(0)
 
 
+# Hit-based sets draw n first rays, then (from the hit rate seen) more, growing at most
+# HIT_GROWTH-fold per round for HIT_ROUNDS rounds: enough for any mesh that one first ray in 16
+# hits, while memory stays bounded (n = 10^6 shadow rays never needs more than 1.6e7 first rays).
+HIT_GROWTH = 4
+HIT_ROUNDS = 2
+
+
 def primary(tris, n):
-    """Camera rays of a view framing the mesh, about n of them, in 4x4 pixel tiles."""
+    """n camera rays of a 4:3 view framing the mesh, in 4x4 pixel tiles (the image is the
+    smallest 4:3 one with at least n pixels; the last tiles are left out)."""
+    n = int(n)
     lo, hi = bounds_of(tris)
     eye, target, up = frame_bounds(lo, hi)
-    w = max(1, int(round(np.sqrt(n * 4 / 3))))
-    h = max(1, n // w)
+    w = max(1, int(np.ceil(np.sqrt(n * 4 / 3))))
+    h = max(1, -(-n // w))
     o, d = primary_rays(eye, target, up, 40.0, w, h)
-    order = tile_order(w, h)                # in 4x4 pixel tiles, as a renderer issues them
+    order = tile_order(w, h)[:n]            # in 4x4 pixel tiles, as a renderer issues them
     return o[order], d[order]
 
 
@@ -45,10 +59,27 @@ def hit_points(tracer, tris, o, d):
     return m, p, ng, mag
 
 
+def _n_hits(tracer, tris, n, first_rays, spread):
+    """(o, d, points, normals, magnitudes) of n first hits of ``first_rays(m)`` (m rays), m
+    grown until n hit. ``spread``: pick the n evenly from all hits (coherent sets keep covering
+    the whole view) rather than the first n (random sets)."""
+    n = int(n)
+    m = max(n, 1)
+    for _ in range(HIT_ROUNDS + 1):
+        o, d = first_rays(m)
+        mask, p, ng, mag = hit_points(tracer, tris, o, d)
+        k = len(p)
+        if k >= n:
+            break
+        m = max(m + 16, int(m * min(HIT_GROWTH, max(1.1, 1.05 * n / max(k, 1)))))
+    got = min(n, k)
+    pick = (np.arange(got) * k) // max(got, 1) if spread else np.arange(got)
+    return o[mask][pick], d[mask][pick], p[pick], ng[pick], mag[pick]
+
+
 def shadow(tracer, tris, n):
-    """Rays from the first hits of primary rays toward a point light (tmax = the light)."""
-    o, d = primary(tris, n)
-    m, p, ng, mag = hit_points(tracer, tris, o, d)
+    """n rays from first hits of primary rays toward a point light (tmax = the light)."""
+    _, _, p, ng, mag = _n_hits(tracer, tris, n, lambda m: primary(tris, m), spread=True)
     L = light_position(tris)
     to = L - p
     dist = np.linalg.norm(to, axis=1)
@@ -58,12 +89,10 @@ def shadow(tracer, tris, n):
 
 
 def bounces(tracer, tris, n, seed=1):
-    """Secondary rays: mirror reflections of incoherent first hits plus random hemisphere
-    directions, from offset origins (self-intersection is part of what is verified)."""
-    o, d = incoherent(tris, n, seed)
-    m, p, ng, mag = hit_points(tracer, tris, o, d)
+    """n secondary rays: mirror reflections of incoherent first hits plus random directions,
+    from offset origins (self-intersection is part of what is verified)."""
+    _, di, p, ng, mag = _n_hits(tracer, tris, n, lambda m: incoherent(tris, m, seed), spread=False)
     nn = ng / np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
-    di = d[m]
     refl = di - 2 * np.einsum("ij,ij->i", di, nn)[:, None] * nn
     rng = np.random.default_rng(seed + 1)
     rnd = rng.normal(size=refl.shape)
