@@ -1,7 +1,8 @@
 """scenes: scene dicts (Mitsuba style), built-in scenes generated in code, loaders (trimesh)."""
+from .animation import ANIMATIONS, Animation, load_animation
 from .builtin import BUILTIN
 from .loader import (CompiledScene, compile_scene, is_scene, load_scene, load_scene_geometry,
                      mesh_scene, transform_scene)
 
-__all__ = ["BUILTIN", "CompiledScene", "compile_scene", "is_scene", "load_scene",
-           "load_scene_geometry", "mesh_scene", "transform_scene"]
+__all__ = ["ANIMATIONS", "Animation", "load_animation", "BUILTIN", "CompiledScene", "compile_scene",
+           "is_scene", "load_scene", "load_scene_geometry", "mesh_scene", "transform_scene"]

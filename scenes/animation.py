@@ -1,0 +1,889 @@
+"""Animated scenes: a scene that changes over time, one CompiledScene per frame.
+
+Three sources, one :class:`Animation` interface (``anim.scene(i)`` is frame ``i`` at time
+``i / fps``):
+
+* a scene file (JSON/TOML, the same dict as a static scene) whose shapes may carry rigid
+  ``keyframes`` and whose ``frames`` shapes are mesh sequences, with an optional top-level
+  ``animation`` block (frame count, fps, camera keys)::
+
+      "animation": {"frames": 120, "fps": 30,
+                    "camera": [{"time": 0, "eye": [0, 1, 4], "target": [0, 1, 0]},
+                               {"time": 4, "eye": [3, 1, 3], "target": [0, 1, 0]}]},
+      "shapes": [
+        {"type": "mesh", "filename": "bunny.ply", "material": "white",
+         "keyframes": [{"time": 0, "translate": [0, 0, 0]},
+                       {"time": 2, "translate": [1, 0, 0], "rotate": [0, 90, 0], "scale": 1.5}]},
+        {"type": "frames", "pattern": "cloth/frame_%04d.ply", "material": "red"}]
+
+  A key's ``rotate`` is Euler angles in degrees about x, then y, then z; ``scale`` a number or
+  three; a point p of the shape goes to ``R (S p) + translate``. Keys are interpolated
+  linearly (times strictly increasing, in seconds); a channel a key leaves out keeps the
+  previous key's value (identity at the first key); before the first key and after the last
+  the shape holds still. A ``frames`` shape reads one mesh file per frame from a printf
+  pattern (``%04d``) or a glob; its triangle count may change from frame to frame.
+* a frame pattern of mesh files given directly (``'frames/bunny_%04d.ply'`` or a glob), the
+  way a mesh file is a scene: a default camera, a light, a plain diffuse material.
+* a built-in animation generated in code, after the thesis' test scenes: ``exploding``
+  (a mesh breaking into its triangles under gravity), ``cloth`` (a sheet falling and draping
+  over a sphere), ``marbles`` (marbles dropped into a bowl, through Bullet when ``pybullet`` is
+  importable, else an analytic fall) and ``flythrough`` (a camera moving through a static
+  room: the tree never changes).
+
+Every input is checked strictly: unknown keys, keys out of order, a pattern matching nothing, a
+missing frame in the middle of a sequence and NaN vertices are each a one-line
+:class:`~hwbvh.errors.InputError` naming the file and key.
+"""
+import glob
+import math
+import os
+import re
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numba import njit
+
+from hwbvh.errors import InputError
+from hwbvh.primitives import as_triangles, load_mesh_arrays
+from .loader import compile_scene, load_scene, mesh_scene
+
+DEFAULT_FPS = 30.0
+KEYFRAME_KEYS = ("time", "translate", "rotate", "scale")
+CAMERA_KEY_KEYS = ("time", "eye", "target", "up", "fov")
+ANIMATION_KEYS = ("frames", "fps", "camera")
+FRAMES_SHAPE_KEYS = ("type", "pattern", "material", "smooth")
+GRAVITY = 9.81                     # m/s^2; the built-ins are modelled in metres
+
+# --- built-in animation knobs (each with its reason) ------------------------------------
+EXPLODE_AT = 0.25        # s: the mesh stands still for the first frames, so refit starts on a good tree
+EXPLODE_SPEED = 1.2      # m/s outward, for a mesh 1 m tall: fragments land within the framed floor
+CLOTH_SUBSTEPS = 4       # position-based dynamics steps per frame at 30 fps: stable for the sheet
+CLOTH_ITERATIONS = 6     # constraint sweeps per step: the sheet stretches < ~10 % while falling
+BULLET_HZ = 240          # Bullet's default step; marbles fall < 1/3 of their radius per step
+
+
+# --------------------------------------------------------------------------------------
+# Small helpers
+# --------------------------------------------------------------------------------------
+def _fail(source, key, problem):
+    raise InputError(source, f"key '{key}': {problem}")
+
+
+def _check_keys(source, obj, allowed, path):
+    if not isinstance(obj, dict):
+        _fail(source, path, "expected an object")
+    for k in obj:
+        if k not in allowed:
+            _fail(source, f"{path}.{k}", f"unknown key (allowed: {', '.join(allowed)})")
+
+
+def _number(source, v, path, lo=None, positive=False):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        _fail(source, path, f"expected a finite number, got {v!r}")
+    if positive and not v > 0:
+        _fail(source, path, f"must be positive, got {v!r}")
+    if lo is not None and v < lo:
+        _fail(source, path, f"must be at least {lo}, got {v!r}")
+    return float(v)
+
+
+def _vec3(source, v, path):
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        v = [v, v, v]
+    try:
+        a = np.asarray(v, np.float64)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != (3,) or not np.isfinite(a).all():
+        _fail(source, path, f"expected 3 finite numbers, got {v!r}")
+    return a
+
+
+def euler_matrix(deg):
+    """Rotation matrix of Euler angles in degrees, applied about x, then y, then z."""
+    ax, ay, az = np.radians(np.asarray(deg, np.float64))
+    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def flat_normals(tris):
+    """(n, 3, 3) per-vertex shading normals equal to each face's unit normal."""
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0)
+    return np.repeat(n[:, None, :], 3, axis=1)
+
+
+def smooth_normals(verts, faces):
+    """(f, 3, 3) area-weighted vertex normals of an indexed mesh, per face corner."""
+    fn = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
+    vn = np.zeros_like(verts)
+    for c in range(3):
+        for k in range(3):
+            vn[:, k] += np.bincount(faces[:, c], weights=fn[:, k], minlength=len(verts))
+    vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-30)
+    return vn[faces]
+
+
+# --------------------------------------------------------------------------------------
+# Keyframes
+# --------------------------------------------------------------------------------------
+class Track:
+    """Linearly interpolated channels over strictly increasing key times."""
+
+    def __init__(self, times, channels):
+        self.times = np.asarray(times, np.float64)
+        self.channels = {k: np.asarray(v, np.float64) for k, v in channels.items()}
+
+    def at(self, t):
+        ts = self.times
+        if t <= ts[0]:
+            return {k: v[0] for k, v in self.channels.items()}
+        if t >= ts[-1]:
+            return {k: v[-1] for k, v in self.channels.items()}
+        j = int(np.searchsorted(ts, t, side="right")) - 1
+        w = (t - ts[j]) / (ts[j + 1] - ts[j])
+        return {k: (1 - w) * v[j] + w * v[j + 1] for k, v in self.channels.items()}
+
+
+def parse_keys(source, keys, path, allowed, defaults, vec_keys, num_keys=()):
+    """A :class:`Track` from a list of key objects; checks keys, types and time order."""
+    if not isinstance(keys, list) or not keys:
+        _fail(source, path, "expected a non-empty list of keys")
+    times = []
+    chans = {k: [] for k in defaults}
+    for j, key in enumerate(keys):
+        p = f"{path}[{j}]"
+        _check_keys(source, key, allowed, p)
+        if "time" not in key:
+            _fail(source, f"{p}.time", "missing")
+        t = _number(source, key["time"], f"{p}.time")
+        if times and not t > times[-1]:
+            _fail(source, f"{p}.time", f"{t:g} is not after the previous key's {times[-1]:g} "
+                                       "(keys must be in increasing time)")
+        times.append(t)
+        for k in defaults:
+            prev = chans[k][-1] if chans[k] else np.asarray(defaults[k], np.float64)
+            if k not in key:
+                chans[k].append(prev)
+            elif k in vec_keys:
+                chans[k].append(_vec3(source, key[k], f"{p}.{k}"))
+            else:
+                chans[k].append(np.float64(_number(source, key[k], f"{p}.{k}", positive=k in num_keys)))
+    return Track(times, chans)
+
+
+def rigid_track(source, keys, path):
+    tr = parse_keys(source, keys, path, KEYFRAME_KEYS,
+                    {"translate": [0, 0, 0], "rotate": [0, 0, 0], "scale": [1, 1, 1]},
+                    vec_keys=("translate", "rotate", "scale"))
+    if (tr.channels["scale"] == 0).any():
+        _fail(source, f"{path}.scale", "a scale of 0 flattens the shape; use a positive scale")
+    return tr
+
+
+def camera_track(source, keys, path, base):
+    return parse_keys(source, keys, path, CAMERA_KEY_KEYS,
+                      {"eye": base["eye"], "target": base["target"], "up": base["up"],
+                       "fov": base["fov"]}, vec_keys=("eye", "target", "up"), num_keys=("fov",))
+
+
+# --------------------------------------------------------------------------------------
+# Frame sequences
+# --------------------------------------------------------------------------------------
+_PRINTF = re.compile(r"%(0?)(\d*)d")
+
+
+def is_pattern(spec):
+    """True for a printf (``%04d``) or glob (``*``, ``?``, ``[``) pattern of mesh files."""
+    s = os.fspath(spec)
+    return bool(_PRINTF.search(s)) or any(c in s for c in "*?[")
+
+
+def expand_pattern(pattern, source=None):
+    """The frame files of a printf or glob pattern, in frame order. Raises InputError naming
+    the pattern when nothing matches, and the missing file when a frame in the middle of the
+    numbered sequence is absent."""
+    source = source or pattern
+    pattern = os.fspath(pattern)
+    if len(_PRINTF.findall(pattern)) > 1:
+        raise InputError(source, f"pattern {pattern!r} has more than one %d field")
+    m = _PRINTF.search(pattern)
+    if m:
+        d = os.path.dirname(pattern) or "."
+        base = os.path.basename(pattern)
+        bm = _PRINTF.search(base)
+        if bm is None:
+            raise InputError(source, f"pattern {pattern!r}: the %d field must be in the file name")
+        rx = re.compile("^" + re.escape(base[:bm.start()]) + r"(\d+)" + re.escape(base[bm.end():]) + "$")
+        try:
+            names = os.listdir(d)
+        except OSError:
+            names = []
+        nums = sorted({int(mm.group(1)) for nm in names if (mm := rx.match(nm))
+                       and nm == base % int(mm.group(1))})
+        if not nums:
+            raise InputError(source, f"pattern {pattern!r} matches no file")
+        files = []
+        for k in range(nums[0], nums[-1] + 1):
+            f = pattern % k
+            if not os.path.isfile(f):
+                raise InputError(f, f"missing frame {k} of the sequence {nums[0]}..{nums[-1]} "
+                                    f"({pattern})")
+            files.append(f)
+        return files
+    files = [f for f in glob.glob(pattern) if os.path.isfile(f)]
+    if not files:
+        raise InputError(source, f"pattern {pattern!r} matches no file")
+    numbered = [(re.findall(r"\d+", os.path.basename(f)), f) for f in files]
+    if all(n for n, _ in numbered):
+        keyed = sorted((int(n[-1]), n[-1], f) for n, f in numbered)
+        for (a, sa, fa), (b, _, _) in zip(keyed, keyed[1:]):
+            if b != a + 1:
+                name = os.path.basename(fa)
+                i = name.rfind(sa)
+                missing = name[:i] + str(a + 1).zfill(len(sa)) + name[i + len(sa):]
+                raise InputError(os.path.join(os.path.dirname(fa), missing),
+                                 f"missing frame {a + 1} of the sequence matching {pattern!r}")
+        return [f for _, _, f in keyed]
+    return sorted(files)
+
+
+def load_frame_mesh(path, smooth=False):
+    """(triangles float32, normals) of one frame file; NaN or infinite vertices are an error
+    naming the file."""
+    verts, faces = load_mesh_arrays(path)
+    tris = as_triangles(verts[faces], source=path)
+    normals = smooth_normals(verts, faces) if smooth else flat_normals(tris)
+    return tris, normals
+
+
+# --------------------------------------------------------------------------------------
+# The animation
+# --------------------------------------------------------------------------------------
+@dataclass
+class Part:
+    """One shape's triangles. ``motion(i, t)`` gives its (triangles, normals) at frame i /
+    time t; None means static. ``material``: an index into the scene's materials, or one per
+    triangle (static parts only)."""
+    tris: np.ndarray
+    normals: np.ndarray
+    material: object
+    motion: object = None
+
+
+class Animation:
+    """Frames of an animated scene. ``scene(i)`` -> CompiledScene at time ``i / fps``.
+
+    name : str; base : a CompiledScene for everything but geometry (materials, lights, film,
+    camera); parts : [Part]; frames : default frame count; camera : callable(t) -> camera
+    dict or None; info : dict reported with a run (e.g. which physics ran); inputs : files read.
+    """
+
+    def __init__(self, name, base, parts, frames, fps=DEFAULT_FPS, camera=None, info=None,
+                 inputs=(), source=None, max_frames=None):
+        self.name = name
+        self.base = base
+        self.parts = parts
+        self.frames = int(frames)
+        self.fps = float(fps)
+        self.camera = camera
+        self.info = dict(info or {})
+        self.inputs = [os.path.abspath(p) for p in inputs]
+        self.source = source or name
+        self.max_frames = max_frames        # a frame sequence has only so many frames
+
+    def time(self, i):
+        return i / self.fps
+
+    def check(self, frames):
+        """Check, before any output, that ``frames`` frames can be produced (a sequence has
+        them all, and none has NaN vertices)."""
+        if self.max_frames is not None and frames > self.max_frames:
+            raise InputError(self.source, f"{frames} frames asked for, but the sequence has "
+                                          f"only {self.max_frames}")
+        for p in self.parts:
+            if isinstance(p.motion, FrameSequence):
+                p.motion.check(frames)
+
+    def geometry(self, i):
+        """(triangles float32 (n, 3, 3), normals float32 (n, 3, 3), material int32 (n,))."""
+        t = self.time(i)
+        T, N, M = [], [], []
+        for p in self.parts:
+            if p.motion is None:
+                tris, nrm = p.tris, p.normals
+            else:
+                tris, nrm = p.motion(i, t)
+            T.append(tris)
+            N.append(nrm)
+            M.append(np.full(len(tris), p.material, np.int32) if np.isscalar(p.material)
+                     else np.asarray(p.material, np.int32))
+        tris = as_triangles(np.concatenate(T) if len(T) > 1 else T[0], source=self.source)
+        return tris, np.concatenate(N).astype(np.float32), np.concatenate(M)
+
+    def scene(self, i):
+        tris, normals, material = self.geometry(i)
+        cam = self.base.camera if self.camera is None else self.camera(self.time(i))
+        V = tris.reshape(-1, 3)
+        return replace(self.base, triangles=tris, normals=normals, material=material,
+                       camera=cam, vertices=V,
+                       faces=np.arange(len(V), dtype=np.int32).reshape(-1, 3))
+
+
+class RigidMotion:
+    """A shape moved by a keyframed rigid transform."""
+
+    def __init__(self, tris, normals, track):
+        self.tris = np.asarray(tris, np.float64)
+        self.normals = np.asarray(normals, np.float64)
+        self.track = track
+
+    def __call__(self, i, t):
+        k = self.track.at(t)
+        R = euler_matrix(k["rotate"])
+        s = k["scale"]
+        tris = (self.tris * s) @ R.T + k["translate"]
+        n = (self.normals / s) @ R.T
+        n /= np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-30)
+        return tris, n
+
+
+class FrameSequence:
+    """A shape read from one mesh file per frame."""
+
+    def __init__(self, files, smooth=False):
+        self.files = files
+        self.smooth = smooth
+
+    def check(self, frames):
+        for f in self.files[:frames]:
+            load_frame_mesh(f, self.smooth)
+
+    def __call__(self, i, t):
+        if i >= len(self.files):
+            raise InputError(self.files[-1], f"frame {i} asked for, but the sequence has "
+                                             f"{len(self.files)} frames")
+        return load_frame_mesh(self.files[i], self.smooth)
+
+
+def _camera_fn(track, base):
+    def cam(t):
+        k = track.at(t)
+        c = dict(base)
+        c.update(eye=k["eye"], target=k["target"], up=k["up"], fov=float(k["fov"]))
+        if np.allclose(c["eye"], c["target"]):
+            raise InputError("animation.camera", f"eye equals target at time {t:g}")
+        return c
+    return cam
+
+
+def from_scene_dict(d, source=None, fps=None):
+    """An Animation from a scene dict whose shapes may carry ``keyframes`` or be ``frames``
+    sequences (see the module docstring)."""
+    source = source or d.get("_source", "<scene>")
+    anim = d.get("animation", {})
+    _check_keys(source, anim, ANIMATION_KEYS, "animation")
+    shapes = d.get("shapes")
+    if not isinstance(shapes, list) or not shapes:
+        _fail(source, "shapes", "expected a non-empty list")
+    static = {k: v for k, v in d.items() if k not in ("animation", "shapes")}
+    scene_dir = os.path.dirname(os.path.abspath(source)) if os.path.exists(str(source)) else os.getcwd()
+    parts, inputs = [], [source] if os.path.exists(str(source)) else []
+    base = None
+    max_frames = None
+    for i, sh in enumerate(shapes):
+        path = f"shapes[{i}]"
+        if not isinstance(sh, dict):
+            _fail(source, path, "expected an object")
+        if sh.get("type") == "frames":
+            _check_keys(source, sh, FRAMES_SHAPE_KEYS, path)
+            pat = sh.get("pattern")
+            if not isinstance(pat, str):
+                _fail(source, f"{path}.pattern", "missing or not a string")
+            smooth = sh.get("smooth", False)
+            if not isinstance(smooth, bool):
+                _fail(source, f"{path}.smooth", f"expected true or false, got {smooth!r}")
+            full = pat if os.path.isabs(pat) else os.path.join(scene_dir, pat)
+            files = expand_pattern(full, f"{source}: key '{path}.pattern'")
+            inputs += files
+            max_frames = len(files) if max_frames is None else min(max_frames, len(files))
+            one = dict(static, shapes=[{"type": "mesh", "filename": files[0],
+                                        "material": sh.get("material"), "smooth": smooth}])
+            c = compile_scene(one, source=source)
+            parts.append(Part(c.triangles, c.normals, int(c.material[0]), FrameSequence(files, smooth)))
+        else:
+            keys = sh.get("keyframes")
+            plain = {k: v for k, v in sh.items() if k != "keyframes"}
+            c = compile_scene(dict(static, shapes=[plain]), source=source)
+            if plain.get("type") == "mesh" and isinstance(plain.get("filename"), str):
+                fn = plain["filename"]
+                inputs.append(fn if os.path.isabs(fn) else os.path.join(scene_dir, fn))
+            motion = None
+            if keys is not None:
+                motion = RigidMotion(c.triangles, c.normals, rigid_track(source, keys, f"{path}.keyframes"))
+            parts.append(Part(c.triangles, c.normals, int(c.material[0]), motion))
+        base = base or c
+    camera = None
+    if "camera" in anim:
+        camera = _camera_fn(camera_track(source, anim["camera"], "animation.camera", base.camera),
+                            base.camera)
+    frames = anim.get("frames")
+    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
+        _fail(source, "animation.frames", f"expected a positive integer, got {frames!r}")
+    f = fps if fps is not None else _number(source, anim.get("fps", DEFAULT_FPS), "animation.fps",
+                                            positive=True)
+    if frames is None:
+        frames = max_frames if max_frames is not None else int(round(4 * f))
+    return Animation(str(d.get("name", "scene")), base, parts, frames, f, camera,
+                     inputs=inputs, source=source, max_frames=max_frames)
+
+
+def pattern_scene(pattern, smooth=False):
+    """A scene dict for a frame pattern of mesh files: framed on the first frame, a point
+    light, a plain diffuse material (as a mesh file alone)."""
+    files = expand_pattern(pattern)
+    d = mesh_scene(files[0])
+    d["name"] = re.sub(r"[_\-.]*(%0?\d*d|[*?\[].*)$", "", os.path.splitext(os.path.basename(pattern))[0]) \
+        or "frames"
+    d["shapes"] = [{"type": "frames", "pattern": os.path.abspath(pattern), "material": "default",
+                    "smooth": smooth}]
+    d["_source"] = pattern
+    return d
+
+
+# --------------------------------------------------------------------------------------
+# Built-in animations
+# --------------------------------------------------------------------------------------
+def _materials():
+    from .builtin import _materials as m
+    return m()
+
+
+def _film(width, height, spp, max_depth):
+    return {"film": {"width": width, "height": height, "spp": spp},
+            "integrator": {"type": "whitted", "max_depth": max_depth, "ambient": [0.05] * 3}}
+
+
+def _floor(size):
+    s = float(size)
+    return {"type": "quad", "corners": [[-s, 0, -s], [s, 0, -s], [s, 0, s], [-s, 0, s]],
+            "material": "floor"}
+
+
+def _base_scene(name, shapes, camera, lights, width, height, spp, max_depth, background):
+    mats = _materials()
+    mats["floor"] = {"type": "diffuse", "reflectance": [0.6, 0.6, 0.6]}
+    d = {"type": "scene", "name": name, "camera": camera, "lights": lights,
+         "materials": mats, "shapes": shapes, "background": background,
+         **_film(width, height, spp, max_depth)}
+    return d, compile_scene(d, source=name)
+
+
+def _unit_height(tris):
+    """Scale to 1 unit tall, centred on the y axis, standing on y = 0."""
+    t = np.asarray(tris, np.float64)
+    lo, hi = t.reshape(-1, 3).min(0), t.reshape(-1, 3).max(0)
+    s = 1.0 / max(hi[1] - lo[1], 1e-30)
+    c = (lo + hi) / 2
+    c[1] = lo[1]
+    return (t - c) * s
+
+
+class Explosion:
+    """Every triangle flies off as a rigid fragment: outward and upward from the mesh's
+    centre, spinning about its centroid, under gravity, until it lands on the floor (its
+    landing time solved exactly, so frames are independent of each other)."""
+
+    def __init__(self, tris, seed=0, at=EXPLODE_AT, speed=EXPLODE_SPEED):
+        rng = np.random.default_rng(seed)
+        self.tris = tris
+        self.c = tris.mean(axis=1)                                   # centroids
+        self.local = tris - self.c[:, None, :]
+        centre = self.c.mean(axis=0)
+        out = self.c - centre
+        out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-9)
+        self.v = out * speed * rng.uniform(0.4, 1.0, (len(tris), 1)) + [0, 0.8 * speed, 0]
+        axis = rng.normal(size=(len(tris), 3))
+        self.axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
+        self.omega = rng.uniform(2.0, 12.0, len(tris))                # rad/s
+        self.at = at
+        radius = np.linalg.norm(self.local, axis=2).max(axis=1)
+        rest = radius                                                # centroid height at rest
+        # landing: c_y + v_y s - g s^2 / 2 = rest (the later root)
+        vy, h = self.v[:, 1], self.c[:, 1] - rest
+        self.land = (vy + np.sqrt(np.maximum(vy * vy + 2 * GRAVITY * h, 0))) / GRAVITY
+
+    def __call__(self, i, t):
+        s = np.minimum(max(t - self.at, 0.0), self.land)[:, None]
+        c = self.c + self.v * s + 0.5 * np.array([0, -GRAVITY, 0]) * s * s
+        ang = self.omega * s[:, 0]
+        # Rodrigues' rotation of each fragment about its centroid
+        k = self.axis[:, None, :]
+        p = self.local
+        cos, sin = np.cos(ang)[:, None, None], np.sin(ang)[:, None, None]
+        rot = p * cos + np.cross(k, p) * sin + k * np.sum(k * p, axis=2, keepdims=True) * (1 - cos)
+        tris = rot + c[:, None, :]
+        return tris, flat_normals(tris)
+
+
+def exploding(width=320, height=240, spp=1, max_depth=3, mesh=None, triangles=20_000, seed=0):
+    """A mesh (the file ``mesh``, else a generated sphere of about ``triangles`` triangles)
+    breaking into its triangles (after Exploding Dragon)."""
+    from .meshes import sphere
+    src = mesh
+    if src is not None:
+        verts, faces = load_mesh_arrays(src)
+        tris = as_triangles(verts[faces], source=src)
+        what = os.path.basename(src)
+    else:
+        n_lon = max(8, int(math.sqrt(triangles)))
+        tris = sphere(max(4, triangles // (2 * n_lon) + 1), n_lon)
+        what = f"generated sphere ({len(tris)} triangles)"
+    tris = _unit_height(tris)
+    cam = {"type": "perspective", "eye": [0.0, 1.6, 3.6], "target": [0.0, 0.35, 0.0], "fov": 45.0}
+    lights = [{"type": "point", "position": [1.5, 3.0, 2.0], "intensity": [14, 14, 13]}]
+    d, base = _base_scene("exploding", [_floor(3.0)], cam, lights, width, height, spp,
+                          max_depth, [0.15, 0.15, 0.18])
+    parts = [Part(base.triangles, base.normals, base.material),
+             Part(tris, flat_normals(tris), base.mat_names.index("red"), Explosion(tris, seed))]
+    return Animation("exploding", base, parts, frames=120, info={"mesh": what},
+                     inputs=[src] if src else [])
+
+
+@njit(cache=True)
+def _cloth_step(x, xp, cons, rest, dt, iters, sphere_c, sphere_r, thickness, damping, friction):
+    """One position-based dynamics step (Mueller et al. 2007): Verlet prediction under
+    gravity, Gauss-Seidel distance constraints, then sphere and floor collisions with
+    friction."""
+    n = x.shape[0]
+    g = -9.81 * dt * dt
+    for i in range(n):
+        for k in range(3):
+            v = (x[i, k] - xp[i, k]) * damping
+            xp[i, k] = x[i, k]
+            x[i, k] += v
+        x[i, 1] += g
+    for _ in range(iters):
+        for c in range(cons.shape[0]):
+            a = cons[c, 0]
+            b = cons[c, 1]
+            dx = x[b, 0] - x[a, 0]
+            dy = x[b, 1] - x[a, 1]
+            dz = x[b, 2] - x[a, 2]
+            ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if ln > 1e-12:
+                s = 0.5 * (ln - rest[c]) / ln
+                x[a, 0] += s * dx
+                x[a, 1] += s * dy
+                x[a, 2] += s * dz
+                x[b, 0] -= s * dx
+                x[b, 1] -= s * dy
+                x[b, 2] -= s * dz
+    r = sphere_r + thickness
+    for i in range(n):
+        dx = x[i, 0] - sphere_c[0]
+        dy = x[i, 1] - sphere_c[1]
+        dz = x[i, 2] - sphere_c[2]
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        contact = False
+        if d < r and d > 1e-12:
+            x[i, 0] = sphere_c[0] + dx * r / d
+            x[i, 1] = sphere_c[1] + dy * r / d
+            x[i, 2] = sphere_c[2] + dz * r / d
+            contact = True
+        if x[i, 1] < thickness:
+            x[i, 1] = thickness
+            contact = True
+        if contact:        # friction: keep only part of the velocity along the surface
+            for k in range(3):
+                xp[i, k] = x[i, k] - (x[i, k] - xp[i, k]) * (1.0 - friction)
+
+
+class Cloth:
+    """A square sheet, held flat above a sphere and released: it falls, drapes over the
+    sphere and settles on the floor. State advances frame by frame; asking for an earlier
+    frame restarts the simulation."""
+
+    def __init__(self, n, size=2.0, height=1.4, sphere_c=(0.0, 0.5, 0.0), sphere_r=0.5, fps=DEFAULT_FPS):
+        xs = np.linspace(-size / 2, size / 2, n + 1)
+        X, Z = np.meshgrid(xs, xs, indexing="ij")
+        # a small tilt so the sheet does not balance on the sphere's top
+        self.x0 = np.stack([X + 0.15, height + 0.05 * X, Z + 0.1], -1).reshape(-1, 3)
+        idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+        a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+        c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+        self.faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+        pairs = [np.stack([idx[:-1, :].ravel(), idx[1:, :].ravel()], 1),
+                 np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1),
+                 np.stack([a, c], 1), np.stack([b, d], 1)]
+        self.cons = np.ascontiguousarray(np.concatenate(pairs), np.int64)
+        self.rest = np.linalg.norm(self.x0[self.cons[:, 1]] - self.x0[self.cons[:, 0]], axis=1)
+        self.sphere_c = np.asarray(sphere_c, np.float64)
+        self.sphere_r = float(sphere_r)
+        self.thickness = 0.01 * size
+        self.fps = fps
+        self._reset()
+
+    def _reset(self):
+        self.frame = 0
+        self.x = self.x0.copy()
+        self.xp = self.x0.copy()
+
+    def __call__(self, i, t):
+        if i < self.frame:
+            self._reset()
+        dt = 1.0 / (self.fps * CLOTH_SUBSTEPS)
+        while self.frame < i:
+            for _ in range(CLOTH_SUBSTEPS):
+                _cloth_step(self.x, self.xp, self.cons, self.rest, dt, CLOTH_ITERATIONS,
+                            self.sphere_c, self.sphere_r, self.thickness, 0.995, 0.6)
+            self.frame += 1
+        return self.x[self.faces], smooth_normals(self.x, self.faces)
+
+
+def cloth(width=320, height=240, spp=1, max_depth=3, triangles=20_000, fps=DEFAULT_FPS):
+    """A cloth sheet of about ``triangles`` triangles falling and draping over a sphere (after
+    the thesis' Cloth scene), by position-based dynamics in Numba."""
+    n = max(2, int(round(math.sqrt(triangles / 2))))
+    cam = {"type": "perspective", "eye": [0.0, 2.2, 3.4], "target": [0.0, 0.45, 0.0], "fov": 45.0}
+    lights = [{"type": "point", "position": [1.5, 3.5, 2.0], "intensity": [16, 16, 15]}]
+    ball = {"type": "sphere", "center": [0.0, 0.5, 0.0], "radius": 0.5, "subdiv": [24, 48],
+            "material": "white"}
+    d, base = _base_scene("cloth", [_floor(3.0), ball], cam, lights, width, height, spp,
+                          max_depth, [0.2, 0.2, 0.25])
+    sim = Cloth(n, fps=fps)
+    parts = [Part(base.triangles, base.normals, base.material)]
+    tris0, n0 = sim(0, 0.0)
+    parts.append(Part(tris0, n0, base.mat_names.index("red"), sim))
+    return Animation("cloth", base, parts, frames=120, fps=fps,
+                     info={"grid": [n, n], "physics": "position-based dynamics"})
+
+
+def _bowl(radius, center, n_lat=24, n_lon=48):
+    """The lower half of a sphere, open at the top, as an indexed mesh."""
+    from .meshes import uv_sphere
+    V, F = uv_sphere(n_lat, n_lon, radius, center)
+    keep = (V[F][:, :, 1] <= center[1] + 1e-9).all(axis=1)
+    return V, F[keep]
+
+
+def _import_pybullet():
+    """pybullet, or None (it is an optional extra)."""
+    try:
+        import pybullet
+    except ImportError:
+        return None
+    return pybullet
+
+
+class Marbles:
+    """Rigid poses of ``count`` marbles dropped into a bowl, frame by frame: through Bullet
+    (pybullet, DIRECT mode, as the thesis' mike_rt drove its dynamic scenes) or, without it,
+    analytically: each marble falls straight down onto a resting place packed in rings up the
+    bowl's wall, released one after another, bottom ring first."""
+
+    def __init__(self, count, marble_r, bowl_r, bowl_c, bowl_mesh, physics, fps, seed=0):
+        self.count, self.r, self.R = count, marble_r, bowl_r
+        self.c = np.asarray(bowl_c, np.float64)
+        self.fps = fps
+        rng = np.random.default_rng(seed)
+        self.rest = self._rest_places()
+        self.release = np.arange(count) * 0.08                       # s between releases
+        self.drop_h = self.c[1] + 0.3 + rng.uniform(0, 0.4, count)
+        self.spin = rng.normal(size=(count, 3))
+        self.physics = physics
+        self.poses = []                                              # per frame (pos, rot)
+        if physics == "pybullet":
+            self._bullet_setup(bowl_mesh, rng)
+
+    def _rest_places(self):
+        """Rings of marbles resting on the bowl's inner wall (the centre at distance R - r
+        from the bowl's centre), from the bottom up."""
+        places, rr = [], self.R - self.r
+        theta = 0.0
+        while len(places) < self.count:
+            if theta == 0.0:
+                ring = [0.0]
+            else:
+                circ = 2 * np.pi * rr * np.sin(theta)
+                k = max(1, int(circ / (2.05 * self.r)))
+                ring = list(np.arange(k) * 2 * np.pi / k + theta)
+            for phi in ring:
+                if len(places) < self.count:
+                    places.append(self.c + rr * np.array([np.sin(theta) * np.cos(phi), -np.cos(theta),
+                                                          np.sin(theta) * np.sin(phi)]))
+            theta += 2.05 * self.r / rr
+            if theta > np.pi / 2:                                    # the rim: a second layer
+                theta, rr = 0.0, rr - 2.05 * self.r
+        return np.array(places)
+
+    def _bullet_setup(self, bowl_mesh, rng):
+        p = _import_pybullet()
+        self.p = p
+        self.cid = p.connect(p.DIRECT)
+        p.setGravity(0, -GRAVITY, 0, physicsClientId=self.cid)
+        p.setTimeStep(1.0 / BULLET_HZ, physicsClientId=self.cid)
+        V, F = bowl_mesh
+        shape = p.createCollisionShape(p.GEOM_MESH, vertices=V.tolist(), indices=F.ravel().tolist(),
+                                       flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=self.cid)
+        p.createMultiBody(0, shape, physicsClientId=self.cid)
+        ball = p.createCollisionShape(p.GEOM_SPHERE, radius=self.r, physicsClientId=self.cid)
+        self.bodies = []
+        for i in range(self.count):
+            start = self.rest[i].copy()
+            start[1] = self.drop_h[i] + 0.25 * i * self.r
+            b = p.createMultiBody(0.01, ball, basePosition=start.tolist(), physicsClientId=self.cid)
+            p.changeDynamics(b, -1, restitution=0.3, lateralFriction=0.5, rollingFriction=1e-4,
+                             physicsClientId=self.cid)
+            self.bodies.append(b)
+        self.steps = 0
+
+    def _bullet_pose(self, i):
+        p = self.p
+        per_frame = BULLET_HZ / self.fps
+        while len(self.poses) <= i:
+            target = int(round(len(self.poses) * per_frame))
+            while self.steps < target:
+                p.stepSimulation(physicsClientId=self.cid)
+                self.steps += 1
+            pos = np.empty((self.count, 3))
+            rot = np.empty((self.count, 3, 3))
+            for k, b in enumerate(self.bodies):
+                x, q = p.getBasePositionAndOrientation(b, physicsClientId=self.cid)
+                pos[k] = x
+                rot[k] = np.asarray(p.getMatrixFromQuaternion(q)).reshape(3, 3)
+            self.poses.append((pos, rot))
+        return self.poses[i]
+
+    def _analytic_pose(self, t):
+        s = np.maximum(t - self.release, 0.0)
+        y = self.drop_h - 0.5 * GRAVITY * s * s
+        fall_end = np.sqrt(2 * np.maximum(self.drop_h - self.rest[:, 1], 0) / GRAVITY)
+        pos = self.rest.copy()
+        pos[:, 1] = np.maximum(y, self.rest[:, 1])
+        ang = 4.0 * np.minimum(s, fall_end)                          # spin while falling
+        rot = np.stack([euler_matrix(np.degrees(a * sp)) for a, sp in zip(ang, self.spin)])
+        return pos, rot
+
+    def pose(self, i, t):
+        return self._bullet_pose(i) if self.physics == "pybullet" else self._analytic_pose(t)
+
+
+class MarbleMotion:
+    def __init__(self, sim, tris, normals):
+        self.sim = sim
+        self.tris = tris            # one marble, centred at the origin
+        self.normals = normals
+
+    def __call__(self, i, t):
+        pos, rot = self.sim.pose(i, t)
+        tris = np.einsum("mij,nvj->mnvi", rot, self.tris) + pos[:, None, None, :]
+        nrm = np.einsum("mij,nvj->mnvi", rot, self.normals)
+        return tris.reshape(-1, 3, 3), nrm.reshape(-1, 3, 3)
+
+
+def marbles(width=320, height=240, spp=1, max_depth=3, count=40, subdiv=(8, 16),
+            physics="auto", fps=DEFAULT_FPS, seed=0):
+    """``count`` marbles dropped into a bowl (after the thesis' Marbles scene). ``physics``:
+    "pybullet" (Bullet, an optional extra), "analytic", or "auto" (Bullet when importable)."""
+    from .meshes import uv_sphere
+    if physics not in ("auto", "pybullet", "analytic"):
+        raise InputError("physics", f"unknown physics {physics!r} (choose from auto, pybullet, analytic)")
+    if physics != "analytic" and _import_pybullet() is None:
+        if physics == "pybullet":
+            raise InputError("physics", "pybullet is not installed (pip install 'hwrt[physics]')")
+        physics = "analytic"
+    elif physics == "auto":
+        physics = "pybullet"
+    R, bc = 1.0, np.array([0.0, 1.0, 0.0])
+    V, F = _bowl(R, bc)
+    cam = {"type": "perspective", "eye": [0.0, 2.6, 2.6], "target": [0.0, 0.55, 0.0], "fov": 45.0}
+    lights = [{"type": "directional", "direction": [-0.3, -1.0, -0.4], "irradiance": [2.4, 2.3, 2.1]}]
+    d, base = _base_scene("marbles", [_floor(3.0), {"type": "triangles", "data": V[F].tolist(),
+                                                    "material": "white"}],
+                          cam, lights, width, height, spp, max_depth, [0.5, 0.6, 0.8])
+    parts = [Part(base.triangles, base.normals, base.material)]
+    r = 0.08
+    MV, MF = uv_sphere(subdiv[0], subdiv[1], r)
+    one, one_n = MV[MF], (MV / r)[MF]
+    sim = Marbles(count, r, R, bc, (V, F), physics, fps, seed)
+    kinds = ["glass", "mirror", "red", "green"]
+    for k, name in enumerate(kinds):          # one part per material, marbles k, k+4, ...
+        sel = np.arange(k, count, len(kinds))
+        if len(sel):
+            sub = _Subset(sim, sel)
+            parts.append(Part(*MarbleMotion(sub, one, one_n)(0, 0.0), base.mat_names.index(name),
+                              MarbleMotion(sub, one, one_n)))
+    return Animation("marbles", base, parts, frames=120, fps=fps,
+                     info={"physics": physics, "marbles": count})
+
+
+class _Subset:
+    """The poses of some of the marbles."""
+
+    def __init__(self, sim, sel):
+        self.sim, self.sel = sim, sel
+
+    def pose(self, i, t):
+        pos, rot = self.sim.pose(i, t)
+        return pos[self.sel], rot[self.sel]
+
+
+def flythrough(width=320, height=240, spp=1, max_depth=3, slats=120, fps=DEFAULT_FPS):
+    """A camera flying through the static room scene: the geometry, and so the tree, never
+    changes (the baseline)."""
+    from .builtin import room
+    d = room(width=width, height=height, spp=spp, max_depth=max_depth, slats=slats)
+    base = compile_scene(d, source="flythrough")
+
+    def cam(t):
+        a = 0.6 * np.pi + 0.8 * np.pi * min(t / 4.0, 1.0)
+        c = dict(base.camera)
+        c["eye"] = np.array([2.6 * np.cos(a), 1.5 + 0.3 * np.sin(2 * a), -0.3 + 2.2 * np.sin(a)])
+        c["target"] = np.array([0.6 * np.cos(a + 0.9), 1.2, -1.0])
+        return c
+    return Animation("flythrough", base, [Part(base.triangles, base.normals, base.material)],
+                     frames=120, fps=fps, camera=cam)
+
+
+ANIMATIONS = {"exploding": exploding, "cloth": cloth, "marbles": marbles, "flythrough": flythrough}
+
+
+def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=None, **params):
+    """An :class:`Animation` from a built-in animation name (``params`` go to it), a frame
+    pattern of mesh files, or anything ``load_scene`` reads (a scene file, which may animate,
+    a static built-in scene, a mesh file)."""
+    spec = os.fspath(spec)
+    film = {k: v for k, v in (("width", width), ("height", height), ("spp", spp),
+                              ("max_depth", max_depth)) if v is not None}
+    if spec in ANIMATIONS:
+        fn = ANIMATIONS[spec]
+        import inspect
+        accepted = inspect.signature(fn).parameters
+        for k in params:
+            if params[k] is not None and k not in accepted:
+                raise InputError(k, f"the built-in animation '{spec}' has no parameter {k!r}")
+        kw = {k: v for k, v in {**film, **params}.items() if v is not None and k in accepted}
+        if fps is not None and "fps" in accepted:
+            kw["fps"] = fps
+        anim = fn(**kw)
+        if fps is not None:
+            anim.fps = float(fps)
+        return anim
+    extra = [k for k, v in params.items() if v is not None]
+    if extra:
+        raise InputError(extra[0], f"only built-in animations ({', '.join(ANIMATIONS)}) take it")
+    if is_pattern(spec) and not os.path.exists(spec):
+        d = pattern_scene(spec)
+    else:
+        d = load_scene(spec)
+    d = dict(d)
+    if film:
+        d["film"] = dict(d.get("film", {}), **{k: v for k, v in film.items() if k != "max_depth"})
+        if "max_depth" in film:
+            d["integrator"] = dict(d.get("integrator", {"type": "whitted"}), max_depth=film["max_depth"])
+    return from_scene_dict(d, fps=fps)
