@@ -10,6 +10,7 @@ that size cut from real meshes. Bunny and Sponza then serve as checks, not input
 """
 import numpy as np
 
+from . import config
 from .config import (AABB_BYTES, LAT_BINNING, LAT_PARTITION, LAT_SAH, PRIMITIVE_RECORD_BYTES,
                      THESIS_ACTIVE_POWER_W, WORD_BYTES)
 from .cycle_model import PRESETS, _upper_plan, simulate_subtree, unit_positions
@@ -26,6 +27,34 @@ THESIS_SCENE_OF_MESH = {"bunny": "Bunny", "sponza_dabrovic": "Sponza"}
 # Marbles has "8k" triangles (Fig. 4.1). It needs the upper builder: HWBVH-HP, with two subtree
 # builders, takes half the cycles of HWBVH-C, so it was cut into two subtrees, N > 8192.
 MARBLES_TRIANGLES = (8193, 8500)
+
+
+def fit_cost_model():
+    """The cost model's four constants from the two presets (thesis Tables 4.5-4.10): the gates
+    of a floating-point core (comparators apart) and of a storage bit, solved so that the model's
+    gates equal InCyte's total equivalent gates; then area per gate and active power per gate and
+    hertz, each one constant fitted in log space. Returns the constants and, per preset, the
+    ratio of the fitted constant's area and power to the thesis' (the fit's error)."""
+    from .resources import gates, resources
+
+    names = list(PRESETS)
+    rows, rhs = [], []
+    for name in names:
+        total = resources(PRESETS[name])["total"]
+        one_core = gates(total, 1.0, 0.0)                  # gates linear in both weights
+        one_bit = gates(total, 0.0, 1.0)
+        none = gates(total, 0.0, 0.0)
+        rows.append([one_core["total"] - none["total"], one_bit["total"] - none["total"]])
+        rhs.append(config.THESIS_TOTAL_GATES[name] - none["total"])
+    per_core, per_bit = np.linalg.solve(np.array(rows), np.array(rhs))
+    g = {n: config.THESIS_TOTAL_GATES[n] for n in names}
+    hz = {n: PRESETS[n].clock_mhz * 1e6 for n in names}
+    area = float(np.exp(np.mean([np.log(config.THESIS_AREA_MM2[n] / g[n]) for n in names])))
+    power = float(np.exp(np.mean([np.log(config.THESIS_ACTIVE_POWER_W[n] / (g[n] * hz[n])) for n in names])))
+    return {"gates_per_fp_core": float(per_core), "gates_per_storage_bit": float(per_bit),
+            "area_mm2_per_gate": area, "active_w_per_gate_hz": power,
+            "area_ratio": {n: area * g[n] / config.THESIS_AREA_MM2[n] for n in names},
+            "power_ratio": {n: power * g[n] * hz[n] / config.THESIS_ACTIVE_POWER_W[n] for n in names}}
 
 
 def thesis_seconds(scene, preset):

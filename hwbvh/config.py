@@ -49,8 +49,79 @@ AABB_BYTES = 24          # a float32 AABB alone: the initial scene-AABB pass rea
 # 4.10 powers). Bunny and Sponza are then predictions, not fits. 0 gives the text-only model.
 CONTROL_LATENCY = 148
 
-# --- Power (Table 4.10, InCyte, 90 nm) ----------------------------------------------------
+# --- Resources per unit (thesis 4.3.4, Tables 4.5-4.8) ------------------------------------
+# Floating-point cores of one unit, by type (the columns of Tables 4.5-4.7; the same in the
+# subtree builders and the upper builder). A "binning unit" is a group of three, one per axis.
+FP_TYPES = ("add", "sub", "mul", "div", "cmp", "fxd_flt", "flt_fxd")
+FP_CORES_PER_UNIT = {
+    "partitioning_unit": {"add": 1, "sub": 3, "mul": 1, "div": 1, "flt_fxd": 1},
+    "binning_unit": {"add": 3, "sub": 9, "mul": 3, "div": 3, "flt_fxd": 3},
+    # per axis: the surface area (3 sub, 3 mul, 2 add), times the count (1 mul, 1 fxd-flt) and
+    # the final sum of both sides (1 add)
+    "sah_calculator": {"add": 9, "sub": 9, "mul": 12, "fxd_flt": 3},
+    "tree_output": {},
+}
+# Comparators are the AABB unions (6 each) of an SAH calculator fed by g binning-unit groups:
+# one bin collector per group (3 axes x 6), a merge tree of g - 1 unions per axis, and the cost
+# evaluator's sweep union per axis: 18g + 18(g - 1) + 18 = 36g. Table 4.5: 144 at g = w = 4;
+# Tables 4.6/4.7: 36 and 72 at g = 1 and 2 RAM pairs.
+SAH_CMP_PER_GROUP = 36
+# The upper builder's partitioning units have 6 comparators per RAM pair each (Table 4.6: 6 at
+# one pair; Table 4.7: 12 at two); the subtree builder's have none.
+UPPER_PU_CMP_PER_RAM_PAIR = 6
+COMPARATOR_GATES = 235   # 4.3.4: the synthesised comparator, given to InCyte as 235 gates
+
+# Register space (bytes). What the text describes is modelled from the parameters; the rest is
+# a constant per unit. Table 4.5 prints 422 KB for the subtree builder and Table 4.6 164 KB for
+# HWBVH-C's upper builder, yet Table 4.8 has 587 KB, which Table 4.9's 4,808,704 register-file
+# bits confirm to the bit: the only split that rounds (half to even) to both is 422.5 + 164.5.
+# HWBVH-HP then leaves 1161 - 2 x 422.5 = 316 KB for its upper builder, Table 4.7's figure.
+THREAD_CONTEXT_BYTES = 48    # 3.3.1: a thread context without its stack is "< 50 bytes"
+PARTITIONING_UNIT_REG_BYTES = 2048 - 8 * THREAD_CONTEXT_BYTES  # Table 4.5: 2 KB at Tsize = 8
+BINNING_GROUP_REG_BYTES = 4096   # Tables 4.5-4.7: 4 KB (the pipeline's AABB FIFOs, status)
+BIN_RECORD_BYTES = 27        # Fig. 3.10: a 216-bit bin record (AABB + 24-bit count) per bin
+SAH_TERM_BYTES = 4           # Fig. 3.11: float32 SA*N terms in the evaluator's FIFO and LIFO
+INDEX_FIFO_ENTRY_BYTES = 4   # 3.3.5: index + valid + last bits in a 32-bit entry; w * Tsize
+                             # FIFOs of Psize entries are Table 4.5's 256 KB tree output
+UPPER_TREE_OUTPUT_REG_BYTES = 4096   # Tables 4.6/4.7: 4 KB
+# Not itemised in the text, solved from the three totals above (422.5, 164.5 and 316 KB):
+SAH_CALC_OTHER_REG_BYTES = 2256          # subtree SAH calculator: 9120 B in all (Table 4.5: 9 KB)
+UPPER_SAH_CALC_OTHER_REG_BYTES = 2928    # upper: 5904 / 7200 B at 1 / 2 pairs (6 / 7 KB)
+UPPER_PU_REG_BYTES = 148_448             # DRAM burst buffers: 145.0 KB (the tables print 147)
+
+# --- Area and power (thesis 4.3.4, Tables 4.9-4.10: InCyte, 90 nm) -----------------------
+# Table 4.10, the two InCyte data points: total equivalent gates, die area, active power
+THESIS_TOTAL_GATES = {"HWBVH-C": 13_479_356, "HWBVH-HP": 26_359_541}
+THESIS_AREA_MM2 = {"HWBVH-C": 55.947, "HWBVH-HP": 105.787}
 THESIS_ACTIVE_POWER_W = {"HWBVH-C": 5.902, "HWBVH-HP": 25.179}
+MISC_LOGIC_SHARE = 0.20  # 4.3.4: miscellaneous logic "to consume 20% of the core area"
+# Gates of a configuration: the comparators at their 235 gates, every other floating-point core
+# at one gate count, every register or SRAM bit at another. The two unknowns are solved from
+# InCyte's total equivalent gates of the two presets (Table 4.10), which the model therefore
+# reproduces; the presets' resources differ by about one factor of two throughout, so two points
+# cannot separate more kinds. Then one constant each maps gates to area and gates x clock to
+# active power (least squares in log space over the two presets). hwbvh.calibration.fit_cost_model
+# computes all four; the two points disagree by +-1.7% (area) and +-4.3% (power) about the fit.
+GATES_PER_FP_CORE = 6210.3
+GATES_PER_STORAGE_BIT = 0.67868
+AREA_MM2_PER_GATE = 4.0813e-6
+ACTIVE_W_PER_GATE_HZ = 1.8292e-15
+
+# --- Hardware ranges of the configuration knobs (checked before any simulation) ---------
+# Thesis 3.3: w and Tsize are powers of two, Psize any positive integer. The studies of 4.2.1
+# span 2..16; 64 bounds how far the cost model is asked to extrapolate. A split needs 2 bins.
+# The clock fit rests on 250 and 500 MHz in 90 nm; 1 GHz bounds its extrapolation.
+KNOB_RANGES = {
+    "bins": (2, MAX_HARDWARE_BINS),
+    "leaf_size": (1, MAX_LEAF_SIZE),
+    "w": (1, 64),
+    "tsize": (1, 64),
+    "psize": (1, MAX_PRIMITIVES),
+    "subtree_builders": (1, 64),
+    "ram_pairs": (1, 16),
+    "clock_mhz": (1.0, 1000.0),
+}
+POWER_OF_TWO_KNOBS = ("w", "tsize")
 
 # --- Software build scheduling (not a hardware parameter) -------------------------------
 # Nodes with more primitives than this are split with data-parallel binning/partitioning;

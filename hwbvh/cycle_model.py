@@ -36,9 +36,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numba import njit, prange
 
+from . import config
 from .config import (AABB_BYTES, CONTROL_LATENCY, LAT_BINNING, LAT_PARTITION, LAT_PRIM_BUFFER,
-                     LAT_SAH, NODE_BYTES, THESIS_ACTIVE_POWER_W, THREAD_SWITCH, WORD_BYTES)
+                     LAT_SAH, NODE_BYTES, THREAD_SWITCH, WORD_BYTES)
 from .config import PRIMITIVE_RECORD_BYTES as RECORD_BYTES
+from .errors import ParameterError
+from .resources import cost
 
 
 @dataclass
@@ -52,7 +55,6 @@ class HwParams:
     clock_mhz: float = 250.0
     leaf_size: int = 4
     bins: int = 16
-    active_power_w: float = THESIS_ACTIVE_POWER_W["HWBVH-C"]
     control_latency: int = CONTROL_LATENCY   # cycles per split beyond Table 3.3 (calibrated)
 
     @property
@@ -61,10 +63,8 @@ class HwParams:
 
 
 PRESETS = {
-    "HWBVH-C": HwParams(w=4, tsize=8, psize=2048, subtree_builders=1, ram_pairs=1,
-                        clock_mhz=250.0, active_power_w=THESIS_ACTIVE_POWER_W["HWBVH-C"]),
-    "HWBVH-HP": HwParams(w=4, tsize=8, psize=2048, subtree_builders=2, ram_pairs=2,
-                         clock_mhz=500.0, active_power_w=THESIS_ACTIVE_POWER_W["HWBVH-HP"]),
+    "HWBVH-C": HwParams(w=4, tsize=8, psize=2048, subtree_builders=1, ram_pairs=1, clock_mhz=250.0),
+    "HWBVH-HP": HwParams(w=4, tsize=8, psize=2048, subtree_builders=2, ram_pairs=2, clock_mhz=500.0),
 }
 
 
@@ -295,6 +295,7 @@ def simulate(tree, params, node_count=None):
     traffic["indices"] = -(-n // 8) * WORD_BYTES
     seconds = cycles / (p.clock_mhz * 1e6)
     sub_time = max(1, sum(builder_busy))
+    hw = cost(p)             # this instantiation's own area and power, never a preset's
     return {
         "cycles": int(cycles),
         "clock_hz": p.clock_mhz * 1e6,
@@ -302,7 +303,10 @@ def simulate(tree, params, node_count=None):
         "traffic_bytes": traffic,
         "traffic_total_bytes": int(sum(traffic.values())),
         "footprint_bytes": footprint_bytes(n),
-        "energy_joules": seconds * p.active_power_w,
+        "energy_joules": seconds * hw["active_power_w"],
+        "area_mm2": hw["area_mm2"],
+        "active_power_w": hw["active_power_w"],
+        "resources": dict(hw["resources"], gates=hw["gates"]["total"]),
         "upper_builder": {"used": bool(uses_upper), "nodes": upper_nodes,
                           "records_partitioned": int(upper_records), "stall_cycles": int(stall),
                           "finished_at_cycle": int(t)},
@@ -316,27 +320,42 @@ def simulate(tree, params, node_count=None):
     }
 
 
+def check_params(p):
+    """Raise ParameterError (naming the parameter) unless every knob of ``p`` is within the
+    hardware's range (``config.KNOB_RANGES``)."""
+    for k, (lo, hi) in config.KNOB_RANGES.items():
+        v = getattr(p, k)
+        if k == "clock_mhz":
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not lo <= v <= hi:
+                raise ParameterError(k, f"must be a clock in MHz within {lo:g}..{hi:g}, got {v!r}")
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+            raise ParameterError(k, f"must be an integer within {lo}..{hi} in the hardware, got {v!r}")
+        if k in config.POWER_OF_TWO_KNOBS and v & (v - 1):
+            raise ParameterError(k, f"must be a power of two (thesis 3.3), got {v}")
+    if p.w * p.psize > config.MAX_PRIMITIVES:
+        raise ParameterError("psize", f"w * psize = {p.w * p.psize} exceeds the 24-bit primitive index "
+                                  f"({config.MAX_PRIMITIVES})")
+    v = p.control_latency
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+        raise ParameterError("control_latency", f"must be a non-negative integer, got {v!r}")
+    return p
+
+
 def params_for(preset="HWBVH-C", **overrides):
-    """A preset with some parameters replaced (None values are ignored)."""
-    from dataclasses import replace
-    from .errors import InputError
+    """A preset with some parameters replaced (None values are ignored), checked against the
+    hardware's ranges."""
+    from dataclasses import fields, replace
 
     if preset not in PRESETS:
-        raise InputError("--preset", f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+        raise ParameterError("preset", f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+    names = {f.name for f in fields(HwParams)}
     kw = {k: v for k, v in overrides.items() if v is not None}
-    for k, v in kw.items():
-        if k in ("w", "tsize", "psize", "subtree_builders", "ram_pairs", "leaf_size", "bins") and \
-                (not isinstance(v, (int, np.integer)) or v < 1):
-            raise InputError(f"--{k.replace('_', '-')}", f"must be a positive integer, got {v}")
-        if k == "control_latency" and (not isinstance(v, (int, np.integer)) or v < 0):
-            raise InputError("--control-latency", f"must be a non-negative integer, got {v}")
-        if k == "clock_mhz" and not v > 0:
-            raise InputError("--clock-mhz", f"must be positive, got {v}")
-    for k in ("w", "tsize"):
-        v = kw.get(k)
-        if v is not None and v & (v - 1):
-            raise InputError(f"--{k}", f"must be a power of two (thesis 3.3), got {v}")
-    return replace(PRESETS[preset], **kw)
+    for k in kw:
+        if k not in names:
+            raise ParameterError(k, f"not a parameter of the hardware (choose from {', '.join(sorted(names))})")
+    return check_params(replace(PRESETS[preset], **kw))
 
 
 def simulate_mesh(source, preset="HWBVH-C", **overrides):

@@ -146,47 +146,57 @@ def cmd_simulate(args):
         result = sweep(args.mesh, args.out_dir, leaf_sizes=args.leaf_sizes, jobs=args.jobs,
                        control_latency=ctl)
         return _emit(args, result, lambda r: f"wrote {r['csv']} and {', '.join(r['plots'])}")
-    result = simulate_mesh(args.mesh, args.preset, w=args.w, tsize=args.tsize, psize=args.psize,
-                           subtree_builders=args.subtree_builders, ram_pairs=args.ram_pairs,
-                           clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins,
-                           control_latency=args.control_latency)
+    from hwbvh.errors import ParameterError
+    try:
+        result = simulate_mesh(args.mesh, args.preset, w=args.w, tsize=args.tsize, psize=args.psize,
+                               subtree_builders=args.subtree_builders, ram_pairs=args.ram_pairs,
+                               clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins,
+                               control_latency=args.control_latency)
+    except ParameterError as e:         # the library names its parameter; the user typed a flag
+        raise InputError(f"--{e.parameter.replace('_', '-')}", e.problem) from None
     _emit(args, result, lambda r: _kv(r, ["preset", "triangles", "cycles", "seconds", "energy_joules",
-                                          "traffic_bytes", "footprint_bytes", "utilisation", "sah_cost"]))
+                                          "area_mm2", "active_power_w", "traffic_bytes",
+                                          "footprint_bytes", "utilisation", "sah_cost"]))
 
 
 def cmd_render(args):
     import time
     from raytracer.render import make_tracer, render, warm_up
-    from raytracer.output import write_exr, write_png
+    from hwbvh.files import write_files
+    from raytracer.output import exr_writer, png_writer
     from scenes import compile_scene, load_scene
 
     t_start = time.perf_counter()
+    if (args.builder == "embree") != (args.traversal == "embree"):
+        raise InputError("--traversal", "Embree's tree is traversed by Embree only, and Embree "
+                         "traverses only its own tree: use --builder embree with --traversal "
+                         "embree, or --traversal numba with --builder hwbvh or sweep")
+    if args.verify and args.traversal == "embree":
+        raise InputError("--verify", "checks our traversal against Embree; use --traversal numba")
     d = load_scene(args.scene)
     film = d.setdefault("film", {})
     integ = d.setdefault("integrator", {"type": "whitted"})
     for key, val, tgt in (("width", args.width, film), ("height", args.height, film),
                           ("spp", args.spp, film), ("max_depth", args.max_depth, integ)):
         if val is not None:
-            if val < 1:
-                raise InputError(f"--{key.replace('_', '-')}", f"must be at least 1, got {val}")
             tgt[key] = val
-    scene = compile_scene(d)
-    out = args.output or os.path.join("renders", f"{scene.name}.exr")
+    out = args.output or os.path.join("renders", f"{d.get('name', 'scene')}.exr")
     if not out.lower().endswith(".exr"):
-        raise InputError("-o", f"{out}: the output must be an .exr file")
+        raise InputError("-o", f"{out} does not end in .exr (--png adds a PNG preview beside the EXR)")
+    png = os.path.splitext(out)[0] + ".png" if args.png else None
+    check_outputs([out, png], inputs=[args.scene])
+    scene = compile_scene(d)
     startup_s = warm_up(args.builder, args.traversal)
     tracer, build_s, info = make_tracer(scene, args.builder, args.traversal)
-    verify = None
+    checked = None
     if args.verify:
-        if args.traversal == "embree":
-            raise InputError("--verify", "checks our traversal against Embree; use --traversal numba")
-        from traversal.embree_ref import embree_scene
-        verify = embree_scene(scene.vertices, scene.faces)
+        from traversal.tracers import VerifyingTracer
+        tracer = checked = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
     from tqdm import tqdm
     bar = tqdm(total=scene.spp, desc=f"render {scene.name}", unit="spp", file=sys.stderr,
                disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
     t0 = time.perf_counter()
-    res = render(scene, tracer, seed=args.seed, verify=verify, progress=bar.update)
+    res = render(scene, tracer, seed=args.seed, progress=bar.update)
     render_s = time.perf_counter() - t0
     bar.close()
     result = {"output": out, "scene": scene.name, "builder": args.builder, "traversal": args.traversal,
