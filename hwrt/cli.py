@@ -162,41 +162,36 @@ def cmd_simulate(args):
 def cmd_render(args):
     import time
     from raytracer.render import make_tracer, render, warm_up
-    from hwbvh.files import write_files
-    from raytracer.output import exr_writer, png_writer
+    from raytracer.output import write_exr, write_png
     from scenes import compile_scene, load_scene
 
     t_start = time.perf_counter()
-    if (args.builder == "embree") != (args.traversal == "embree"):
-        raise InputError("--traversal", "Embree's tree is traversed by Embree only, and Embree "
-                         "traverses only its own tree: use --builder embree with --traversal "
-                         "embree, or --traversal numba with --builder hwbvh or sweep")
-    if args.verify and args.traversal == "embree":
-        raise InputError("--verify", "checks our traversal against Embree; use --traversal numba")
     d = load_scene(args.scene)
     film = d.setdefault("film", {})
     integ = d.setdefault("integrator", {"type": "whitted"})
     for key, val, tgt in (("width", args.width, film), ("height", args.height, film),
                           ("spp", args.spp, film), ("max_depth", args.max_depth, integ)):
         if val is not None:
+            if val < 1:
+                raise InputError(f"--{key.replace('_', '-')}", f"must be at least 1, got {val}")
             tgt[key] = val
-    out = args.output or os.path.join("renders", f"{d.get('name', 'scene')}.exr")
-    if not out.lower().endswith(".exr"):
-        raise InputError("-o", f"{out} does not end in .exr (--png adds a PNG preview beside the EXR)")
-    png = os.path.splitext(out)[0] + ".png" if args.png else None
-    check_outputs([out, png], inputs=[args.scene])
     scene = compile_scene(d)
+    out = args.output or os.path.join("renders", f"{scene.name}.exr")
+    if not out.lower().endswith(".exr"):
+        raise InputError("-o", f"{out}: the output must be an .exr file")
     startup_s = warm_up(args.builder, args.traversal)
     tracer, build_s, info = make_tracer(scene, args.builder, args.traversal)
-    checked = None
+    verify = None
     if args.verify:
-        from traversal.tracers import VerifyingTracer
-        tracer = checked = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
+        if args.traversal == "embree":
+            raise InputError("--verify", "checks our traversal against Embree; use --traversal numba")
+        from traversal.embree_ref import embree_scene
+        verify = embree_scene(scene.vertices, scene.faces)
     from tqdm import tqdm
     bar = tqdm(total=scene.spp, desc=f"render {scene.name}", unit="spp", file=sys.stderr,
                disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
     t0 = time.perf_counter()
-    res = render(scene, tracer, seed=args.seed, progress=bar.update)
+    res = render(scene, tracer, seed=args.seed, verify=verify, progress=bar.update)
     render_s = time.perf_counter() - t0
     bar.close()
     result = {"output": out, "scene": scene.name, "builder": args.builder, "traversal": args.traversal,
