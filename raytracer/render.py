@@ -1,7 +1,10 @@
 """Whitted-style ray tracing (Whitted 1980; thesis 2.2.2) on the simulated hardware's trees.
 
-Rays travel as arrays, one wavefront per bounce; the Numba traversal (or Embree, for
-comparison) does every intersection and every shadow test. Shading per hit:
+Rays travel as wavefronts through compiled stages (``raytracer.stages``): generate camera
+rays, intersect, shade (direct light with one shadow ray per light, spawn secondary rays),
+compact, occluded, accumulate. The tracer (our traversal of the hwbvh tree, or Embree) answers
+the ``intersect`` and ``occluded`` queries; everything else is the same compiled code for
+both, so a comparison of the two measures their trees and traversals. Shading per hit:
 
     L = kd * ambient + sum_lights V * E * (kd/pi * cos + ks * (s+8)/(8 pi) * cos_h^s * cos)
         + kr * L(reflected)                                   (mirrors, plastics)
@@ -11,7 +14,8 @@ with E = I / r^2 for a point light of intensity I and E = irradiance for a direc
 V the hard-shadow visibility (one ``occluded`` ray per light), Blinn-Phong highlights, total
 internal reflection, a recursion depth limit and a contribution cut-off. Dielectrics block
 shadow rays (classic Whitted). Supersampling uses stratified jitter from a seeded generator,
-so a render is reproducible.
+so a render is reproducible, and the film is accumulated in a fixed order, so it does not
+depend on the thread count.
 
 Only the passes a scene calls for exist: no shadow rays without lights, no reflection rays
 without a reflective material, no refraction rays without a dielectric, and no bounce past the
@@ -22,8 +26,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from traversal.camera import primary_rays, tile_order
-from traversal.offset import offset_origins
+from traversal.camera import look_at_basis, tile_order
+from traversal.offset import STRATEGY_CODES
+from . import stages
+from .stages import fresnel_dielectric  # noqa: F401  (the shading model's Fresnel term)
 
 
 @dataclass
@@ -35,36 +41,28 @@ class RenderResult:
     stats: dict = field(default_factory=dict)
 
 
-def fresnel_dielectric(cos_i, eta_i, eta_t):
-    """Unpolarised Fresnel reflectance; cos_i >= 0. Returns (F, cos_t, tir mask)."""
-    sin_t2 = (eta_i / eta_t) ** 2 * np.maximum(0.0, 1.0 - cos_i * cos_i)
-    tir = sin_t2 >= 1.0
-    cos_t = np.sqrt(np.maximum(0.0, 1.0 - sin_t2))
-    rs = (eta_i * cos_i - eta_t * cos_t) / (eta_i * cos_i + eta_t * cos_t)
-    rp = (eta_t * cos_i - eta_i * cos_t) / (eta_t * cos_i + eta_i * cos_t)
-    F = np.where(tir, 1.0, 0.5 * (rs * rs + rp * rp))
-    return F, cos_t, tir
+def _tiny_scene():
+    """Two facing quads (a diffuse floor, a glass pane), a point and a directional light: enough
+    to run every stage kernel once."""
+    from types import SimpleNamespace
 
-
-def refract(d, n, eta, cos_i, cos_t):
-    """Snell's law: d (k, 3) incident unit directions, n (k, 3) unit normals facing the incident
-    side, eta = n1/n2, cos_i, cos_t: (k,)."""
-    return eta[:, None] * d + (eta * cos_i - cos_t)[:, None] * n
-
-
-def _accumulate(img, pix, values):
-    """img[pix] += values, with repeated pixels (np.add.at is an order slower than bincount)."""
-    n = img.shape[0]
-    for c in range(3):
-        img[:, c] += np.bincount(pix, weights=values[:, c], minlength=n)
-
-
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
-
-
-def _unit(v):
-    return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
+    floor = np.array([[[-1, 0, -1], [1, 0, -1], [1, 0, 1]], [[-1, 0, -1], [1, 0, 1], [-1, 0, 1]]], np.float32)
+    pane = floor[:, :, [0, 2, 1]] + np.float32([0, 0, -0.5])
+    pane[:, :, 1] += 1
+    tris = np.concatenate([floor, pane])
+    ng = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    ng /= np.linalg.norm(ng, axis=1, keepdims=True)
+    return SimpleNamespace(
+        triangles=tris, normals=np.repeat(ng[:, None], 3, axis=1).astype(np.float32),
+        material=np.array([0, 0, 1, 1], np.int32), kd=np.array([[0.5] * 3, [0.0] * 3]),
+        ks=np.array([0.2, 0.0]), shininess=np.array([32.0, 32.0]),
+        kr=np.array([[0.1] * 3, [0.0] * 3]), ior=np.array([0.0, 1.5]),
+        lights=[{"type": "point", "position": np.array([0.0, 2.0, 0.0]), "intensity": np.ones(3)},
+                {"type": "directional", "direction": np.array([0.0, -1.0, 0.0]), "irradiance": np.ones(3)}],
+        camera={"eye": np.array([0.0, 1.0, 2.0]), "target": np.zeros(3), "up": np.array([0.0, 1.0, 0.0]),
+                "fov": 60.0},
+        width=8, height=8, spp=1, max_depth=3, ambient=np.full(3, 0.05), background=np.full(3, 0.1),
+        cutoff=1e-3, jitter=True)
 
 
 def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
@@ -73,18 +71,18 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
     ``parallel_build`` also loads the data-parallel builder kernels that meshes above
     SEQUENTIAL_MAX_PRIMS use (benchmarks want them; a first render of a small scene does not)."""
     t = time.perf_counter()
-    if builder != "embree":
+    scene = _tiny_scene()
+    if builder != "embree" and parallel_build:
         import hwbvh
-        from traversal import Tracer
-        from scenes.meshes import sphere
-        tris = sphere(4, 6)
-        if parallel_build and builder == "hwbvh":
-            hwbvh.build(sphere(12, 16), task_prims=16)
-        tr = Tracer(hwbvh.build(tris, builder=builder))
-        o = np.zeros((2, 3))
-        d = np.array([[0, 0, 1.0], [0, 1.0, 0]])
-        tr.intersect(o, d)
-        tr.occluded(o, d, 0.0, 1.0)
+        rng = np.random.default_rng(0)
+        soup = rng.random((300, 1, 3)) + rng.normal(scale=0.02, size=(300, 3, 3))
+        hwbvh.build(soup.astype(np.float32), task_prims=16)
+    from types import SimpleNamespace
+    V = scene.triangles.reshape(-1, 3)
+    indexed = SimpleNamespace(**vars(scene), vertices=V,
+                              faces=np.arange(len(V), dtype=np.int32).reshape(-1, 3))
+    tracer, _, _ = make_tracer(indexed, builder, traversal)
+    render(indexed, tracer)
     return time.perf_counter() - t
 
 
@@ -95,8 +93,8 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
 
     if builder == "embree":
         if traversal != "embree":
-            raise InputError("--traversal", "Embree's tree can only be traversed by Embree: "
-                             "use --builder embree with --traversal embree")
+            raise InputError("traversal", "Embree's tree can only be traversed by Embree "
+                             "(builder 'embree' needs traversal 'embree')")
         from traversal.embree_ref import EmbreeTracer
         t = time.perf_counter()
         tr = EmbreeTracer(scene.vertices, scene.faces)
@@ -116,9 +114,9 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
     if traversal == "numba":
         return Tracer(bvh, precision=precision, watertight=watertight), secs, info
     if traversal == "embree":
-        raise InputError("--traversal", "Embree traverses its own tree only: use "
-                         "--builder embree --traversal embree, or --traversal numba")
-    raise InputError("--traversal", f"unknown traversal {traversal!r}")
+        raise InputError("traversal", "Embree traverses its own tree only "
+                         "(traversal 'embree' needs builder 'embree')")
+    raise InputError("traversal", f"unknown traversal {traversal!r}")
 
 
 def scene_passes(scene):
@@ -131,188 +129,170 @@ def scene_passes(scene):
             "depth": scene.max_depth if (reflective or refractive) else 1}
 
 
-def render(scene, tracer, seed=0, verify=None, progress=None, offset="relative", counters=False):
-    """Render a CompiledScene with ``tracer``. ``verify``: an Embree scene to check every ray
-    against (counts go to stats['verify']). ``progress``: a callable(n) per finished pass.
-    ``offset``: secondary-ray offset strategy (raytracer.offset.STRATEGIES). ``counters``: count
-    nodes visited and triangles tested by closest-hit queries (stats['work'])."""
-    from traversal.verify import classify
-    from traversal.embree_ref import embree_intersect
 
+
+class _Buffers:
+    """The wavefront's queues, allocated once per render and grown (never shrunk) when a bounce
+    spawns more rays than they hold: ``cur``/``nxt`` are the current and next wavefront
+    (O, D, wgt, pix), swapped after each bounce; the slot arrays (``contrib``, shadow slots
+    ``sh``, shadow queue ``shq``, spawn slots ``sp``, compaction indices ``idx``) are sized for
+    the current wavefront."""
+
+    def __init__(self, n, n_lights):
+        self.n_lights = max(n_lights, 1)
+        self.cur = self._wavefront(n)
+        self.nxt = self._wavefront(n)
+        self.slot_cap = 0
+        self.ensure_slots(n)
+
+    @staticmethod
+    def _wavefront(cap):
+        return [np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap, np.int64)]
+
+    def ensure_slots(self, n):
+        if n <= self.slot_cap:
+            return
+        cap = max(n, int(self.slot_cap * 1.5))
+        L = self.n_lights
+        f = lambda *shape: np.empty(shape, np.float64)
+        self.contrib = f(cap, 3)
+        self.sh = [f(L * cap, 3), f(L * cap, 3), f(L * cap), f(L * cap, 3), np.zeros(L * cap, np.uint8)]
+        self.shq = [f(L * cap, 3), f(L * cap, 3), f(L * cap), f(L * cap, 3), np.empty(L * cap, np.int64)]
+        self.sp = [f(2 * cap, 3), f(2 * cap, 3), f(2 * cap, 3), np.zeros(2 * cap, np.uint8)]
+        self.idx = np.empty(max(L, 2) * cap, np.int64)
+        self.slot_cap = cap
+
+    def ensure_next(self, n):
+        if n > len(self.nxt[3]):
+            self.nxt = self._wavefront(max(n, int(len(self.nxt[3]) * 1.5)))
+
+
+def _scene_arrays(scene):
+    """The compiled scene as the kernels read it: per-triangle unit geometric normals and
+    coordinate magnitudes (for ray offsets), material tables, and a light table."""
+    tris64 = scene.triangles.astype(np.float64)
+    ng = np.cross(tris64[:, 1] - tris64[:, 0], tris64[:, 2] - tris64[:, 0])
+    face_n = ng / np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
+    tri_mag = np.abs(scene.triangles).reshape(-1, 9).max(axis=1).astype(np.float64)
+    L = len(scene.lights)
+    kind = np.zeros(L, np.int64)
+    pos = np.zeros((L, 3))
+    ldir = np.zeros((L, 3))
+    val = np.zeros((L, 3))
+    for k, light in enumerate(scene.lights):         # a handful of lights, not primitives
+        if light["type"] == "point":
+            kind[k] = stages.POINT
+            pos[k] = light["position"]
+            val[k] = light["intensity"]
+        else:
+            kind[k] = stages.DIRECTIONAL
+            ldir[k] = -np.asarray(light["direction"], np.float64)
+            val[k] = light["irradiance"]
+    f64 = lambda a: np.ascontiguousarray(a, np.float64)
+    return dict(face_n=np.ascontiguousarray(face_n), shading_n=np.ascontiguousarray(scene.normals, np.float32),
+                material=np.ascontiguousarray(scene.material, np.int32), tri_mag=tri_mag,
+                kd=f64(scene.kd), ks=f64(scene.ks), shininess=f64(scene.shininess), kr=f64(scene.kr),
+                ior=f64(scene.ior), light_kind=kind, light_pos=pos, light_dir=ldir, light_val=val,
+                ambient=f64(scene.ambient), background=f64(scene.background), cutoff=float(scene.cutoff))
+
+
+def render(scene, tracer, seed=0, progress=None, offset="relative"):
+    """Render a CompiledScene with ``tracer`` (anything with the ``intersect``/``occluded``
+    interface of ``traversal.tracers``: our traversal, Embree, or a verifying, counting or
+    recording wrapper of either). ``progress``: a callable(n) per finished sample pass.
+    ``offset``: secondary-ray offset strategy (traversal.offset.STRATEGIES).
+    stats: rays per kind, the passes the scene needs, and seconds per stage."""
+    if offset not in STRATEGY_CODES:
+        raise ValueError(f"offset: unknown strategy {offset!r}")
+    if int(seed) < 0:
+        raise ValueError(f"seed: must be non-negative, got {seed}")
     W, H, spp = scene.width, scene.height, scene.spp
     npix = W * H
     passes = scene_passes(scene)
-    img = np.zeros((npix, 3))
-    depth_aov = np.full(npix, np.inf, np.float32)
-    normal_aov = np.zeros((npix, 3), np.float32)
-    prim_aov = np.full(npix, -1, np.int32)
+    sa = _scene_arrays(scene)
+    film = np.zeros((npix, 3))
+    aov_depth = np.full(npix, np.inf, np.float32)
+    aov_normal = np.zeros((npix, 3), np.float32)
+    aov_prim = np.full(npix, -1, np.int32)
     rays = {"primary": 0, "shadow": 0, "reflection": 0, "refraction": 0}
-    ver = {"rays": 0, "agree": 0, "tie": 0, "mismatch": 0}
-    work = np.zeros(3, np.int64)
-    tris64 = scene.triangles.astype(np.float64)
-    tri_mag = np.abs(scene.triangles).reshape(-1, 9).max(axis=1).astype(np.float64)
-    e1 = tris64[:, 1] - tris64[:, 0]
-    e2 = tris64[:, 2] - tris64[:, 0]
-    face_n = _unit(np.cross(e1, e2))
-    ambient = np.asarray(scene.ambient, np.float64)
+    secs = dict.fromkeys(("generate", "intersect", "shade", "compact", "occluded", "accumulate"), 0.0)
+    n_lights = len(scene.lights)
+    buf = _Buffers(npix, n_lights)
     cam = scene.camera
-
-    def trace(o, d, kind, tmax=None):
-        if kind == "shadow":
-            blocked = tracer.occluded(o, d, 0.0, tmax)
-            if verify is not None:
-                h = tracer.intersect(o, d, 0.0, tmax) if hasattr(tracer, "depth") else None
-                if h is not None:
-                    te, pe, *_ = embree_intersect(verify, o, d, tmax)
-                    c, _ = classify(scene.triangles, o, d, 0.0, tmax, h.prim.astype(np.int64), h.t, pe, te)
-                    for k in ver:
-                        ver[k] += c[k]
-            return blocked
-        if counters and hasattr(tracer, "depth"):
-            h = tracer.intersect(o, d, normals=False, counters=True)
-            work[0] += h.counters[:, 0].sum()
-            work[1] += h.counters[:, 1].sum()
-            work[2] += len(o)
-        else:
-            h = tracer.intersect(o, d, normals=False)
-        if verify is not None:
-            te, pe, *_ = embree_intersect(verify, o, d)
-            c, _ = classify(scene.triangles, o, d, 0.0, np.inf, h.prim.astype(np.int64), h.t, pe, te)
-            for k in ver:
-                ver[k] += c[k]
-        return h
-
-    order = tile_order(W, H)
+    cu, cv, cw = look_at_basis(cam["eye"], cam["target"], cam["up"])
+    eye = np.asarray(cam["eye"], np.float64)
+    half = float(np.tan(np.radians(cam["fov"]) / 2))
+    order = tile_order(W, H)                  # camera rays in 4x4 tiles: coherent packets
     gx = int(np.ceil(np.sqrt(spp)))
     gy = int(np.ceil(spp / gx))
+    no_jitter = np.zeros(0)
+    code = STRATEGY_CODES[offset]
+    clock = time.perf_counter
+
     for s in range(spp):
-        rng = np.random.default_rng([seed, s])
-        cx, cy = s % gx, s // gx
+        t0 = clock()
         if scene.jitter:
-            jit = np.stack([(cx + rng.random(npix)) / gx - 0.5, (cy + rng.random(npix)) / gy - 0.5], 1)
+            rng = np.random.default_rng([seed, s])
+            jx, jy = rng.random(npix), rng.random(npix)
         else:
-            jit = None
-        O, D = primary_rays(cam["eye"], cam["target"], cam["up"], cam["fov"], W, H, jit)
-        pix = order                                     # camera rays in 4x4 tiles
-        O, D = O[pix], D[pix]
-        wgt = np.ones((npix, 3))
-        kind = "primary"
+            jx = jy = no_jitter
+        O, D, wgt, pix = buf.cur
+        stages.generate_camera_rays(order, W, H, jx, jy, float(s % gx), float(s // gx), float(gx),
+                                    float(gy), scene.jitter, eye, cu, cv, cw, half, W / H,
+                                    O, D, wgt, pix)
+        n = npix
+        rays["primary"] += n
+        secs["generate"] += clock() - t0
         for bounce in range(passes["depth"]):
-            if len(O) == 0:
+            if n == 0:
                 break
-            if kind == "primary":
-                rays["primary"] += len(O)
-            h = trace(O, D, "closest")
-            hit = h.prim >= 0
-            # -- misses see the background --
-            miss = ~hit
-            if miss.any():
-                _accumulate(img, pix[miss], wgt[miss] * scene.background)
-            O, D, wgt, pix = O[hit], D[hit], wgt[hit], pix[hit]
-            prim = h.prim[hit].astype(np.int64)
-            t = h.t[hit].astype(np.float64)
-            u = h.u[hit].astype(np.float64)[:, None]
-            v = h.v[hit].astype(np.float64)[:, None]
-            P = O + D * t[:, None]
-            ng = face_n[prim]
-            nsh = scene.normals[prim].astype(np.float64)
-            ns = _unit((1 - u - v) * nsh[:, 0] + u * nsh[:, 1] + v * nsh[:, 2])
-            if bounce == 0 and s == 0:
-                depth_aov[pix] = t
-                normal_aov[pix] = ns
-                prim_aov[pix] = prim
-            mat = scene.material[prim]
-            ior = scene.ior[mat]
-            diel = ior > 0
-            # facing: normals toward the incoming ray (two-sided surfaces)
-            facing = np.where(_dot(ng, D)[:, None] > 0, -1.0, 1.0)
-            ngf = ng * facing
-            nsf = ns * np.sign(_dot(ns, ngf))[:, None]
-            nsf = np.where(np.isfinite(nsf) & (np.abs(nsf).sum(1, keepdims=True) > 0), nsf, ngf)
-            # -- local shading: ambient + direct light with hard shadows --
-            kd = scene.kd[mat]
-            local = kd * ambient
-            if passes["shadow"]:
-                ks = scene.ks[mat][:, None]
-                shin = scene.shininess[mat]
-                V = -D
-                for L in scene.lights:
-                    if L["type"] == "point":
-                        to = L["position"] - P
-                        dist = np.linalg.norm(to, axis=1)
-                        ldir = to / np.maximum(dist, 1e-300)[:, None]
-                        E = L["intensity"] / np.maximum(dist * dist, 1e-300)[:, None]
-                    else:
-                        ldir = np.broadcast_to(-L["direction"], P.shape)
-                        dist = np.full(len(P), np.inf)
-                        E = np.broadcast_to(L["irradiance"], P.shape)
-                    cos = _dot(nsf, ldir)
-                    lit = (cos > 0) & (_dot(ngf, ldir) > 0) & ~diel
-                    if not lit.any():
-                        continue
-                    idx = np.flatnonzero(lit)
-                    org = offset_origins(P[idx], ngf[idx], ldir[idx], tri_mag[prim[idx]], offset)
-                    tm = np.linalg.norm(L["position"] - org, axis=1) if L["type"] == "point" \
-                        else np.full(len(idx), np.inf)
-                    rays["shadow"] += len(idx)
-                    blocked = trace(org, ldir[idx], "shadow", tm)
-                    vis = idx[~blocked]
-                    c = cos[vis][:, None]
-                    hv = _unit(ldir[vis] + V[vis])
-                    spec = ks[vis] * ((shin[vis] + 8) / (8 * np.pi))[:, None] * \
-                        np.maximum(_dot(nsf[vis], hv), 0)[:, None] ** shin[vis][:, None]
-                    local[vis] += E[vis] * c * (kd[vis] / np.pi + spec)
-            _accumulate(img, pix, wgt * local)
-            if bounce + 1 >= passes["depth"]:
+            O, D, wgt, pix = buf.cur
+            buf.ensure_slots(n)
+            t0 = clock()
+            h = tracer.intersect(O[:n], D[:n], normals=False)
+            t1 = clock()
+            secs["intersect"] += t1 - t0
+            spawn = bounce + 1 < passes["depth"]
+            shO, shD, shT, shC, sh_used = buf.sh
+            spO, spD, spW, sp_used = buf.sp
+            stages.shade(O, D, wgt, n, h.prim, h.t, h.u, h.v,
+                         sa["face_n"], sa["shading_n"], sa["material"], sa["tri_mag"], sa["kd"],
+                         sa["ks"], sa["shininess"], sa["kr"], sa["ior"], sa["light_kind"],
+                         sa["light_pos"], sa["light_dir"], sa["light_val"], sa["ambient"],
+                         sa["background"], sa["cutoff"], code, passes["shadow"], spawn,
+                         bounce == 0 and s == 0, pix, aov_depth, aov_normal, aov_prim,
+                         buf.contrib, shO, shD, shT, shC, sh_used, spO, spD, spW, sp_used)
+            t2 = clock()
+            secs["shade"] += t2 - t1
+            if passes["shadow"] and n_lights:
+                qO, qD, qT, qC, qpix = buf.shq
+                m = stages.compact(sh_used, n_lights * n, buf.idx)
+                stages.gather_shadow(buf.idx, m, n, pix, shO, shD, shT, shC, qO, qD, qT, qC, qpix)
+                t3 = clock()
+                secs["compact"] += t3 - t2
+                blocked = tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m]) if m else np.zeros(0, bool)
+                t2 = clock()
+                secs["occluded"] += t2 - t3
+                rays["shadow"] += int(m)
+                stages.accumulate_unblocked(film, qpix, qC, np.ascontiguousarray(blocked), m)
+            stages.accumulate(film, pix, buf.contrib, n)
+            t3 = clock()
+            secs["accumulate"] += t3 - t2
+            if not spawn:
                 break
-            # -- secondary rays: mirror reflection, dielectric reflection/refraction --
-            newO, newD, newW, newP, newK = [], [], [], [], []
-            refl_d = D - 2 * _dot(D, nsf)[:, None] * nsf
-            kr = scene.kr[mat]
-            m = (kr.max(axis=1) > 0) & ~diel
-            if m.any():
-                w = wgt[m] * kr[m]
-                newO.append(offset_origins(P[m], ngf[m], refl_d[m], tri_mag[prim[m]], offset))
-                newD.append(refl_d[m]); newW.append(w); newP.append(pix[m])
-                newK.append(np.zeros(m.sum(), np.int8))
-            if diel.any():
-                di = np.flatnonzero(diel)
-                entering = _dot(D[di], ns[di]) < 0           # ns points out of the object
-                n_in = np.where(entering[:, None], ns[di], -ns[di])
-                eta_i = np.where(entering, 1.0, ior[di])
-                eta_t = np.where(entering, ior[di], 1.0)
-                cos_i = np.clip(-_dot(D[di], n_in), 0.0, 1.0)
-                F, cos_t, tir = fresnel_dielectric(cos_i, eta_i, eta_t)
-                rd = D[di] - 2 * _dot(D[di], n_in)[:, None] * n_in
-                newO.append(offset_origins(P[di], ngf[di], rd, tri_mag[prim[di]], offset))
-                newD.append(rd); newW.append(wgt[di] * F[:, None]); newP.append(pix[di])
-                newK.append(np.zeros(len(di), np.int8))
-                ok = ~tir
-                if ok.any():
-                    eta = (eta_i / eta_t)[ok]
-                    td = _unit(refract(D[di][ok], n_in[ok], eta, cos_i[ok], cos_t[ok]))
-                    newO.append(offset_origins(P[di][ok], ngf[di][ok], td, tri_mag[prim[di][ok]], offset))
-                    newD.append(td); newW.append(wgt[di][ok] * (1 - F[ok])[:, None]); newP.append(pix[di][ok])
-                    newK.append(np.ones(ok.sum(), np.int8))
-            if not newO:
-                break
-            O = np.concatenate(newO)
-            D = np.concatenate(newD)
-            wgt = np.concatenate(newW)
-            pix = np.concatenate(newP)
-            K = np.concatenate(newK)
-            keep = wgt.max(axis=1) >= scene.cutoff           # contribution cut-off
-            O, D, wgt, pix, K = O[keep], D[keep], wgt[keep], pix[keep], K[keep]
-            rays["reflection"] += int((K == 0).sum())
-            rays["refraction"] += int((K == 1).sum())
-            kind = "secondary"
+            k = stages.compact(sp_used, 2 * n, buf.idx)
+            refl = int(np.searchsorted(buf.idx[:k], n))        # slots below n are reflections
+            rays["reflection"] += refl
+            rays["refraction"] += int(k) - refl
+            buf.ensure_next(int(k))
+            nO, nD, nW, npx = buf.nxt
+            stages.gather_spawn(buf.idx, k, n, buf.cur[3], *buf.sp[:3], nO, nD, nW, npx)
+            buf.cur, buf.nxt = buf.nxt, buf.cur
+            n = int(k)
+            secs["compact"] += clock() - t3
         if progress:
             progress(1)
-    image = (img / spp).astype(np.float32).reshape(H, W, 3)
-    stats = {"rays": rays, "passes": passes}
-    if counters and work[2]:
-        stats["work"] = {"nodes_per_ray": work[0] / work[2], "tris_per_ray": work[1] / work[2]}
-    if verify is not None:
-        stats["verify"] = ver
-    return RenderResult(image=image, depth=depth_aov.reshape(H, W),
-                        normal=normal_aov.reshape(H, W, 3), prim=prim_aov.reshape(H, W), stats=stats)
+    image = (film / spp).astype(np.float32).reshape(H, W, 3)
+    stats = {"rays": rays, "passes": passes, "stage_seconds": secs}
+    return RenderResult(image=image, depth=aov_depth.reshape(H, W),
+                        normal=aov_normal.reshape(H, W, 3), prim=aov_prim.reshape(H, W), stats=stats)

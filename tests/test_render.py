@@ -102,10 +102,12 @@ def test_glass_slab_shifts_the_background_as_snell_predicts():
 
 
 def test_fresnel_limits():
-    F, cos_t, tir = fresnel_dielectric(np.array([1.0, 0.0, 0.3]), np.array([1.0, 1.0, 1.5]), np.array([1.5, 1.5, 1.0]))
-    assert F[0] == pytest.approx(0.04)                             # ((n-1)/(n+1))^2 at normal incidence
-    assert F[1] == pytest.approx(1.0)                              # grazing
-    assert tir[2] and F[2] == 1.0                                  # past the critical angle
+    F, cos_t, tir = fresnel_dielectric(1.0, 1.0, 1.5)
+    assert F == pytest.approx(0.04) and not tir                    # ((n-1)/(n+1))^2 at normal incidence
+    F, cos_t, tir = fresnel_dielectric(0.0, 1.0, 1.5)
+    assert F == pytest.approx(1.0)                                 # grazing
+    F, cos_t, tir = fresnel_dielectric(0.3, 1.5, 1.0)
+    assert tir and F == 1.0                                        # past the critical angle
 
 
 @pytest.mark.parametrize("scale,shift,edge_frac", [
@@ -142,11 +144,13 @@ def test_reproducible_and_verified():
     d = load_scene("cornell", width=48, height=36, spp=2)
     sc = compile_scene(d)
     tracer, _, _ = make_tracer(sc)
-    from traversal.embree_ref import embree_scene
-    a = render(sc, tracer, seed=3, verify=embree_scene(sc.vertices, sc.faces))
+    from traversal.tracers import VerifyingTracer
+    checked = VerifyingTracer(tracer, sc.triangles, sc.vertices, sc.faces)
+    a = render(sc, checked, seed=3)
     b = render(sc, tracer, seed=3)
     assert np.array_equal(a.image, b.image)
-    assert a.stats["verify"]["mismatch"] == 0 and a.stats["verify"]["rays"] > 3000
+    v = checked.summary()
+    assert v["mismatch"] == 0 and v["rays"] > 3000 and v["shadow"]["rays"] > 1000
 
 
 def test_embree_path_renders_the_same_image():

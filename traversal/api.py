@@ -13,14 +13,7 @@ from hwbvh.format import node_views, pack_indices, tree_stats
 from .aabb_unit import GAMMA3_F32, GAMMA3_F64
 from .traverse import trace_batch
 from .triangle_unit import band_eps2, preprocess
-
-# Barycentric slack of the valid check, in units of the triangle. The float32 Moller-Trumbore
-# unit computes u and v from different edge vectors in the two triangles sharing an edge, so a
-# ray exactly through the edge can fail both strict checks (a leak). A slack of 2^-18 (~4e-6,
-# tens of float32 ulps of a barycentric coordinate) closes those cracks; it dilates each
-# triangle by that fraction of its size, far below a pixel. Set to 0 for the strict unit.
-EDGE_EPS_F32 = 2.0**-18
-EDGE_EPS_F64 = 2.0**-40
+from .config import EDGE_EPS_F32, EDGE_EPS_F64   # the valid check's slack, with its reason
 
 
 @dataclass
@@ -63,7 +56,12 @@ class Tracer:
     packets=True (default) traces each group of 16 consecutive rays that share a direction
     octant as a packet (``traversal.packet``): the same answers, bit for bit, with the box and
     triangle tests in SIMD. Give coherent rays in a coherent order (e.g. a camera's rays in
-    pixel order) to profit. Per-ray counters and the watertight test use the single-ray path."""
+    pixel order) to profit. Per-ray counters and the watertight test use the single-ray path.
+
+    Implements the tracer interface of ``traversal.tracers`` (plus per-ray work counters)."""
+
+    name = "numba"
+    has_counters = True
 
     def __init__(self, bvh, triangles=None, precision="float32", edge_eps=None, watertight=False,
                  packets=True):

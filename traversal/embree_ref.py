@@ -26,12 +26,6 @@ def embree_scene(vertices, faces, robust=True):
     return scene
 
 
-def embree_scene_from_triangles(tris, robust=True):
-    tris = np.ascontiguousarray(tris, dtype=np.float32)
-    n = len(tris)
-    return embree_scene(tris.reshape(-1, 3), np.arange(3 * n, dtype=np.int32).reshape(n, 3), robust)
-
-
 def embree_build_seconds(vertices, faces, robust=True):
     t = time.perf_counter()
     embree_scene(vertices, faces, robust)
@@ -64,28 +58,25 @@ def embree_occluded(scene, origins, dirs, tmax):
 
 
 class EmbreeTracer:
-    """The renderer's tracer interface on Embree (tnear is fixed at 0 in embreex, so a t_min
-    is applied by moving the origin along the ray)."""
+    """The tracer interface (``traversal.tracers``) on Embree: its own build, its own
+    traversal. embreex fixes tnear at 0, so a t_min is applied by moving the origin along the
+    ray."""
+
+    name = "embree"
+    has_counters = False
 
     def __init__(self, vertices, faces, robust=True):
         self.scene = embree_scene(vertices, faces, robust)
 
-    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False, normals=True):
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
         from .api import Hits
-        o = np.asarray(origins, np.float64)
-        d = np.asarray(dirs, np.float64)
-        tmin = np.broadcast_to(np.asarray(tmin, np.float64), (len(o),))
-        if tmin.any():
-            o = o + d * tmin[:, None]
-        tm = None if np.all(np.isinf(tmax)) else np.asarray(tmax, np.float64) - tmin
-        t, prim, u, v, ng = embree_intersect(self.scene, o, d, tm)
-        return Hits(t=(t + tmin).astype(np.float32), prim=prim.astype(np.int32), u=u, v=v, ng=ng)
+        from .tracers import _shifted
+        o, d, lo, hi = _shifted(origins, dirs, tmin, tmax)
+        t, prim, u, v, ng = embree_intersect(self.scene, o, d, None if np.isinf(hi).all() else hi)
+        return Hits(t=(t + lo).astype(np.float32), prim=prim.astype(np.int32), u=u, v=v,
+                    ng=ng if normals else None)
 
     def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
-        o = np.asarray(origins, np.float64)
-        d = np.asarray(dirs, np.float64)
-        tmin = np.broadcast_to(np.asarray(tmin, np.float64), (len(o),))
-        if tmin.any():
-            o = o + d * tmin[:, None]
-        tm = np.broadcast_to(np.asarray(tmax, np.float64), (len(o),)) - tmin
-        return embree_occluded(self.scene, o, d, np.minimum(tm, 3e38))
+        from .tracers import _shifted
+        o, d, lo, hi = _shifted(origins, dirs, tmin, tmax)
+        return embree_occluded(self.scene, o, d, np.minimum(hi, 3e38))

@@ -10,12 +10,46 @@ the triangle's plane (pbrt-v4 offsets by a propagated error bound in the same wa
 offset with it, and translating by 1e5 grows it to the float32 resolution there.
 """
 import numpy as np
+from numba import njit
 
-OFFSET_REL = 2.0**-18    # ~3.8e-6: 32 float32 ulps (2^-23 each) of the coordinate magnitude
+from .config import FIXED_EPS, OFFSET_REL   # the offsets, with their reasons
 
 
 STRATEGIES = ("relative", "fixed", "none")
-FIXED_EPS = 1e-4         # the "fixed epsilon" strategy, for the accuracy study only
+
+
+STRATEGY_CODES = {name: k for k, name in enumerate(STRATEGIES)}
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def offset_origin(px, py, pz, nx, ny, nz, dx, dy, dz, tri_mag, strategy):
+    """One origin: the hit point (px, py, pz) moved along the geometric normal (nx, ny, nz) (any
+    length) to the side of the outgoing direction (dx, dy, dz). ``strategy`` is an index into
+    STRATEGIES. Returns (ox, oy, oz)."""
+    if strategy == 2:                                   # "none"
+        return px, py, pz
+    ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+    ln = ln if ln > 1e-300 else 1e-300
+    nx = nx / ln
+    ny = ny / ln
+    nz = nz / ln
+    s = nx * dx + ny * dy + nz * dz
+    side = 1.0 if s >= 0 else -1.0                      # on the plane: leave to the front
+    if strategy == 1:                                   # "fixed"
+        k = side * FIXED_EPS
+    else:                                               # "relative"
+        mag = max(abs(px), abs(py), abs(pz))
+        mag = mag if mag > tri_mag else tri_mag
+        k = side * OFFSET_REL * (mag if mag > 1e-30 else 1e-30)
+    return px + nx * k, py + ny * k, pz + nz * k
+
+
+@njit(cache=True, error_model="numpy")
+def _offset_batch(p, n, d, tri_mag, strategy, out):
+    for i in range(p.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = offset_origin(
+            p[i, 0], p[i, 1], p[i, 2], n[i, 0], n[i, 1], n[i, 2], d[i, 0], d[i, 1], d[i, 2],
+            tri_mag[i], strategy)
 
 
 def offset_origins(points, ng, dirs, tri_mag, strategy="relative"):
@@ -23,14 +57,11 @@ def offset_origins(points, ng, dirs, tri_mag, strategy="relative"):
     tri_mag (n,) largest |coordinate| of each hit triangle. Returns float64 origins.
     ``strategy``: "relative" (the default, above), "fixed" (1e-4 along the normal, what breaks
     at other scales) or "none" (start on the surface), the last two for comparison."""
-    if strategy == "none":
-        return np.asarray(points, np.float64).copy()
-    p = np.asarray(points, np.float64)
-    n = np.asarray(ng, np.float64)
-    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    side = np.sign(np.einsum("ij,ij->i", n, dirs))
-    side[side == 0] = 1.0
-    if strategy == "fixed":
-        return p + n * (side * FIXED_EPS)[:, None]
-    mag = np.maximum(np.abs(p).max(axis=1), tri_mag)
-    return p + n * (side * OFFSET_REL * np.maximum(mag, 1e-30))[:, None]
+    if strategy not in STRATEGY_CODES:
+        raise ValueError(f"unknown offset strategy {strategy!r} (choose from {', '.join(STRATEGIES)})")
+    p = np.ascontiguousarray(points, np.float64)
+    out = np.empty_like(p)
+    _offset_batch(p, np.ascontiguousarray(ng, np.float64), np.ascontiguousarray(dirs, np.float64),
+                  np.ascontiguousarray(np.broadcast_to(tri_mag, (len(p),)), np.float64),
+                  STRATEGY_CODES[strategy], out)
+    return out

@@ -11,21 +11,12 @@ Each ray is classified:
   within the tolerance (one answer a hit on the edge, the other a miss);
 * ``mismatch``: anything else.
 
-Tolerances and their reasons:
-
-* ``T_TOL_REL = 1e-5``: float32 hit distances carry about ``eps * (|o| + t|d|) / |d|`` of
-  rounding per operation; 1e-5 (~80 ulps) of ``t + |o|_max/|d|`` bounds the unit's error chain
-  while staying far below any real gap between surfaces.
-* ``BARY_TOL = 1e-4``: float32 Moller-Trumbore barycentrics are off by a few 1e-7 for
-  well-conditioned rays but by up to ~2e-5 on slivers (cancellation in ``s.p / det``), and our
-  valid check accepts 2^-18 (~3.8e-6) of slack to close cracks. A wrong triangle is off by far
-  more than that, and a closer strict hit still makes any answer a mismatch.
+The tolerances ``T_TOL_REL`` and ``BARY_TOL`` live in ``traversal.config`` with their reasons.
 """
 import numpy as np
 from numba import njit, prange
 
-T_TOL_REL = 1e-5
-BARY_TOL = 1e-4
+from .config import BARY_TOL, T_TOL_REL
 
 
 @njit(cache=True, error_model="numpy")
@@ -112,6 +103,63 @@ def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
                    np.ascontiguousarray(ours_prim[disputed], np.int64),
                    np.ascontiguousarray(ref_prim[disputed], np.int64), out)
         ok = (out[:, 1] > 0) & (out[:, 2] > 0)
+        labels[disputed[ok]] = 1
+    counts = {"rays": int(n), "agree": int((labels == 0).sum()), "tie": int((labels == 1).sum()),
+              "mismatch": int((labels == 2).sum())}
+    return counts, labels
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _reference_any(tris, O, D, tmin, tmax, scale, out):
+    """For each disputed any-hit ray: out[i] = (a strict hit exists, a loose hit exists), where a
+    strict hit lies inside its triangle by more than BARY_TOL at t clearly inside (tmin, tmax),
+    and a loose hit within BARY_TOL of its triangle at t within the tolerance of [tmin, tmax]."""
+    for i in prange(O.shape[0]):
+        o = O[i]
+        d = D[i]
+        strict = False
+        loose = False
+        for j in range(tris.shape[0]):
+            t, u, v = _mt64(tris[j], o, d)
+            if not np.isfinite(t):
+                continue
+            tol = T_TOL_REL * (abs(t) + scale[i])
+            m = _margin(u, v)
+            if m > BARY_TOL and t > tmin[i] + tol and t < tmax[i] - tol:
+                strict = True
+            if m >= -BARY_TOL and t >= tmin[i] - tol and t <= tmax[i] + tol:
+                loose = True
+            if strict and loose:
+                break
+        out[i, 0] = 1.0 if strict else 0.0
+        out[i, 1] = 1.0 if loose else 0.0
+
+
+def classify_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
+    """Any-hit answers: (counts dict, labels) as :func:`classify`. Equal answers agree. Where
+    they differ, a float64 brute-force re-test decides: "blocked" is right when some triangle is
+    hit within the tolerances, "not blocked" when no triangle is hit strictly inside the
+    interval; both right is a tie (a ray grazing an edge or ending on a surface)."""
+    O = np.asarray(O, np.float32).astype(np.float64)
+    D = np.asarray(D, np.float32).astype(np.float64)
+    n = len(O)
+    tmin = np.broadcast_to(np.asarray(tmin, np.float64), (n,))
+    tmax = np.broadcast_to(np.asarray(tmax, np.float64), (n,))
+    ours = np.asarray(ours_blocked, bool)
+    ref = np.asarray(ref_blocked, bool)
+    labels = np.where(ours == ref, 0, 2).astype(np.int8)
+    disputed = np.flatnonzero(labels == 2)
+    if len(disputed):
+        Od = np.ascontiguousarray(O[disputed])
+        Dd = np.ascontiguousarray(D[disputed])
+        scale = np.abs(Od).max(axis=1) / np.linalg.norm(Dd, axis=1)
+        out = np.empty((len(disputed), 2))
+        _reference_any(np.ascontiguousarray(tris, np.float64), Od, Dd,
+                       np.ascontiguousarray(tmin[disputed]), np.ascontiguousarray(tmax[disputed]),
+                       scale, out)
+        strict, loose = out[:, 0] > 0, out[:, 1] > 0
+        right = lambda blocked: np.where(blocked, loose, ~strict)
+        ok = right(ours[disputed]) & right(ref[disputed])
         labels[disputed[ok]] = 1
     counts = {"rays": int(n), "agree": int((labels == 0).sum()), "tie": int((labels == 1).sum()),
               "mismatch": int((labels == 2).sum())}

@@ -1,0 +1,146 @@
+"""One tracer interface, two back ends, and wrappers that observe a tracer without changing it.
+
+Every tracer answers two batched queries (pbrt's ``Intersect`` / ``IntersectP``):
+
+* ``intersect(origins, dirs, tmin=0.0, tmax=inf, normals=True) -> Hits``: the closest hit per
+  ray (t, prim with -1 for a miss, barycentrics u, v; geometric normals when ``normals``);
+* ``occluded(origins, dirs, tmin=0.0, tmax=inf) -> (n,) bool``: any hit in [tmin, tmax].
+
+``traversal.Tracer`` (the appendix-A units on the raw hwbvh buffer) and
+``traversal.embree_ref.EmbreeTracer`` implement it; the renderer sees nothing else. The wrappers
+below implement it too, so they stack in front of either back end:
+
+* :class:`VerifyingTracer` checks every answer against Embree: closest hits by
+  ``verify.classify`` and any-hit answers by ``verify.classify_occluded``, on exactly the rays
+  and the answers the caller received;
+* :class:`CountingTracer` counts nodes visited and triangles tested per closest-hit query (the
+  work counters of the single-ray unit);
+* :class:`RecordingTracer` keeps a copy of every query so that the same rays can be traced
+  again alone (how much of a render is tracing).
+"""
+import time
+
+import numpy as np
+
+
+class VerifyingTracer:
+    """Answers with ``inner`` and checks each answer against an Embree scene built from
+    ``vertices``/``faces`` (indexed form of ``triangles``). ``counts`` holds, per query kind
+    ("closest", "shadow"), the rays checked and how many agree, tie or mismatch."""
+
+    def __init__(self, inner, triangles, vertices, faces):
+        from .embree_ref import embree_scene
+
+        self.inner = inner
+        self.triangles = np.asarray(triangles, np.float32)
+        self.reference = embree_scene(vertices, faces)
+        zero = {"rays": 0, "agree": 0, "tie": 0, "mismatch": 0}
+        self.counts = {"closest": dict(zero), "shadow": dict(zero)}
+
+    def _add(self, kind, counts):
+        for k in self.counts[kind]:
+            self.counts[kind][k] += counts[k]
+
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
+        from .embree_ref import embree_intersect
+        from .verify import classify
+
+        h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals)
+        o, d, lo, hi = _shifted(origins, dirs, tmin, tmax)
+        te, pe, *_ = embree_intersect(self.reference, o, d, None if np.isinf(hi).all() else hi)
+        counts, _ = classify(self.triangles, origins, dirs, tmin, tmax, h.prim.astype(np.int64),
+                             h.t, pe, np.where(pe >= 0, te + lo, np.inf))
+        self._add("closest", counts)
+        return h
+
+    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
+        from .embree_ref import embree_occluded
+        from .verify import classify_occluded
+
+        blocked = self.inner.occluded(origins, dirs, tmin, tmax)
+        o, d, lo, hi = _shifted(origins, dirs, tmin, tmax)
+        ref = embree_occluded(self.reference, o, d, np.minimum(hi, 3e38))
+        counts, _ = classify_occluded(self.triangles, origins, dirs, tmin, tmax, blocked, ref)
+        self._add("shadow", counts)
+        return blocked
+
+    def summary(self):
+        """Both kinds and their sum: {"rays", "agree", "tie", "mismatch", "closest", "shadow"}."""
+        total = {k: self.counts["closest"][k] + self.counts["shadow"][k] for k in self.counts["closest"]}
+        return dict(total, closest=dict(self.counts["closest"]), shadow=dict(self.counts["shadow"]))
+
+
+def _shifted(origins, dirs, tmin, tmax):
+    """Embree's tnear is fixed at 0 in embreex: rays with a t_min start at o + tmin d instead,
+    and their t_max shrinks by t_min (distances come back relative to the shifted origin)."""
+    o = np.asarray(origins, np.float64)
+    d = np.asarray(dirs, np.float64)
+    n = len(o)
+    lo = np.broadcast_to(np.asarray(tmin, np.float64), (n,))
+    hi = np.broadcast_to(np.asarray(tmax, np.float64), (n,))
+    if lo.any():
+        o = o + d * lo[:, None]
+    return o, d, lo, hi - lo
+
+
+class CountingTracer:
+    """Counts the traversal work of closest-hit queries: nodes visited and triangles tested per
+    ray, as the single-ray unit does them. Only our traversal has counters."""
+
+    def __init__(self, inner):
+        if not getattr(inner, "has_counters", False):
+            raise ValueError("work counters need the hwbvh traversal (traversal.Tracer)")
+        self.inner = inner
+        self.nodes = 0
+        self.triangles = 0
+        self.rays = 0
+
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
+        h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals, counters=True)
+        self.nodes += int(h.counters[:, 0].sum())
+        self.triangles += int(h.counters[:, 1].sum())
+        self.rays += len(h.prim)
+        return h
+
+    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
+        return self.inner.occluded(origins, dirs, tmin, tmax)
+
+    def work(self):
+        """{"nodes_per_ray", "tris_per_ray", "rays"} over the closest-hit queries so far."""
+        r = max(self.rays, 1)
+        return {"nodes_per_ray": self.nodes / r, "tris_per_ray": self.triangles / r,
+                "rays": self.rays}
+
+
+class RecordingTracer:
+    """Passes queries to ``inner`` and keeps a copy of each, so that :meth:`replay_seconds` can
+    time tracing exactly the same rays again, alone (no shading, no ray generation)."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.queries = []
+
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
+        self.queries.append(("intersect", np.array(origins), np.array(dirs), np.array(tmin),
+                             np.array(tmax), normals))
+        return self.inner.intersect(origins, dirs, tmin, tmax, normals=normals)
+
+    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
+        self.queries.append(("occluded", np.array(origins), np.array(dirs), np.array(tmin),
+                             np.array(tmax), False))
+        return self.inner.occluded(origins, dirs, tmin, tmax)
+
+    def rays(self):
+        return sum(len(q[1]) for q in self.queries)
+
+    def replay_seconds(self, tracer=None):
+        """Seconds to trace every recorded query again with ``tracer`` (default: the wrapped
+        one), in the recorded order."""
+        tracer = tracer or self.inner
+        t = time.perf_counter()
+        for kind, o, d, lo, hi, normals in self.queries:
+            if kind == "intersect":
+                tracer.intersect(o, d, lo, hi, normals=normals)
+            else:
+                tracer.occluded(o, d, lo, hi)
+        return time.perf_counter() - t
