@@ -9,8 +9,8 @@ Two robustness rules, both conservative (they can only add a box visit, never lo
 
 * an origin exactly on a slab plane with ``d = 0`` gives ``0 * inf = NaN``; the max/min are
   written so that a NaN operand is ignored, i.e. the ray counts as inside that (closed) slab;
-* the far distance is widened by ``1 + 2*gamma(3)`` (pbrt-v4's slab test), so float rounding
-  cannot turn a grazing hit on a flat box into a miss.
+* the far distance is widened by ``1 + 2*gamma(3)`` (pbrt-v4's slab test; ``traversal.config``),
+  so float rounding cannot turn a grazing hit on a flat box into a miss.
 
 Kernels use IEEE division (error_model="numpy": 1/0 = inf, never an exception).
 Functions are written without fixed float types: float32 inputs give the hardware's float32
@@ -19,15 +19,15 @@ unit, float64 inputs the float64 variant of the accuracy study.
 import numpy as np
 from numba import njit, prange
 
-GAMMA3_F32 = 3 * 2.0**-24 / (1 - 3 * 2.0**-24)
-GAMMA3_F64 = 3 * 2.0**-53 / (1 - 3 * 2.0**-53)
+from hwbvh.format import BOX_MAX
+from .config import GAMMA3_F32, GAMMA3_F64  # noqa: F401  (re-exported for the tracer's widening)
 
 
 @njit(cache=True, error_model="numpy")
 def near_far_planes(ix, iy, iz):
     """The comparator on the sign of 1/d, done once per ray: for each axis, the offset (0 for
-    min, 3 for max) of the near plane; the far plane is the other one."""
-    return (3 if ix < 0 else 0), (3 if iy < 0 else 0), (3 if iz < 0 else 0)
+    min, BOX_MAX for max) of the near plane; the far plane is the other one."""
+    return (BOX_MAX if ix < 0 else 0), (BOX_MAX if iy < 0 else 0), (BOX_MAX if iz < 0 else 0)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -39,11 +39,11 @@ def aabb_hit_at(f, b, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, tmax, widen):
     distance (origin on a slab plane with d = 0: 0 * inf) compares false in the selects below
     and is ignored, so the ray counts as inside that closed slab."""
     nx = (f[b + kx] - ox) * ix
-    fx = (f[b + 3 - kx] - ox) * ix
+    fx = (f[b + BOX_MAX - kx] - ox) * ix
     ny = (f[b + 1 + ky] - oy) * iy
-    fy = (f[b + 4 - ky] - oy) * iy
+    fy = (f[b + 1 + BOX_MAX - ky] - oy) * iy
     nz = (f[b + 2 + kz] - oz) * iz
-    fz = (f[b + 5 - kz] - oz) * iz
+    fz = (f[b + 2 + BOX_MAX - kz] - oz) * iz
     tnear = nx if nx > tmin else tmin
     tnear = ny if ny > tnear else tnear
     tnear = nz if nz > tnear else tnear

@@ -18,9 +18,11 @@ import math
 import numpy as np
 from numba import njit
 
-from .rawtree import W, TW, read_index
-
-P = 16                # rays per packet
+from hwbvh.config import LEAF_FLAG
+from hwbvh.format import BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, WORDS_PER_NODE
+from .config import PACKET_RAYS as P
+from .rawtree import read_index
+from .triangle_unit import TRI_E1, TRI_E2, TRI_NORMS, TRI_V0, TRI_WORDS
 
 
 # Lane state lives in flat scratch arrays, one row of P per quantity at a constant offset, so
@@ -67,9 +69,10 @@ def _slab(F, k, nx_, ny_, nz_, fx_, fy_, fz_, widen):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _planes(f, b, kx, ky, kz):
-    """Near and far planes of box f[b:b + 6] for near-plane offsets (kx, ky, kz) (0 or 3)."""
+    """Near and far planes of box f[b:b + 6] (min xyz, max xyz) for near-plane offsets
+    (kx, ky, kz) (0 or BOX_MAX)."""
     return (f[b + kx], f[b + 1 + ky], f[b + 2 + kz],
-            f[b + 3 - kx], f[b + 4 - ky], f[b + 5 - kz])
+            f[b + BOX_MAX - kx], f[b + 1 + BOX_MAX - ky], f[b + 2 + BOX_MAX - kz])
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -134,11 +137,11 @@ def _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, lo, hi, one):
 def _triangle(tris, j, F, I, M, bit, eps2, one, edge, anyhit):
     """Triangle j against the live lanes with bit ``bit`` set in M[MASK]. Updates their closest
     hits; for any-hit queries a lane that hits retires (M[ALIVE] = 0)."""
-    b = TW * j
-    v0x = tris[b]; v0y = tris[b + 1]; v0z = tris[b + 2]
-    e1x = tris[b + 3]; e1y = tris[b + 4]; e1z = tris[b + 5]
-    e2x = tris[b + 6]; e2y = tris[b + 7]; e2z = tris[b + 8]
-    band = eps2 * tris[b + 9]
+    b = TRI_WORDS * j
+    v0x = tris[b + TRI_V0]; v0y = tris[b + TRI_V0 + 1]; v0z = tris[b + TRI_V0 + 2]
+    e1x = tris[b + TRI_E1]; e1y = tris[b + TRI_E1 + 1]; e1z = tris[b + TRI_E1 + 2]
+    e2x = tris[b + TRI_E2]; e2y = tris[b + TRI_E2 + 1]; e2z = tris[b + TRI_E2 + 2]
+    band = eps2 * tris[b + TRI_NORMS]
     lo = -edge
     hi = one + edge
     jj = np.int32(j)
@@ -179,10 +182,11 @@ def coherent(D, lo, hi):
 def _left_first(f, bl, br, negx, negy, negz):
     """Front-to-back order for a packet whose rays share an octant: along the axis on which the
     two child boxes' centres lie farthest apart, the child whose centre comes first in the
-    packet's direction along that axis."""
-    cx = (f[br] + f[br + 3]) - (f[bl] + f[bl + 3])      # twice the centre offset, right - left
-    cy = (f[br + 1] + f[br + 4]) - (f[bl + 1] + f[bl + 4])
-    cz = (f[br + 2] + f[br + 5]) - (f[bl + 2] + f[bl + 5])
+    packet's direction along that axis. ``bl``/``br``: the boxes' first words in ``f``."""
+    m = BOX_MAX
+    cx = (f[br] + f[br + m]) - (f[bl] + f[bl + m])      # twice the centre offset, right - left
+    cy = (f[br + 1] + f[br + 1 + m]) - (f[bl + 1] + f[bl + 1 + m])
+    cz = (f[br + 2] + f[br + 2 + m]) - (f[bl + 2] + f[bl + 2 + m])
     ax = abs(cx)
     ay = abs(cy)
     az = abs(cz)
@@ -254,22 +258,23 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
     negx = math.copysign(1.0, D[3 * lo]) < 0
     negy = math.copysign(1.0, D[3 * lo + 1]) < 0
     negz = math.copysign(1.0, D[3 * lo + 2]) < 0
-    kx = 3 if negx else 0
-    ky = 3 if negy else 0
-    kz = 3 if negz else 0
+    kx = BOX_MAX if negx else 0
+    ky = BOX_MAX if negy else 0
+    kz = BOX_MAX if negz else 0
     over = 0
-    if nlive > 0 and _box(f, 0, kx, ky, kz, F, M, M64, widen) != 0:
+    if nlive > 0 and _box(f, WORD_BOX, kx, ky, kz, F, M, M64, widen) != 0:
         node = 0
         bit = 0           # which bit of M[MASK] holds the current node's lanes; -1: not known
         sp = 0
         while True:
-            if u[W * node + 8] & 1:
+            base = WORDS_PER_NODE * node
+            if u[base + WORD_FLAGS] & LEAF_FLAG:
                 # leaf: the lanes whose ray reaches its box test its primitives
                 if bit < 0:
-                    bit = 0 if _box(f, W * node, kx, ky, kz, F, M, M64, widen) != 0 else -1
+                    bit = 0 if _box(f, base + WORD_BOX, kx, ky, kz, F, M, M64, widen) != 0 else -1
                 if bit >= 0:
-                    first = np.int64(u[W * node + 6])
-                    for p in range(first, first + np.int64(u[W * node + 7])):
+                    first = np.int64(u[base + WORD_A])
+                    for p in range(first, first + np.int64(u[base + WORD_B])):
                         _triangle(tris, read_index(ib, p), F, I, M, bit, eps2, one, edge, anyhit)
                     if anyhit:
                         w = M64[0]
@@ -279,16 +284,18 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
                             break
                 node = -1
             else:
-                l = np.int64(u[W * node + 6])
-                r = np.int64(u[W * node + 7])
-                bits = _children(f, W * l, W * r, kx, ky, kz, F, M, M64, widen)
+                l = np.int64(u[base + WORD_A])
+                r = np.int64(u[base + WORD_B])
+                bl = WORDS_PER_NODE * l + WORD_BOX
+                br = WORDS_PER_NODE * r + WORD_BOX
+                bits = _children(f, bl, br, kx, ky, kz, F, M, M64, widen)
                 hl = (bits & LANES_L) != 0
                 hr = (bits & LANES_R) != 0
                 if hl and hr:
                     if sp >= stack.shape[0]:
                         over = 1
                         break
-                    if _left_first(f, W * l, W * r, negx, negy, negz):
+                    if _left_first(f, bl, br, negx, negy, negz):
                         stack[sp] = r
                         node = l
                         bit = 0

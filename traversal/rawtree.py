@@ -1,5 +1,5 @@
-"""What every traversal kernel reads: the raw node words, the packed 24-bit index list, and
-the ray validity rule.
+"""What every traversal kernel reads besides the node words (whose offsets ``hwbvh.format``
+exports): the packed 24-bit index list and the ray validity rule.
 
 Kernels that are called once per ray group and allocate nothing are compiled with
 ``_nrt=False`` (Numba's option to leave out its reference counting): otherwise every call
@@ -9,14 +9,13 @@ Measured on dragon_res2 shadow packets: 424 -> 164 ns of fixed cost per 16-ray p
 import numpy as np
 from numba import njit
 
-W = 12                # 32-bit words per 48-byte node; u[W*i + 6] = a, u[W*i + 7] = b, u[W*i + 8] = flags
-TW = 10               # words per preprocessed triangle row (triangle_unit.preprocess)
+from hwbvh.config import INDEX_BYTES
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def read_index(ib, p):
     """Entry p of the 24-bit little-endian index list (raw bytes)."""
-    q = 3 * p
+    q = INDEX_BYTES * p
     return np.int64(ib[q]) | (np.int64(ib[q + 1]) << 8) | (np.int64(ib[q + 2]) << 16)
 
 

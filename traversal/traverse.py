@@ -14,23 +14,24 @@ answer does not depend on the visiting order.
 import numpy as np
 from numba import njit, prange
 
+from hwbvh.config import LEAF_FLAG
+from hwbvh.format import WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, WORDS_PER_NODE
 from .aabb_unit import aabb_hit_at, near_far_planes
+from .config import CHUNK_RAYS
 from .packet import NF, NI, NM, P, coherent, trace_packet
-from .rawtree import W, TW, read_index, _ray_ok
-from .triangle_unit import mt_valid_at, wt_hit_ray
-
-CHUNK = 64            # rays per parallel work item (one stack allocation each)
+from .rawtree import read_index, _ray_ok
+from .triangle_unit import TRI_E1, TRI_E2, TRI_WORDS, mt_valid_at, wt_hit_ray
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one,
               widen, edge, stack, stack_t, anyhit):
     """One ray. ``u``/``f`` are the node buffer seen as flat uint32/float32 words (the raw bytes,
-    12 words per node), ``tris`` the flattened preprocessed triangles. Returns (prim, t, bu, bv,
-    nodes_visited, tris_tested, overflow). ``raw`` = None selects the Moller-Trumbore unit; an
-    (n, 9) vertex array selects the Woop et al. watertight test on it (accuracy study). The
-    choice is made at compile time (Numba prunes the ``raw is None`` branch), so the hardware
-    path carries no code of the other test."""
+    WORDS_PER_NODE words per node), ``tris`` the flattened preprocessed triangles. Returns
+    (prim, t, bu, bv, nodes_visited, tris_tested, overflow). ``raw`` = None selects the
+    Moller-Trumbore unit; an (n, 9) vertex array selects the Woop et al. watertight test on it
+    (accuracy study). The choice is made at compile time (Numba prunes the ``raw is None``
+    branch), so the hardware path carries no code of the other test."""
     best_t = tmax
     prim = -1
     bu = one - one                  # a zero of the working float type
@@ -44,24 +45,25 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
     iz = one / dz
     kx, ky, kz = near_far_planes(ix, iy, iz)
     dd = dx * dx + dy * dy + dz * dz
-    hit, tn = aabb_hit_at(f, 0, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
+    hit, tn = aabb_hit_at(f, WORD_BOX, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
     if not hit:
         return prim, best_t, bu, bv, nodes, tested, False
     node = 0
     sp = 0
     while True:
         nodes += 1
-        if u[W * node + 8] & 1:
+        base = WORDS_PER_NODE * node
+        if u[base + WORD_FLAGS] & LEAF_FLAG:
             # -- leaf: primitives through the triangle unit --
-            first = np.int64(u[W * node + 6])
-            for p in range(first, first + np.int64(u[W * node + 7])):
+            first = np.int64(u[base + WORD_A])
+            for p in range(first, first + np.int64(u[base + WORD_B])):
                 j = read_index(ib, p)
                 tested += 1
                 if raw is not None:
                     ok, t, tu, tv = wt_hit_ray(raw, j, ox, oy, oz, dx, dy, dz, one, tmin, best_t)
                 else:
-                    ok, t, tu, tv = mt_valid_at(tris, TW * j, ox, oy, oz, dx, dy, dz, dd, tmin, best_t,
-                                                eps2, one, edge)
+                    ok, t, tu, tv = mt_valid_at(tris, TRI_WORDS * j, ox, oy, oz, dx, dy, dz, dd, tmin,
+                                                best_t, eps2, one, edge)
                 # accept a nearer hit, or an exact-t tie with a lower primitive index; as
                 # selects, not branches (the outcome is unpredictable for random rays)
                 acc = ok & ((t < best_t) | (prim < 0) | (j < prim))
@@ -74,10 +76,12 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
             node = -1
         else:
             # -- internal: both children through the AABB unit --
-            l = np.int64(u[W * node + 6])
-            r = np.int64(u[W * node + 7])
-            hl, tl = aabb_hit_at(f, W * l, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
-            hr, tr = aabb_hit_at(f, W * r, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, best_t, widen)
+            l = np.int64(u[base + WORD_A])
+            r = np.int64(u[base + WORD_B])
+            hl, tl = aabb_hit_at(f, WORDS_PER_NODE * l + WORD_BOX, ox, oy, oz, ix, iy, iz, kx, ky, kz,
+                                 tmin, best_t, widen)
+            hr, tr = aabb_hit_at(f, WORDS_PER_NODE * r + WORD_BOX, ox, oy, oz, ix, iy, iz, kx, ky, kz,
+                                 tmin, best_t, widen)
             if hl and hr:
                 if tr < tl:
                     l, r = r, l
@@ -150,10 +154,12 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
             gz = gx
             prim = out_prim[i]
             if prim >= 0:
-                b = TW * np.int64(prim)
-                gx = tris[b + 4] * tris[b + 8] - tris[b + 5] * tris[b + 7]
-                gy = tris[b + 5] * tris[b + 6] - tris[b + 3] * tris[b + 8]
-                gz = tris[b + 3] * tris[b + 7] - tris[b + 4] * tris[b + 6]
+                b = TRI_WORDS * np.int64(prim)
+                e1 = b + TRI_E1
+                e2 = b + TRI_E2
+                gx = tris[e1 + 1] * tris[e2 + 2] - tris[e1 + 2] * tris[e2 + 1]
+                gy = tris[e1 + 2] * tris[e2] - tris[e1] * tris[e2 + 2]
+                gz = tris[e1] * tris[e2 + 1] - tris[e1 + 1] * tris[e2]
             out_ng[i, 0] = gx
             out_ng[i, 1] = gy
             out_ng[i, 2] = gz
@@ -169,7 +175,7 @@ def trace_batch(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
     (``numba.get_num_threads()``, passed in because calling it here would stop the caching).
     Returns (rays whose stack would have overflowed (0 on a valid tree), packets traced)."""
     n = O.shape[0]
-    nchunks = (n + CHUNK - 1) // CHUNK
+    nchunks = (n + CHUNK_RAYS - 1) // CHUNK_RAYS
     # One work item per thread, taking every T-th chunk: the static schedule of prange would
     # give each thread a contiguous half of the batch, and a wavefront of secondary rays is
     # ordered by kind (mirror, reflection, refraction), so one half can cost far more.
@@ -187,7 +193,7 @@ def trace_batch(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
         npk = 0
         for c in range(w, nchunks, T):
             o_, p_ = _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
-                                 c * CHUNK, min(n, (c + 1) * CHUNK), anyhit, packets, stack,
+                                 c * CHUNK_RAYS, min(n, (c + 1) * CHUNK_RAYS), anyhit, packets, stack,
                                  stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v, out_ng, counters)
             over += o_
             npk += p_

@@ -8,26 +8,32 @@ The parallel band is *relative*: ``det^2 <= band2`` with ``band2 = (k*eps)^2 |e1
 rejects rays within about ``k*eps`` radians of the triangle's plane whatever the triangle's size;
 an absolute epsilon would drop every hit on a 1e-4-sized triangle (det ~ 1e-8).
 
-Triangles are preprocessed once into ``(n, 10)`` rows ``v0, e1, e2, |e1|^2 |e2|^2`` (the
+Triangles are preprocessed once into ``(n, TRI_WORDS)`` rows ``v0, e1, e2, |e1|^2 |e2|^2`` (the
 vertex/edge form the unit's subtractors produce), in the working precision.
 """
 import numpy as np
 from numba import njit, prange
 
-# rays closer than ~2.4e-7 rad (float32) / ~4.4e-16 rad (float64) to the plane are "parallel"
-BAND_K = 4.0
+from .config import BAND_K
+
+# A preprocessed triangle row: offsets of its words (x, y, z each) in the working float type.
+TRI_V0 = 0            # vertex 0
+TRI_E1 = 3            # e1 = v1 - v0
+TRI_E2 = 6            # e2 = v2 - v0
+TRI_NORMS = 9         # |e1|^2 |e2|^2, the scale of the parallel band
+TRI_WORDS = 10
 
 
 def preprocess(tris, dtype=np.float32):
-    """(n, 3, 3) triangles -> (n, 10) rows v0, e1, e2, |e1|^2*|e2|^2 in ``dtype``."""
+    """(n, 3, 3) triangles -> (n, TRI_WORDS) rows v0, e1, e2, |e1|^2*|e2|^2 in ``dtype``."""
     t = np.asarray(tris, dtype=dtype)
-    out = np.empty((len(t), 10), dtype=dtype)
-    out[:, 0:3] = t[:, 0]
-    out[:, 3:6] = t[:, 1] - t[:, 0]
-    out[:, 6:9] = t[:, 2] - t[:, 0]
-    e1 = out[:, 3:6].astype(np.float64)
-    e2 = out[:, 6:9].astype(np.float64)
-    out[:, 9] = ((e1 * e1).sum(1) * (e2 * e2).sum(1)).astype(dtype)
+    out = np.empty((len(t), TRI_WORDS), dtype=dtype)
+    out[:, TRI_V0:TRI_V0 + 3] = t[:, 0]
+    out[:, TRI_E1:TRI_E1 + 3] = t[:, 1] - t[:, 0]
+    out[:, TRI_E2:TRI_E2 + 3] = t[:, 2] - t[:, 0]
+    e1 = out[:, TRI_E1:TRI_E1 + 3].astype(np.float64)
+    e2 = out[:, TRI_E2:TRI_E2 + 3].astype(np.float64)
+    out[:, TRI_NORMS] = ((e1 * e1).sum(1) * (e2 * e2).sum(1)).astype(dtype)
     return out
 
 
@@ -38,21 +44,21 @@ def band_eps2(dtype):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def mt_hit_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge):
-    """Triangle row ``tris[b:b + 10]`` of the flattened preprocessed array (``b = 10 * j``).
-    Returns (valid, t, u, v). ``dd`` = |d|^2, ``eps2`` = (k*eps)^2 and ``one`` = 1 in the
-    working float type (so that the divider stays in that precision); ``edge`` >= 0 widens the
-    barycentric checks (see ``EDGE_EPS``)."""
-    e1x = tris[b + 3]; e1y = tris[b + 4]; e1z = tris[b + 5]
-    e2x = tris[b + 6]; e2y = tris[b + 7]; e2z = tris[b + 8]
+    """Triangle row ``tris[b:b + TRI_WORDS]`` of the flattened preprocessed array
+    (``b = TRI_WORDS * j``). Returns (valid, t, u, v). ``dd`` = |d|^2, ``eps2`` = (k*eps)^2 and
+    ``one`` = 1 in the working float type (so that the divider stays in that precision);
+    ``edge`` >= 0 widens the barycentric checks (``traversal.config.EDGE_EPS_F32``)."""
+    e1x = tris[b + TRI_E1]; e1y = tris[b + TRI_E1 + 1]; e1z = tris[b + TRI_E1 + 2]
+    e2x = tris[b + TRI_E2]; e2y = tris[b + TRI_E2 + 1]; e2z = tris[b + TRI_E2 + 2]
     # p = d x e2 ; det = e1 . p
     px = dy * e2z - dz * e2y
     py = dz * e2x - dx * e2z
     pz = dx * e2y - dy * e2x
     det = e1x * px + e1y * py + e1z * pz
-    if det * det <= eps2 * tris[b + 9] * dd:          # parallel band (relative), also det == 0
+    if det * det <= eps2 * tris[b + TRI_NORMS] * dd:  # parallel band (relative), also det == 0
         return False, tmax, tmax, tmax
     inv = one / det                              # the divider (Fig. A.4)
-    sx = ox - tris[b + 0]; sy = oy - tris[b + 1]; sz = oz - tris[b + 2]
+    sx = ox - tris[b + TRI_V0]; sy = oy - tris[b + TRI_V0 + 1]; sz = oz - tris[b + TRI_V0 + 2]
     u = (sx * px + sy * py + sz * pz) * inv
     if not (u >= -edge and u <= one + edge):
         return False, tmax, tmax, tmax
@@ -76,22 +82,22 @@ def mt_valid_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge
     meaningful otherwise). Traversal uses this form: a random ray makes each early exit an
     unpredictable branch, and one branch costs more than the rest of the test (measured on
     incoherent rays: 3-12% of the whole trace)."""
-    e1x = tris[b + 3]; e1y = tris[b + 4]; e1z = tris[b + 5]
-    e2x = tris[b + 6]; e2y = tris[b + 7]; e2z = tris[b + 8]
+    e1x = tris[b + TRI_E1]; e1y = tris[b + TRI_E1 + 1]; e1z = tris[b + TRI_E1 + 2]
+    e2x = tris[b + TRI_E2]; e2y = tris[b + TRI_E2 + 1]; e2z = tris[b + TRI_E2 + 2]
     px = dy * e2z - dz * e2y
     py = dz * e2x - dx * e2z
     pz = dx * e2y - dy * e2x
     det = e1x * px + e1y * py + e1z * pz
     inv = one / det
-    sx = ox - tris[b + 0]; sy = oy - tris[b + 1]; sz = oz - tris[b + 2]
+    sx = ox - tris[b + TRI_V0]; sy = oy - tris[b + TRI_V0 + 1]; sz = oz - tris[b + TRI_V0 + 2]
     u = (sx * px + sy * py + sz * pz) * inv
     qx = sy * e1z - sz * e1y
     qy = sz * e1x - sx * e1z
     qz = sx * e1y - sy * e1x
     v = (dx * qx + dy * qy + dz * qz) * inv
     t = (e2x * qx + e2y * qy + e2z * qz) * inv
-    valid = (not (det * det <= eps2 * tris[b + 9] * dd)) & (u >= -edge) & (u <= one + edge) \
-        & (v >= -edge) & (u + v <= one + edge) & (t >= tmin) & (t <= tmax)
+    valid = (not (det * det <= eps2 * tris[b + TRI_NORMS] * dd)) & (u >= -edge) \
+        & (u <= one + edge) & (v >= -edge) & (u + v <= one + edge) & (t >= tmin) & (t <= tmax)
     return valid, t, u, v
 
 
@@ -106,7 +112,7 @@ def mt_batch(tris, origins, dirs, tmin, tmax, eps2, one, edge):
     flat = tris.ravel()
     for i in prange(n):
         dx = dirs[i, 0]; dy = dirs[i, 1]; dz = dirs[i, 2]
-        h, ti, ui, vi = mt_hit_at(flat, 10 * i, origins[i, 0], origins[i, 1], origins[i, 2], dx, dy, dz,
+        h, ti, ui, vi = mt_hit_at(flat, TRI_WORDS * i, origins[i, 0], origins[i, 1], origins[i, 2], dx, dy, dz,
                                dx * dx + dy * dy + dz * dz, tmin[i], tmax[i], eps2, one, edge)
         hit[i] = h
         t[i] = ti
