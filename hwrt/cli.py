@@ -223,6 +223,11 @@ def cmd_render(args):
                                           "render_seconds", "time_to_image_seconds", "rays", "verify"]))
 
 
+def cmd_animate(args):
+    from . import animate
+    _emit(args, animate.cmd_animate(args), animate.human)
+
+
 def cmd_bench(args):
     from . import bench
     from . import study
@@ -230,6 +235,9 @@ def cmd_bench(args):
           "trace": bench.bench_trace, "render": bench.bench_render,
           "tti": study.bench_tti, "accuracy": study.bench_accuracy,
           "model": bench.bench_model}.get(args.what)
+    if args.what == "animation":
+        from . import animate
+        return _emit(args, animate.bench_animation(args), animate.human_bench)
     if fn is None:
         raise InputError("bench", f"'{args.what}' is not available yet")
     result = fn(args)
@@ -307,8 +315,31 @@ def make_parser():
     v.add_argument("--json", action="store_true")
     v.set_defaults(func=cmd_verify)
 
+    an = sub.add_parser("animate", help="render an animation, a tree per frame, one EXR per frame")
+    an.add_argument("scene", help="built-in animation (exploding, cloth, marbles, flythrough), "
+                                  "scene file, or frame pattern of mesh files ('f_%%04d.ply' or a glob)")
+    an.add_argument("--frames", type=_positive, help="frames to render (default: the animation's)")
+    an.add_argument("--fps", type=float, help="frames per second of animation time (default 30)")
+    an.add_argument("--strategy", default="rebuild",
+                    help="tree update per frame: rebuild, refit, adaptive or embree")
+    an.add_argument("--threshold", type=float,
+                    help="adaptive: rebuild when the SAH cost grows past this factor of the last rebuild's")
+    an.add_argument("--width", type=_positive)
+    an.add_argument("--height", type=_positive)
+    an.add_argument("--spp", type=_positive)
+    an.add_argument("--max-depth", type=_positive)
+    an.add_argument("--mesh", help="exploding: the mesh that breaks (default: bunny, else generated)")
+    an.add_argument("--triangles", type=_positive, help="generated animations: about this many triangles")
+    an.add_argument("--physics", help="marbles: pybullet, analytic or auto (default)")
+    an.add_argument("--verify", action="store_true", help="check every camera ray against Embree")
+    an.add_argument("--seed", type=int, default=0)
+    an.add_argument("-o", "--output", metavar="DIR", help="default renders/animate-<scene>-<strategy>")
+    an.add_argument("--json", action="store_true")
+    an.set_defaults(func=cmd_animate)
+
     be = sub.add_parser("bench", help="benchmarks against peers measured in the same run")
-    be.add_argument("what", choices=["build", "scale", "trace", "render", "tti", "accuracy", "model"])
+    be.add_argument("what", choices=["build", "scale", "trace", "render", "tti", "accuracy", "model",
+                                     "animation"])
     be.add_argument("meshes", nargs="*", help="mesh files (default: every mesh in --mesh-dir)")
     be.add_argument("--mesh-dir", help="default: $HWRT_MESHES or ../shared/meshes, else generated")
     be.add_argument("--repeat", type=_positive, default=5)
@@ -320,6 +351,7 @@ def make_parser():
     be.add_argument("--height", type=_positive, default=240)
     be.add_argument("--spp", type=_positive, default=1)
     be.add_argument("--max-depth", type=_positive, default=5)
+    be.add_argument("--frames", type=_positive, help="animation: frames per animation (default 60)")
     be.add_argument("--json", action="store_true")
     be.set_defaults(func=cmd_bench)
     return p

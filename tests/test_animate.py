@@ -74,3 +74,83 @@ def test_refit_cost_is_one_streaming_pass_through_the_ram_pairs():
     assert c["seconds"] == pytest.approx(c["cycles"] / 250e6)
     hp = refit_cost(8000, 4001, 20, PRESETS["HWBVH-HP"])
     assert hp["cycles"] == -(-(8000 + 1000 + 4001) // 2) + 20
+
+
+# --------------------------------------------------------------------------------------
+# built-in animations: a valid tree every frame under every strategy
+# --------------------------------------------------------------------------------------
+from hwrt.animate import STRATEGIES, TreeUpdater, run  # noqa: E402
+from scenes.animation import load_animation  # noqa: E402
+
+TINY = {"width": 16, "height": 12, "spp": 1}
+BUILTINS = {"exploding": {"triangles": 600}, "cloth": {"triangles": 800},
+            "marbles": {"physics": "analytic"}, "flythrough": {}}
+
+
+def _checker(seen):
+    def inspect(i, scene, bvh):
+        if bvh is not None:
+            _containment(bvh, scene.triangles)
+            seen.append((i, bvh.meta["sah_cost"]))
+    return inspect
+
+
+@pytest.mark.parametrize("name", list(BUILTINS))
+def test_refit_keeps_containment_on_every_frame_of_every_builtin(name):
+    anim = load_animation(name, **TINY, **BUILTINS[name])
+    seen = []
+    res = run(anim, "refit", anim.frames, inspect=_checker(seen))
+    assert [i for i, _ in seen] == list(range(anim.frames)) == [f["frame"] for f in res["frames"]]
+    assert res["rebuilds"] == 1 and res["frames"][0]["rebuild_reason"] == "first frame"
+
+
+@pytest.mark.parametrize("name", list(BUILTINS))
+@pytest.mark.parametrize("strategy", ["rebuild", "adaptive", "embree"])
+def test_strategies_produce_valid_trees(name, strategy):
+    anim = load_animation(name, **TINY, **BUILTINS[name])
+    seen = []
+    res = run(anim, strategy, 24, inspect=_checker(seen))
+    assert len(res["frames"]) == 24
+    if strategy == "embree":
+        assert seen == [] and all(f["simulated_build_seconds"] is None for f in res["frames"])
+    else:
+        assert len(seen) == 24
+    for f in res["frames"]:
+        assert f["time_to_image_seconds"] == pytest.approx(f["build_seconds"] + f["render_seconds"])
+        assert f["rays"]["primary"] == 16 * 12
+        if strategy == "rebuild":
+            assert set(f["simulated_build_seconds"]) == {"HWBVH-C", "HWBVH-HP"}
+            assert f["simulated_energy_joules"]["HWBVH-C"] > 0
+
+
+def test_exploding_refit_degrades_and_adaptive_rebuilds():
+    anim = load_animation("exploding", **TINY, triangles=2000)
+    reb = run(anim, "rebuild", 40)["frames"]
+    ref = run(anim, "refit", 40)["frames"]
+    drift = ref[-1]["sah_cost"] / reb[-1]["sah_cost"]
+    assert ref[0]["sah_cost"] == reb[0]["sah_cost"] and drift > 1.5
+    ada = run(anim, "adaptive", 40, threshold=1.5)
+    later = ada["adaptive_rebuild_frames"]
+    assert later and later[0] > 7                       # still until the explosion (0.25 s)
+    for f in ada["frames"]:
+        assert f["sah_growth"] <= 1.5 or f["rebuilt"]
+
+
+def test_marbles_with_bullet_when_it_is_installed():
+    pytest.importorskip("pybullet")
+    anim = load_animation("marbles", **TINY, count=6, subdiv=(4, 8), physics="pybullet")
+    assert anim.info["physics"] == "pybullet"
+    seen = []
+    run(anim, "refit", 20, inspect=_checker(seen))
+    a, b = anim.scene(0).triangles, anim.scene(19).triangles
+    assert len(seen) == 20 and not np.array_equal(a, b)
+
+
+def test_a_change_in_triangle_count_forces_a_rebuild():
+    from scenes.animation import Animation, Part
+    base = load_animation("flythrough", **TINY).base
+    grow = lambda i, t: (sphere(4 + (i >= 2), 8), np.zeros((len(sphere(4 + (i >= 2), 8)), 3, 3)))
+    anim = Animation("grow", base, [Part(sphere(4, 8), np.zeros((48, 3, 3)), 0, grow)], frames=4)
+    res = run(anim, "refit", 4, inspect=_checker([]))
+    assert [f["rebuilt"] for f in res["frames"]] == [True, False, True, False]
+    assert res["frames"][2]["rebuild_reason"] == "triangle count changed (48 -> 64)"

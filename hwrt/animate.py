@@ -1,0 +1,638 @@
+"""Dynamic scenes, frame by frame: a tree for every frame, then the image (``hwrt animate``,
+``hwrt bench animation``).
+
+Tree update strategies (thesis 2.4, "BVH Updating"):
+
+* ``rebuild``: the hardware's build every frame (the functional builder, timed in software),
+  with the simulated HWBVH-C and HWBVH-HP build time and energy from the cycle model;
+* ``refit``: the first frame's topology kept, boxes refitted bottom-up every frame
+  (:mod:`hwbvh.refit`), with the refit's own streaming-pass hardware time
+  (:func:`hwbvh.refit.refit_cost`; no energy is charged to it);
+* ``adaptive``: refit, and rebuild when the refitted tree's SAH cost has grown past
+  ``threshold`` times the cost right after the last rebuild (after Lauterbach et al.'s
+  degradation heuristic). Its SAH evaluation is part of its build time;
+* ``embree``: Embree builds every frame (embreex) and traverses its own tree, the software peer.
+
+A frame whose triangle count differs from the previous one's forces a rebuild under refit and
+adaptive (a refit keeps the topology); the frame's ``rebuild_reason`` says so.
+
+Per frame: ``time_to_image_seconds`` = ``build_seconds`` (software build or refit) +
+``render_seconds`` (tracer set-up and the Whitted render); ``time_to_image_simulated_seconds``
+puts the simulated hardware time in place of the software build. Producing a frame's geometry
+(physics, mesh files) and writing it are timed apart (``scene_seconds``, ``write_seconds``).
+"""
+import csv
+import io
+import json
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+from hwbvh.errors import InputError, ParameterError
+from hwbvh.files import check_output_dir, json_text, jsonable, write_files
+
+STRATEGIES = ("rebuild", "refit", "adaptive", "embree")
+# The adaptive strategy rebuilds once the refitted tree's SAH cost exceeds this multiple of the
+# cost right after the last rebuild. Rendering time follows the SAH cost roughly linearly and a
+# refit costs ~1/30 of a rebuild, so a tree 1.5x worse already spends more in one frame's
+# traversal than the rebuild it saves on the small scenes the built-ins make.
+ADAPTIVE_THRESHOLD = 1.5
+PRESET_NAMES = ("HWBVH-C", "HWBVH-HP")
+FRAME_NAME = "frame_{:04d}.exr"
+STATE_NAME = "animation.json"
+CSV_NAME = "frames.csv"
+PREVIEW_NAME = "preview.gif"
+BENCH_FRAMES = 60            # bench animation: 2 s at 30 fps covers the explosion and the drape
+BENCH_QUICK_FRAMES = 12
+BENCH_QUICK_TRIANGLES = 4000
+
+
+# --------------------------------------------------------------------------------------
+# Tree update strategies
+# --------------------------------------------------------------------------------------
+class TreeUpdater:
+    """Keeps one strategy's tree across frames. ``update(scene)`` -> (tracer, row dict)."""
+
+    def __init__(self, strategy="rebuild", threshold=ADAPTIVE_THRESHOLD):
+        if strategy not in STRATEGIES:
+            raise ParameterError("strategy", f"unknown strategy {strategy!r} (choose from {', '.join(STRATEGIES)})")
+        if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or \
+                not math.isfinite(threshold) or threshold < 1.0:
+            raise ParameterError("threshold", f"must be a number >= 1 (SAH growth factor), got {threshold!r}")
+        self.strategy = strategy
+        self.threshold = float(threshold)
+        self.refitter = None
+        self.sah_at_rebuild = None
+        self.n_prims = None
+
+    # -- the hardware build ---------------------------------------------------------
+    def _rebuild(self, tris, reason):
+        import hwbvh
+        from hwbvh.cycle_model import PRESETS, simulate
+        from hwbvh.refit import Refitter
+
+        t = time.perf_counter()
+        bvh = hwbvh.build(tris)
+        build_s = time.perf_counter() - t
+        t = time.perf_counter()
+        sims = {name: simulate(bvh.tree, PRESETS[name]) for name in PRESET_NAMES}
+        sim_s = time.perf_counter() - t
+        if self.strategy in ("refit", "adaptive"):
+            self.refitter = Refitter(bvh)
+        self.sah_at_rebuild = bvh.meta["sah_cost"]
+        self.n_prims = len(tris)
+        row = {"rebuilt": True, "rebuild_reason": reason, "build_seconds": build_s,
+               "simulated_build_seconds": {k: s["seconds"] for k, s in sims.items()},
+               "simulated_energy_joules": {k: s["energy_joules"] for k, s in sims.items()},
+               "simulation_seconds": sim_s, "sah_cost": bvh.meta["sah_cost"], "sah_growth": 1.0,
+               "nodes": bvh.meta["nodes"]}
+        return bvh, row
+
+    def _refit(self, tris):
+        from hwbvh.api import Bvh
+        from hwbvh.cycle_model import PRESETS
+        from hwbvh.format import tree_stats
+        from hwbvh.refit import refit_cost
+
+        r = self.refitter
+        t = time.perf_counter()
+        nodes = r.refit_nodes(tris)
+        refit_s = time.perf_counter() - t
+        t = time.perf_counter()
+        sah = tree_stats(nodes)["sah_cost"]
+        sah_s = time.perf_counter() - t
+        costs = {k: refit_cost(r.n_prims, r.node_count, r.max_depth, PRESETS[k]) for k in PRESET_NAMES}
+        bvh = Bvh(nodes=nodes, indices=r.indices.astype(np.uint32), triangles=tris,
+                  meta=dict(r.meta, sah_cost=sah, refitted=True))
+        row = {"rebuilt": False, "rebuild_reason": None,
+               "build_seconds": refit_s + (sah_s if self.strategy == "adaptive" else 0.0),
+               "refit_seconds": refit_s,
+               "simulated_build_seconds": {k: c["seconds"] for k, c in costs.items()},
+               "simulated_energy_joules": None, "simulation_seconds": 0.0,
+               "sah_cost": sah, "sah_growth": sah / self.sah_at_rebuild if self.sah_at_rebuild else None,
+               "nodes": r.node_count}
+        return bvh, row
+
+    def restore(self, tris):
+        """Resume: the tree a rebuild at these triangles made (refit and adaptive continue
+        from it; a refit depends only on the topology and the current positions)."""
+        if self.strategy in ("refit", "adaptive"):
+            self._rebuild(tris, "resume")
+
+    def update(self, scene):
+        """A tracer for ``scene`` (a CompiledScene) and the frame's tree figures."""
+        from traversal import Tracer
+
+        tris = scene.triangles
+        if self.strategy == "embree":
+            from raytracer.render import make_tracer
+            tracer, build_s, _ = make_tracer(scene, builder="embree", traversal="embree")
+            return tracer, {"rebuilt": True, "rebuild_reason": "Embree builds every frame",
+                            "build_seconds": build_s, "simulated_build_seconds": None,
+                            "simulated_energy_joules": None, "simulation_seconds": 0.0,
+                            "sah_cost": None, "sah_growth": None, "nodes": None}
+        if self.strategy == "rebuild":
+            bvh, row = self._rebuild(tris, "rebuild every frame")
+        elif self.refitter is None:
+            bvh, row = self._rebuild(tris, "first frame")
+        elif len(tris) != self.n_prims:
+            bvh, row = self._rebuild(tris, f"triangle count changed ({self.n_prims} -> {len(tris)})")
+        else:
+            bvh, row = self._refit(tris)
+            if self.strategy == "adaptive" and row["sah_growth"] > self.threshold:
+                spent = row["build_seconds"]
+                growth = row["sah_growth"]
+                bvh, row = self._rebuild(tris, f"SAH grew {growth:.2f}x > {self.threshold:g}x")
+                row["build_seconds"] += spent          # the refit that decided it was paid for
+                row["refit_sah_growth"] = growth
+        t = time.perf_counter()
+        tracer = Tracer(bvh)
+        row["tracer_seconds"] = time.perf_counter() - t
+        row["bvh"] = bvh
+        return tracer, row
+
+
+def warm_up(strategy):
+    """Load the kernels a strategy uses (build, refit, traversal) on a tiny input, so that the
+    first frame's timings measure work, not JIT loading."""
+    from raytracer.render import warm_up as render_warm_up
+    t = time.perf_counter()
+    if strategy == "embree":
+        render_warm_up("embree", "embree")
+    else:
+        render_warm_up("hwbvh", "numba", parallel_build=True)
+        import hwbvh
+        from hwbvh.refit import Refitter
+        from scenes.meshes import sphere
+        tris = sphere(4, 6)
+        Refitter(hwbvh.build(tris)).refit(tris)
+    return time.perf_counter() - t
+
+
+# --------------------------------------------------------------------------------------
+# One animation run
+# --------------------------------------------------------------------------------------
+def default_mesh():
+    """The bunny from the benchmark mesh directory, when it is there (exploding's default)."""
+    from .paths import default_mesh_dir
+    d = default_mesh_dir()
+    p = None if d is None else os.path.join(d, "bunny.ply")
+    return p if p and os.path.isfile(p) else None
+
+
+def open_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=None,
+                   mesh=None, triangles=None, physics=None):
+    from scenes.animation import load_animation
+    if spec == "exploding" and mesh is None and triangles is None:
+        mesh = default_mesh()
+    if fps is not None and not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+        raise ParameterError("fps", f"must be a positive number, got {fps!r}")
+    return load_animation(spec, width=width, height=height, spp=spp, max_depth=max_depth, fps=fps,
+                          mesh=mesh, triangles=triangles, physics=physics)
+
+
+def _run_params(anim, strategy, threshold, scene):
+    p = {"scene": anim.name, "source": str(anim.source), "strategy": strategy,
+         "width": scene.width, "height": scene.height, "spp": scene.spp,
+         "max_depth": scene.max_depth, "fps": anim.fps, "animation": anim.info}
+    if strategy == "adaptive":
+        p["threshold"] = threshold
+    return jsonable(p)
+
+
+def _check_output_dir(out_dir, anim, frames):
+    """Fail before any work unless every output can be written and none is an input."""
+    names = [FRAME_NAME.format(i) for i in range(frames)] + [STATE_NAME, CSV_NAME, PREVIEW_NAME]
+    check_output_dir(out_dir, names, anim.inputs)
+    return os.path.abspath(out_dir)
+
+
+def _load_state(out_dir, params):
+    path = os.path.join(out_dir, STATE_NAME)
+    if not os.path.exists(path):
+        return {}
+    try:
+        with open(path) as f:
+            state = json.load(f)
+        old = state["parameters"]
+        rows = {int(r["frame"]): r for r in state["frames"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        raise InputError(path, "is not the state of an hwrt animate run; "
+                                   "choose another output directory") from None
+    diff = [k for k in params if old.get(k) != params[k]]
+    if diff:
+        k = diff[0]
+        raise InputError(out_dir, f"holds frames of another run ({k}: {old.get(k)!r}, "
+                                   f"now {params[k]!r}); choose another output directory")
+    return rows
+
+
+def _write_state(out_dir, params, rows):
+    state = {"parameters": params, "frames": [rows[k] for k in sorted(rows)]}
+    write_files([(os.path.join(out_dir, STATE_NAME),
+                  json_text(state, indent=1) + "\n")])
+
+
+def _csv_text(rows):
+    flat = []
+    for r in rows:
+        d = {}
+        for k, v in r.items():
+            if isinstance(v, dict):
+                for kk, vv in v.items():
+                    d[f"{k}.{kk}"] = vv
+            else:
+                d[k] = v
+        flat.append(d)
+    keys = []
+    for d in flat:
+        keys += [k for k in d if k not in keys]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=keys)
+    w.writeheader()
+    w.writerows(flat)
+    return buf.getvalue()
+
+
+def _preview(out_dir, frames, fps):
+    """An animated GIF (imageio) of the tone-mapped frames, written atomically."""
+    import imageio.v3 as iio
+    from raytracer.output import read_exr, tonemap
+
+    images = []
+    for i in range(frames):
+        px, _, _ = read_exr(os.path.join(out_dir, FRAME_NAME.format(i)))
+        images.append(tonemap(px[..., :3]))
+    data = iio.imwrite("<bytes>", np.stack(images), extension=".gif",
+                       duration=max(20, int(round(1000 / fps))), loop=0)
+    path = os.path.join(out_dir, PREVIEW_NAME)
+    write_files([(path, data)])
+    return path
+
+
+def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_THRESHOLD,
+        verify=False, progress=None, seed=0, inspect=None):
+    """Render ``frames`` frames of ``anim`` (scenes.animation.Animation) under a tree update
+    ``strategy``. With ``out_dir``: one EXR per frame (written atomically), the run state
+    (animation.json, also what a rerun resumes from, at the first missing frame), a CSV and a
+    GIF preview. Without it nothing is written (benchmarks). ``inspect(i, scene, bvh)`` sees
+    every frame's tree (None under embree). Returns the result dict."""
+    t_start = time.perf_counter()
+    updater = TreeUpdater(strategy, threshold)
+    frames = anim.frames if frames is None else frames
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        raise ParameterError("frames", f"must be a positive integer, got {frames!r}")
+    if verify and strategy == "embree":
+        raise ParameterError("verify", "checks our traversal against Embree; choose a strategy "
+                                   "that uses the hardware's tree")
+    anim.check(frames)
+    first = anim.scene(0)
+    params = _run_params(anim, strategy, updater.threshold, first)
+    rows = {}
+    if out_dir is not None:
+        out_dir = _check_output_dir(out_dir, anim, frames)
+        rows = {k: v for k, v in _load_state(out_dir, params).items() if k < frames}
+    start = 0
+    while start < frames and start in rows and \
+            (out_dir is None or os.path.exists(os.path.join(out_dir, FRAME_NAME.format(start)))):
+        start += 1
+    rows = {k: v for k, v in rows.items() if k < start}
+    startup_s = warm_up(strategy)
+    if 0 < start < frames:
+        last = max(k for k, r in rows.items() if r["rebuilt"])
+        updater.restore(anim.scene(last).triangles)
+        updater.sah_at_rebuild = rows[last]["sah_cost"]
+    from raytracer.render import render
+    for i in range(start, frames):
+        t = time.perf_counter()
+        scene = first if i == 0 else anim.scene(i)
+        scene_s = time.perf_counter() - t
+        tracer, row = updater.update(scene)
+        bvh = row.pop("bvh", None)
+        if verify:
+            from traversal.tracers import VerifyingTracer
+            tracer = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
+        t = time.perf_counter()
+        res = render(scene, tracer, seed=seed + i)
+        render_s = time.perf_counter() - t + row.pop("tracer_seconds", 0.0)
+        sim = row["simulated_build_seconds"]
+        out = {"frame": i, "time": anim.time(i), "triangles": int(len(scene.triangles)), **row,
+               "render_seconds": render_s,
+               "time_to_image_seconds": row["build_seconds"] + render_s,
+               "time_to_image_simulated_seconds":
+                   None if sim is None else {k: v + render_s for k, v in sim.items()},
+               "scene_seconds": scene_s, "rays": res.stats["rays"]}
+        if verify:
+            c = tracer.counts
+            out["verify"] = {k: c["closest"][k] + c["shadow"][k] for k in c["closest"]}
+            out["verify"]["by_query"] = c
+        if out_dir is not None:
+            from raytracer.output import write_exr
+            t = time.perf_counter()
+            path = os.path.join(out_dir, FRAME_NAME.format(i))
+            meta = {"scene": anim.name, "builder": "embree" if strategy == "embree" else "hwbvh",
+                    "traversal": "embree" if strategy == "embree" else "numba",
+                    "build_seconds": out["build_seconds"], "render_seconds": render_s,
+                    "spp": scene.spp, "max_depth": scene.max_depth, "frame": i,
+                    "time": out["time"], "strategy": strategy, "rebuilt": int(out["rebuilt"])}
+            meta.update({f"rays_{k}": v for k, v in res.stats["rays"].items()})
+            if out["sah_cost"] is not None:
+                meta["sah_cost"] = out["sah_cost"]
+            write_exr(path, res, meta)
+            out["output"] = path
+            out["write_seconds"] = time.perf_counter() - t
+            rows[i] = jsonable(out)
+            _write_state(out_dir, params, rows)
+        else:
+            rows[i] = jsonable(out)
+        if inspect is not None:
+            inspect(i, scene, bvh)
+        if progress:
+            progress(i)
+    result = {"strategy": strategy, "scene": anim.name, **{k: v for k, v in params.items()
+                                                          if k not in ("scene", "strategy")},
+              "frames": [rows[k] for k in range(frames)], "resumed_from": start,
+              "startup_seconds": startup_s}
+    ordered = result["frames"]
+    result["rebuilds"] = sum(1 for r in ordered if r["rebuilt"])
+    result["adaptive_rebuild_frames"] = [r["frame"] for r in ordered if r["rebuilt"] and r["frame"] > 0] \
+        if strategy == "adaptive" else None
+    for key in ("build_seconds", "render_seconds", "time_to_image_seconds", "simulation_seconds"):
+        result[f"{key}_total"] = sum(r[key] or 0.0 for r in ordered)
+    if strategy != "embree":
+        result["time_to_image_simulated_seconds_total"] = {
+            k: sum(r["time_to_image_simulated_seconds"][k] for r in ordered) for k in PRESET_NAMES}
+    if verify:
+        result["verify"] = {k: sum(r["verify"][k] for r in ordered if "verify" in r)
+                            for k in ("rays", "agree", "tie", "mismatch")}
+    if out_dir is not None:
+        csv_path = os.path.join(out_dir, CSV_NAME)
+        write_files([(csv_path, _csv_text([{k: v for k, v in r.items() if k != "rays"} |
+                                            {f"rays.{k}": v for k, v in r["rays"].items()}
+                                            for r in ordered]))])
+        result["files"] = {"frames": os.path.join(out_dir, "frame_%04d.exr"),
+                           "preview": _preview(out_dir, frames, anim.fps), "csv": csv_path,
+                           "state": os.path.join(out_dir, STATE_NAME)}
+    result["output"] = out_dir
+    result["total_seconds"] = time.perf_counter() - t_start
+    return result
+
+
+# --------------------------------------------------------------------------------------
+# Command line
+# --------------------------------------------------------------------------------------
+def cmd_animate(args):
+    """``hwrt animate`` (library errors name parameters; the command line reports options)."""
+    from tqdm import tqdm
+
+    for key in ("width", "height", "spp", "max_depth", "frames", "triangles"):
+        v = getattr(args, key, None)
+        if v is not None and v < 1:
+            raise InputError(f"--{key.replace('_', '-')}", f"must be at least 1, got {v}")
+    anim = open_animation(args.scene, width=args.width, height=args.height, spp=args.spp,
+                          max_depth=args.max_depth, fps=args.fps, mesh=args.mesh,
+                          triangles=args.triangles, physics=args.physics)
+    frames = args.frames or anim.frames
+    out = args.output or os.path.join("renders", f"animate-{anim.name}-{args.strategy}")
+    bar = tqdm(total=frames, desc=f"animate {anim.name} ({args.strategy})", unit="frame",
+               file=sys.stderr, disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
+    done = {"n": 0}
+
+    def tick(i):
+        if done["n"] == 0 and i > 0:
+            bar.update(i)                      # frames resumed from an earlier run
+        bar.update(1)
+        done["n"] += 1
+    threshold = ADAPTIVE_THRESHOLD if args.threshold is None else args.threshold
+    result = run(anim, args.strategy, frames, out, threshold=threshold, verify=args.verify,
+                 progress=tick, seed=args.seed)
+    bar.close()
+    return jsonable(result)
+
+
+def human(r):
+    lines = [f"{'frame':>5}{'tris':>9}{'rebuilt':>8}{'build ms':>10}{'HWBVH-C ms':>11}"
+             f"{'render ms':>10}{'tti ms':>9}{'SAH':>9}"]
+    for f in r["frames"]:
+        sim = f["simulated_build_seconds"]
+        c = f"{sim['HWBVH-C'] * 1e3:>11.2f}" if sim else f"{'-':>11}"
+        sah = f"{f['sah_cost']:>9.1f}" if f["sah_cost"] is not None else f"{'-':>9}"
+        lines.append(f"{f['frame']:>5}{f['triangles']:>9}{'yes' if f['rebuilt'] else 'no':>8}"
+                     f"{f['build_seconds'] * 1e3:>10.2f}{c}{f['render_seconds'] * 1e3:>10.1f}"
+                     f"{f['time_to_image_seconds'] * 1e3:>9.1f}{sah}")
+    lines.append(f"{r['rebuilds']} rebuilds; time to image {r['time_to_image_seconds_total']:.2f} s; "
+                 f"total {r['total_seconds']:.2f} s; wrote {r['output']}")
+    if r.get("verify"):
+        v = r["verify"]
+        lines.append(f"verify: {v['rays']} rays, {v['agree']} agree, {v['tie']} tie, {v['mismatch']} mismatch")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------
+# Benchmark: every built-in animation under every strategy
+# --------------------------------------------------------------------------------------
+def bench_animation(args):
+    """Every built-in animation under every strategy, in one process after warm-up: time to
+    image per frame (build + render), totals, SAH drift of refit against rebuild, the frames
+    at which adaptive rebuilds, and when the hardware's full rebuild beats software refitting.
+    Writes animation.csv/.json/.md and plots to ``--out-dir``."""
+    from scenes.animation import ANIMATIONS
+    from tqdm import tqdm
+    from .bench import machine
+
+    frames = args.frames or (BENCH_QUICK_FRAMES if args.quick else BENCH_FRAMES)
+    tris = BENCH_QUICK_TRIANGLES if args.quick else None
+    runs = {}
+    cells = [(a, s) for a in ANIMATIONS for s in STRATEGIES]
+    for name, strategy in tqdm(cells, desc="bench animation", file=sys.stderr, unit="run"):
+        anim = open_animation(name, width=args.width, height=args.height, spp=args.spp,
+                              max_depth=args.max_depth,
+                              triangles=tris if name in ("exploding", "cloth") else None)
+        runs[(name, strategy)] = run(anim, strategy, min(frames, anim.frames))
+    rows = []
+    for (name, strategy), r in runs.items():
+        for f in r["frames"]:
+            sim = f["simulated_build_seconds"] or {}
+            en = f["simulated_energy_joules"] or {}
+            rows.append({"animation": name, "strategy": strategy, "frame": f["frame"],
+                         "triangles": f["triangles"], "rebuilt": f["rebuilt"],
+                         "build_seconds": f["build_seconds"], "render_seconds": f["render_seconds"],
+                         "time_to_image_seconds": f["time_to_image_seconds"],
+                         "simulated_build_seconds_C": sim.get("HWBVH-C"),
+                         "simulated_build_seconds_HP": sim.get("HWBVH-HP"),
+                         "simulated_energy_joules_C": en.get("HWBVH-C"),
+                         "simulated_energy_joules_HP": en.get("HWBVH-HP"),
+                         "simulation_seconds": f["simulation_seconds"],
+                         "sah_cost": f["sah_cost"], "rays": sum(f["rays"].values())})
+    summary = _bench_summary(runs)
+    out_dir = args.out_dir
+    files = _bench_files(out_dir, rows, summary, runs, frames, args)
+    write_files(files)
+    return jsonable({"rows": rows, "summary": summary, "frames": frames, "machine": machine(),
+                   "physics": runs[("marbles", "rebuild")]["animation"].get("physics"),
+                   "files": [f for f, _ in files]})
+
+
+def _bench_summary(runs):
+    out = []
+    for name in dict.fromkeys(a for a, _ in runs):
+        per = {s: runs[(name, s)] for s in STRATEGIES}
+        reb, ref = per["rebuild"]["frames"], per["refit"]["frames"]
+        n = len(reb)
+        row = {"animation": name, "frames": n, "triangles": reb[0]["triangles"],
+               "animation_info": per["rebuild"]["animation"]}
+        for s, r in per.items():
+            row[f"{s}_tti_total"] = r["time_to_image_seconds_total"]
+            row[f"{s}_build_total"] = r["build_seconds_total"]
+            row[f"{s}_render_total"] = r["render_seconds_total"]
+        for k in PRESET_NAMES:
+            # the hardware's full rebuild: simulated build + render of the rebuilt tree
+            hw = [f["simulated_build_seconds"][k] + f["render_seconds"] for f in reb]
+            sw = [f["time_to_image_seconds"] for f in ref]
+            row[f"hw_rebuild_{k}_tti_total"] = sum(hw)
+            row[f"hw_rebuild_{k}_vs_refit"] = sum(hw) / sum(sw)
+            row[f"hw_rebuild_{k}_wins_frames"] = sum(1 for a, b in zip(hw, sw) if a < b)
+            wins = [f["frame"] for f, a, b in zip(reb, hw, sw) if a < b]
+            row[f"hw_rebuild_{k}_first_win_frame"] = wins[0] if wins else None
+            row[f"energy_per_frame_{k}_joules"] = float(np.mean([f["simulated_energy_joules"][k] for f in reb]))
+            row[f"simulated_build_per_frame_{k}_seconds"] = float(np.mean([f["simulated_build_seconds"][k] for f in reb]))
+        row["refit_seconds_per_frame"] = float(np.mean([f.get("refit_seconds") or f["build_seconds"] for f in ref]))
+        row["rebuild_seconds_per_frame"] = float(np.mean([f["build_seconds"] for f in reb]))
+        row["simulation_seconds_per_frame"] = float(np.mean([f["simulation_seconds"] for f in reb]))
+        drift = [b["sah_cost"] / a["sah_cost"] for a, b in zip(reb, ref)]
+        row["refit_sah_ratio_final"] = drift[-1]
+        row["refit_sah_ratio_max"] = max(drift)
+        row["adaptive_rebuild_frames"] = per["adaptive"]["adaptive_rebuild_frames"]
+        row["mean_render_seconds"] = {s: r["render_seconds_total"] / n for s, r in per.items()}
+        out.append(row)
+    return out
+
+
+def _png(fig):
+    fig.tight_layout()
+    b = io.BytesIO()
+    fig.savefig(b, format="png", dpi=100)
+    import matplotlib.pyplot as plt
+    plt.close(fig)
+    return b.getvalue()
+
+
+def _bench_files(out_dir, rows, summary, runs, frames, args):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from .bench import machine
+
+    names = list(dict.fromkeys(a for a, _ in runs))
+    files = []
+    # time to image per frame, build and render stacked, one panel per (animation, strategy)
+    fig, axes = plt.subplots(len(names), len(STRATEGIES), figsize=(4 * len(STRATEGIES), 2.6 * len(names)),
+                             squeeze=False, sharex=True)
+    for a, name in enumerate(names):
+        top = max(f["time_to_image_seconds"] for s in STRATEGIES for f in runs[(name, s)]["frames"]) * 1e3
+        for b, s in enumerate(STRATEGIES):
+            ax = axes[a, b]
+            fr = runs[(name, s)]["frames"]
+            x = [f["frame"] for f in fr]
+            build = np.array([f["build_seconds"] for f in fr]) * 1e3
+            rend = np.array([f["render_seconds"] for f in fr]) * 1e3
+            ax.stackplot(x, build, rend, labels=["build (software)", "render"], alpha=0.8)
+            if s == "rebuild":
+                hw = np.array([f["simulated_build_seconds"]["HWBVH-C"] for f in fr]) * 1e3 + rend
+                ax.plot(x, hw, "k--", lw=1, label="HWBVH-C build + render")
+            if s == "adaptive":
+                for f in fr:
+                    if f["rebuilt"] and f["frame"] > 0:
+                        ax.axvline(f["frame"], color="r", lw=0.8, alpha=0.6)
+            ax.set_ylim(0, top * 1.05)
+            ax.set_title(f"{name} / {s}", fontsize=9)
+            if b == 0:
+                ax.set_ylabel("ms per frame")
+            if a == len(names) - 1:
+                ax.set_xlabel("frame")
+            if a == 0 and b == 0:
+                ax.legend(fontsize=7, loc="upper left")
+    files.append((os.path.join(out_dir, "animation_tti_per_frame.png"), _png(fig)))
+    # totals over the animation
+    fig, ax = plt.subplots(figsize=(9, 4))
+    labels = list(STRATEGIES) + ["HWBVH-C rebuild", "HWBVH-HP rebuild"]
+    w = 0.8 / len(labels)
+    for k, lab in enumerate(labels):
+        vals = []
+        for row in summary:
+            if lab in STRATEGIES:
+                vals.append(row[f"{lab}_tti_total"])
+            else:
+                vals.append(row[f"hw_rebuild_{lab.split()[0]}_tti_total"])
+        ax.bar(np.arange(len(summary)) + k * w, vals, w, label=lab)
+    ax.set_xticks(np.arange(len(summary)) + 0.4 - w / 2, [r["animation"] for r in summary])
+    ax.set_ylabel(f"time to image, {frames} frames (s)")
+    ax.legend(fontsize=8)
+    files.append((os.path.join(out_dir, "animation_totals.png"), _png(fig)))
+    # SAH drift of refit (and adaptive) against rebuild
+    fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.2), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        reb = runs[(name, "rebuild")]["frames"]
+        for s in ("refit", "adaptive"):
+            fr = runs[(name, s)]["frames"]
+            ax.plot([f["frame"] for f in fr], [f["sah_cost"] / g["sah_cost"] for f, g in zip(fr, reb)], label=s)
+        for f in runs[(name, "adaptive")]["frames"]:
+            if f["rebuilt"] and f["frame"] > 0:
+                ax.axvline(f["frame"], color="r", lw=0.8, alpha=0.5)
+        ax.set_yscale("log")
+        ax.set_title(name)
+        ax.set_xlabel("frame (red: adaptive rebuilds)")
+        ax.set_ylabel("SAH cost / rebuild's")
+        ax.legend(fontsize=8)
+    files.append((os.path.join(out_dir, "animation_sah_drift.png"), _png(fig)))
+    files.append((os.path.join(out_dir, "animation.csv"), _csv_text(rows)))
+    files.append((os.path.join(out_dir, "animation.json"),
+                  json_text({"summary": summary, "rows": rows, "machine": machine()}, indent=1) + "\n"))
+    files.append((os.path.join(out_dir, "animation.md"), _bench_markdown(summary, frames, args, machine())))
+    return files
+
+
+def _bench_markdown(summary, frames, args, mach):
+    L = [f"# Animation benchmark: {frames} frames at {args.width}x{args.height}, {args.spp} spp",
+         "", f"Machine: {mach['cpu']}, {mach['cores']} cores, Numba {mach['numba']}.", "",
+         "Time to image over the animation (seconds; build + render, software timings; the "
+         "HWBVH columns put the simulated hardware build in place of the software build):", "",
+         "| animation | triangles | rebuild | refit | adaptive | embree | HWBVH-C rebuild | HWBVH-HP rebuild |",
+         "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in summary:
+        L.append(f"| {r['animation']} | {r['triangles']} | {r['rebuild_tti_total']:.2f} | "
+                 f"{r['refit_tti_total']:.2f} | {r['adaptive_tti_total']:.2f} | {r['embree_tti_total']:.2f} | "
+                 f"{r['hw_rebuild_HWBVH-C_tti_total']:.2f} | {r['hw_rebuild_HWBVH-HP_tti_total']:.2f} |")
+    L += ["", "Hardware full rebuild against software refitting, per frame:", "",
+          "| animation | software refit ms | software rebuild ms | HWBVH-C build ms | HWBVH-HP build ms | "
+          "HWBVH-C / refit (tti) | frames HWBVH-C wins | HWBVH-C mJ/frame | HWBVH-HP mJ/frame | "
+          "refit SAH (final, max) x rebuild's | adaptive rebuilds at |",
+          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|"]
+    for r in summary:
+        L.append(f"| {r['animation']} | {r['refit_seconds_per_frame'] * 1e3:.2f} | "
+                 f"{r['rebuild_seconds_per_frame'] * 1e3:.2f} | "
+                 f"{r['simulated_build_per_frame_HWBVH-C_seconds'] * 1e3:.2f} | "
+                 f"{r['simulated_build_per_frame_HWBVH-HP_seconds'] * 1e3:.2f} | "
+                 f"{r['hw_rebuild_HWBVH-C_vs_refit']:.2f} | {r['hw_rebuild_HWBVH-C_wins_frames']}/{r['frames']} | "
+                 f"{r['energy_per_frame_HWBVH-C_joules'] * 1e3:.2f} | {r['energy_per_frame_HWBVH-HP_joules'] * 1e3:.2f} | "
+                 f"{r['refit_sah_ratio_final']:.2f}, {r['refit_sah_ratio_max']:.2f} | "
+                 f"{', '.join(map(str, r['adaptive_rebuild_frames'])) or 'never'} |")
+    L += ["", "A ratio below 1 means the hardware's full rebuild every frame reaches the image sooner "
+          "than refitting in software; the refit's tree is worse, so its render time grows as the "
+          "scene moves away from the topology it was built for.", ""]
+    return "\n".join(L)
+
+
+def human_bench(r):
+    lines = [f"{'animation':<12}{'tris':>8}{'rebuild s':>10}{'refit s':>9}{'adapt s':>9}{'embree s':>9}"
+             f"{'HW-C s':>8}{'HW-C/refit':>11}{'mJ/frame C':>11}"]
+    for s in r["summary"]:
+        lines.append(f"{s['animation']:<12}{s['triangles']:>8}{s['rebuild_tti_total']:>10.2f}"
+                     f"{s['refit_tti_total']:>9.2f}{s['adaptive_tti_total']:>9.2f}{s['embree_tti_total']:>9.2f}"
+                     f"{s['hw_rebuild_HWBVH-C_tti_total']:>8.2f}{s['hw_rebuild_HWBVH-C_vs_refit']:>11.2f}"
+                     f"{s['energy_per_frame_HWBVH-C_joules'] * 1e3:>11.2f}")
+    lines.append("wrote " + ", ".join(r["files"]))
+    return "\n".join(lines)
