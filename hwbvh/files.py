@@ -64,7 +64,7 @@ def _nearest_existing(path):
 def _directory_problem(d):
     """Why files cannot be created in the existing path ``d``, or None."""
     if not os.path.isdir(d):
-        return f"{d} is not a directory"
+        return f"cannot create a directory under {d}: it is a file"
     try:
         # an unnamed file where the output will go: the real permission check (ACLs, read-only
         # file systems), which os.access does not make for every user
@@ -91,7 +91,8 @@ def check_outputs(outputs, inputs=()):
     for k, out in enumerate(outputs):
         for src in inputs:
             if _same_file(out, src):
-                raise InputError(out, f"is an input of this run; writing it would overwrite {src}")
+                same = "" if out == src else f" ({src})"
+                raise InputError(out, f"is an input of this run{same}; an output may not overwrite an input")
         for other in outputs[:k]:
             if _same_file(out, other):
                 raise InputError(out, "is named twice as an output")
@@ -108,7 +109,9 @@ def check_output_dir(directory, names=(), inputs=()):
     """Like :func:`check_outputs` for a directory that will hold the files ``names``; a problem
     with the directory itself names the directory."""
     directory = os.fspath(directory)
-    if os.path.exists(directory):
+    if os.path.exists(directory) and not os.path.isdir(directory):
+        problem = "exists and is not a directory"
+    elif os.path.exists(directory):
         problem = _directory_problem(directory)
     else:
         problem = _directory_problem(_nearest_existing(os.path.join(directory, "x")))

@@ -163,7 +163,7 @@ def bench_scale(args):
     rows = []
     for n in tqdm(sizes, desc="bench scale", file=sys.stderr):
         tris = bumpy_sphere(n)
-        med, all_t = _median_time(lambda: build(tris), max(1, min(args.repeat, 3)))
+        med, all_t = _median_time(lambda: build(tris), args.repeat)
         bvh = build(tris)
         validate(bvh.nodes, bvh.indices, len(tris), 4, primitive_boxes(tris))
         rows.append({"triangles": int(len(tris)), "hwbvh_seconds": med,
@@ -234,7 +234,7 @@ def bench_trace(args):
         sets["primary"] = (O, D, None)
         O, D = raysets.incoherent(tris, n)
         sets["incoherent"] = (O, D, None)
-        O, D, tmax = raysets.shadow(tracer, tris, n * 2)
+        O, D, tmax = raysets.shadow(tracer, tris, n)
         sets["shadow"] = (O, D, tmax)
         out = {}
         for kind, (O, D, tmax) in sets.items():

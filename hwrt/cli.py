@@ -1,20 +1,38 @@
-"""The ``hwrt`` command line (SPEC section 8).
+"""The ``hwrt`` command line: build, simulate, render, verify, bench.
 
 Every subcommand takes ``--json`` and then prints exactly one JSON object on stdout; progress
-and logs go to stderr. Exit status: 0 success, 2 bad input (one-line error on stderr), 1 other.
+and logs go to stderr. Outputs are checked before any work and written whole or not at all.
+Library errors name a function's parameter; ``main`` reports the option that sets it.
 """
 import argparse
-import json
 import os
+import signal
 import sys
 
 from hwbvh import config
-from hwbvh.errors import InputError
+from hwbvh.errors import InputError, ParameterError
+from hwbvh.files import check_output_dir, check_outputs, json_text
+
+DESCRIPTION = ("hwrt simulates the hardware BVH builder of M. J. Doyle's thesis (HWBVH) bit for "
+               "bit and renders scenes with a Whitted ray tracer on exactly the trees it builds, "
+               "checking hits against Intel Embree.")
+EPILOG = ("With --json a command prints exactly one JSON object on stdout, in strict JSON: null "
+          "stands for a number that is infinite or undefined (the distance of a ray that hits "
+          "nothing, a break-even point never reached). Progress and logs go to stderr. Outputs "
+          "are checked before any work starts and are written whole or not at all; no output "
+          "may overwrite an input. Exit status: 0 success; 2 bad input, with one line on stderr "
+          "naming the file, key or option and the problem; 130 interrupted (SIGINT); 143 "
+          "terminated (SIGTERM); 1 anything else.")
+VERIFY_RAYS = 100_000
+VERIFY_KIND = "random"
+EXIT_BAD_INPUT = 2
+EXIT_SIGINT = 128 + signal.SIGINT
+EXIT_SIGTERM = 128 + signal.SIGTERM
 
 
 def _emit(args, result, human):
     if args.json:
-        sys.stdout.write(json.dumps(result) + "\n")
+        sys.stdout.write(json_text(result) + "\n")
     else:
         sys.stdout.write(human(result) + "\n")
     sys.stdout.flush()
@@ -26,26 +44,40 @@ def _kv(result, keys):
 
 # --------------------------------------------------------------------------------------
 def cmd_build(args):
-    from hwbvh.api import build, save, write_files
-    from hwbvh.primitives import pack_records, primitive_boxes
+    import time
+    import numpy as np
+    from hwbvh.api import build, save, warm_up
+    from hwbvh.files import write_files
+    from hwbvh.primitives import as_triangles, load_mesh_arrays, pack_records, primitive_boxes
 
+    planned = []
+    if args.out:
+        planned += [args.out + ext for ext in (".nodes", ".indices", ".json")]
+    if args.dump_aabbs:
+        planned.append(args.dump_aabbs)
+    if args.dump_handoff:
+        planned += [args.dump_handoff, args.dump_handoff + ".json"]
+    if args.builder == "embree" and planned:
+        raise InputError("--builder", "Embree's tree is internal to Embree: --out and the dumps "
+                         "need --builder hwbvh or sweep")
+    check_outputs(planned, inputs=[args.mesh])
+    verts, faces = load_mesh_arrays(args.mesh)
+    tris = as_triangles(verts[faces], source=args.mesh)
     if args.builder == "embree":
         from traversal.embree_ref import embree_build_seconds
-        from hwbvh.primitives import load_mesh_arrays, as_triangles
-        verts, faces = load_mesh_arrays(args.mesh)
-        as_triangles(verts[faces], source=args.mesh)
-        if args.out or args.dump_aabbs or args.dump_handoff:
-            raise InputError("--builder embree", "Embree's tree is internal to Embree: "
-                             "--out and the dumps need --builder hwbvh or sweep")
+        t = time.perf_counter()
+        embree_build_seconds(np.eye(3, dtype=np.float32), np.array([[0, 1, 2]], np.int32))
+        startup = time.perf_counter() - t
         secs = embree_build_seconds(verts, faces)
         result = {"triangles": int(len(faces)), "nodes": None, "leaves": None, "max_depth": None,
-                  "sah_cost": None, "build_seconds": secs, "fallback_splits": None,
-                  "builder": "embree"}
+                  "sah_cost": None, "build_seconds": secs, "startup_seconds": startup,
+                  "fallback_splits": None, "builder": "embree"}
         return _emit(args, result, lambda r: _kv(r, r.keys()))
-    bvh = build(args.mesh, builder=args.builder, leaf_size=args.leaf_size, bins=args.bins,
+    startup = warm_up(args.builder, parallel=len(tris) > config.SEQUENTIAL_MAX_PRIMS)
+    bvh = build(tris, builder=args.builder, leaf_size=args.leaf_size, bins=args.bins,
                 capacity=args.capacity, subtree_builders=args.subtree_builders,
-                block_nodes=args.block_nodes, validate_tree=True)
-    result = dict(bvh.meta)
+                block_nodes=args.block_nodes, validate_tree=True, source_name=args.mesh)
+    result = dict(bvh.meta, startup_seconds=startup)
     outputs = []
     if args.dump_aabbs or args.dump_handoff:
         boxes = primitive_boxes(bvh.triangles)
@@ -56,8 +88,8 @@ def cmd_build(args):
             order, sizes = bvh.handoff_order()
             files.append((args.dump_handoff, pack_records(boxes, order)))
             files.append((args.dump_handoff + ".json",
-                          json.dumps({"record_bytes": config.PRIMITIVE_RECORD_BYTES,
-                                      "handoff_sizes": [int(x) for x in sizes]}) + "\n"))
+                          json_text({"record_bytes": config.PRIMITIVE_RECORD_BYTES,
+                                     "handoff_sizes": sizes}) + "\n"))
             result["handoff_sizes"] = [int(x) for x in sizes]
         write_files(files)
         outputs += [f for f, _ in files]
@@ -65,7 +97,7 @@ def cmd_build(args):
         outputs += save(bvh, args.out)
     result["outputs"] = outputs
     keys = ["builder", "triangles", "nodes", "leaves", "max_depth", "sah_cost", "fallback_splits",
-            "build_seconds", "handoffs", "outputs"]
+            "build_seconds", "startup_seconds", "handoffs", "outputs"]
     _emit(args, result, lambda r: _kv(r, keys))
 
 
@@ -73,11 +105,8 @@ def _scene_geometry(name):
     """(label, triangles f32, vertices f32, faces i32) of a scene name/file or mesh file."""
     from hwbvh.primitives import as_triangles, load_mesh_arrays
     import numpy as np
-    try:
-        from scenes import is_scene, load_scene_geometry
-    except ImportError:          # scenes not available: meshes only
-        is_scene = None
-    if is_scene is not None and is_scene(name):
+    from scenes import is_scene, load_scene_geometry
+    if is_scene(name):
         return load_scene_geometry(name)
     verts, faces = load_mesh_arrays(name)
     tris = as_triangles(verts[faces], source=name)
@@ -109,32 +138,45 @@ def _replay(path, tris, verts, faces):
     return dict(counts, replayed=rows, file=str(path))
 
 
+def _stem(spec):
+    return os.path.splitext(os.path.basename(str(spec)))[0]
+
+
 def cmd_verify(args):
+    import io
     import numpy as np
     from traversal.verify import verify_mesh
-    from hwbvh.api import write_files
-    import io
+    from hwbvh.files import write_files
 
-    if args.rays < 1:
-        raise InputError("--rays", "must be at least 1")
-    label, tris, verts, faces = _scene_geometry(args.scene)
     if args.replay:
+        for flag, value in (("--rays", args.rays), ("--kind", args.kind),
+                            ("--mismatches", args.mismatches)):
+            if value is not None:
+                raise InputError(flag, "is for a verification run; --replay re-traces the file's rays")
+        label, tris, verts, faces = _scene_geometry(args.scene)
         return _emit(args, _replay(args.replay, tris, verts, faces),
-                     lambda r: "\n".join(json.dumps(x) for x in r["replayed"]))
-    counts, labels, (O, D, tmax), h, (te, pe) = verify_mesh(tris, verts, faces, args.kind, args.rays)
+                     lambda r: "\n".join(json_text(x) for x in r["replayed"]))
+    rays = VERIFY_RAYS if args.rays is None else args.rays
+    kind = args.kind or VERIFY_KIND
+    out = args.mismatches or os.path.join("renders", f"verify-{_stem(args.scene)}-{kind}-mismatches.npz")
+    check_outputs([out], inputs=[args.scene])
+    label, tris, verts, faces = _scene_geometry(args.scene)
+    counts, labels, (O, D, tmax), h, (te, pe) = verify_mesh(tris, verts, faces, kind, rays)
     result = dict(counts)
-    result.update({"kind": args.kind, "scene": label})
+    result.update({"kind": kind, "scene": label, "rays_requested": rays})
+    if counts["rays"] != rays:
+        print(f"hwrt: note: {counts['rays']} of the {rays} requested {kind} rays: too few of the "
+              f"first rays hit the mesh", file=sys.stderr)
     bad = np.flatnonzero(labels == 2)
     if len(bad):
-        out = args.mismatches or os.path.join("renders", f"verify-{label}-{args.kind}-mismatches.npz")
         buf = io.BytesIO()
         np.savez(buf, origins=O[bad], dirs=D[bad], ours_prim=h.prim[bad], ours_t=h.t[bad],
                  embree_prim=pe[bad], embree_t=te[bad],
                  tmax=(np.full(len(bad), np.inf) if tmax is None else np.asarray(tmax)[bad]))
         write_files([(out, buf.getvalue())])
         result["mismatch_file"] = out
-    _emit(args, result, lambda r: _kv(r, ["scene", "kind", "rays", "agree", "tie", "mismatch",
-                                          "mismatch_file"]))
+    _emit(args, result, lambda r: _kv(r, ["scene", "kind", "rays", "rays_requested", "agree", "tie",
+                                          "mismatch", "mismatch_file"]))
 
 
 def cmd_simulate(args):
@@ -162,29 +204,34 @@ def cmd_simulate(args):
 def cmd_render(args):
     import time
     from raytracer.render import make_tracer, render, warm_up
-    from raytracer.output import write_exr, write_png
+    from hwbvh.files import write_files
+    from raytracer.output import exr_writer, png_writer
     from scenes import compile_scene, load_scene
 
     t_start = time.perf_counter()
+    if (args.builder == "embree") != (args.traversal == "embree"):
+        raise InputError("--traversal", "Embree's tree is traversed by Embree only, and Embree "
+                         "traverses only its own tree: use --builder embree with --traversal "
+                         "embree, or --traversal numba with --builder hwbvh or sweep")
+    if args.verify and args.traversal == "embree":
+        raise InputError("--verify", "checks our traversal against Embree; use --traversal numba")
     d = load_scene(args.scene)
     film = d.setdefault("film", {})
     integ = d.setdefault("integrator", {"type": "whitted"})
     for key, val, tgt in (("width", args.width, film), ("height", args.height, film),
                           ("spp", args.spp, film), ("max_depth", args.max_depth, integ)):
         if val is not None:
-            if val < 1:
-                raise InputError(f"--{key.replace('_', '-')}", f"must be at least 1, got {val}")
             tgt[key] = val
-    scene = compile_scene(d)
-    out = args.output or os.path.join("renders", f"{scene.name}.exr")
+    out = args.output or os.path.join("renders", f"{d.get('name', 'scene')}.exr")
     if not out.lower().endswith(".exr"):
-        raise InputError("-o", f"{out}: the output must be an .exr file")
+        raise InputError("-o", f"{out} does not end in .exr (--png adds a PNG preview beside the EXR)")
+    png = os.path.splitext(out)[0] + ".png" if args.png else None
+    check_outputs([out, png], inputs=[args.scene])
+    scene = compile_scene(d)
     startup_s = warm_up(args.builder, args.traversal)
     tracer, build_s, info = make_tracer(scene, args.builder, args.traversal)
     verify = None
     if args.verify:
-        if args.traversal == "embree":
-            raise InputError("--verify", "checks our traversal against Embree; use --traversal numba")
         from traversal.embree_ref import embree_scene
         verify = embree_scene(scene.vertices, scene.faces)
     from tqdm import tqdm
@@ -213,166 +260,321 @@ def cmd_render(args):
             "build_seconds": build_s, "render_seconds": render_s, "spp": scene.spp,
             "max_depth": scene.max_depth}
     meta.update({f"rays_{k}": v for k, v in res.stats["rays"].items()})
-    write_exr(out, res, meta, layers=not args.no_layers)
-    if args.png:
-        png = os.path.splitext(out)[0] + ".png"
-        write_png(png, res.image)
+    files = [(out, exr_writer(out, res, meta, layers=not args.no_layers))]
+    if png:
+        files.append((png, png_writer(png, res.image)))
         result["png"] = png
+    write_files(files)
     result["wall_seconds"] = time.perf_counter() - t_start
     _emit(args, result, lambda r: _kv(r, ["output", "png", "scene", "triangles", "build_seconds",
                                           "render_seconds", "time_to_image_seconds", "rays", "verify"]))
 
 
-def cmd_animate(args):
-    from . import animate
-    _emit(args, animate.cmd_animate(args), animate.human)
+# The options each benchmark reads, with their defaults (None: see BENCH_NONE). Any other
+# option given to a benchmark is an error, so that no option is silently ignored.
+BENCH_OPTIONS = {
+    "build": {"meshes": [], "mesh_dir": None, "repeat": 5},
+    "scale": {"repeat": 3},
+    "trace": {"meshes": [], "mesh_dir": None, "repeat": 5, "rays": 500_000},
+    "render": {"meshes": [], "repeat": 5, "out_dir": None, "width": None, "height": None,
+               "spp": None, "max_depth": None},
+    "tti": {"meshes": [], "mesh_dir": None, "repeat": 5, "quick": False, "fresh": False,
+            "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1, "max_depth": 5},
+    "accuracy": {"meshes": [], "mesh_dir": None, "repeat": 3, "quick": False, "fresh": False,
+                 "out_dir": "renders/bench", "width": 160, "height": 120},
+    "model": {"meshes": [], "mesh_dir": None},
+    "contention": {"meshes": [], "repeat": 5, "width": 320, "height": 240, "spp": 1},
+}
+BENCH_QUICK = {"tti": {"repeat": 1, "width": 160, "height": 120},     # --quick: small cells
+               "accuracy": {"repeat": 1, "width": 64, "height": 48}}
+BENCH_NONE = {"mesh_dir": "$HWRT_MESHES or ../shared/meshes, else generated meshes",
+              "out_dir": "no files", "width": "the scene's", "height": "the scene's",
+              "spp": "the scene's", "max_depth": "the scene's"}
+BENCH_COMMON = {"repeat": 5, "rays": 500_000, "out_dir": "renders/bench", "width": 320,
+                "height": 240, "spp": 1, "max_depth": 5}
+BENCH_WRITES_OUT_DIR = ("tti", "accuracy")   # checked here; bench render checks its own files
+
+
+def _bench_help(dest, text):
+    """``text`` plus each benchmark's default for the option, from BENCH_OPTIONS."""
+    groups = {}
+    for what, opts in BENCH_OPTIONS.items():
+        if dest in opts:
+            v = opts[dest]
+            shown = BENCH_NONE.get(dest, "none") if v is None else v
+            groups.setdefault(str(shown), []).append(what)
+    unused = [w for w, opts in BENCH_OPTIONS.items() if dest not in opts]
+    if set(groups) == {"False"}:                              # a flag: who reads it
+        return f"{text} (read by {', '.join(groups['False'])})"
+    parts = ["; ".join(f"{', '.join(ws)}: {v}" for v, ws in groups.items())]
+    quick = [f"{w} {q[dest]}" for w, q in BENCH_QUICK.items() if dest in q]
+    if quick:
+        parts.append("with --quick: " + ", ".join(quick))
+    if unused:
+        parts.append("not read by " + ", ".join(unused))
+    return f"{text} (default: {'; '.join(parts)})"
+
+
+def _bench_options(args):
+    """Reject options the benchmark does not read; fill in the defaults of those it does."""
+    table = BENCH_OPTIONS.get(args.what)
+    if table is None:                       # a benchmark without a row: the common defaults
+        for dest, default in BENCH_COMMON.items():
+            if getattr(args, dest, None) is None:
+                setattr(args, dest, default)
+        return
+    for dest in sorted(vars(args)):
+        if dest in ("command", "func", "what", "json") or dest in table \
+                or getattr(args, dest) in (None, False, []):
+            continue
+        if dest == "meshes":
+            raise InputError(args.meshes[0], f"bench {args.what} takes no mesh files")
+        raise InputError("--" + dest.replace("_", "-"), f"bench {args.what} does not read this option")
+    defaults = dict(table, **(BENCH_QUICK.get(args.what, {}) if args.quick else {}))
+    for dest, default in defaults.items():
+        if getattr(args, dest, None) is None:
+            setattr(args, dest, default)
 
 
 def cmd_bench(args):
     from . import bench
     from . import study
+    _bench_options(args)
+    if args.what in BENCH_WRITES_OUT_DIR:
+        check_output_dir(args.out_dir, study.output_names(args.what), inputs=args.meshes)
     fn = {"build": bench.bench_build, "scale": bench.bench_scale,
           "trace": bench.bench_trace, "render": bench.bench_render,
           "tti": study.bench_tti, "accuracy": study.bench_accuracy,
           "model": bench.bench_model}.get(args.what)
-    if args.what == "animation":
-        from . import animate
-        return _emit(args, animate.bench_animation(args), animate.human_bench)
-    if fn is None:
-        raise InputError("bench", f"'{args.what}' is not available yet")
     result = fn(args)
     _emit(args, result, bench.human(args.what))
 
 
 # --------------------------------------------------------------------------------------
-def _positive(v):
+def _int_at_least(lo):
+    def parse(v):
+        try:
+            i = int(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {v!r}") from None
+        if i < lo:
+            raise argparse.ArgumentTypeError(f"must be at least {lo}, got {i}")
+        return i
+    return parse
+
+
+_positive = _int_at_least(1)
+_non_negative = _int_at_least(0)
+
+
+def _positive_float(v):
     try:
-        i = int(v)
+        x = float(v)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{v!r} is not an integer")
-    return i
+        raise argparse.ArgumentTypeError(f"expected a number, got {v!r}") from None
+    if not (x > 0 and x < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {v}")
+    return x
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """Shows each option's default after its help, unless the help already gives it."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if (not action.option_strings or action.default in (None, False, argparse.SUPPRESS)
+                or "default" in text):
+            return text
+        shown = " ".join(map(str, action.default)) if isinstance(action.default, list) else "%(default)s"
+        return f"{text} (default: {shown})"
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors in one line naming the option, exit status 2; defaults shown in --help."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def _version():
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("hwrt")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def make_parser():
-    p = argparse.ArgumentParser(prog="hwrt", description=__doc__.splitlines()[0])
-    sub = p.add_subparsers(dest="command", required=True)
+    p = _Parser(prog="hwrt", description=DESCRIPTION, epilog=EPILOG)
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    b = sub.add_parser("build", help="build a BVH over a mesh (SPEC 8)")
-    b.add_argument("mesh")
-    b.add_argument("--builder", choices=["hwbvh", "sweep", "embree"], default="hwbvh")
-    b.add_argument("--leaf-size", type=_positive, default=config.DEFAULT_LEAF_SIZE)
-    b.add_argument("--bins", type=_positive, default=config.DEFAULT_BINS)
+    b = sub.add_parser("build", help="build a BVH over a mesh",
+                       description="Build a BVH over a mesh in the hardware's node format.")
+    b.add_argument("mesh", help="mesh file (.ply, .obj, .stl, .off, .glb, .gltf)")
+    b.add_argument("--builder", choices=["hwbvh", "sweep", "embree"], default="hwbvh",
+                   help="hwbvh: the hardware's binned SAH; sweep: full SAH reference; "
+                        "embree: Embree's own build (timing only)")
+    b.add_argument("--leaf-size", type=_positive, default=config.DEFAULT_LEAF_SIZE,
+                   help="primitives per leaf (hwbvh)")
+    b.add_argument("--bins", type=_positive, default=config.DEFAULT_BINS,
+                   help="SAH bins per axis (hwbvh; the hardware has at most 16)")
     b.add_argument("--capacity", type=_positive, default=config.DEFAULT_CAPACITY,
                    help="subtree capacity w*Psize (placement only; the tree never changes)")
-    b.add_argument("--subtree-builders", type=_positive, default=1)
-    b.add_argument("--block-nodes", type=_positive, default=config.DEFAULT_BLOCK_NODES)
-    b.add_argument("--out", metavar="PREFIX", help="write PREFIX.nodes/.indices/.json")
-    b.add_argument("--dump-aabbs", metavar="F", help="primitive records as the hardware reads them")
-    b.add_argument("--dump-handoff", metavar="F", help="records in upper-builder hand-off order")
-    b.add_argument("--json", action="store_true")
+    b.add_argument("--subtree-builders", type=_positive, default=1,
+                   help="subtree builders (placement only)")
+    b.add_argument("--block-nodes", type=_positive, default=config.DEFAULT_BLOCK_NODES,
+                   help="nodes per block of the upper builder's pool (placement only)")
+    b.add_argument("--out", metavar="PREFIX",
+                   help="write PREFIX.nodes, PREFIX.indices and PREFIX.json (default: no files)")
+    b.add_argument("--dump-aabbs", metavar="F",
+                   help="write the 27-byte primitive records as the hardware reads them")
+    b.add_argument("--dump-handoff", metavar="F",
+                   help="write the records in upper-builder hand-off order, sizes in F.json")
+    b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=cmd_build)
 
     s = sub.add_parser("simulate", help="cycles, traffic, footprint and energy of the hardware build")
-    s.add_argument("mesh")
-    s.add_argument("--preset", default="HWBVH-C", choices=["HWBVH-C", "HWBVH-HP"])
-    for name in ("w", "tsize", "psize", "subtree-builders", "ram-pairs", "leaf-size", "bins"):
-        s.add_argument(f"--{name}", type=_positive)
-    s.add_argument("--clock-mhz", type=float)
-    s.add_argument("--control-latency", type=_positive, metavar="CYCLES",
+    s.add_argument("mesh", help="mesh file")
+    s.add_argument("--preset", default="HWBVH-C", choices=["HWBVH-C", "HWBVH-HP"],
+                   help="the thesis' hardware instance")
+    for name, text in (("w", "memory ports"), ("tsize", "SAH calculator threads"),
+                       ("psize", "partitioning unit buffer size"),
+                       ("subtree-builders", "subtree builders"), ("ram-pairs", "RAM buffer pairs"),
+                       ("leaf-size", "primitives per leaf"), ("bins", "SAH bins per axis")):
+        s.add_argument(f"--{name}", type=_positive, help=f"{text} (default: the preset's)")
+    s.add_argument("--clock-mhz", type=_positive_float, help="clock (default: the preset's)")
+    s.add_argument("--control-latency", type=_non_negative, metavar="CYCLES",
                    help="control cycles per split beyond Table 3.3 (default: the calibrated "
                         "value; 0 = the text-only model)")
     s.add_argument("--sweep", action="store_true",
                    help="design-space sweep (thesis 4.2.1): w, Tsize in {2,4,8,16} x leaf sizes")
-    s.add_argument("--leaf-sizes", type=_positive, nargs="+", default=[4, 8, 16, 32, 64])
-    s.add_argument("--out-dir", default="renders/sweep")
-    s.add_argument("--jobs", type=_positive, default=os.cpu_count() or 1)
-    s.add_argument("--json", action="store_true")
+    s.add_argument("--leaf-sizes", type=_positive, nargs="+", default=[4, 8, 16, 32, 64],
+                   help="leaf sizes of the sweep")
+    s.add_argument("--out-dir", default="renders/sweep", help="where the sweep's files go")
+    s.add_argument("--jobs", type=_positive, default=os.cpu_count() or 1,
+                   help="threads of the sweep")
+    s.add_argument("--json", action="store_true", help="print one JSON object")
     s.set_defaults(func=cmd_simulate)
 
-    r = sub.add_parser("render", help="render a scene (Whitted) to EXR")
+    r = sub.add_parser("render", help="render a scene (Whitted) to EXR",
+                       description="Render a scene with the Whitted ray tracer to an EXR file.")
     r.add_argument("scene", nargs="?", default="cornell",
-                   help="built-in scene (cornell, marbles, cloth, room), scene file, or mesh file")
-    r.add_argument("-o", "--output", help="EXR path (default renders/<scene>.exr)")
-    r.add_argument("--width", type=_positive)
-    r.add_argument("--height", type=_positive)
-    r.add_argument("--spp", type=_positive)
-    r.add_argument("--max-depth", type=_positive)
-    r.add_argument("--builder", choices=["hwbvh", "sweep", "embree"], default="hwbvh")
-    r.add_argument("--traversal", choices=["numba", "embree"], default="numba")
+                   help="built-in scene (cornell, marbles, cloth, room), scene file (.json, "
+                        ".toml), or mesh file (default: cornell)")
+    r.add_argument("-o", "--output", metavar="FILE.exr",
+                   help="EXR path (default: renders/<scene>.exr)")
+    r.add_argument("--width", type=_positive, help="image width (default: the scene's)")
+    r.add_argument("--height", type=_positive, help="image height (default: the scene's)")
+    r.add_argument("--spp", type=_positive, help="samples per pixel (default: the scene's)")
+    r.add_argument("--max-depth", type=_positive,
+                   help="longest reflection/refraction path (default: the scene's)")
+    r.add_argument("--builder", choices=["hwbvh", "sweep", "embree"], default="hwbvh",
+                   help="the tree: hwbvh (the hardware's), sweep (full SAH) or embree")
+    r.add_argument("--traversal", choices=["numba", "embree"], default="numba",
+                   help="numba: our units on the raw nodes; embree: Embree on its own tree")
     r.add_argument("--verify", action="store_true", help="check every ray against Embree")
-    r.add_argument("--png", action="store_true", help="also write a tone-mapped PNG preview")
+    r.add_argument("--png", action="store_true",
+                   help="also write a tone-mapped PNG preview beside the EXR")
     r.add_argument("--no-layers", action="store_true", help="RGB only (no Z, N, prim.id)")
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--json", action="store_true")
+    r.add_argument("--seed", type=_non_negative, default=0, help="seed of the pixel jitter")
+    r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_render)
 
     v = sub.add_parser("verify", help="trace rays with our units and with Embree; classify each")
     v.add_argument("scene", help="built-in scene name, scene file, or mesh file")
-    v.add_argument("--rays", type=_positive, default=100_000)
-    v.add_argument("--kind", choices=["primary", "random", "bounces", "shadow"], default="random")
-    v.add_argument("--mismatches", metavar="F.npz", help="where mismatching rays are written")
-    v.add_argument("--replay", metavar="F.npz", help="re-trace the rays of a mismatch file")
-    v.add_argument("--json", action="store_true")
+    v.add_argument("--rays", type=_positive,
+                   help=f"rays to trace; exactly these many (default: {VERIFY_RAYS})")
+    v.add_argument("--kind", choices=["primary", "random", "bounces", "shadow"],
+                   help=f"the ray set (default: {VERIFY_KIND})")
+    v.add_argument("--mismatches", metavar="F.npz",
+                   help="where mismatching rays are written (default: "
+                        "renders/verify-<scene>-<kind>-mismatches.npz, only if there are any)")
+    v.add_argument("--replay", metavar="F.npz",
+                   help="re-trace the rays of a mismatch file instead (default: a new run)")
+    v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=cmd_verify)
 
-    an = sub.add_parser("animate", help="render an animation, a tree per frame, one EXR per frame")
-    an.add_argument("scene", help="built-in animation (exploding, cloth, marbles, flythrough), "
-                                  "scene file, or frame pattern of mesh files ('f_%%04d.ply' or a glob)")
-    an.add_argument("--frames", type=_positive, help="frames to render (default: the animation's)")
-    an.add_argument("--fps", type=float, help="frames per second of animation time (default 30)")
-    an.add_argument("--strategy", default="rebuild",
-                    help="tree update per frame: rebuild, refit, adaptive or embree")
-    an.add_argument("--threshold", type=float,
-                    help="adaptive: rebuild when the SAH cost grows past this factor of the last rebuild's")
-    an.add_argument("--width", type=_positive)
-    an.add_argument("--height", type=_positive)
-    an.add_argument("--spp", type=_positive)
-    an.add_argument("--max-depth", type=_positive)
-    an.add_argument("--mesh", help="exploding: the mesh that breaks (default: bunny, else generated)")
-    an.add_argument("--triangles", type=_positive, help="generated animations: about this many triangles")
-    an.add_argument("--physics", help="marbles: pybullet, analytic or auto (default)")
-    an.add_argument("--verify", action="store_true", help="check every camera ray against Embree")
-    an.add_argument("--seed", type=int, default=0)
-    an.add_argument("-o", "--output", metavar="DIR", help="default renders/animate-<scene>-<strategy>")
-    an.add_argument("--json", action="store_true")
-    an.set_defaults(func=cmd_animate)
-
-    be = sub.add_parser("bench", help="benchmarks against peers measured in the same run")
-    be.add_argument("what", choices=["build", "scale", "trace", "render", "tti", "accuracy", "model",
-                                     "animation"])
-    be.add_argument("meshes", nargs="*", help="mesh files (default: every mesh in --mesh-dir)")
-    be.add_argument("--mesh-dir", help="default: $HWRT_MESHES or ../shared/meshes, else generated")
-    be.add_argument("--repeat", type=_positive, default=5)
-    be.add_argument("--rays", type=_positive, default=500_000, help="rays per set (bench trace)")
-    be.add_argument("--quick", action="store_true", help="tti/accuracy: a few small cells (< 3 min)")
-    be.add_argument("--fresh", action="store_true", help="tti/accuracy: ignore finished cells")
-    be.add_argument("--out-dir", default="renders/bench", help="tti/accuracy results")
-    be.add_argument("--width", type=_positive, default=320)
-    be.add_argument("--height", type=_positive, default=240)
-    be.add_argument("--spp", type=_positive, default=1)
-    be.add_argument("--max-depth", type=_positive, default=5)
-    be.add_argument("--frames", type=_positive, help="animation: frames per animation (default 60)")
-    be.add_argument("--json", action="store_true")
+    be = sub.add_parser("bench", help="benchmarks against peers measured in the same run",
+                        description="Benchmarks: each figure is a median of warm runs, beside "
+                                    "a peer measured in the same run. An option a benchmark does "
+                                    "not read is an error.")
+    be.add_argument("what", help="the benchmark", choices=["build", "scale", "trace", "render", "tti", "accuracy", "model"])
+    be.add_argument("meshes", nargs="*", metavar="MESH",
+                    help="mesh files; bench render also takes scenes (default: every mesh in "
+                         "--mesh-dir; bench render: cornell)")
+    be.add_argument("--mesh-dir", help=_bench_help("mesh_dir", "directory of meshes"))
+    be.add_argument("--repeat", type=_positive,
+                    help=_bench_help("repeat", "timed runs; figures are their medians"))
+    be.add_argument("--rays", type=_positive, help=_bench_help("rays", "rays per set"))
+    be.add_argument("--quick", action="store_true",
+                    help=_bench_help("quick", "a few small cells (minutes)"))
+    be.add_argument("--fresh", action="store_true",
+                    help=_bench_help("fresh", "start over, ignoring finished cells"))
+    be.add_argument("--out-dir", help=_bench_help("out_dir", "where result files go"))
+    be.add_argument("--width", type=_positive, help=_bench_help("width", "image width"))
+    be.add_argument("--height", type=_positive, help=_bench_help("height", "image height"))
+    be.add_argument("--spp", type=_positive, help=_bench_help("spp", "samples per pixel"))
+    be.add_argument("--max-depth", type=_positive,
+                    help=_bench_help("max_depth", "longest reflection/refraction path"))
+    be.add_argument("--json", action="store_true", help="print one JSON object")
     be.set_defaults(func=cmd_bench)
     return p
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Python runs next, so that it unwinds like Ctrl-C: writers in
+    progress remove their temporary files."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def _option_of(parser, args, parameter):
+    """The option of the running subcommand that sets the library parameter ``parameter``."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            command = action.choices.get(getattr(args, "command", None))
+            for a in (command._actions if command else ()):
+                if a.dest == parameter and a.option_strings:
+                    return max(a.option_strings, key=len)
+    return None
 
 
 def main(argv=None):
     parser = make_parser()
     args = parser.parse_args(argv)
     try:
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    except ValueError:                        # not the main thread: leave signals alone
+        previous = None
+    try:
         args.func(args)
     except InputError as e:
-        print(f"hwrt: error: {e}", file=sys.stderr)
-        return 2
+        message = str(e)
+        if isinstance(e, ParameterError):
+            message = f"{_option_of(parser, args, e.parameter) or e.parameter}: {e.problem}"
+        print(f"hwrt: error: {message}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Terminated:
+        print("hwrt: terminated", file=sys.stderr)
+        return EXIT_SIGTERM
     except KeyboardInterrupt:
         print("hwrt: interrupted", file=sys.stderr)
-        return 1
+        return EXIT_SIGINT
     except Exception as e:  # anything else is our fault, not the input's
         print(f"hwrt: internal error: {type(e).__name__}: {e}", file=sys.stderr)
         if os.environ.get("HWRT_DEBUG"):
             raise
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
 
 

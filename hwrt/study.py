@@ -20,15 +20,23 @@ from pathlib import Path
 
 import numpy as np
 
-from hwbvh.api import write_files
+from hwbvh.files import json_text, write_files
 from .bench import machine
 from .paths import default_mesh_dir, mesh_files
 
 TTI_PATHS = ("hwbvh-C", "hwbvh-HP", "hwbvh-sw", "sweep", "embree")
 
 
+def output_names(name):
+    """The files a study called ``name`` writes in its output directory."""
+    return [f"{name}{ext}" for ext in (".jsonl", ".csv", ".json", ".md", ".png")]
+
+
 class Cells:
-    """Finished cells on disk, one JSON object per line, keyed by ``key``."""
+    """Finished cells on disk, one JSON object per line, keyed by ``key``.
+
+    An interruption can cut the last line short. Such a line is dropped when the file is
+    opened (its cell runs again), so that the next record starts on a line of its own."""
 
     def __init__(self, path, fresh=False):
         self.path = Path(path)
@@ -37,11 +45,26 @@ class Cells:
         if fresh and self.path.exists():
             self.path.unlink()
         if self.path.exists():
-            for line in self.path.read_text().splitlines():
-                try:
-                    row = json.loads(line)
-                except json.JSONDecodeError:        # a line cut by an interruption
-                    continue
+            self._load()
+
+    def _load(self):
+        data = self.path.read_bytes()
+        lines = data.split(b"\n")
+        complete, last = lines[:-1], lines[-1]      # ``last`` is b"" when the file ends in \n
+        if last:
+            try:
+                json.loads(last)
+                complete.append(last)                   # whole, only its newline is missing
+                with open(self.path, "ab") as f:
+                    f.write(b"\n")
+            except ValueError:                          # cut short: cut it off
+                os.truncate(self.path, len(data) - len(last))
+        for line in complete:
+            try:
+                row = json.loads(line)
+            except ValueError:                          # damaged: that cell runs again
+                continue
+            if isinstance(row, dict) and "key" in row:
                 self.done[row["key"]] = row
 
     def get(self, key):
@@ -50,7 +73,7 @@ class Cells:
     def add(self, row):
         self.done[row["key"]] = row
         with open(self.path, "a") as f:
-            f.write(json.dumps(row) + "\n")
+            f.write(json_text(row) + "\n")
             f.flush()
             os.fsync(f.fileno())
 
@@ -97,7 +120,7 @@ def _median(xs):
 
 def _write_outputs(out_dir, name, rows, md, plot_files, extra):
     buf = io.StringIO()
-    flat = [{k: (json.dumps(v) if isinstance(v, (dict, list)) else v) for k, v in r.items()} for r in rows]
+    flat = [{k: (json_text(v) if isinstance(v, (dict, list)) else v) for k, v in r.items()} for r in rows]
     keys = sorted({k for r in flat for k in r})
     w = csv.DictWriter(buf, fieldnames=keys)
     w.writeheader()
@@ -105,7 +128,7 @@ def _write_outputs(out_dir, name, rows, md, plot_files, extra):
     result = {"rows": rows, "machine": machine()}
     result.update(extra)
     files = [(os.path.join(out_dir, f"{name}.csv"), buf.getvalue()),
-             (os.path.join(out_dir, f"{name}.json"), json.dumps(result, indent=1) + "\n"),
+             (os.path.join(out_dir, f"{name}.json"), json_text(result, indent=1) + "\n"),
              (os.path.join(out_dir, f"{name}.md"), md)] + plot_files
     write_files(files)
     result["files"] = [f for f, _ in files]
@@ -122,9 +145,9 @@ def bench_tti(args):
     from traversal.embree_ref import embree_scene
 
     quick = args.quick
-    W, H = (160, 120) if quick else (args.width, args.height)
+    W, H = args.width, args.height
     spp, depth = args.spp, args.max_depth
-    repeat = 1 if quick else args.repeat
+    repeat = args.repeat
     out_dir = args.out_dir
     cells = Cells(os.path.join(out_dir, "tti.jsonl"), fresh=args.fresh)
     for b, t in (("hwbvh", "numba"), ("sweep", "numba"), ("embree", "embree")):
@@ -302,8 +325,8 @@ def bench_accuracy(args):
     import hwbvh
 
     quick = args.quick
-    W, H = (64, 48) if quick else (args.width // 2, args.height // 2)
-    repeat = 1 if quick else max(1, min(args.repeat, 3))
+    W, H = args.width, args.height
+    repeat = args.repeat
     cells = Cells(os.path.join(args.out_dir, "accuracy.jsonl"), fresh=args.fresh)
     warm_up("hwbvh", "numba", parallel_build=True)
     warm_up("sweep", "numba")
