@@ -43,7 +43,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from hwbvh.errors import InputError
+from hwbvh.errors import InputError, ParameterError
 from hwbvh.primitives import as_triangles, load_mesh_arrays
 from .loader import compile_scene, load_scene, mesh_scene
 
@@ -792,10 +792,10 @@ def marbles(width=320, height=240, spp=1, max_depth=3, count=40, subdiv=(8, 16),
     "pybullet" (Bullet, an optional extra), "analytic", or "auto" (Bullet when importable)."""
     from .meshes import uv_sphere
     if physics not in ("auto", "pybullet", "analytic"):
-        raise InputError("physics", f"unknown physics {physics!r} (choose from auto, pybullet, analytic)")
+        raise ParameterError("physics", f"unknown physics {physics!r} (choose from auto, pybullet, analytic)")
     if physics != "analytic" and _import_pybullet() is None:
         if physics == "pybullet":
-            raise InputError("physics", "pybullet is not installed (pip install 'hwrt[physics]')")
+            raise ParameterError("physics", "pybullet is not installed (pip install 'hwrt[physics]')")
         physics = "analytic"
     elif physics == "auto":
         physics = "pybullet"
@@ -866,7 +866,7 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
         accepted = inspect.signature(fn).parameters
         for k in params:
             if params[k] is not None and k not in accepted:
-                raise InputError(k, f"the built-in animation '{spec}' has no parameter {k!r}")
+                raise ParameterError(k, f"the built-in animation '{spec}' has no parameter {k!r}")
         kw = {k: v for k, v in {**film, **params}.items() if v is not None and k in accepted}
         if fps is not None and "fps" in accepted:
             kw["fps"] = fps
@@ -876,7 +876,7 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
         return anim
     extra = [k for k, v in params.items() if v is not None]
     if extra:
-        raise InputError(extra[0], f"only built-in animations ({', '.join(ANIMATIONS)}) take it")
+        raise ParameterError(extra[0], f"only built-in animations ({', '.join(ANIMATIONS)}) take it")
     if is_pattern(spec) and not os.path.exists(spec):
         d = pattern_scene(spec)
     else:

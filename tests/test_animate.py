@@ -154,3 +154,154 @@ def test_a_change_in_triangle_count_forces_a_rebuild():
     res = run(anim, "refit", 4, inspect=_checker([]))
     assert [f["rebuilt"] for f in res["frames"]] == [True, False, True, False]
     assert res["frames"][2]["rebuild_reason"] == "triangle count changed (48 -> 64)"
+
+
+# --------------------------------------------------------------------------------------
+# animated scene files and frame sequences: strict checks
+# --------------------------------------------------------------------------------------
+import json  # noqa: E402
+
+import trimesh  # noqa: E402
+
+from hwrt.cli import main  # noqa: E402
+
+
+def _ply(path, tris):
+    trimesh.Trimesh(np.asarray(tris).reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3),
+                    process=False).export(path)
+
+
+def _scene_file(tmp_path, shapes, animation=None):
+    d = {"type": "scene", "camera": {"eye": [0, 1, 4], "target": [0, 0, 0]},
+         "film": {"width": 16, "height": 12, "spp": 1},
+         "lights": [{"type": "point", "position": [1, 3, 2], "intensity": [10, 10, 10]}],
+         "materials": {"white": {"type": "diffuse"}}, "shapes": shapes}
+    if animation is not None:
+        d["animation"] = animation
+    p = tmp_path / "anim.json"
+    p.write_text(json.dumps(d))
+    return p
+
+
+def _run_cli(capsys, *argv):
+    rc = main(list(map(str, argv)))
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+BOX = {"type": "box", "min": [-0.5, 0, -0.5], "max": [0.5, 1, 0.5], "material": "white"}
+
+
+def test_keyframes_interpolate_translate_rotate_scale(tmp_path):
+    from scenes.animation import euler_matrix
+    keys = [{"time": 0.0, "translate": [0, 0, 0]},
+            {"time": 1.0, "translate": [2, 0, 0], "rotate": [0, 90, 0], "scale": 2}]
+    p = _scene_file(tmp_path, [dict(BOX, keyframes=keys)], {"frames": 5, "fps": 4})
+    anim = load_animation(p)
+    t0, mid, end = anim.scene(0).triangles, anim.scene(2).triangles, anim.scene(4).triangles
+    R = euler_matrix([0, 45, 0])
+    assert np.allclose(mid, (t0.astype(np.float64) * 1.5) @ R.T + [1, 0, 0], atol=1e-5)
+    assert np.allclose(end, (t0.astype(np.float64) * 2) @ euler_matrix([0, 90, 0]).T + [2, 0, 0], atol=1e-5)
+    assert anim.frames == 5 and anim.fps == 4
+
+
+@pytest.mark.parametrize("shape_or_anim, message", [
+    ({"keyframes": [{"time": 0}, {"time": 1, "rotat": [0, 1, 0]}]},
+     "key 'shapes[0].keyframes[1].rotat': unknown key"),
+    ({"keyframes": [{"time": 1}, {"time": 0.5}]},
+     "key 'shapes[0].keyframes[1].time': 0.5 is not after the previous key's 1"),
+    ({"keyframes": [{"time": 0, "translate": [0, "x", 0]}]},
+     "key 'shapes[0].keyframes[0].translate': expected 3 finite numbers"),
+    ({"animation": {"frames": 3, "speed": 2}}, "key 'animation.speed': unknown key"),
+    ({"animation": {"camera": [{"time": 0, "eye": [0, 1, 3]}, {"time": 0, "eye": [1, 1, 3]}]}},
+     "key 'animation.camera[1].time'"),
+])
+def test_bad_scene_files_exit_2_naming_file_and_key(tmp_path, capsys, shape_or_anim, message):
+    anim = shape_or_anim.pop("animation", None)
+    p = _scene_file(tmp_path, [dict(BOX, **shape_or_anim)], anim)
+    out_dir = tmp_path / "out"
+    rc, out, err = _run_cli(capsys, "animate", p, "--frames", 2, "-o", out_dir)
+    assert rc == 2 and message in err and str(p) in err and len(err.strip().splitlines()) == 1
+    assert not out_dir.exists() or not any(out_dir.iterdir())
+
+
+def test_frame_sequences_bad_inputs(tmp_path, capsys):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    out_dir = tmp_path / "out"
+    rc, _, err = _run_cli(capsys, "animate", frames / "f_%04d.ply", "-o", out_dir)
+    assert rc == 2 and "matches no file" in err
+    for i in (0, 1, 3):
+        _ply(frames / f"f_{i:04d}.ply", sphere(4, 8) + i)
+    rc, _, err = _run_cli(capsys, "animate", frames / "f_%04d.ply", "-o", out_dir)
+    assert rc == 2 and "f_0002.ply" in err and "missing frame 2" in err
+    rc, _, err = _run_cli(capsys, "animate", str(frames / "f_*.ply"), "-o", out_dir)
+    assert rc == 2 and "f_0002.ply" in err and "missing frame 2" in err
+    bad = sphere(4, 8).astype(np.float64)
+    bad[5, 1, 0] = np.nan
+    (frames / "f_0003.ply").unlink()
+    _ply(frames / "f_0002.ply", bad)            # NaN in the last frame: checked before frame 0
+    rc, _, err = _run_cli(capsys, "animate", frames / "f_%04d.ply", "-o", out_dir)
+    assert rc == 2 and "f_0002.ply" in err and "NaN" in err
+    assert not out_dir.exists() or not list(out_dir.glob("*.exr"))
+    rc, _, err = _run_cli(capsys, "animate", frames / "f_%04d.ply", "--frames", 9, "-o", out_dir)
+    assert rc == 2 and "only 3" in err
+
+
+def test_frame_pattern_with_changing_triangle_count_rebuilds_and_writes_everything(tmp_path, capsys):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, n in enumerate((4, 4, 5, 5)):
+        _ply(frames / f"bunny_{i:04d}.ply", sphere(n, 8) + [0, 0.05 * i, 0])
+    out_dir = tmp_path / "out"
+    rc, out, err = _run_cli(capsys, "animate", frames / "bunny_%04d.ply", "--strategy", "refit",
+                            "--width", 16, "--height", 12, "-o", out_dir, "--json")
+    assert rc == 0, err
+    r = json.loads(out, parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
+    assert r["scene"] == "bunny" and r["strategy"] == "refit" and r["output"] == str(out_dir)
+    assert [f["rebuilt"] for f in r["frames"]] == [True, False, True, False]
+    assert "triangle count changed (48 -> 64)" == r["frames"][2]["rebuild_reason"]
+    for f in r["frames"]:
+        for key in ("frame", "rebuilt", "build_seconds", "simulated_build_seconds", "render_seconds",
+                    "time_to_image_seconds", "sah_cost", "rays"):
+            assert key in f
+    names = sorted(p.name for p in out_dir.iterdir())
+    assert names == ["animation.json", "frame_0000.exr", "frame_0001.exr", "frame_0002.exr",
+                     "frame_0003.exr", "frames.csv", "preview.gif"]
+    from raytracer.output import read_exr
+    px, chans, meta = read_exr(out_dir / "frame_0002.exr")
+    assert px.shape == (12, 16, 8) and "Z" in chans and meta["strategy"] == "refit"
+    assert len((out_dir / "frames.csv").read_text().splitlines()) == 5
+
+
+def test_an_interrupted_run_resumes_at_the_first_missing_frame(tmp_path, capsys):
+    args = ["animate", "cloth", "--triangles", 300, "--frames", 5, "--strategy", "adaptive",
+            "--threshold", 1.05, "--width", 16, "--height", 12, "--json"]
+    rc, out, err = _run_cli(capsys, *args, "-o", tmp_path / "full")
+    assert rc == 0, err
+    full = json.loads(out)
+    part = tmp_path / "part"
+    rc, out, _ = _run_cli(capsys, *args, "-o", part)
+    (part / "frame_0003.exr").unlink()
+    (part / "frame_0004.exr").unlink()
+    rc, out, err = _run_cli(capsys, *args, "-o", part)
+    r = json.loads(out)
+    assert rc == 0 and r["resumed_from"] == 3 and len(r["frames"]) == 5
+    # the resumed tree is the one an uninterrupted run has (a refit depends only on topology)
+    assert [f["sah_cost"] for f in r["frames"]] == [f["sah_cost"] for f in full["frames"]]
+    assert [f["rebuilt"] for f in r["frames"]] == [f["rebuilt"] for f in full["frames"]]
+    # another run's settings are refused instead of mixing frames
+    rc, _, err = _run_cli(capsys, *args[:-1], "--spp", 2, "-o", part)
+    assert rc == 2 and "holds frames of another run" in err
+
+
+def test_unknown_strategy_and_bad_output_exit_2_before_any_work(tmp_path, capsys):
+    rc, _, err = _run_cli(capsys, "animate", "cloth", "--strategy", "bvh", "-o", tmp_path / "o")
+    assert rc == 2 and "unknown strategy 'bvh'" in err and not (tmp_path / "o").exists()
+    f = tmp_path / "file"
+    f.write_text("x")
+    rc, _, err = _run_cli(capsys, "animate", "cloth", "--frames", 1, "-o", f)
+    assert rc == 2 and str(f) in err
+    rc, _, err = _run_cli(capsys, "animate", "cloth", "--threshold", 0.5, "--strategy", "adaptive",
+                          "-o", tmp_path / "o")
+    assert rc == 2 and "threshold" in err
