@@ -305,3 +305,32 @@ def test_unknown_strategy_and_bad_output_exit_2_before_any_work(tmp_path, capsys
     rc, _, err = _run_cli(capsys, "animate", "cloth", "--threshold", 0.5, "--strategy", "adaptive",
                           "-o", tmp_path / "o")
     assert rc == 2 and "threshold" in err
+
+
+def test_sigterm_leaves_only_whole_frames_and_the_run_resumes(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    out_dir = tmp_path / "out"
+    cmd = [sys.executable, "-m", "hwrt.cli", "animate", "cloth", "--triangles", "300", "--frames", "400",
+           "--width", "16", "--height", "12", "-o", str(out_dir)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while not (out_dir / "frame_0003.exr").exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    proc.communicate(timeout=60)
+    assert proc.returncode != 0
+    names = os.listdir(out_dir)
+    assert not [n for n in names if n.startswith(".tmp")]
+    from raytracer.output import read_exr
+    done = sorted(n for n in names if n.endswith(".exr"))
+    for n in done:
+        assert read_exr(out_dir / n)[0].shape == (12, 16, 8)
+    r = subprocess.run(cmd[:8] + [str(len(done) + 2)] + cmd[9:] + ["--json"], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert len(done) - 1 <= res["resumed_from"] <= len(done) and len(res["frames"]) == len(done) + 2
