@@ -270,6 +270,11 @@ def cmd_render(args):
                                           "render_seconds", "time_to_image_seconds", "rays", "verify"]))
 
 
+def cmd_animate(args):
+    from . import animate
+    _emit(args, animate.cmd_animate(args), animate.human)
+
+
 # The options each benchmark reads, with their defaults (None: see BENCH_NONE). Any other
 # option given to a benchmark is an error, so that no option is silently ignored.
 BENCH_OPTIONS = {
@@ -284,6 +289,8 @@ BENCH_OPTIONS = {
                  "out_dir": "renders/bench", "width": 160, "height": 120},
     "model": {"meshes": [], "mesh_dir": None},
     "contention": {"meshes": [], "repeat": 5, "width": 320, "height": 240, "spp": 1},
+    "animation": {"quick": False, "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1,
+                  "max_depth": None, "frames": None},
 }
 BENCH_QUICK = {"tti": {"repeat": 1, "width": 160, "height": 120},     # --quick: small cells
                "accuracy": {"repeat": 1, "width": 64, "height": 48}}
@@ -346,6 +353,9 @@ def cmd_bench(args):
           "trace": bench.bench_trace, "render": bench.bench_render,
           "tti": study.bench_tti, "accuracy": study.bench_accuracy,
           "model": bench.bench_model}.get(args.what)
+    if args.what == "animation":
+        from . import animate
+        return _emit(args, animate.bench_animation(args), animate.human_bench)
     result = fn(args)
     _emit(args, result, bench.human(args.what))
 
@@ -499,11 +509,35 @@ def make_parser():
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=cmd_verify)
 
+    an = sub.add_parser("animate", help="render an animation, a tree per frame, one EXR per frame")
+    an.add_argument("scene", help="built-in animation (exploding, cloth, marbles, flythrough), "
+                                  "scene file, or frame pattern of mesh files ('f_%%04d.ply' or a glob)")
+    an.add_argument("--frames", type=_positive, help="frames to render (default: the animation's)")
+    an.add_argument("--fps", type=float, help="frames per second of animation time (default 30)")
+    an.add_argument("--strategy", default="rebuild",
+                    help="tree update per frame: rebuild, refit, adaptive or embree")
+    an.add_argument("--threshold", type=float,
+                    help="adaptive: rebuild when the SAH cost grows past this factor of the last rebuild's")
+    an.add_argument("--width", type=_positive)
+    an.add_argument("--height", type=_positive)
+    an.add_argument("--spp", type=_positive)
+    an.add_argument("--max-depth", type=_positive)
+    an.add_argument("--mesh", help="exploding: the mesh that breaks (default: bunny, else generated)")
+    an.add_argument("--triangles", type=_positive, help="generated animations: about this many triangles")
+    an.add_argument("--physics", help="marbles: pybullet, analytic or auto (default)")
+    an.add_argument("--verify", action="store_true",
+                    help="check every ray (closest hits and shadows) against Embree")
+    an.add_argument("--seed", type=int, default=0)
+    an.add_argument("-o", "--output", metavar="DIR", help="default renders/animate-<scene>-<strategy>")
+    an.add_argument("--json", action="store_true")
+    an.set_defaults(func=cmd_animate)
+
     be = sub.add_parser("bench", help="benchmarks against peers measured in the same run",
                         description="Benchmarks: each figure is a median of warm runs, beside "
                                     "a peer measured in the same run. An option a benchmark does "
                                     "not read is an error.")
-    be.add_argument("what", help="the benchmark", choices=["build", "scale", "trace", "render", "tti", "accuracy", "model"])
+    be.add_argument("what", help="the benchmark", choices=["build", "scale", "trace", "render", "tti", "accuracy", "model",
+                                                           "animation"])
     be.add_argument("meshes", nargs="*", metavar="MESH",
                     help="mesh files; bench render also takes scenes (default: every mesh in "
                          "--mesh-dir; bench render: cornell)")
@@ -521,6 +555,8 @@ def make_parser():
     be.add_argument("--spp", type=_positive, help=_bench_help("spp", "samples per pixel"))
     be.add_argument("--max-depth", type=_positive,
                     help=_bench_help("max_depth", "longest reflection/refraction path"))
+    be.add_argument("--frames", type=_positive,
+                    help="frames per animation (read by animation; default 60, with --quick 12)")
     be.add_argument("--json", action="store_true", help="print one JSON object")
     be.set_defaults(func=cmd_bench)
     return p
