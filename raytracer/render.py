@@ -132,35 +132,39 @@ def scene_passes(scene):
 
 
 class _Buffers:
-    """The wavefront's queues, allocated once per render and grown (never shrunk) when a bounce
-    spawns more rays than they hold: ``cur``/``nxt`` are the current and next wavefront
-    (O, D, wgt, pix), swapped after each bounce; the slot arrays (``contrib``, shadow slots
-    ``sh``, shadow queue ``shq``, spawn slots ``sp``, compaction indices ``idx``) are sized for
-    the current wavefront."""
+    """The wavefront's arrays, allocated once per render and grown (never shrunk) when a bounce
+    spawns more rays than they hold. ``cur``/``nxt``: the current and the next wavefront
+    (O, D, wgt, pix, Ot, Dt; see ``raytracer.stages``), swapped after each bounce. The block
+    regions (shadow rays ``sh``, their dense queue ``shq``, secondary rays ``sp``) are sized
+    for the current wavefront."""
 
-    def __init__(self, n, n_lights):
-        self.n_lights = max(n_lights, 1)
+    def __init__(self, n, n_lights, ray_dtype):
+        self.L = n_lights
+        self.rd = ray_dtype
         self.cur = self._wavefront(n)
         self.nxt = self._wavefront(n)
-        self.slot_cap = 0
+        self.cap = 0
         self.ensure_slots(n)
 
-    @staticmethod
-    def _wavefront(cap):
-        return [np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap, np.int64)]
+    def _wavefront(self, cap):
+        f = lambda: np.empty((cap, 3))
+        return [f(), f(), f(), np.empty(cap, np.int64), np.empty((cap, 3), self.rd),
+                np.empty((cap, 3), self.rd)]
 
     def ensure_slots(self, n):
-        if n <= self.slot_cap:
+        if n <= self.cap:
             return
-        cap = max(n, int(self.slot_cap * 1.5))
-        L = self.n_lights
-        f = lambda *shape: np.empty(shape, np.float64)
-        self.contrib = f(cap, 3)
-        self.sh = [f(L * cap, 3), f(L * cap, 3), f(L * cap), f(L * cap, 3), np.zeros(L * cap, np.uint8)]
-        self.shq = [f(L * cap, 3), f(L * cap, 3), f(L * cap), f(L * cap, 3), np.empty(L * cap, np.int64)]
-        self.sp = [f(2 * cap, 3), f(2 * cap, 3), f(2 * cap, 3), np.zeros(2 * cap, np.uint8)]
-        self.idx = np.empty(max(L, 2) * cap, np.int64)
-        self.slot_cap = cap
+        nb = stages.n_blocks(max(n, int(self.cap * 1.5)))
+        S = nb * stages.BLOCK
+        L = self.L
+        f, r = (lambda *shape: np.empty(shape)), (lambda *shape: np.empty(shape, self.rd))
+        self.contrib = f(S, 3)
+        self.sh = [r(L * S, 3), r(L * S, 3), r(L * S), f(L * S, 3), np.empty(L * S, np.int64),
+                   np.zeros((nb, L), np.int64)]
+        self.shq = [r(L * S, 3), r(L * S, 3), r(L * S), f(L * S, 3), np.empty(L * S, np.int64)]
+        self.sp = [f(2 * S, 3), f(2 * S, 3), f(2 * S, 3), np.empty(2 * S, np.int64),
+                   np.zeros((nb, 2), np.int64)]
+        self.cap = S
 
     def ensure_next(self, n):
         if n > len(self.nxt[3]):
@@ -189,11 +193,11 @@ def _scene_arrays(scene):
             ldir[k] = -np.asarray(light["direction"], np.float64)
             val[k] = light["irradiance"]
     f64 = lambda a: np.ascontiguousarray(a, np.float64)
-    return dict(face_n=np.ascontiguousarray(face_n), shading_n=np.ascontiguousarray(scene.normals, np.float32),
-                material=np.ascontiguousarray(scene.material, np.int32), tri_mag=tri_mag,
-                kd=f64(scene.kd), ks=f64(scene.ks), shininess=f64(scene.shininess), kr=f64(scene.kr),
-                ior=f64(scene.ior), light_kind=kind, light_pos=pos, light_dir=ldir, light_val=val,
-                ambient=f64(scene.ambient), background=f64(scene.background), cutoff=float(scene.cutoff))
+    return (np.ascontiguousarray(face_n), np.ascontiguousarray(scene.normals, np.float32),
+            np.ascontiguousarray(scene.material, np.int32), tri_mag, f64(scene.kd),
+            f64(scene.kd) / np.pi, f64(scene.ks),
+            f64(scene.shininess), f64(scene.kr), f64(scene.ior), kind, pos, ldir, val,
+            f64(scene.ambient), f64(scene.background), float(scene.cutoff))
 
 
 def render(scene, tracer, seed=0, progress=None, offset="relative"):
@@ -215,9 +219,11 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     aov_normal = np.zeros((npix, 3), np.float32)
     aov_prim = np.full(npix, -1, np.int32)
     rays = {"primary": 0, "shadow": 0, "reflection": 0, "refraction": 0}
-    secs = dict.fromkeys(("generate", "intersect", "shade", "compact", "occluded", "accumulate"), 0.0)
-    n_lights = len(scene.lights)
-    buf = _Buffers(npix, n_lights)
+    secs = dict.fromkeys(("generate", "intersect", "shade", "pack", "occluded", "accumulate"), 0.0)
+    n_lights = len(scene.lights) if passes["shadow"] else 0
+    # rays go to the tracer in its own precision (float32 for the hardware units), so it
+    # reads them as they are
+    buf = _Buffers(npix, n_lights, np.dtype(getattr(tracer, "dtype", np.float32)))
     cam = scene.camera
     cu, cv, cw = look_at_basis(cam["eye"], cam["target"], cam["up"])
     eye = np.asarray(cam["eye"], np.float64)
@@ -229,67 +235,65 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     code = STRATEGY_CODES[offset]
     clock = time.perf_counter
 
+    last = [clock()]
+
+    def lap(stage):
+        now = clock()
+        secs[stage] += now - last[0]
+        last[0] = now
+
     for s in range(spp):
-        t0 = clock()
+        lap("generate")
         if scene.jitter:
             rng = np.random.default_rng([seed, s])
             jx, jy = rng.random(npix), rng.random(npix)
         else:
             jx = jy = no_jitter
-        O, D, wgt, pix = buf.cur
         stages.generate_camera_rays(order, W, H, jx, jy, float(s % gx), float(s // gx), float(gx),
-                                    float(gy), scene.jitter, eye, cu, cv, cw, half, W / H,
-                                    O, D, wgt, pix)
+                                    float(gy), scene.jitter, eye, cu, cv, cw, half, W / H, *buf.cur)
         n = npix
         rays["primary"] += n
-        secs["generate"] += clock() - t0
+        lap("generate")
         for bounce in range(passes["depth"]):
             if n == 0:
                 break
-            O, D, wgt, pix = buf.cur
             buf.ensure_slots(n)
-            t0 = clock()
-            h = tracer.intersect(O[:n], D[:n], normals=False)
-            t1 = clock()
-            secs["intersect"] += t1 - t0
+            nb = stages.n_blocks(n)
+            O, D, wgt, pix, Ot, Dt = buf.cur
+            sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt = buf.sh
+            sp_O, sp_D, sp_W, sp_pix, sp_cnt = buf.sp
             spawn = bounce + 1 < passes["depth"]
-            shO, shD, shT, shC, sh_used = buf.sh
-            spO, spD, spW, sp_used = buf.sp
-            stages.shade(O, D, wgt, n, h.prim, h.t, h.u, h.v,
-                         sa["face_n"], sa["shading_n"], sa["material"], sa["tri_mag"], sa["kd"],
-                         sa["ks"], sa["shininess"], sa["kr"], sa["ior"], sa["light_kind"],
-                         sa["light_pos"], sa["light_dir"], sa["light_val"], sa["ambient"],
-                         sa["background"], sa["cutoff"], code, passes["shadow"], spawn,
-                         bounce == 0 and s == 0, pix, aov_depth, aov_normal, aov_prim,
-                         buf.contrib, shO, shD, shT, shC, sh_used, spO, spD, spW, sp_used)
-            t2 = clock()
-            secs["shade"] += t2 - t1
-            if passes["shadow"] and n_lights:
+            lap("pack")
+            h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
+            lap("intersect")
+            stages.shade(O, D, wgt, pix, n, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
+                         bounce == 0, bounce == 0 and s == 0, aov_depth, aov_normal, aov_prim, film, buf.contrib,
+                         sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt[:nb], sp_O, sp_D, sp_W, sp_pix,
+                         sp_cnt[:nb])
+            lap("shade")
+            if n_lights:
                 qO, qD, qT, qC, qpix = buf.shq
-                m = stages.compact(sh_used, n_lights * n, buf.idx)
-                stages.gather_shadow(buf.idx, m, n, pix, shO, shD, shT, shC, qO, qD, qT, qC, qpix)
-                t3 = clock()
-                secs["compact"] += t3 - t2
-                blocked = tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m]) if m else np.zeros(0, bool)
-                t2 = clock()
-                secs["occluded"] += t2 - t3
-                rays["shadow"] += int(m)
+                m = int(stages.pack_shadow(sh_cnt[:nb], sh_Ot, sh_Dt, sh_T, sh_C, sh_pix,
+                                           qO, qD, qT, qC, qpix))
+                lap("pack")
+                blocked = tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m])
+                lap("occluded")
                 stages.accumulate_unblocked(film, qpix, qC, np.ascontiguousarray(blocked), m)
-            stages.accumulate(film, pix, buf.contrib, n)
-            t3 = clock()
-            secs["accumulate"] += t3 - t2
+                rays["shadow"] += m
+            if bounce > 0:                          # the camera wavefront added its own
+                stages.accumulate(film, pix, buf.contrib, n)
+            lap("accumulate")
             if not spawn:
                 break
-            k = stages.compact(sp_used, 2 * n, buf.idx)
-            refl = int(np.searchsorted(buf.idx[:k], n))        # slots below n are reflections
+            refl = int(sp_cnt[:nb, 0].sum())
+            k = refl + int(sp_cnt[:nb, 1].sum())
             rays["reflection"] += refl
-            rays["refraction"] += int(k) - refl
-            buf.ensure_next(int(k))
-            nO, nD, nW, npx = buf.nxt
-            stages.gather_spawn(buf.idx, k, n, buf.cur[3], *buf.sp[:3], nO, nD, nW, npx)
+            rays["refraction"] += k - refl
+            buf.ensure_next(k)
+            stages.pack_spawn(sp_cnt[:nb], sp_O, sp_D, sp_W, sp_pix, *buf.nxt)
             buf.cur, buf.nxt = buf.nxt, buf.cur
-            n = int(k)
-            secs["compact"] += clock() - t3
+            n = k
+            lap("pack")
         if progress:
             progress(1)
     image = (film / spp).astype(np.float32).reshape(H, W, 3)

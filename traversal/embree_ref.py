@@ -64,6 +64,7 @@ class EmbreeTracer:
 
     name = "embree"
     has_counters = False
+    dtype = np.float32                # embreex takes float32 rays
 
     def __init__(self, vertices, faces, robust=True):
         self.scene = embree_scene(vertices, faces, robust)

@@ -22,17 +22,12 @@ STRATEGY_CODES = {name: k for k, name in enumerate(STRATEGIES)}
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def offset_origin(px, py, pz, nx, ny, nz, dx, dy, dz, tri_mag, strategy):
-    """One origin: the hit point (px, py, pz) moved along the geometric normal (nx, ny, nz) (any
-    length) to the side of the outgoing direction (dx, dy, dz). ``strategy`` is an index into
-    STRATEGIES. Returns (ox, oy, oz)."""
+def offset_from_unit(px, py, pz, nx, ny, nz, dx, dy, dz, tri_mag, strategy):
+    """One origin: the hit point (px, py, pz) moved along the unit geometric normal
+    (nx, ny, nz) to the side of the outgoing direction (dx, dy, dz). ``strategy`` is an index
+    into STRATEGIES. Returns (ox, oy, oz)."""
     if strategy == 2:                                   # "none"
         return px, py, pz
-    ln = np.sqrt(nx * nx + ny * ny + nz * nz)
-    ln = ln if ln > 1e-300 else 1e-300
-    nx = nx / ln
-    ny = ny / ln
-    nz = nz / ln
     s = nx * dx + ny * dy + nz * dz
     side = 1.0 if s >= 0 else -1.0                      # on the plane: leave to the front
     if strategy == 1:                                   # "fixed"
@@ -42,6 +37,14 @@ def offset_origin(px, py, pz, nx, ny, nz, dx, dy, dz, tri_mag, strategy):
         mag = mag if mag > tri_mag else tri_mag
         k = side * OFFSET_REL * (mag if mag > 1e-30 else 1e-30)
     return px + nx * k, py + ny * k, pz + nz * k
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def offset_origin(px, py, pz, nx, ny, nz, dx, dy, dz, tri_mag, strategy):
+    """``offset_from_unit`` for a normal of any length."""
+    ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+    ln = ln if ln > 1e-300 else 1e-300
+    return offset_from_unit(px, py, pz, nx / ln, ny / ln, nz / ln, dx, dy, dz, tri_mag, strategy)
 
 
 @njit(cache=True, error_model="numpy")

@@ -64,6 +64,10 @@ class VerifyingTracer:
         self._add("shadow", counts)
         return blocked
 
+    @property
+    def dtype(self):
+        return getattr(self.inner, "dtype", np.float32)
+
     def summary(self):
         """Both kinds and their sum: {"rays", "agree", "tie", "mismatch", "closest", "shadow"}."""
         total = {k: self.counts["closest"][k] + self.counts["shadow"][k] for k in self.counts["closest"]}
@@ -105,6 +109,10 @@ class CountingTracer:
     def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
         return self.inner.occluded(origins, dirs, tmin, tmax)
 
+    @property
+    def dtype(self):
+        return self.inner.dtype
+
     def work(self):
         """{"nodes_per_ray", "tris_per_ray", "rays"} over the closest-hit queries so far."""
         r = max(self.rays, 1)
@@ -129,6 +137,10 @@ class RecordingTracer:
         self.queries.append(("occluded", np.array(origins), np.array(dirs), np.array(tmin),
                              np.array(tmax), False))
         return self.inner.occluded(origins, dirs, tmin, tmax)
+
+    @property
+    def dtype(self):
+        return getattr(self.inner, "dtype", np.float32)
 
     def rays(self):
         return sum(len(q[1]) for q in self.queries)
