@@ -105,12 +105,7 @@ def human(what):
         if what in ("tti", "accuracy"):
             return "wrote " + ", ".join(r["files"])
         if what == "render":
-            lines = [f"{'path':<16}{'build s':>9}{'render s':>10}{'total s':>9}"]
-            for m in r["rows"]:
-                lines.append(f"{m['builder'] + '+' + m['traversal']:<16}{m['build_seconds']:>9.3f}"
-                             f"{m['render_seconds']:>10.3f}{m['total_seconds']:>9.3f}")
-            lines.append(f"ratio (ours / embree): {r['ratio']:.2f}")
-            return "\n".join(lines)
+            return _render_human(r)
         if what == "trace":
             lines = [f"{'mesh':<14}{'set':<12}{'rays':>9}{'ours Mr/s':>11}{'embreex':>9}{'ratio':>7}{'open3d':>8}"]
             for m in r["meshes"]:
@@ -259,39 +254,261 @@ def bench_trace(args):
     return {"meshes": rows, "machine": machine(), "repeat": args.repeat}
 
 
-def bench_render(args):
-    """The default scene (640x480, 4 spp, depth 5) with our build + traversal against
-    Embree's build + traversal, in one process after warm-up; median of repeats. The two
-    paths alternate run by run, so that drift in the machine's speed (about 10% on this 2-core
-    VM) falls on both alike."""
-    from raytracer.render import make_tracer, render, warm_up
-    from scenes import compile_scene, load_scene
+RENDER_PATHS = (("hwbvh", "numba"), ("embree", "embree"))
 
-    scene = compile_scene(load_scene(args.meshes[0] if args.meshes else "cornell"))
-    paths = (("hwbvh", "numba"), ("embree", "embree"))
-    runs = {p: {"builds": [], "renders": [], "rays": None} for p in paths}
-    for builder, traversal in paths:
+
+def _render_setting(d, args):
+    """The scene dict with --width/--height/--spp/--max-depth applied (unset keeps the scene's)."""
+    d = dict(d)
+    film = dict(d.get("film", {}))
+    integ = dict(d.get("integrator", {"type": "whitted"}))
+    for key, target in (("width", film), ("height", film), ("spp", film), ("max_depth", integ)):
+        val = getattr(args, key, None)
+        if val is None:
+            continue
+        if val < 1:
+            raise InputError(f"--{key.replace('_', '-')}", f"must be at least 1, got {val}")
+        target[key] = val
+    d["film"], d["integrator"] = film, integ
+    return d
+
+
+def _peer_variants(specs):
+    """{variant: (usable, reason)} for the Mitsuba variants, when a mesh scene is in ``specs``."""
+    from scenes import is_scene
+    from . import mitsuba_peer as mp
+
+    if all(is_scene(s) for s in specs):
+        return {}
+    return {v: mp.variant_status(v) for v in mp.VARIANTS}
+
+
+def bench_render(args):
+    """Time to image (build + render) of each scene (default: cornell) with our build and
+    traversal against Embree's, through the same renderer, and for a mesh scene against
+    Mitsuba 3 (``scalar_rgb`` and ``llvm_ad_rgb``) when it is installed.
+
+    Every path is warm (one untimed build + render first); the paths alternate run by run, in an
+    order that rotates each round, so drift in the machine's speed falls on all alike; figures
+    are medians of ``--repeat`` rounds. Beside each of our renders, the rays it traced (recorded
+    in the warm-up render) are traced again alone: render / trace-only is the renderer's
+    overhead over its traversal.
+
+    Against Mitsuba, both renderers render the scene with ambient 0 and a black background
+    (Mitsuba has neither), with its ``direct`` integrator (one emitter sample, no BSDF sample),
+    and Mitsuba's time to image is its load (mesh + ``mi.load_dict``, which builds its BVH) plus
+    its render. Its rays/s count the rays ours traced for the same image (camera + shadow rays):
+    Mitsuba traces at least those (it also sends a shadow ray from surfaces that face away from
+    the light), so its rate is a lower bound. Image agreement: relative RMSE of our image
+    against Mitsuba's (seed 1), over Mitsuba's seed 1 against seed 2."""
+    import json
+    from tqdm import tqdm
+    from hwbvh.files import check_output_dir, jsonable, write_files
+    from raytracer.render import warm_up
+    from scenes import compile_scene, is_scene, load_scene
+    from . import mitsuba_peer as mp
+
+    specs = [str(s) for s in args.meshes] or ["cornell"]
+    if args.repeat < 1:
+        raise InputError("--repeat", f"must be at least 1, got {args.repeat}")
+    out_dir = getattr(args, "out_dir", None)
+    if out_dir:
+        check_output_dir(out_dir, ["render.json", "render.md"], inputs=specs)
+    scenes = [(spec, compile_scene(_render_setting(load_scene(spec), args))) for spec in specs]
+    for builder, traversal in RENDER_PATHS:
         warm_up(builder, traversal, parallel_build=True)
-        tracer, _, _ = make_tracer(scene, builder, traversal)
-        render(scene, tracer)                          # first render of each path: warm-up
-    for _ in range(args.repeat):
-        for p in paths:
-            tracer, b, _ = make_tracer(scene, *p)
-            t = time.perf_counter()
-            res = render(scene, tracer)
-            runs[p]["renders"].append(time.perf_counter() - t)
-            runs[p]["builds"].append(b)
-            runs[p]["rays"] = res.stats["rays"]
+    variants = _peer_variants(specs)
+    results = []
+    for spec, scene in tqdm(scenes, desc="bench render", file=sys.stderr, unit="scene"):
+        peer_info = None
+        if not is_scene(spec):
+            skipped = mp.unsupported(scene) if mp.installed() else \
+                "mitsuba is not installed (pip install 'hwrt[mitsuba]')"
+            if skipped is None:
+                scene = mp.neutral_scene(scene)
+            peer_info = {"skipped": skipped, "variants": []}
+        compared = peer_info is not None and not peer_info["skipped"]
+        results.append(_render_scene(spec, scene, variants if compared else {}, peer_info,
+                                     args.repeat))
+    result = jsonable({"scenes": results, "repeat": args.repeat, "machine": machine()})
+    if out_dir:
+        files = [(os.path.join(out_dir, "render.json"), json.dumps(result, indent=1) + "\n"),
+                 (os.path.join(out_dir, "render.md"), _render_markdown(result))]
+        write_files(files)
+        result["files"] = [f for f, _ in files]
+    return result
+
+
+def _render_scene(spec, scene, variants, peer_info, repeat):
+    """One scene's rows (see bench_render)."""
+    from raytracer.render import make_tracer, render
+    from traversal.tracers import RecordingTracer
+    from . import mitsuba_peer as mp
+
+    # warm-up: one untimed build + render per path, recording the rays it traces
+    recorded = {}
+    for p in RENDER_PATHS:
+        tracer, _, _ = make_tracer(scene, *p)
+        rec = RecordingTracer(tracer)
+        res = render(scene, rec, seed=0)
+        rec.replay_seconds(tracer)
+        recorded[p] = (rec, res)
+    ours_image = recorded[RENDER_PATHS[0]][1].image
+    ours_rays = recorded[RENDER_PATHS[0]][1].stats["rays"]
+    peers, agreement = {}, {}
+    for v, (ok, _) in variants.items():
+        if not ok:
+            continue
+        peers[v] = mp.MitsubaPeer(scene, v)
+        peers[v].time_to_image(seed=0)                       # warm-up (kernels, caches)
+        agreement[v] = mp.image_agreement(ours_image, peers[v])
+    # timed rounds: every path once per round, the order rotating round by round
+    order = list(RENDER_PATHS) + list(peers)
+    runs = {k: {"build": [], "render": [], "trace": []} for k in order}
+    for i in range(repeat):
+        for k in order[i % len(order):] + order[:i % len(order)]:
+            r = runs[k]
+            if k in peers:
+                t = peers[k].time_to_image(seed=0)
+                r["build"].append(t["load_seconds"])
+                r["render"].append(t["render_seconds"])
+                continue
+            tracer, b, _ = make_tracer(scene, *k)
+            t0 = time.perf_counter()
+            render(scene, tracer, seed=0)
+            r["render"].append(time.perf_counter() - t0)
+            r["build"].append(b)
+            r["trace"].append(recorded[k][0].replay_seconds(tracer))
+            del tracer
+    med = statistics.median
     rows = []
-    for (builder, traversal), r in runs.items():
-        builds, renders = r["builds"], r["renders"]
+    for (builder, traversal) in RENDER_PATHS:
+        r = runs[(builder, traversal)]
+        rays = recorded[(builder, traversal)][1].stats["rays"]
+        total_rays = int(sum(rays.values()))
+        render_s, trace_s = med(r["render"]), med(r["trace"])
         rows.append({"builder": builder, "traversal": traversal,
-                     "build_seconds": statistics.median(builds),
-                     "render_seconds": statistics.median(renders),
-                     "total_seconds": statistics.median(np.add(builds, renders)),
-                     "render_spread": [min(renders), max(renders)], "rays": r["rays"]})
-    ratio = rows[0]["total_seconds"] / rows[1]["total_seconds"]
-    return {"scene": scene.name, "rows": rows, "ratio": ratio, "machine": machine()}
+                     "build_seconds": med(r["build"]), "render_seconds": render_s,
+                     "total_seconds": med(np.add(r["build"], r["render"])),
+                     "render_spread": [min(r["render"]), max(r["render"])],
+                     "trace_only_seconds": trace_s,
+                     "render_over_trace_only": render_s / trace_s if trace_s > 0 else None,
+                     "rays": rays, "mrays_per_second": total_rays / render_s / 1e6})
+    out = {"scene": scene.name, "source": spec, "triangles": int(len(scene.triangles)),
+           "width": scene.width, "height": scene.height, "spp": scene.spp,
+           "max_depth": scene.max_depth, "rows": rows,
+           "ratio": rows[0]["total_seconds"] / rows[1]["total_seconds"]}
+    if peer_info is not None:
+        ours = rows[0]
+        estimate = int(ours_rays.get("primary", 0) + ours_rays.get("shadow", 0))
+        for v, (ok, why) in variants.items():
+            if not ok:
+                peer_info["variants"].append({"variant": v, "available": False, "reason": why})
+                continue
+            peer, r = peers[v], runs[v]
+            load_s, render_s = med(r["build"]), med(r["render"])
+            total_s = med(np.add(r["build"], r["render"]))
+            peer_info["variants"].append({
+                "variant": v, "available": True, "load_seconds": load_s,
+                "render_seconds": render_s, "total_seconds": total_s,
+                "render_spread": [min(r["render"]), max(r["render"])],
+                "sampler": peer.sampler, "rays_estimate": estimate,
+                "mrays_per_second_estimate": estimate / render_s / 1e6,
+                "agreement": agreement[v],
+                "ours_over_peer": {"total": ours["total_seconds"] / total_s,
+                                   "build": ours["build_seconds"] / load_s,
+                                   "render": ours["render_seconds"] / render_s}})
+        if variants:
+            peer_info["changes"] = "ambient 0 and background 0 in both renderers (Mitsuba has neither)"
+        out["mitsuba"] = peer_info
+    return out
+
+
+def _render_human(r):
+    lines = []
+    for s in r["scenes"]:
+        lines.append(f"{s['scene']}: {s['triangles']} triangles, {s['width']}x{s['height']}, "
+                     f"{s['spp']} spp, depth {s['max_depth']}; medians of {r['repeat']}")
+        lines.append(f"{'path':<22}{'build s':>9}{'render s':>10}{'total s':>9}{'Mrays/s':>9}"
+                     f"{'trace s':>9}{'render/trace':>13}")
+        for m in s["rows"]:
+            rt = m["render_over_trace_only"]
+            lines.append(f"{m['builder'] + '+' + m['traversal']:<22}{m['build_seconds']:>9.3f}"
+                         f"{m['render_seconds']:>10.3f}{m['total_seconds']:>9.3f}"
+                         f"{m['mrays_per_second']:>9.2f}{m['trace_only_seconds']:>9.3f}"
+                         f"{(f'{rt:.2f}' if rt is not None else '-'):>13}")
+        lines.append(f"ratio (ours / embree): {s['ratio']:.2f}")
+        peer = s.get("mitsuba")
+        if peer is None:
+            continue
+        if peer["skipped"]:
+            lines.append(f"mitsuba: not compared: {peer['skipped']}")
+            continue
+        for v in peer["variants"]:
+            if not v["available"]:
+                lines.append(f"mitsuba {v['variant']}: unavailable ({v['reason']})")
+                continue
+            a, o = v["agreement"], v["ours_over_peer"]
+            ratio = f"{a['ratio']:.2f}" if a["ratio"] is not None else "-"
+            lines.append(f"{'mitsuba ' + v['variant']:<22}{v['load_seconds']:>9.3f}"
+                         f"{v['render_seconds']:>10.3f}{v['total_seconds']:>9.3f}"
+                         f"{v['mrays_per_second_estimate']:>9.2f}*")
+            lines.append(f"  ours / mitsuba {v['variant']}: time to image {o['total']:.2f}, "
+                         f"build/load {o['build']:.2f}, render {o['render']:.2f}; image rel. RMSE "
+                         f"{a['ours_vs_mitsuba']:.4f} vs its seed-to-seed {a['mitsuba_vs_mitsuba']:.4f} "
+                         f"(ratio {ratio})")
+        if any(v["available"] for v in peer["variants"]):
+            lines.append(f"  ({peer['changes']}; * Mitsuba's rays/s counts the camera + shadow rays "
+                         f"ours traced for the same image: a lower bound)")
+    if r.get("files"):
+        lines.append("wrote " + ", ".join(r["files"]))
+    return "\n".join(lines)
+
+
+def _render_markdown(r):
+    """The results as a docs page."""
+    m = r["machine"]
+    lines = [f"Time to image, `hwrt bench render`: medians of {r['repeat']} warm runs per path, "
+             f"the paths alternating run by run. {m.get('cpu', '')}, {m.get('cores')} cores, "
+             f"{m.get('numba_threads')} Numba threads.", ""]
+    for s in r["scenes"]:
+        lines += [f"### {s['scene']} ({s['triangles']} triangles, {s['width']}x{s['height']}, "
+                  f"{s['spp']} spp, depth {s['max_depth']})", "",
+                  "| path | build s | render s | total s | Mrays/s | trace-only s | render / trace-only |",
+                  "|---|---:|---:|---:|---:|---:|---:|"]
+        for row in s["rows"]:
+            rt = row["render_over_trace_only"]
+            lines.append(f"| {row['builder']} build + {row['traversal']} traversal | "
+                         f"{row['build_seconds']:.4f} | {row['render_seconds']:.3f} | "
+                         f"{row['total_seconds']:.3f} | {row['mrays_per_second']:.2f} | "
+                         f"{row['trace_only_seconds']:.3f} | "
+                         f"{f'{rt:.2f}' if rt is not None else '-'} |")
+        lines += ["", f"Ours / Embree (total): {s['ratio']:.2f}.", ""]
+        peer = s.get("mitsuba")
+        if not peer:
+            continue
+        if peer["skipped"]:
+            lines += [f"Mitsuba 3: not compared: {peer['skipped']}.", ""]
+            continue
+        lines += ["| Mitsuba 3 variant | load s | render s | total s | Mrays/s (lower bound) | "
+                  "ours / it, total | ours / it, render | image rel. RMSE: ours / its own noise |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for v in peer["variants"]:
+            if not v["available"]:
+                lines.append(f"| {v['variant']} | unavailable: {v['reason']} | | | | | | |")
+                continue
+            a, o = v["agreement"], v["ours_over_peer"]
+            ratio = f"{a['ratio']:.2f}" if a["ratio"] is not None else "-"
+            lines.append(f"| {v['variant']} | {v['load_seconds']:.4f} | {v['render_seconds']:.3f} | "
+                         f"{v['total_seconds']:.3f} | {v['mrays_per_second_estimate']:.1f} | "
+                         f"{o['total']:.2f} | {o['render']:.2f} | {a['ours_vs_mitsuba']:.4f} / "
+                         f"{a['mitsuba_vs_mitsuba']:.4f} = {ratio} |")
+        if any(v["available"] for v in peer["variants"]):
+            lines += ["", f"For this comparison: {peer['changes']}. Mitsuba's `direct` integrator with "
+                      "one emitter sample and no BSDF sample: a camera ray and a shadow ray per "
+                      "sample. Its rays/s count the camera and shadow rays ours traced for the "
+                      "same image; it traces at least those.", ""]
+    return "\n".join(lines) + "\n"
 
 
 def bench_model(args):
