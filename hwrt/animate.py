@@ -48,6 +48,9 @@ PREVIEW_NAME = "preview.gif"
 BENCH_FRAMES = 60            # bench animation: 2 s at 30 fps covers the explosion and the drape
 BENCH_QUICK_FRAMES = 12
 BENCH_QUICK_TRIANGLES = 4000
+BENCH_FILES = {"per_frame": "animation_tti_per_frame.png", "totals": "animation_totals.png",
+               "drift": "animation_sah_drift.png", "csv": "animation.csv", "json": "animation.json",
+               "md": "animation.md"}
 
 
 # --------------------------------------------------------------------------------------
@@ -447,6 +450,7 @@ def bench_animation(args):
 
     frames = args.frames or (BENCH_QUICK_FRAMES if args.quick else BENCH_FRAMES)
     tris = BENCH_QUICK_TRIANGLES if args.quick else None
+    check_output_dir(args.out_dir, BENCH_FILES.values())
     runs = {}
     cells = [(a, s) for a in ANIMATIONS for s in STRATEGIES]
     for name, strategy in tqdm(cells, desc="bench animation", file=sys.stderr, unit="run"):
@@ -557,7 +561,7 @@ def _bench_files(out_dir, rows, summary, runs, frames, args):
                 ax.set_xlabel("frame")
             if a == 0 and b == 0:
                 ax.legend(fontsize=7, loc="upper left")
-    files.append((os.path.join(out_dir, "animation_tti_per_frame.png"), _png(fig)))
+    files.append((os.path.join(out_dir, BENCH_FILES["per_frame"]), _png(fig)))
     # totals over the animation
     fig, ax = plt.subplots(figsize=(9, 4))
     labels = list(STRATEGIES) + ["HWBVH-C rebuild", "HWBVH-HP rebuild"]
@@ -573,7 +577,7 @@ def _bench_files(out_dir, rows, summary, runs, frames, args):
     ax.set_xticks(np.arange(len(summary)) + 0.4 - w / 2, [r["animation"] for r in summary])
     ax.set_ylabel(f"time to image, {frames} frames (s)")
     ax.legend(fontsize=8)
-    files.append((os.path.join(out_dir, "animation_totals.png"), _png(fig)))
+    files.append((os.path.join(out_dir, BENCH_FILES["totals"]), _png(fig)))
     # SAH drift of refit (and adaptive) against rebuild
     fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.2), squeeze=False)
     for ax, name in zip(axes[0], names):
@@ -589,11 +593,11 @@ def _bench_files(out_dir, rows, summary, runs, frames, args):
         ax.set_xlabel("frame (red: adaptive rebuilds)")
         ax.set_ylabel("SAH cost / rebuild's")
         ax.legend(fontsize=8)
-    files.append((os.path.join(out_dir, "animation_sah_drift.png"), _png(fig)))
-    files.append((os.path.join(out_dir, "animation.csv"), _csv_text(rows)))
-    files.append((os.path.join(out_dir, "animation.json"),
+    files.append((os.path.join(out_dir, BENCH_FILES["drift"]), _png(fig)))
+    files.append((os.path.join(out_dir, BENCH_FILES["csv"]), _csv_text(rows)))
+    files.append((os.path.join(out_dir, BENCH_FILES["json"]),
                   json_text({"summary": summary, "rows": rows, "machine": machine()}, indent=1) + "\n"))
-    files.append((os.path.join(out_dir, "animation.md"), _bench_markdown(summary, frames, args, machine())))
+    files.append((os.path.join(out_dir, BENCH_FILES["md"]), _bench_markdown(summary, frames, args, machine())))
     return files
 
 

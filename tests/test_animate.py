@@ -160,6 +160,7 @@ def test_a_change_in_triangle_count_forces_a_rebuild():
 # animated scene files and frame sequences: strict checks
 # --------------------------------------------------------------------------------------
 import json  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import trimesh  # noqa: E402
 
@@ -334,3 +335,16 @@ def test_sigterm_leaves_only_whole_frames_and_the_run_resumes(tmp_path):
     assert r.returncode == 0, r.stderr
     res = json.loads(r.stdout)
     assert len(done) - 1 <= res["resumed_from"] <= len(done) and len(res["frames"]) == len(done) + 2
+
+
+def test_bench_animation_writes_its_figures_and_summary(tmp_path, capsys):
+    rc, out, err = _run_cli(capsys, "bench", "animation", "--quick", "--frames", 3, "--width", 16,
+                            "--height", 12, "--out-dir", tmp_path, "--json")
+    assert rc == 0, err
+    r = json.loads(out)
+    assert [s["animation"] for s in r["summary"]] == ["exploding", "cloth", "marbles", "flythrough"]
+    assert len(r["rows"]) == 4 * len(STRATEGIES) * 3
+    for s in r["summary"]:
+        assert s["hw_rebuild_HWBVH-C_vs_refit"] > 0 and s["energy_per_frame_HWBVH-C_joules"] > 0
+    for f in r["files"]:
+        assert Path(f).parent == tmp_path and Path(f).stat().st_size > 0
