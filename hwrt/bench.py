@@ -418,6 +418,8 @@ def _render_scene(spec, scene, variants, peer_info, repeat):
                 "ours_over_peer": {"total": ours["total_seconds"] / total_s,
                                    "build": ours["build_seconds"] / load_s,
                                    "render": ours["render_seconds"] / render_s}})
+        if peers:
+            peer_info["versions"] = mp.versions()
         if variants:
             peer_info["changes"] = "ambient 0 and background 0 in both renderers (Mitsuba has neither)"
         out["mitsuba"] = peer_info
@@ -458,8 +460,10 @@ def _render_human(r):
                          f"{a['ours_vs_mitsuba']:.4f} vs its seed-to-seed {a['mitsuba_vs_mitsuba']:.4f} "
                          f"(ratio {ratio})")
         if any(v["available"] for v in peer["variants"]):
+            ver = peer["versions"]
             lines.append(f"  ({peer['changes']}; * Mitsuba's rays/s counts the camera + shadow rays "
-                         f"ours traced for the same image: a lower bound)")
+                         f"ours traced for the same image: a lower bound; Mitsuba {ver['mitsuba']}, "
+                         f"Dr.Jit {ver['drjit']}, LLVM {ver['llvm'] or '-'})")
     if r.get("files"):
         lines.append("wrote " + ", ".join(r["files"]))
     return "\n".join(lines)
@@ -504,7 +508,9 @@ def _render_markdown(r):
                          f"{o['total']:.2f} | {o['render']:.2f} | {a['ours_vs_mitsuba']:.4f} / "
                          f"{a['mitsuba_vs_mitsuba']:.4f} = {ratio} |")
         if any(v["available"] for v in peer["variants"]):
-            lines += ["", f"For this comparison: {peer['changes']}. Mitsuba's `direct` integrator with "
+            ver = peer["versions"]
+            lines += ["", f"Mitsuba {ver['mitsuba']}, Dr.Jit {ver['drjit']}, LLVM {ver['llvm'] or '-'}. "
+                      f"For this comparison: {peer['changes']}. Mitsuba's `direct` integrator with "
                       "one emitter sample and no BSDF sample: a camera ray and a shadow ray per "
                       "sample. Its rays/s count the camera and shadow rays ours traced for the "
                       "same image; it traces at least those.", ""]

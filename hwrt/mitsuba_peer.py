@@ -149,6 +149,21 @@ def variant_status(variant):
     return _probe_result(variant)
 
 
+def versions():
+    """{"mitsuba", "drjit", "llvm"}: the versions a comparison ran with ("llvm": the libLLVM the
+    LLVM variants compile with, once one of them has been used; else None)."""
+    import drjit
+    import mitsuba as mi
+    out = {"mitsuba": mi.__version__, "drjit": drjit.__version__, "llvm": None}
+    try:
+        from drjit.detail import llvm_version
+        v = llvm_version()
+        out["llvm"] = ".".join(str(x) for x in v) if v and v[0] else None
+    except Exception:            # no LLVM backend (or a Dr.Jit without this query)
+        pass
+    return out
+
+
 def _probe(variant):
     """A small render with every plugin the comparison uses (run in a child process)."""
     from scenes import compile_scene

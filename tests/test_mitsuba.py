@@ -162,6 +162,7 @@ def test_bench_render_compares_with_mitsuba(tmp_path):
     (s,) = r["scenes"]
     peer = s["mitsuba"]
     assert peer["skipped"] is None and "ambient 0" in peer["changes"]
+    assert peer["versions"]["mitsuba"].startswith("3.")
     rows = {v["variant"]: v for v in peer["variants"]}
     assert set(rows) == set(mp.VARIANTS)
     scalar = rows["scalar_rgb"]
