@@ -45,6 +45,7 @@ from numba import njit
 
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.primitives import as_triangles, load_mesh_arrays
+from .builtin import BUILTIN
 from .loader import compile_scene, load_scene, mesh_scene
 
 DEFAULT_FPS = 30.0
@@ -879,6 +880,9 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
         raise ParameterError(extra[0], f"only built-in animations ({', '.join(ANIMATIONS)}) take it")
     if is_pattern(spec) and not os.path.exists(spec):
         d = pattern_scene(spec)
+    elif not os.path.exists(spec) and spec not in BUILTIN:
+        raise InputError(spec, "no such animation, scene or file (built-in animations: "
+                               f"{', '.join(ANIMATIONS)}; scenes: {', '.join(BUILTIN)})")
     else:
         d = load_scene(spec)
     d = dict(d)
