@@ -83,54 +83,6 @@ def test_triangle_unit_against_float64_reference():
     assert checked > 500
 
 
-def test_branch_free_triangle_test_is_the_unit():
-    """Traversal uses mt_valid_at (no early exits); it must give mt_hit_at's verdict and, on a
-    hit, its t, u, v bit for bit, including on edges, in the parallel band and at t limits."""
-    from numba import njit
-    from traversal.triangle_unit import mt_hit_at, mt_valid_at
-
-    @njit(error_model="numpy")
-    def both(pre, o, d, tmin, tmax, eps2, edge):
-        n = len(o)
-        out = np.empty((n, 8), np.float32)
-        flat = pre.ravel()
-        for i in range(n):
-            dd = d[i, 0] * d[i, 0] + d[i, 1] * d[i, 1] + d[i, 2] * d[i, 2]
-            a = mt_hit_at(flat, 10 * i, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], dd,
-                          tmin[i], tmax[i], eps2, np.float32(1), edge)
-            b = mt_valid_at(flat, 10 * i, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], dd,
-                            tmin[i], tmax[i], eps2, np.float32(1), edge)
-            out[i, 0] = 1.0 if a[0] else 0.0
-            out[i, 4] = 1.0 if b[0] else 0.0
-            out[i, 1] = a[1]
-            out[i, 2] = a[2]
-            out[i, 3] = a[3]
-            out[i, 5] = b[1]
-            out[i, 6] = b[2]
-            out[i, 7] = b[3]
-        return out
-
-    rng = np.random.default_rng(11)
-    n = 20000
-    tris = rng.uniform(-1, 1, (n, 3, 3)).astype(F32)
-    tris[: n // 10, 2] = tris[: n // 10, 1]                          # degenerate: zero area
-    o = rng.uniform(-2, 2, (n, 3)).astype(F32)
-    # aim at vertices, edge midpoints and interiors; some rays lie in the triangle's plane
-    w = rng.choice([0.0, 0.5, 1.0, 1 / 3], (n, 3))
-    w /= np.maximum(w.sum(1, keepdims=True), 1e-9)
-    target = np.einsum("nk,nkc->nc", w, tris)
-    d = (target - o).astype(F32)
-    flat_ = slice(n // 10, n // 5)
-    o[flat_] = tris[flat_, 0] + 0.5 * (tris[flat_, 1] - tris[flat_, 0])  # in-plane origin
-    d[flat_] = tris[flat_, 2] - tris[flat_, 1]
-    tmax = np.where(rng.random(n) < 0.3, rng.uniform(0, 2, n), np.inf).astype(F32)
-    r = both(preprocess(tris), o, d, np.zeros(n, F32), tmax, band_eps2(F32), F32(1e-7))
-    assert np.array_equal(r[:, 0], r[:, 4])
-    hit = r[:, 0] > 0
-    assert hit.sum() > n // 4 and (~hit).sum() > n // 10
-    assert np.array_equal(r[hit, 1:4], r[hit, 5:8])
-
-
 def test_tiny_triangles_keep_their_hits():
     # 1e-4-sized triangles: det ~ 1e-8; an absolute epsilon (1e-6) would drop them all
     rng = np.random.default_rng(4)

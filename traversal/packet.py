@@ -128,8 +128,10 @@ def _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, lo, hi, one):
     qz = sx * e1y - sy * e1x
     v = (dx * qx + dy * qy + dz * qz) * inv
     t = (e2x * qx + e2y * qy + e2z * qz) * inv
-    ok = (det * det > band * F[DD + k]) & (u >= lo) & (u <= hi) & (v >= lo) & (u + v <= hi) \
-        & (t >= F[TMIN + k]) & (t <= F[BEST + k])
+    # "not in the band" rather than "det^2 > band": the same verdict as the single-ray unit when
+    # the band is NaN (|d|^2 = inf times |e1|^2 |e2|^2 = 0, or 0 times inf)
+    ok = (not (det * det <= band * F[DD + k])) & (u >= lo) & (u <= hi) & (v >= lo) \
+        & (u + v <= hi) & (t >= F[TMIN + k]) & (t <= F[BEST + k])
     return ok, t, u, v
 
 

@@ -1,0 +1,526 @@
+"""Every hand-kept copy of the two hardware units against one reference, bit for bit.
+
+The copies: the Moller-Trumbore datapath in ``triangle_unit.mt_hit_at`` (early exits),
+``triangle_unit.mt_valid_at`` (branch-free, single-ray traversal), ``packet._mt`` (a packet
+lane, also as run by ``packet._triangle``'s lane loop) and ``verify._mt64`` (float64
+verification); the slab test in ``aabb_unit.aabb_hit_at`` and ``packet._slab`` (also as run by
+``packet._box``'s lane loop). The reference is written here once, in NumPy, from the units'
+definition (thesis appendix A, Figs. A.2-A.4): one IEEE operation at a time in the working
+precision, in the datapath's order. NumPy rounds every operation on its own, so it is
+independent of how Numba and LLVM compile the kernels.
+
+"Bit for bit": the same verdict, and the same bits of every output the copy defines (NaN
+matches NaN whatever its payload). Inputs: seeded random rays and triangles/boxes plus the hard
+cases: axis-parallel rays (1/d = +-inf, signed zeros), origins on slab planes, rays through
+shared edges and vertices, rays in and grazing a triangle's plane or a box face, zero-area
+triangles and flat boxes, coordinates near 1e30 and 1e-30, and t exactly at t_min / t_max.
+The test wrappers are compiled without Numba's cache, so they always inline the current units.
+"""
+import math
+
+import numpy as np
+import pytest
+from numba import njit
+
+from traversal.aabb_unit import aabb_hit_at, near_far_planes
+from traversal.config import EDGE_EPS_F32, EDGE_EPS_F64, GAMMA3_F32, GAMMA3_F64
+from traversal.packet import (BEST, BU, BV, MASK, NF, NI, NM, PRIM, P, _box, _lane_setup,
+                              _mt, _planes, _slab, _triangle)
+from traversal.triangle_unit import (TRI_E1, TRI_E2, TRI_NORMS, TRI_V0, TRI_WORDS, band_eps2,
+                                     mt_hit_at, mt_valid_at, preprocess)
+from traversal.verify import _mt64
+
+DTYPES = (np.float32, np.float64)
+EDGE = {np.float32: EDGE_EPS_F32, np.float64: EDGE_EPS_F64}
+GAMMA3 = {np.float32: GAMMA3_F32, np.float64: GAMMA3_F64}
+
+
+# ---------------------------------------------------------------------------------------------
+# The reference
+# ---------------------------------------------------------------------------------------------
+
+def ref_mt(rows, O, D, tmin, tmax, eps2, edge):
+    """Moller-Trumbore with the unit's valid check, every ray against its own preprocessed row.
+    Returns (valid, t, u, v, det); t, u, v are the datapath outputs whatever the verdict."""
+    T = rows.dtype.type
+    one = T(1)
+    v0x, v0y, v0z = (rows[:, TRI_V0 + k] for k in range(3))
+    e1x, e1y, e1z = (rows[:, TRI_E1 + k] for k in range(3))
+    e2x, e2y, e2z = (rows[:, TRI_E2 + k] for k in range(3))
+    ox, oy, oz = O.T
+    dx, dy, dz = D.T
+    with np.errstate(all="ignore"):
+        px = dy * e2z - dz * e2y                   # p = d x e2
+        py = dz * e2x - dx * e2z
+        pz = dx * e2y - dy * e2x
+        det = e1x * px + e1y * py + e1z * pz       # det = e1 . p
+        inv = one / det                            # the divider
+        sx = ox - v0x                              # s = o - v0
+        sy = oy - v0y
+        sz = oz - v0z
+        u = (sx * px + sy * py + sz * pz) * inv
+        qx = sy * e1z - sz * e1y                   # q = s x e1
+        qy = sz * e1x - sx * e1z
+        qz = sx * e1y - sy * e1x
+        v = (dx * qx + dy * qy + dz * qz) * inv
+        t = (e2x * qx + e2y * qy + e2z * qz) * inv
+        dd = dx * dx + dy * dy + dz * dz
+        parallel = det * det <= eps2 * rows[:, TRI_NORMS] * dd    # the relative parallel band
+        valid = ~parallel & (u >= -edge) & (u <= one + edge) & (v >= -edge) \
+            & (u + v <= one + edge) & (t >= tmin) & (t <= tmax)
+    return valid, t, u, v, det
+
+
+def ref_slab(boxes, O, D, tmin, tmax, widen):
+    """The slab test, every ray against its own box (min xyz, max xyz). Returns (hit, tnear)."""
+    T = boxes.dtype.type
+    n = len(boxes)
+    rows = np.arange(n)
+    with np.errstate(all="ignore"):
+        inv = T(1) / D                             # the divider, once per ray
+        tnear = tmin.copy()
+        tfar = tmax.copy()
+        for a in range(3):
+            near = np.where(inv[:, a] < 0, 3, 0) + a          # comparator on the sign of 1/d
+            far = np.where(inv[:, a] < 0, 0, 3) + a
+            tn = (boxes[rows, near] - O[:, a]) * inv[:, a]
+            tf = (boxes[rows, far] - O[:, a]) * inv[:, a]
+            tnear = np.where(tn > tnear, tn, tnear)            # a NaN plane distance is ignored
+            tfar = np.where(tf < tfar, tf, tfar)
+        hit = tnear <= tfar * widen
+    return hit, tnear
+
+
+# ---------------------------------------------------------------------------------------------
+# Wrappers that run the inline kernels, one ray against its own triangle / box
+# ---------------------------------------------------------------------------------------------
+
+@njit(error_model="numpy")
+def run_single_mt(rows, O, D, tmin, tmax, eps2, one, edge, branch_free):
+    """mt_valid_at (branch_free) or mt_hit_at, as the single-ray traversal calls them."""
+    n = O.shape[0]
+    flat = rows.ravel()
+    ok = np.zeros(n, np.bool_)
+    out = np.empty((n, 3), O.dtype)
+    for i in range(n):
+        dx = D[i, 0]
+        dy = D[i, 1]
+        dz = D[i, 2]
+        dd = dx * dx + dy * dy + dz * dz
+        if branch_free:
+            r = mt_valid_at(flat, TRI_WORDS * i, O[i, 0], O[i, 1], O[i, 2], dx, dy, dz, dd,
+                            tmin[i], tmax[i], eps2, one, edge)
+        else:
+            r = mt_hit_at(flat, TRI_WORDS * i, O[i, 0], O[i, 1], O[i, 2], dx, dy, dz, dd,
+                          tmin[i], tmax[i], eps2, one, edge)
+        ok[i] = r[0]
+        out[i, 0] = r[1]
+        out[i, 1] = r[2]
+        out[i, 2] = r[3]
+    return ok, out
+
+
+@njit(error_model="numpy")
+def _lanes(O, D, tmin, tmax, c, F, I, M, one):
+    """Rays c*P.. into the packet's lanes, as trace_packet sets them up (all lanes live)."""
+    zero = one - one
+    for k in range(P):
+        i = min(c * P + k, O.shape[0] - 1)
+        _lane_setup(F, I, M, k, True, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
+                    tmin[i], tmax[i], zero, one)
+
+
+@njit(error_model="numpy")
+def run_packet_mt(rows, O, D, tmin, tmax, eps2, one, edge, anyhit):
+    """Each ray in its packet lane: packet._mt called directly (ok, t, u, v: every output), and
+    packet._triangle's lane loop with only that lane's mask bit set (verdict; t, u, v on a hit;
+    the closest-hit or, with anyhit, the any-hit loop)."""
+    n = O.shape[0]
+    flat = rows.ravel()
+    F = np.empty(NF, O.dtype)
+    I = np.empty(NI, np.int32)
+    M = np.zeros(NM, np.uint8)
+    direct_ok = np.zeros(n, np.bool_)
+    direct = np.empty((n, 3), O.dtype)
+    loop_ok = np.zeros(n, np.bool_)
+    loop = np.empty((n, 3), O.dtype)
+    for c in range((n + P - 1) // P):
+        _lanes(O, D, tmin, tmax, c, F, I, M, one)
+        for k in range(P):
+            i = c * P + k
+            if i >= n:
+                break
+            b = TRI_WORDS * i
+            r = _mt(F, k, flat[b + TRI_V0], flat[b + TRI_V0 + 1], flat[b + TRI_V0 + 2],
+                    flat[b + TRI_E1], flat[b + TRI_E1 + 1], flat[b + TRI_E1 + 2],
+                    flat[b + TRI_E2], flat[b + TRI_E2 + 1], flat[b + TRI_E2 + 2],
+                    eps2 * flat[b + TRI_NORMS], -edge, one + edge, one)
+            direct_ok[i] = r[0]
+            direct[i, 0] = r[1]
+            direct[i, 1] = r[2]
+            direct[i, 2] = r[3]
+            for q in range(P):
+                M[MASK + q] = 1 if q == k else 0
+            _triangle(flat, i, F, I, M, 0, eps2, one, edge, anyhit)
+            loop_ok[i] = I[PRIM + k] == i
+            loop[i, 0] = F[BEST + k]
+            loop[i, 1] = F[BU + k]
+            loop[i, 2] = F[BV + k]
+    return direct_ok, direct, loop_ok, loop
+
+
+@njit(error_model="numpy")
+def run_mt64(tris, O, D):
+    out = np.empty((O.shape[0], 3))
+    for i in range(O.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = _mt64(tris[i], O[i], D[i])
+    return out
+
+
+@njit(error_model="numpy")
+def run_aabb_hit_at(boxes, O, D, tmin, tmax, widen, one):
+    n = O.shape[0]
+    flat = boxes.ravel()
+    hit = np.zeros(n, np.bool_)
+    tn = np.empty(n, O.dtype)
+    for i in range(n):
+        ix = one / D[i, 0]
+        iy = one / D[i, 1]
+        iz = one / D[i, 2]
+        kx, ky, kz = near_far_planes(ix, iy, iz)
+        hit[i], tn[i] = aabb_hit_at(flat, 6 * i, O[i, 0], O[i, 1], O[i, 2], ix, iy, iz,
+                                    kx, ky, kz, tmin[i], tmax[i], widen)
+    return hit, tn
+
+
+@njit(error_model="numpy")
+def run_packet_slab(boxes, O, D, tmin, tmax, widen, one):
+    """Each ray in its packet lane against its own box, the planes picked from the signs of d as
+    trace_packet picks them: packet._slab directly, and packet._box's lane loop."""
+    n = O.shape[0]
+    flat = boxes.ravel()
+    F = np.empty(NF, O.dtype)
+    I = np.empty(NI, np.int32)
+    M = np.zeros(NM, np.uint8)
+    M64 = M.view(np.uint64)
+    direct = np.zeros(n, np.bool_)
+    loop = np.zeros(n, np.bool_)
+    for c in range((n + P - 1) // P):
+        _lanes(O, D, tmin, tmax, c, F, I, M, one)
+        for k in range(P):
+            i = c * P + k
+            if i >= n:
+                break
+            kx = 3 if math.copysign(1.0, D[i, 0]) < 0 else 0
+            ky = 3 if math.copysign(1.0, D[i, 1]) < 0 else 0
+            kz = 3 if math.copysign(1.0, D[i, 2]) < 0 else 0
+            nx, ny, nz, fx, fy, fz = _planes(flat, 6 * i, kx, ky, kz)
+            direct[i] = _slab(F, k, nx, ny, nz, fx, fy, fz, widen)
+            _box(flat, 6 * i, kx, ky, kz, F, M, M64, widen)
+            loop[i] = M[MASK + k] != 0
+    return direct, loop
+
+
+# ---------------------------------------------------------------------------------------------
+# Inputs
+# ---------------------------------------------------------------------------------------------
+
+def _signed_zeros(rng, shape):
+    return np.where(rng.random(shape) < 0.5, 0.0, -0.0)
+
+
+def triangle_cases(seed):
+    """(name -> (tris (n, 3, 3), O, D)) in float64, rounded to T by the caller."""
+    rng = np.random.default_rng(seed)
+    cases = {}
+    n = 4000
+    tris = rng.uniform(-1, 1, (n, 3, 3))
+    O = rng.uniform(-2, 2, (n, 3))
+    w = rng.dirichlet([1, 1, 1], n) * 1.4 - 0.2              # inside and just outside
+    cases["random"] = (tris, O, np.einsum("nk,nkc->nc", w, tris) - O)
+
+    # two triangles sharing the edge v1-v2 (a quad's diagonal), rays at its vertices and points
+    quad = rng.uniform(-1, 1, (n // 2, 4, 3))
+    a = quad[:, [0, 1, 2]]
+    b = quad[:, [3, 2, 1]]                                   # same edge, the other winding
+    pair = np.concatenate([a, b])
+    s = rng.choice([0.0, 0.25, 0.5, 1.0, 1 / 3], (n // 2, 1))
+    on_edge = quad[:, 1] + s * (quad[:, 2] - quad[:, 1])
+    on_edge = np.concatenate([on_edge, on_edge])
+    O = rng.uniform(-2, 2, (n, 3))
+    cases["shared edges and vertices"] = (pair, O, on_edge - O)
+
+    # axis-parallel rays (1/d = +-inf on two axes, signed zeros) at vertices, edges, interiors
+    tris = rng.uniform(-1, 1, (n, 3, 3))
+    w = rng.choice([0.0, 0.5, 1.0, 1 / 3], (n, 3))
+    w /= np.maximum(w.sum(1, keepdims=True), 1e-9)
+    target = np.einsum("nk,nkc->nc", w, tris)
+    axis = rng.integers(0, 3, n)
+    D = _signed_zeros(rng, (n, 3))
+    D[np.arange(n), axis] = rng.choice([-1.0, 1.0], n)
+    O = target - 3 * D
+    cases["axis-parallel"] = (tris, O, D)
+
+    # axis-aligned triangles hit along their normal axis, and rays lying in their plane
+    tris = rng.uniform(-1, 1, (n, 3, 3))
+    tris[np.arange(n), :, axis] = rng.choice([0.0, 0.5], (n, 1))
+    D = _signed_zeros(rng, (n, 3))
+    D[: n // 2][np.arange(n // 2), axis[: n // 2]] = 1.0                   # along the normal
+    inplane = tris[n // 2:, 2] - tris[n // 2:, 1]
+    D[n // 2:] = inplane
+    O = np.einsum("nk,nkc->nc", rng.dirichlet([1, 1, 1], n), tris) - 2 * D
+    O[n // 2:] = tris[n // 2:, 0] + 0.5 * (tris[n // 2:, 1] - tris[n // 2:, 0])  # origin on an edge
+    cases["axis-aligned triangles, in-plane rays"] = (tris, O, D)
+
+    # grazing: directions within a few ulps of the plane, across the parallel band
+    tris = rng.uniform(-1, 1, (n, 3, 3))
+    e1 = tris[:, 1] - tris[:, 0]
+    e2 = tris[:, 2] - tris[:, 0]
+    nrm = np.cross(e1, e2)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    along = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
+    tilt = rng.choice([0.0, 1e-9, 1e-7, 2.4e-7, 5e-7, 1e-5, 1e-3], (n, 1)) * rng.choice([-1, 1], (n, 1))
+    D = along + tilt * nrm
+    c = tris.mean(1)
+    O = c - 1.5 * D
+    cases["grazing"] = (tris, O, D)
+
+    # zero-area triangles: a repeated vertex, collinear vertices
+    tris = rng.uniform(-1, 1, (n, 3, 3))
+    tris[: n // 2, 2] = tris[: n // 2, 1]
+    tris[n // 2:, 2] = 2 * tris[n // 2:, 1] - tris[n // 2:, 0]
+    O = rng.uniform(-2, 2, (n, 3))
+    cases["zero area"] = (tris, O, tris.mean(1) - O)
+
+    # huge and tiny scales: overflow to inf / NaN and underflow to zero and subnormals in the
+    # products, and mixes (a tiny triangle seen along a huge direction: |d|^2 overflows)
+    base = rng.uniform(-1, 1, (n, 3, 3))
+    O = rng.uniform(-2, 2, (n, 3))
+    D = base.mean(1) - O
+    for name, ts, ds, os_ in (("huge", 1e30, 1.0, 1e30), ("tiny", 1e-30, 1.0, 1e-30),
+                              ("huge rays, tiny triangles", 1e-30, 1e30, 1e-30),
+                              ("tiny rays, huge triangles", 1e30, 1e-30, 1e30),
+                              ("far from the origin", 1.0, 1.0, 1.0)):
+        shift = 1e7 if name == "far from the origin" else 0.0
+        cases[name] = (base * ts + shift, O * os_ + shift, D * ds)
+    return cases
+
+
+def box_cases(seed):
+    """(name -> (boxes (n, 6), O, D)) in float64."""
+    rng = np.random.default_rng(seed)
+    cases = {}
+    n = 4000
+
+    def boxes_(m, flat_axes=None):
+        lo = rng.uniform(-1, 1, (m, 3))
+        hi = lo + rng.uniform(0, 1, (m, 3))
+        if flat_axes is not None:
+            hi[np.arange(m), flat_axes] = lo[np.arange(m), flat_axes]
+        return np.concatenate([lo, hi], 1)
+
+    B = boxes_(n)
+    O = rng.uniform(-3, 3, (n, 3))
+    cases["random"] = (B, O, rng.normal(size=(n, 3)))
+
+    axis = rng.integers(0, 3, n)
+    B = boxes_(n, axis)                                     # zero extent on one axis
+    O = rng.uniform(-3, 3, (n, 3))
+    target = B[:, :3] + rng.uniform(0, 1, (n, 3)) * (B[:, 3:] - B[:, :3])
+    cases["flat boxes"] = (B, O, target - O)
+
+    # axis-parallel rays (1/d = +-inf), origins exactly on the slab planes (0 * inf = NaN)
+    B = boxes_(n)
+    D = _signed_zeros(rng, (n, 3))
+    D[np.arange(n), axis] = rng.choice([-1.0, 1.0], n)
+    inside = B[:, :3] + rng.uniform(0, 1, (n, 3)) * (B[:, 3:] - B[:, :3])
+    on_plane = np.where(rng.random((n, 3)) < 0.5, B[:, :3], B[:, 3:])
+    O = np.where(rng.random((n, 3)) < 0.5, on_plane, inside)
+    O[np.arange(n), axis] = rng.uniform(-3, 3, n)
+    cases["axis-parallel, origins on slab planes"] = (B, O, D)
+
+    # grazing a face: origin in a face's plane, direction within the plane or ulps off it
+    B = boxes_(n)
+    O = B[:, :3] + rng.uniform(-0.5, 1.5, (n, 3)) * (B[:, 3:] - B[:, :3])
+    O[np.arange(n), axis] = np.where(rng.random(n) < 0.5, B[np.arange(n), axis], B[np.arange(n), 3 + axis])
+    D = rng.normal(size=(n, 3))
+    D[np.arange(n), axis] = rng.choice([0.0, -0.0, 1e-8, -1e-8, 1e-30], n)
+    cases["grazing faces"] = (B, O, D)
+
+    # through a box's edges and corners: entry and exit distances equal but for rounding,
+    # which the widening of the far distance must absorb
+    B = boxes_(n)
+    corner = np.where(rng.random((n, 3)) < 0.5, B[:, :3], B[:, 3:])
+    free = rng.integers(0, 4, n)                  # 0..2: that coordinate free (an edge); 3: corner
+    pick = free < 3
+    corner[pick, free[pick]] = B[pick, free[pick]] + rng.uniform(0, 1, pick.sum()) * \
+        (B[pick, 3 + free[pick]] - B[pick, free[pick]])
+    O = rng.uniform(-3, 3, (n, 3))
+    cases["through edges and corners"] = (B, O, corner - O)
+
+    # d components that are tiny (1/d huge or, below the float32 range, inf)
+    B = boxes_(n)
+    O = rng.uniform(-3, 3, (n, 3))
+    D = rng.normal(size=(n, 3)) * rng.choice([1.0, 1e-20, 1e-40], (n, 3))
+    cases["tiny direction components"] = (B, O, D)
+
+    B = boxes_(n)
+    O = rng.uniform(-3, 3, (n, 3))
+    D = rng.normal(size=(n, 3))
+    cases["huge"] = (B * 1e30, O * 1e30, D)
+    cases["tiny"] = (B * 1e-30, O * 1e-30, D)
+    cases["huge rays, tiny boxes"] = (B * 1e-30, O * 1e-30, D * 1e30)
+    return cases
+
+
+def _intervals(rng, n, T):
+    tmin = np.where(rng.random(n) < 0.7, 0.0, rng.uniform(0, 3, n)).astype(T)
+    tmax = np.where(rng.random(n) < 0.6, np.inf, rng.uniform(0, 4, n)).astype(T)
+    return tmin, tmax
+
+
+def _at_the_limits(rng, t, tmin, tmax):
+    """Put t exactly on t_min for some rays and on t_max for others (where t is finite)."""
+    fin = np.isfinite(t)
+    lo = fin & (rng.random(len(t)) < 0.15)
+    hi = fin & ~lo & (rng.random(len(t)) < 0.15)
+    tmin, tmax = np.where(lo, t, np.where(hi, np.minimum(t, tmin), tmin)), \
+        np.where(hi, t, np.where(lo, np.maximum(t, tmax), tmax))
+    return tmin.astype(t.dtype), tmax.astype(t.dtype)
+
+
+def same_bits(a, b):
+    """Elementwise: identical bits, or both NaN."""
+    a = np.ascontiguousarray(a)
+    b = np.ascontiguousarray(b)
+    u = np.uint32 if a.dtype == np.float32 else np.uint64
+    return (a.view(u) == b.view(u)) | (np.isnan(a) & np.isnan(b))
+
+
+def _first_diff(name, mask, *arrays):
+    i = int(np.flatnonzero(~mask)[0])
+    return f"{name}: {(~mask).sum()} rays differ, first {i}: " + "; ".join(repr(x[i]) for x in arrays)
+
+
+# ---------------------------------------------------------------------------------------------
+# Tests
+# ---------------------------------------------------------------------------------------------
+
+def triangle_inputs(T, seed=7):
+    rng = np.random.default_rng(seed + (T == np.float64))
+    out = []
+    for name, (tris, O, D) in triangle_cases(seed).items():
+        with np.errstate(all="ignore"):
+            tris = tris.astype(T)
+            rows = preprocess(tris, T)
+        O = np.ascontiguousarray(O, T)
+        D = np.ascontiguousarray(D, T)
+        keep = (D != 0).any(1) & np.isfinite(D).all(1) & np.isfinite(O).all(1)  # the rays
+        tris, rows, O, D = tris[keep], rows[keep], O[keep], D[keep]            # traversal takes
+        tmin, tmax = _intervals(rng, len(O), T)
+        _, t, _, _, det = ref_mt(rows, O, D, tmin, np.full(len(O), np.inf, T), band_eps2(T), T(0))
+        tmin, tmax = _at_the_limits(rng, t, tmin, tmax)
+        out.append((name, tris, rows, O, D, tmin, tmax))
+        if name == "grazing":
+            # the parallel band's edge: the row's |e1|^2 |e2|^2 word set so that the band
+            # eps2 * word * |d|^2 lands within a few ulps of det^2 (the unit takes the word as
+            # given; here it is an input like any other)
+            with np.errstate(all="ignore"):
+                dd = (D * D).sum(1, dtype=T)
+                word = (det * det) / (band_eps2(T) * dd)
+            ok = np.flatnonzero(np.isfinite(word) & (word > 0))
+            up, down = word[ok], word[ok]
+            words = [up]
+            for _ in range(3):                      # the word and 3 ulps either side
+                up = np.nextafter(up, T(np.inf))
+                down = np.nextafter(down, T(0))
+                words += [up, down]
+            k = len(words)
+            rows = np.repeat(rows[ok], k, axis=0)
+            rows[:, TRI_NORMS] = np.stack(words, 1).ravel()
+            rep = np.repeat(ok, k)
+            out.append(("parallel band's edge", tris[rep], rows, O[rep], D[rep], tmin[rep], tmax[rep]))
+    return out
+
+
+@pytest.mark.parametrize("T", DTYPES, ids=lambda t: t.__name__)
+def test_moller_trumbore_copies_are_the_reference_bit_for_bit(T):
+    eps2 = band_eps2(T)
+    one = T(1)
+    valid_total = 0
+    for edge in (T(0), T(EDGE[T])):
+        for name, tris, rows, O, D, tmin, tmax in triangle_inputs(T):
+            where = f"{T.__name__} edge={edge} {name}"
+            valid, t, u, v, det = ref_mt(rows, O, D, tmin, tmax, eps2, edge)
+            tuv = np.stack([t, u, v], 1)
+            valid_total += valid.sum()
+            for branch_free in (True, False):
+                ok, out = run_single_mt(rows, O, D, tmin, tmax, eps2, one, edge, branch_free)
+                what = "mt_valid_at" if branch_free else "mt_hit_at"
+                assert np.array_equal(ok, valid), _first_diff(f"{where} {what} verdict", ok == valid, O, D)
+                # mt_valid_at returns every output; mt_hit_at defines t, u, v on a hit only
+                rows_ = slice(None) if branch_free else valid
+                same = same_bits(out[rows_], tuv[rows_]).all(1)
+                assert same.all(), _first_diff(f"{where} {what} t/u/v", same, out[rows_], tuv[rows_])
+            for anyhit in (False, True):
+                d_ok, d_out, l_ok, l_out = run_packet_mt(rows, O, D, tmin, tmax, eps2, one, edge, anyhit)
+                assert np.array_equal(d_ok, valid), _first_diff(f"{where} packet._mt verdict",
+                                                                d_ok == valid, O, D, tuv, det)
+                same = same_bits(d_out, tuv).all(1)
+                assert same.all(), _first_diff(f"{where} packet._mt t/u/v", same, d_out, tuv)
+                assert np.array_equal(l_ok, valid), _first_diff(
+                    f"{where} packet._triangle (anyhit={anyhit}) verdict", l_ok == valid, O, D)
+                if not anyhit:
+                    same = same_bits(l_out[valid], tuv[valid]).all(1)
+                    assert same.all(), _first_diff(f"{where} packet._triangle t/u/v", same,
+                                                   l_out[valid], tuv[valid])
+            if T == np.float64 and edge == 0:
+                # the verifier's float64 re-test: the datapath without a valid check (det = 0:
+                # no hit, reported as t = inf)
+                out = run_mt64(tris, O, D)
+                nz = det != 0
+                same = same_bits(out[nz], tuv[nz]).all(1)
+                assert same.all(), _first_diff(f"{where} verify._mt64", same, out[nz], tuv[nz])
+                assert np.isinf(out[~nz, 0]).all()
+    assert valid_total > 5000          # the cases hit as well as miss
+
+
+def box_inputs(T, seed=9):
+    rng = np.random.default_rng(seed + (T == np.float64))
+    out = []
+    widen = T(1 + 2 * GAMMA3[T])
+    for name, (B, O, D) in box_cases(seed).items():
+        with np.errstate(all="ignore"):
+            B = np.ascontiguousarray(B, T)
+            O = np.ascontiguousarray(O, T)
+            D = np.ascontiguousarray(D, T)
+        keep = (D != 0).any(1) & np.isfinite(D).all(1) & np.isfinite(O).all(1)
+        B, O, D = B[keep], O[keep], D[keep]
+        tmin, tmax = _intervals(rng, len(O), T)
+        _, tn = ref_slab(B, O, D, np.zeros(len(O), T), np.full(len(O), np.inf, T), widen)
+        tmin, tmax = _at_the_limits(rng, tn, tmin, tmax)
+        out.append((name, B, O, D, tmin, tmax))
+    return out
+
+
+@pytest.mark.parametrize("T", DTYPES, ids=lambda t: t.__name__)
+def test_slab_test_copies_are_the_reference_bit_for_bit(T):
+    widen = T(1 + 2 * GAMMA3[T])
+    one = T(1)
+    hits = 0
+    nan_planes = 0
+    for name, B, O, D, tmin, tmax in box_inputs(T):
+        where = f"{T.__name__} {name}"
+        hit, tn = ref_slab(B, O, D, tmin, tmax, widen)
+        hits += hit.sum()
+        with np.errstate(all="ignore"):
+            inv = one / D
+            nan_planes += (np.isnan((B[:, :3] - O) * inv) | np.isnan((B[:, 3:] - O) * inv)).any(1).sum()
+        h, t = run_aabb_hit_at(B, O, D, tmin, tmax, widen, one)
+        assert np.array_equal(h, hit), _first_diff(f"{where} aabb_hit_at hit", h == hit, B, O, D)
+        same = same_bits(t, tn)
+        assert same.all(), _first_diff(f"{where} aabb_hit_at tnear", same, t, tn)
+        direct, loop = run_packet_slab(B, O, D, tmin, tmax, widen, one)
+        assert np.array_equal(direct, hit), _first_diff(f"{where} packet._slab", direct == hit, B, O, D)
+        assert np.array_equal(loop, hit), _first_diff(f"{where} packet._box", loop == hit, B, O, D)
+    assert hits > 5000 and nan_planes > 500     # hits and misses; origins on slab planes occur
