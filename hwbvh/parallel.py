@@ -17,8 +17,24 @@ The set-up is pinned here, before the first parallel region starts the pool:
 
 ``HWRT_THREADING`` selects one; an explicit ``NUMBA_THREADING_LAYER`` or ``OMP_WAIT_POLICY`` in
 the environment is left as the user set it.
+
+Kernels with many arguments run through :func:`run_ranges` instead of a ``prange`` driver:
+compiled with ``nogil=True`` and given a range of work items, they are called range by range
+from a small pool of threads:
+
+* compile time: a parallel driver is lowered into a gufunc whose wrapper grows with every
+  argument; for the renderer's shading stage (some fifty arguments) the driver alone took
+  5 s to compile, twice the kernel itself;
+* sharing the machine: idle pool threads sleep on a condition, never spin;
+* balance: ranges are handed out in order from a shared counter, a few per thread, so a thread
+  slowed down by another process on its core simply takes fewer of them.
+
+Each range writes only its own outputs, so results do not depend on how the ranges were shared
+out. The thread count follows ``numba.get_num_threads()``.
 """
 import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 
@@ -46,3 +62,44 @@ def pin_threading(setup=None):
 
 
 THREADING = pin_threading()
+
+RANGES_PER_THREAD = 4          # enough to rebalance around a slowed thread, few enough calls
+
+_pool = None
+_pool_lock = threading.Lock()
+
+
+def _executor():
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=max(1, numba.config.NUMBA_NUM_THREADS - 1),
+                                       thread_name_prefix="hwrt-stage")
+        return _pool
+
+
+def run_ranges(kernel, n, *args, min_items=1):
+    """kernel(lo, hi, *args) over [0, n) split into ranges of at least ``min_items`` items,
+    on numba.get_num_threads() threads (this one included). Re-raises a kernel's exception."""
+    threads = numba.get_num_threads()
+    parts = min(threads * RANGES_PER_THREAD, max(1, n // max(1, min_items)))
+    if threads == 1 or parts <= 1:
+        kernel(0, n, *args)
+        return
+    bounds = [n * k // parts for k in range(parts + 1)]
+    next_part = [0]
+    lock = threading.Lock()
+
+    def worker():
+        while True:
+            with lock:
+                k = next_part[0]
+                next_part[0] += 1
+            if k >= parts:
+                return
+            kernel(bounds[k], bounds[k + 1], *args)
+
+    futures = [_executor().submit(worker) for _ in range(threads - 1)]
+    worker()
+    for f in futures:
+        f.result()

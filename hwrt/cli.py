@@ -180,25 +180,29 @@ def cmd_verify(args):
 
 
 def cmd_simulate(args):
-    from hwbvh.cycle_model import simulate_mesh, sweep
+    from hwbvh.cycle_model import simulate_mesh
 
-    if args.sweep:
-        from hwbvh.cycle_model import params_for
-        ctl = params_for(args.preset, control_latency=args.control_latency).control_latency
-        result = sweep(args.mesh, args.out_dir, leaf_sizes=args.leaf_sizes, jobs=args.jobs,
-                       control_latency=ctl)
-        return _emit(args, result, lambda r: f"wrote {r['csv']} and {', '.join(r['plots'])}")
-    from hwbvh.errors import ParameterError
-    try:
-        result = simulate_mesh(args.mesh, args.preset, w=args.w, tsize=args.tsize, psize=args.psize,
-                               subtree_builders=args.subtree_builders, ram_pairs=args.ram_pairs,
-                               clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins,
-                               control_latency=args.control_latency)
-    except ParameterError as e:         # the library names its parameter; the user typed a flag
-        raise InputError(f"--{e.parameter.replace('_', '-')}", e.problem) from None
+    result = simulate_mesh(args.mesh, args.preset, w=args.w, tsize=args.tsize, psize=args.psize,
+                           subtree_builders=args.subtree_builders, ram_pairs=args.ram_pairs,
+                           clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins,
+                           control_latency=args.control_latency)
     _emit(args, result, lambda r: _kv(r, ["preset", "triangles", "cycles", "seconds", "energy_joules",
                                           "area_mm2", "active_power_w", "traffic_bytes",
                                           "footprint_bytes", "utilisation", "sah_cost"]))
+
+
+def cmd_explore(args):
+    from .explore import KNOBS, explore, human, parse_grid
+
+    try:
+        grid = parse_grid(args.grid) if args.grid else None
+        result = explore(args.meshes, grid, args.out_dir, scheduler=args.scheduler,
+                         workers=args.workers, fresh=args.fresh)
+    except ParameterError as e:      # a knob's value was given in --grid
+        if e.parameter in KNOBS:
+            raise ParameterError("grid", f"{e.parameter}: {e.problem}") from None
+        raise
+    _emit(args, result, human)
 
 
 def cmd_render(args):
@@ -230,15 +234,15 @@ def cmd_render(args):
     scene = compile_scene(d)
     startup_s = warm_up(args.builder, args.traversal)
     tracer, build_s, info = make_tracer(scene, args.builder, args.traversal)
-    verify = None
+    checked = None
     if args.verify:
-        from traversal.embree_ref import embree_scene
-        verify = embree_scene(scene.vertices, scene.faces)
+        from traversal.tracers import VerifyingTracer
+        tracer = checked = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
     from tqdm import tqdm
     bar = tqdm(total=scene.spp, desc=f"render {scene.name}", unit="spp", file=sys.stderr,
                disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
     t0 = time.perf_counter()
-    res = render(scene, tracer, seed=args.seed, verify=verify, progress=bar.update)
+    res = render(scene, tracer, seed=args.seed, progress=bar.update)
     render_s = time.perf_counter() - t0
     bar.close()
     result = {"output": out, "scene": scene.name, "builder": args.builder, "traversal": args.traversal,
@@ -254,8 +258,8 @@ def cmd_render(args):
     sim = info.get("simulated_build_seconds")
     if sim:
         result["time_to_image_simulated_seconds"] = {k: v + render_s for k, v in sim.items()}
-    if "verify" in res.stats:
-        result["verify"] = res.stats["verify"]
+    if checked is not None:
+        result["verify"] = checked.summary()
     meta = {"scene": scene.name, "builder": args.builder, "traversal": args.traversal,
             "build_seconds": build_s, "render_seconds": render_s, "spp": scene.spp,
             "max_depth": scene.max_depth}
@@ -289,6 +293,7 @@ BENCH_OPTIONS = {
                  "out_dir": "renders/bench", "width": 160, "height": 120},
     "model": {"meshes": [], "mesh_dir": None},
     "contention": {"meshes": [], "repeat": 5, "width": 320, "height": 240, "spp": 1},
+    "trees": {"meshes": [], "repeat": 5, "width": None, "height": None, "spp": None},
     "animation": {"quick": False, "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1,
                   "max_depth": None, "frames": None},
 }
@@ -353,6 +358,12 @@ def cmd_bench(args):
           "trace": bench.bench_trace, "render": bench.bench_render,
           "tti": study.bench_tti, "accuracy": study.bench_accuracy,
           "model": bench.bench_model}.get(args.what)
+    if args.what == "contention":
+        from . import contention
+        return _emit(args, contention.bench_contention(args), contention.human)
+    if args.what == "trees":
+        from . import trees
+        return _emit(args, trees.bench_trees(args), trees.human)
     if args.what == "animation":
         from . import animate
         return _emit(args, animate.bench_animation(args), animate.human_bench)
@@ -452,24 +463,41 @@ def make_parser():
     s.add_argument("mesh", help="mesh file")
     s.add_argument("--preset", default="HWBVH-C", choices=["HWBVH-C", "HWBVH-HP"],
                    help="the thesis' hardware instance")
-    for name, text in (("w", "memory ports"), ("tsize", "SAH calculator threads"),
-                       ("psize", "partitioning unit buffer size"),
-                       ("subtree-builders", "subtree builders"), ("ram-pairs", "RAM buffer pairs"),
+    for name, text in (("w", "partitioning units per subtree builder"),
+                       ("tsize", "threads per subtree builder"),
+                       ("psize", "primitives per buffer (capacity w * psize)"),
+                       ("subtree-builders", "subtree builders"), ("ram-pairs", "DRAM channel pairs"),
                        ("leaf-size", "primitives per leaf"), ("bins", "SAH bins per axis")):
         s.add_argument(f"--{name}", type=_positive, help=f"{text} (default: the preset's)")
     s.add_argument("--clock-mhz", type=_positive_float, help="clock (default: the preset's)")
     s.add_argument("--control-latency", type=_non_negative, metavar="CYCLES",
                    help="control cycles per split beyond Table 3.3 (default: the calibrated "
                         "value; 0 = the text-only model)")
-    s.add_argument("--sweep", action="store_true",
-                   help="design-space sweep (thesis 4.2.1): w, Tsize in {2,4,8,16} x leaf sizes")
-    s.add_argument("--leaf-sizes", type=_positive, nargs="+", default=[4, 8, 16, 32, 64],
-                   help="leaf sizes of the sweep")
-    s.add_argument("--out-dir", default="renders/sweep", help="where the sweep's files go")
-    s.add_argument("--jobs", type=_positive, default=os.cpu_count() or 1,
-                   help="threads of the sweep")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.set_defaults(func=cmd_simulate)
+
+    x = sub.add_parser("explore", help="design-space exploration: time, energy and area of every "
+                                       "configuration of a grid on every mesh, Pareto fronts",
+                       description="Simulate every configuration of a grid of hardware knobs on "
+                                   "every mesh (knobs not in the grid stay at HWBVH-C's value), "
+                                   "with each configuration's own area and power; write the rows, "
+                                   "the Pareto fronts of time and energy against area, and plots. "
+                                   "Cells run on Dask and resume after an interruption.")
+    x.add_argument("meshes", nargs="+", metavar="MESH", help="mesh files")
+    x.add_argument("--grid", action="append", metavar="KNOB=V1,V2,...",
+                   help="values of one knob (bins, leaf_size, w, tsize, psize, subtree_builders, "
+                        "ram_pairs, clock_mhz); repeat for more knobs (default: a grid over w, "
+                        "tsize, psize, subtree_builders, ram_pairs, clock_mhz and leaf_size)")
+    x.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a running Dask scheduler, tcp://HOST:PORT (default: $HWRT_SCHEDULER, "
+                        "else a local cluster of one worker per core)")
+    x.add_argument("--workers", type=_positive, help="workers of the local cluster "
+                                                     "(default: one per core)")
+    x.add_argument("--out-dir", default="renders/explore", help="where the files and the "
+                                                                "resumable cells go")
+    x.add_argument("--fresh", action="store_true", help="ignore finished cells")
+    x.add_argument("--json", action="store_true", help="print one JSON object")
+    x.set_defaults(func=cmd_explore)
 
     r = sub.add_parser("render", help="render a scene (Whitted) to EXR",
                        description="Render a scene with the Whitted ray tracer to an EXR file.")
@@ -537,7 +565,7 @@ def make_parser():
                                     "a peer measured in the same run. An option a benchmark does "
                                     "not read is an error.")
     be.add_argument("what", help="the benchmark", choices=["build", "scale", "trace", "render", "tti", "accuracy", "model",
-                                                           "animation"])
+                                                           "contention", "trees", "animation"])
     be.add_argument("meshes", nargs="*", metavar="MESH",
                     help="mesh files; bench render also takes scenes (default: every mesh in "
                          "--mesh-dir; bench render: cornell)")

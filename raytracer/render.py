@@ -29,6 +29,7 @@ import numpy as np
 from traversal.camera import look_at_basis, tile_order
 from traversal.offset import STRATEGY_CODES
 from . import stages
+from hwbvh.parallel import run_ranges
 from .stages import fresnel_dielectric  # noqa: F401  (the shading model's Fresnel term)
 
 
@@ -249,8 +250,9 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
             jx, jy = rng.random(npix), rng.random(npix)
         else:
             jx = jy = no_jitter
-        stages.generate_camera_rays(order, W, H, jx, jy, float(s % gx), float(s // gx), float(gx),
-                                    float(gy), scene.jitter, eye, cu, cv, cw, half, W / H, *buf.cur)
+        run_ranges(stages.generate_camera_rays, npix, order, W, H, jx, jy, float(s % gx),
+                   float(s // gx), float(gx), float(gy), scene.jitter, eye, cu, cv, cw, half, W / H,
+                   *buf.cur, min_items=4096)
         n = npix
         rays["primary"] += n
         lap("generate")
@@ -266,15 +268,17 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
             lap("pack")
             h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
             lap("intersect")
-            stages.shade(O, D, wgt, pix, n, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
-                         bounce == 0, bounce == 0 and s == 0, aov_depth, aov_normal, aov_prim, film, buf.contrib,
-                         sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt[:nb], sp_O, sp_D, sp_W, sp_pix,
-                         sp_cnt[:nb])
+            run_ranges(stages.shade, nb, nb, O, D, wgt, pix, n, h.prim, h.t, h.u, h.v, *sa, code,
+                       n_lights > 0, spawn, bounce == 0, bounce == 0 and s == 0, aov_depth,
+                       aov_normal, aov_prim, film, buf.contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix,
+                       sh_cnt[:nb], sp_O, sp_D, sp_W, sp_pix, sp_cnt[:nb])
             lap("shade")
             if n_lights:
                 qO, qD, qT, qC, qpix = buf.shq
-                m = int(stages.pack_shadow(sh_cnt[:nb], sh_Ot, sh_Dt, sh_T, sh_C, sh_pix,
-                                           qO, qD, qT, qC, qpix))
+                start = stages.run_starts(sh_cnt[:nb])
+                m = int(start[-1])
+                run_ranges(stages.pack_shadow, nb * n_lights, start, sh_cnt[:nb], sh_Ot, sh_Dt,
+                           sh_T, sh_C, sh_pix, qO, qD, qT, qC, qpix, min_items=8)
                 lap("pack")
                 blocked = tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m])
                 lap("occluded")
@@ -285,12 +289,14 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
             lap("accumulate")
             if not spawn:
                 break
-            refl = int(sp_cnt[:nb, 0].sum())
-            k = refl + int(sp_cnt[:nb, 1].sum())
+            start = stages.run_starts(sp_cnt[:nb])
+            refl = int(start[nb])
+            k = int(start[-1])
             rays["reflection"] += refl
             rays["refraction"] += k - refl
             buf.ensure_next(k)
-            stages.pack_spawn(sp_cnt[:nb], sp_O, sp_D, sp_W, sp_pix, *buf.nxt)
+            run_ranges(stages.pack_spawn, 2 * nb, start, sp_cnt[:nb], sp_O, sp_D, sp_W, sp_pix,
+                       *buf.nxt, min_items=8)
             buf.cur, buf.nxt = buf.nxt, buf.cur
             n = k
             lap("pack")

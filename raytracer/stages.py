@@ -26,7 +26,7 @@ All shading is float64 on float32 hits, formula by formula as tests/naive_whitte
 images agree with that reference to float rounding.
 """
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from traversal.offset import offset_from_unit
 
@@ -38,14 +38,14 @@ def n_blocks(n):
     return (n + BLOCK - 1) // BLOCK
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def generate_camera_rays(order, width, height, jit_x, jit_y, cell_x, cell_y, grid_x, grid_y,
-                         jitter, eye, cu, cv, cw, half, aspect, O, D, wgt, pix, Ot, Dt):
-    """Camera rays of one sample pass for queue slots 0..len(order): slot q is pixel order[q]
+@njit(cache=True, nogil=True, error_model="numpy")
+def generate_camera_rays(lo, hi, order, width, height, jit_x, jit_y, cell_x, cell_y, grid_x,
+                         grid_y, jitter, eye, cu, cv, cw, half, aspect, O, D, wgt, pix, Ot, Dt):
+    """Camera rays of one sample pass for queue slots lo..hi: slot q is pixel order[q]
     (row-major index). The sample falls at the pixel centre, or with ``jitter`` at cell
     (cell_x, cell_y) of a grid_x x grid_y stratification plus the pixel's uniform offsets
     jit_x/jit_y (indexed by pixel). Pinhole camera with basis (cu, cv, cw), tan(fov/2) = half."""
-    for q in prange(order.shape[0]):
+    for q in range(lo, hi):
         p = order[q]
         px = np.float64(p % width) + 0.5
         py = np.float64(p // width) + 0.5
@@ -74,7 +74,7 @@ def generate_camera_rays(order, width, height, jit_x, jit_y, cell_x, cell_y, gri
         pix[q] = p
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def fresnel_dielectric(cos_i, eta_i, eta_t):
     """Unpolarised Fresnel reflectance for cos_i >= 0: (F, cos_t, total internal reflection)."""
     r = eta_i / eta_t
@@ -87,14 +87,14 @@ def fresnel_dielectric(cos_i, eta_i, eta_t):
     return 0.5 * (rs * rs + rp * rp), cos_t, False
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _unit(x, y, z):
     ln = np.sqrt(x * x + y * y + z * z)
     inv = 1.0 / (ln if ln > 1e-300 else 1e-300)
     return x * inv, y * inv, z * inv
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _put_ray(O, D, W, pix, k, ox, oy, oz, dx, dy, dz, w0, w1, w2, p):
     O[k, 0] = ox
     O[k, 1] = oy
@@ -108,7 +108,7 @@ def _put_ray(O, D, W, pix, k, ox, oy, oz, dx, dy, dz, w0, w1, w2, p):
     pix[k] = p
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _own(film, contrib, direct, q, i, c0, c1, c2):
     if direct:
         film[q, 0] += c0
@@ -120,13 +120,14 @@ def _own(film, contrib, direct, q, i, c0, c1, c2):
         contrib[i, 2] = c2
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def shade(O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
           face_n, shading_n, material, tri_mag, kd, kd_pi, ks, shininess, kr, ior,
           light_kind, light_pos, light_dir, light_val, ambient, background, cutoff,
           offset, do_shadow, do_spawn, camera, first, aov_depth, aov_normal, aov_prim,
           film, contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt, sp_O, sp_D, sp_W, sp_pix, sp_cnt):
-    """Shade rays 0..n of the queue from their closest hits (see the module text).
+    """Shade the rays of blocks b0..b1 (of nb, BLOCK rays each, n in all) from their closest
+    hits (see the module text).
 
     Adds ray i's own contribution (background or ambient) to ``film`` at its pixel when
     ``camera`` (a camera wavefront holds each pixel once, so no two threads add to the same
@@ -137,8 +138,7 @@ def shade(O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
     direction, weight, pixel), ``sp_cnt[b, 0/1]`` of them. ``first`` writes the first-hit
     layers (``aov_*``); ``offset``: traversal.offset strategy index; ``kd_pi``: kd / pi."""
     n_lights = light_kind.shape[0]
-    nb = (n + BLOCK - 1) // BLOCK
-    for b in prange(nb):
+    for b in range(b0, b1):
         for l in range(n_lights):
             sh_cnt[b, l] = 0
         n_refl = 0
@@ -315,7 +315,7 @@ def shade(O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
 
 
 @njit(cache=True, error_model="numpy")
-def _run_starts(cnt):
+def run_starts(cnt):
     """Exclusive prefix sums of the runs of ``cnt`` (blocks x kinds) taken kind by kind, block
     by block: start[kind * nb + b]; the last entry is the total."""
     nb, nk = cnt.shape
@@ -329,12 +329,12 @@ def _run_starts(cnt):
     return start
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def pack_shadow(sh_cnt, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, qO, qD, qT, qC, qpix):
-    """The shadow runs back to back, light by light, block by block. Returns the ray count."""
+@njit(cache=True, nogil=True, error_model="numpy")
+def pack_shadow(r0, r1, start, sh_cnt, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, qO, qD, qT, qC, qpix):
+    """Shadow runs r0..r1 (run r = light r // nb of block r % nb) to their places in the dense
+    queue, light by light, block by block (``start`` from ``run_starts``)."""
     nb, n_lights = sh_cnt.shape
-    start = _run_starts(sh_cnt)
-    for r in prange(nb * n_lights):
+    for r in range(r0, r1):
         l = r // nb
         b = r - l * nb
         src = (b * n_lights + l) * BLOCK
@@ -346,17 +346,16 @@ def pack_shadow(sh_cnt, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, qO, qD, qT, qC, qpix):
                 qC[dst + k, c] = sh_C[src + k, c]
             qT[dst + k] = sh_T[src + k]
             qpix[dst + k] = sh_pix[src + k]
-    return start[nb * n_lights]
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def pack_spawn(sp_cnt, sp_O, sp_D, sp_W, sp_pix, O, D, wgt, pix, Ot, Dt):
-    """The next wavefront: reflections then refractions, block by block, with the tracer's
-    copies of origins and directions. Returns the ray count."""
+@njit(cache=True, nogil=True, error_model="numpy")
+def pack_spawn(r0, r1, start, sp_cnt, sp_O, sp_D, sp_W, sp_pix, O, D, wgt, pix, Ot, Dt):
+    """Secondary-ray runs r0..r1 (reflections of block r for r < nb, refractions of block
+    r - nb after) to their places in the next wavefront, with the tracer's copies of origins
+    and directions."""
     nb = sp_cnt.shape[0]
-    start = _run_starts(sp_cnt)
-    for r in prange(2 * nb):
-        src = r * BLOCK                     # reflections of block b at b, refractions at nb + b
+    for r in range(r0, r1):
+        src = r * BLOCK
         kind = r // nb
         dst = start[r]
         for k in range(sp_cnt[r - kind * nb, kind]):
@@ -367,7 +366,6 @@ def pack_spawn(sp_cnt, sp_O, sp_D, sp_W, sp_pix, O, D, wgt, pix, Ot, Dt):
                 Ot[dst + k, c] = sp_O[src + k, c]
                 Dt[dst + k, c] = sp_D[src + k, c]
             pix[dst + k] = sp_pix[src + k]
-    return start[2 * nb]
 
 
 @njit(cache=True, error_model="numpy")

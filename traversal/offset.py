@@ -21,7 +21,7 @@ STRATEGIES = ("relative", "fixed", "none")
 STRATEGY_CODES = {name: k for k, name in enumerate(STRATEGIES)}
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def offset_from_unit(px, py, pz, nx, ny, nz, dx, dy, dz, tri_mag, strategy):
     """One origin: the hit point (px, py, pz) moved along the unit geometric normal
     (nx, ny, nz) to the side of the outgoing direction (dx, dy, dz). ``strategy`` is an index
@@ -39,7 +39,7 @@ def offset_from_unit(px, py, pz, nx, ny, nz, dx, dy, dz, tri_mag, strategy):
     return px + nx * k, py + ny * k, pz + nz * k
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def offset_origin(px, py, pz, nx, ny, nz, dx, dy, dz, tri_mag, strategy):
     """``offset_from_unit`` for a normal of any length."""
     ln = np.sqrt(nx * nx + ny * ny + nz * nz)

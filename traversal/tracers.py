@@ -88,36 +88,44 @@ def _shifted(origins, dirs, tmin, tmax):
 
 
 class CountingTracer:
-    """Counts the traversal work of closest-hit queries: nodes visited and triangles tested per
-    ray, as the single-ray unit does them. Only our traversal has counters."""
+    """Counts traversal work: nodes visited and triangles tested per ray, as the single-ray
+    unit does them, for closest-hit and any-hit (shadow) queries apart. Only our traversal has
+    counters."""
 
     def __init__(self, inner):
         if not getattr(inner, "has_counters", False):
             raise ValueError("work counters need the hwbvh traversal (traversal.Tracer)")
         self.inner = inner
-        self.nodes = 0
-        self.triangles = 0
-        self.rays = 0
+        self.totals = {kind: {"nodes": 0, "triangles": 0, "rays": 0} for kind in ("closest", "shadow")}
+
+    def _add(self, kind, counters):
+        t = self.totals[kind]
+        t["nodes"] += int(counters[:, 0].sum())
+        t["triangles"] += int(counters[:, 1].sum())
+        t["rays"] += len(counters)
 
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
         h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals, counters=True)
-        self.nodes += int(h.counters[:, 0].sum())
-        self.triangles += int(h.counters[:, 1].sum())
-        self.rays += len(h.prim)
+        self._add("closest", h.counters)
         return h
 
     def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
-        return self.inner.occluded(origins, dirs, tmin, tmax)
+        blocked, counters = self.inner.occluded(origins, dirs, tmin, tmax, counters=True)
+        self._add("shadow", counters)
+        return blocked
 
     @property
     def dtype(self):
         return self.inner.dtype
 
-    def work(self):
-        """{"nodes_per_ray", "tris_per_ray", "rays"} over the closest-hit queries so far."""
-        r = max(self.rays, 1)
-        return {"nodes_per_ray": self.nodes / r, "tris_per_ray": self.triangles / r,
-                "rays": self.rays}
+    def work(self, kind="closest"):
+        """{"nodes_per_ray", "tris_per_ray", "rays"} of ``kind`` ("closest", "shadow" or
+        "all") queries so far."""
+        kinds = ("closest", "shadow") if kind == "all" else (kind,)
+        n = sum(self.totals[k]["nodes"] for k in kinds)
+        t = sum(self.totals[k]["triangles"] for k in kinds)
+        r = sum(self.totals[k]["rays"] for k in kinds)
+        return {"nodes_per_ray": n / max(r, 1), "tris_per_ray": t / max(r, 1), "rays": r}
 
 
 class RecordingTracer:

@@ -1,0 +1,76 @@
+"""``hwrt bench trees``: does the render time show the tree?
+
+The hardware builder (16 bins, fixed split rules) and the full-sweep SAH builder give trees of
+different quality for the same scene. A renderer measures trees only if its render time moves
+with the traversal work the tree causes. For each scene this benchmark renders with both trees
+(alternating run by run, median of repeats) and counts, with the single-ray unit's counters,
+the nodes visited and triangles tested per ray over every query of the render, closest-hit and
+shadow alike. It reports the ratio sweep/hwbvh of render time, of trace-only time (the same
+rays traced again alone) and of (nodes + triangles) per ray.
+"""
+import statistics
+import time
+
+DEFAULT_SCENES = ("cornell", "marbles")
+BUILDERS = ("hwbvh", "sweep")
+
+
+def _scene(spec, args):
+    from scenes import compile_scene, load_scene
+
+    d = load_scene(spec)
+    film = d.setdefault("film", {})
+    for key in ("width", "height", "spp"):
+        if getattr(args, key, None) is not None:
+            film[key] = getattr(args, key)
+    return compile_scene(d)
+
+
+def bench_trees(args):
+    from raytracer.render import make_tracer, render, warm_up
+    from traversal.tracers import CountingTracer, RecordingTracer
+
+    warm_up("hwbvh", "numba", parallel_build=True)
+    rows = []
+    for spec in args.meshes or DEFAULT_SCENES:
+        scene = _scene(spec, args)
+        tracers, work, trace_only, renders, sah = {}, {}, {}, {b: [] for b in BUILDERS}, {}
+        for b in BUILDERS:
+            tracers[b], _, info = make_tracer(scene, b, "numba")
+            sah[b] = info.get("sah_cost")
+            counting = CountingTracer(tracers[b])
+            render(scene, counting)
+            w = counting.work("all")
+            work[b] = dict(w, work_per_ray=w["nodes_per_ray"] + w["tris_per_ray"])
+            recording = RecordingTracer(tracers[b])
+            render(scene, recording)                  # also the warm-up render of this tree
+            trace_only[b] = statistics.median(recording.replay_seconds() for _ in range(args.repeat))
+        for _ in range(args.repeat):
+            for b in BUILDERS:
+                t = time.perf_counter()
+                render(scene, tracers[b])
+                renders[b].append(time.perf_counter() - t)
+        render_s = {b: statistics.median(renders[b]) for b in BUILDERS}
+        ratio = lambda x: x["sweep"] / x["hwbvh"]
+        work_ratio = work["sweep"]["work_per_ray"] / work["hwbvh"]["work_per_ray"]
+        rows.append({"scene": scene.name, "width": scene.width, "height": scene.height,
+                     "spp": scene.spp, "sah_cost": sah, "work": work, "render_seconds": render_s,
+                     "trace_only_seconds": trace_only, "work_ratio": work_ratio,
+                     "render_ratio": ratio(render_s), "trace_ratio": ratio(trace_only),
+                     "render_vs_work": ratio(render_s) / work_ratio - 1,
+                     "trace_vs_work": ratio(trace_only) / work_ratio - 1})
+    return {"rows": rows, "repeat": args.repeat}
+
+
+def human(r):
+    lines = [f"{'scene':<10}{'SAH hw/sweep':>14}{'work/ray hw':>12}{'sweep':>8}{'work':>7}"
+             f"{'render':>8}{'trace':>7}{'render vs work':>16}",
+             f"{'':<10}{'':>14}{'':>12}{'':>8}{'ratio':>7}{'ratio':>8}{'ratio':>7}"]
+    for x in r["rows"]:
+        lines.append(f"{x['scene']:<10}{x['sah_cost']['hwbvh']:>7.1f}/{x['sah_cost']['sweep']:<6.1f}"
+                     f"{x['work']['hwbvh']['work_per_ray']:>12.1f}{x['work']['sweep']['work_per_ray']:>8.1f}"
+                     f"{x['work_ratio']:>7.3f}{x['render_ratio']:>8.3f}{x['trace_ratio']:>7.3f}"
+                     f"{100 * x['render_vs_work']:>+15.1f}%")
+    lines.append("ratios are sweep / hwbvh; work = nodes visited + triangles tested per ray, "
+                 "over closest-hit and shadow rays")
+    return "\n".join(lines)
