@@ -1,0 +1,144 @@
+"""Cells on Dask: one helper gives a client, another runs a list of cells through it.
+
+By default the client talks to an embedded local cluster: one worker process per core, one
+thread each, no dashboard, quiet logs. ``scheduler`` (or ``$HWRT_SCHEDULER``) names a running
+Dask scheduler instead (``tcp://HOST:PORT``), whose workers must have hwrt installed and read the
+inputs at the same paths. Each worker runs a warm-up once when it starts (Numba kernels loaded
+from their cache, not once per cell). A cell lost with a killed worker is run again elsewhere
+(Dask reschedules it); a cell that raises is retried. ``client=None`` runs the cells in this
+process, one after the other: the reference a cluster's results equal bit for bit.
+"""
+import logging
+import os
+import sys
+from contextlib import contextmanager
+
+from distributed.diagnostics.plugin import WorkerPlugin
+
+from hwbvh.errors import ParameterError
+
+SCHEDULER_ENV = "HWRT_SCHEDULER"
+CONNECT_TIMEOUT_S = 5      # an unreachable scheduler fails this fast instead of hanging
+RETRIES = 2                # re-runs of a cell that raised (a killed worker is rescheduled anyway)
+QUIET = ("distributed", "tornado", "asyncio", "bokeh")
+
+
+class WarmUp(WorkerPlugin):
+    """Worker plugin: run ``fn`` once in each worker process when it starts (and in a
+    replacement after a kill). ``fn`` must be importable on the workers (a module-level
+    function of hwrt)."""
+
+    name = "hwrt-warm-up"
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def setup(self, worker):
+        self.fn()
+
+
+def _quiet():
+    for name in QUIET:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+
+
+def _probe(address):
+    """Why ``address`` is not a Dask scheduler answering within ``CONNECT_TIMEOUT_S``, or None.
+    Asked before a Client exists, so that a bad address (nothing listening, no route, a server
+    that is not Dask) fails quickly and leaves nothing behind to close."""
+    import asyncio
+    from distributed.comm import connect
+
+    async def ask():
+        comm = await connect(address, timeout=CONNECT_TIMEOUT_S)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        reply = asyncio.run(asyncio.wait_for(ask(), 2 * CONNECT_TIMEOUT_S))
+    except (OSError, TimeoutError, ValueError) as e:     # refused, timed out, unroutable, bad address
+        return (str(e).splitlines() or [""])[0] or type(e).__name__
+    except Exception as e:                               # a server that does not speak Dask
+        return f"the server there does not speak Dask's protocol: {type(e).__name__}"
+    if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
+        return "the server there is not a Dask scheduler"
+    return None
+
+
+@contextmanager
+def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=None):
+    """A ``distributed.Client``: on ``scheduler`` (else ``$HWRT_SCHEDULER``), else on an
+    embedded local cluster of ``workers`` processes (default: one per core) whose Numba kernels
+    get ``threads_per_cell`` threads each. ``warm_up`` runs once per worker. Raises
+    ParameterError("scheduler") when the scheduler cannot be reached within
+    ``CONNECT_TIMEOUT_S``."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    _quiet()
+    address = scheduler or os.environ.get(SCHEDULER_ENV) or None
+    cluster = None
+    dask.config.set({"distributed.scheduler.allowed-failures": 8,
+                     "distributed.worker.daemon": False,
+                     "distributed.comm.timeouts.connect": f"{CONNECT_TIMEOUT_S}s"})
+    if address:
+        problem = _probe(address)
+        if problem:
+            raise ParameterError("scheduler", f"no Dask scheduler answers at {address!r} within "
+                                              f"{CONNECT_TIMEOUT_S} s ({problem})")
+        client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+    else:
+        n = workers or os.cpu_count() or 1
+        threads = str(max(1, int(threads_per_cell)))
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.CRITICAL,
+                               env={"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads})
+        client = Client(cluster, set_as_default=False)
+    try:
+        if warm_up is not None:
+            client.register_plugin(WarmUp(warm_up))
+        yield client
+    finally:
+        _quiet()
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def describe(client):
+    """Where ``client`` runs cells, in words."""
+    n = len(client.scheduler_info().get("workers", {}))
+    if client.cluster is not None:
+        return f"a local Dask cluster of {n} worker processes"
+    return f"the Dask scheduler at {client.scheduler.address} ({n} workers)"
+
+
+def run_cells(cells, on_result, client=None, desc="cells", weight=None, progress=True):
+    """Run ``cells`` (a list of ``(key, fn, args)``) and call ``on_result(key, result)`` in this
+    process as each finishes, with a progress bar over ``weight(key)`` units (default 1 each)
+    on stderr. ``client=None`` runs them here, in order."""
+    from tqdm import tqdm
+
+    weight = weight or (lambda key: 1)
+    total = sum(weight(k) for k, _, _ in cells)
+    bar = tqdm(total=total, desc=desc, unit="cell", file=sys.stderr, disable=not progress,
+               smoothing=0.05)
+    try:
+        if client is None:
+            for key, fn, args in cells:
+                on_result(key, fn(*args))
+                bar.update(weight(key))
+            return
+        from distributed import as_completed
+        futures = {client.submit(fn, *args, key=key, pure=False, retries=RETRIES): key
+                   for key, fn, args in cells}
+        for fut in as_completed(futures, loop=client.loop):
+            key = futures[fut]
+            on_result(key, fut.result())
+            fut.release()
+            bar.update(weight(key))
+    finally:
+        bar.close()

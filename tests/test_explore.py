@@ -1,0 +1,198 @@
+"""hwrt explore: the grid, the fronts, shared builds, resumable cells, bad input at the command
+line, and a Dask cluster that loses a worker mid-run yet returns the single-process result."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import trimesh
+
+from hwbvh.errors import ParameterError
+from hwrt import explore as ex
+from scenes.meshes import bumpy_sphere, random_soup
+
+
+def write_mesh(path, tris):
+    trimesh.Trimesh(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3),
+                    process=False).export(path)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def meshes(tmp_path_factory):
+    d = tmp_path_factory.mktemp("meshes")
+    return [write_mesh(d / "soup.ply", random_soup(3000, seed=2)),
+            write_mesh(d / "sphere.ply", bumpy_sphere(12_000))]
+
+
+GRID = {"w": [2, 4, 8], "tsize": [2, 8], "leaf_size": [4, 16]}
+
+
+def run_cli(*args, cwd=None):
+    t = time.perf_counter()
+    r = subprocess.run([sys.executable, "-m", "hwrt.cli", "explore", *map(str, args)],
+                       capture_output=True, text=True, timeout=300, cwd=cwd)
+    return r, time.perf_counter() - t
+
+
+# --------------------------------------------------------------------------------------
+def test_grid_parsing_and_its_errors():
+    assert ex.parse_grid(["w=2,4", "clock-mhz=250,500.5"]) == {"w": [2, 4], "clock_mhz": [250.0, 500.5]}
+    for bad, name in ((["w="], "w"), (["w=2,,4"], "w"), (["bogus=1"], "grid"), (["w2"], "grid"),
+                      (["w=2", "w=4"], "w"), (["w=2,2"], "w"), (["bins=1.5"], "bins"),
+                      (["clock_mhz=inf"], "clock_mhz")):
+        with pytest.raises(ParameterError) as e:
+            ex.parse_grid(bad)
+        assert e.value.parameter == name, bad
+
+
+def test_configurations_cover_the_grid_and_always_hold_the_presets():
+    cfgs = ex.configurations(GRID)
+    assert len(cfgs) == 3 * 2 * 2 + 1                 # HWBVH-C is in the grid, HWBVH-HP is added
+    names = [n for _, n in cfgs if n]
+    assert sorted(names) == ["HWBVH-C", "HWBVH-HP"]
+    assert all(p.bins == 16 and p.psize == 2048 for p, n in cfgs if not n)
+    for grid, knob in (({"bins": [8, 17]}, "bins"), ({"w": [0]}, "w"), ({"tsize": [3]}, "tsize"),
+                       ({"clock_mhz": [0.0]}, "clock_mhz"), ({"psize": [1 << 23], "w": [4]}, "psize")):
+        with pytest.raises(ParameterError) as e:
+            ex.configurations(grid)
+        assert e.value.parameter == knob
+
+
+def test_pareto_front_and_gaps():
+    pts = [(1, 9), (2, 5), (2, 7), (3, 5), (4, 1), (4, 1), (5, 0.5), (6, 3)]
+    assert ex.pareto_front(pts) == [0, 1, 4, 5, 6]
+    front = [pts[i] for i in ex.pareto_front(pts)]
+    assert ex.gaps((3, 5), front) == {"y_ratio": 1.0, "area_ratio": 1.5}
+    assert ex.gaps((6, 3), front) == {"y_ratio": 6.0, "area_ratio": 1.5}
+    assert ex.gaps((4, 1), front) == {"y_ratio": 1.0, "area_ratio": 1.0}
+
+
+def test_in_process_exploration_fronts_and_shared_builds(meshes, monkeypatch):
+    from hwbvh import builder
+    builds = []
+    real = builder.build_canonical
+    monkeypatch.setattr(builder, "build_canonical", lambda *a, **k: builds.append(k) or real(*a, **k))
+    ex._TREES.clear()
+    r = ex.explore(meshes, GRID, use_dask=False, progress=False)
+    # one build per (mesh, leaf size): w, Tsize and the presets' builders and clock share it
+    assert sorted((k["leaf_size"], k["bins"]) for k in builds) == [(4, 16), (4, 16), (16, 16), (16, 16)]
+    assert r["cells"] == len(r["rows"]) == 13 * 2 == r["computed"]
+    for row in r["rows"]:
+        assert row["energy_joules"] == row["seconds"] * row["active_power_w"]
+        assert row["footprint_bytes"] == 54 * row["triangles"]
+    # every front point is undominated, every other point is dominated by a front point
+    for group in r["pareto"]:
+        for front_name, metric in (("time_area", "seconds"), ("energy_area", "energy_joules")):
+            rows = [x for x in r["rows"] if x["mesh"] == "sphere"
+                    and x["config"]["leaf_size"] == group["leaf_size"]]
+            front = [(p["area_mm2"], p[metric]) for p in group[front_name]["sphere"]]
+            pts = [(x["area_mm2"], x[metric]) for x in rows]
+            for p in pts:
+                dominated = any(a <= p[0] and y <= p[1] and (a, y) != p for a, y in front)
+                assert (p in front) != dominated or p in front
+            for a, y in front:
+                assert not any(b <= a and z <= y and (b, z) != (a, y) for b, z in pts)
+    scopes = {b["scope"] for b in r["best"]}
+    assert {"soup", "sphere", "small (< 50k triangles)"} <= scopes
+    assert {g["preset"] for g in r["preset_gaps"]} == {"HWBVH-C", "HWBVH-HP"}
+    json.dumps(r, allow_nan=False)
+
+
+def test_cells_resume_after_an_interruption(meshes, tmp_path):
+    out = tmp_path / "out"
+    grid = {"w": [2, 4], "tsize": [2, 8], "leaf_size": [4, 8]}
+    first = ex.explore(meshes, grid, out, use_dask=False, progress=False)
+    assert first["computed"] == first["cells"] and len(first["files"]) == 7
+    for name in ex.OUTPUT_NAMES:
+        assert (out / name).exists(), name
+    again = ex.explore(meshes, grid, out, use_dask=False, progress=False)
+    assert again["computed"] == 0 and again["rows"] == first["rows"]
+    # a line cut by an interruption: that cell alone runs again
+    cells = out / ex.CELLS_NAME
+    data = cells.read_bytes()
+    cells.write_bytes(data[:-40])
+    third = ex.explore(meshes, grid, out, use_dask=False, progress=False)
+    assert third["computed"] == 1 and third["rows"] == first["rows"]
+    fresh = ex.explore(meshes, grid, out, use_dask=False, progress=False, fresh=True)
+    assert fresh["computed"] == fresh["cells"]
+    assert len(cells.read_text().splitlines()) == fresh["cells"]
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--grid", "w="], "--grid: w: empty value"),
+    (["--grid", "bogus=1"], "unknown knob 'bogus'"),
+    (["--grid", "bins=17"], "--grid: bins: must be an integer within 2..16"),
+    (["--grid", "w=0"], "--grid: w: must be an integer within 1..64"),
+    (["--grid", "w=2", "--scheduler", "tcp://127.0.0.1:9"], "--scheduler: no Dask scheduler answers"),
+])
+def test_cli_bad_input_one_line_exit_2_no_output(meshes, tmp_path, args, message):
+    out = tmp_path / "out"
+    r, seconds = run_cli(meshes[0], *args, "--out-dir", out)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
+    assert not out.exists()
+    assert seconds < 20
+
+
+def test_cli_unwritable_out_dir(meshes, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    r, _ = run_cli(meshes[0], "--grid", "w=2", "--out-dir", blocker / "sub")
+    assert r.returncode == 2 and str(blocker) in r.stderr and r.stderr.count("\n") == 1
+    r, _ = run_cli(meshes[0], "--grid", "w=2", "--out-dir", os.path.dirname(meshes[0]))
+    assert r.returncode == 0          # a directory of inputs is fine as long as no input is replaced
+    r, _ = run_cli(meshes[0], "--grid", "w=2", "--out-dir", tmp_path / "o", "--json", "--workers", "1")
+    res = json.loads(r.stdout)
+    assert r.returncode == 0 and res["cells"] == 3 and set(res["pareto"][0]) >= {"time_area", "energy_area"}
+    row = res["rows"][0]
+    for k in ("mesh", "config", "cycles", "seconds", "energy_joules", "area_mm2", "active_power_w",
+              "traffic_bytes", "footprint_bytes", "sah_cost", "utilisation"):
+        assert k in row
+
+
+def test_dask_cluster_losing_a_worker_gives_the_single_process_result(tmp_path, monkeypatch):
+    """Two worker processes; one is killed while cells run. Dask reruns its cells elsewhere and
+    the result equals, bit for bit, the same exploration in one process."""
+    from distributed import Client, LocalCluster
+
+    d = tmp_path / "m"
+    d.mkdir()
+    meshes = [write_mesh(d / "a.ply", bumpy_sphere(60_000)), write_mesh(d / "b.ply", random_soup(30_000, seed=7))]
+    grid = {"w": [2, 4, 8, 16], "tsize": [2, 4, 8, 16], "psize": [1024, 2048], "subtree_builders": [1, 2]}
+    monkeypatch.setattr(ex, "BATCH_CONFIGS", 4)
+    reference = ex.explore(meshes, grid, use_dask=False, progress=False)
+    out = tmp_path / "out"
+    cells = out / ex.CELLS_NAME
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=50) as cluster, Client(cluster) as watcher:
+        killed = {}
+
+        def kill_one_when_cells_arrive():
+            deadline = time.time() + 120
+            while time.time() < deadline:
+                n = len(cells.read_text().splitlines()) if cells.exists() else 0
+                if n >= 8:
+                    pids = watcher.run(os.getpid)
+                    killed["lines"] = n
+                    os.kill(next(iter(pids.values())), signal.SIGKILL)
+                    return
+                time.sleep(0.005)
+
+        t = threading.Thread(target=kill_one_when_cells_arrive)
+        t.start()
+        result = ex.explore(meshes, grid, out, scheduler=cluster.scheduler_address, progress=False)
+        t.join()
+    assert killed and killed["lines"] < result["cells"], "the worker was killed after the run"
+    assert result["computed"] == result["cells"] == reference["cells"]
+    assert result["rows"] == reference["rows"]
+    assert result["pareto"] == reference["pareto"] and result["best"] == reference["best"]
+    # every cell was saved once it finished, so a re-run resumes all of them
+    assert len({json.loads(x)["key"] for x in cells.read_text().splitlines()}) == result["cells"]
+    again = ex.explore(meshes, grid, out, use_dask=False, progress=False)
+    assert again["computed"] == 0 and again["rows"] == reference["rows"]
