@@ -517,6 +517,35 @@ def _render_markdown(r):
     return "\n".join(lines) + "\n"
 
 
+def _model_rows(name, tris):
+    """One cell of ``bench model``: a mesh's whole-scene build on both presets, with the
+    text-only model (control latency 0) and the calibrated one."""
+    from dataclasses import replace
+    from hwbvh import calibration as cal
+    from hwbvh.builder import build_canonical
+    from hwbvh.cycle_model import CONTROL_LATENCY, PRESETS, simulate
+    from hwbvh.primitives import primitive_boxes
+
+    tree = build_canonical(primitive_boxes(tris))
+    scene = cal.THESIS_SCENE_OF_MESH.get(name)
+    rows = []
+    for preset, p in PRESETS.items():
+        row = {"mesh": name, "triangles": int(len(tris)), "preset": preset}
+        for key, ctl in (("text_only", 0), ("calibrated", CONTROL_LATENCY)):
+            t = time.perf_counter()
+            r = simulate(tree, replace(p, control_latency=ctl))
+            row[f"{key}_seconds"] = r["seconds"]
+            row[f"{key}_simulation_seconds"] = time.perf_counter() - t
+        row["traffic_bytes"] = r["traffic_total_bytes"]
+        if scene:
+            row["thesis_scene"] = scene
+            row["thesis_seconds"] = cal.thesis_seconds(scene, preset)
+            row["text_only_ratio"] = row["text_only_seconds"] / row["thesis_seconds"]
+            row["calibrated_ratio"] = row["calibrated_seconds"] / row["thesis_seconds"]
+        rows.append(row)
+    return rows
+
+
 def bench_model(args):
     """The hardware model against the thesis: the fit of its one calibrated constant (on
     subtrees cut from the given meshes, against Marbles' rate), then whole-scene build times
@@ -524,12 +553,13 @@ def bench_model(args):
     one, beside the thesis' times where the mesh is a thesis scene, and the fill share of the
     design-space sweep (thesis 4.2: 3.6% on average)."""
     import tempfile
-    from dataclasses import replace
+    import uuid
     from tqdm import tqdm
     from hwbvh import calibration as cal
-    from hwbvh.builder import build_canonical
-    from hwbvh.cycle_model import CONTROL_LATENCY, PRESETS, simulate, sweep
-    from hwbvh.primitives import as_triangles, primitive_boxes
+    from hwbvh.cycle_model import CONTROL_LATENCY, sweep
+    from hwbvh.primitives import as_triangles
+    from .cluster import dask_client, run_cells
+    from .explore import warm_up
 
     meshes = []
     for name, load in tqdm(mesh_inputs(args), desc="bench model: load", file=sys.stderr, unit="mesh"):
@@ -543,24 +573,14 @@ def bench_model(args):
         fit.update(fitted=cal.fit_control_latency(subs, target),
                    fitted_range=[cal.fit_control_latency(subs, t_lo), cal.fit_control_latency(subs, t_hi)],
                    rate_text_only=cal.model_rate(subs, 0), rate_shipped=cal.model_rate(subs, CONTROL_LATENCY))
-    rows = []
-    for name, tris in tqdm(meshes, desc="bench model: simulate", file=sys.stderr, unit="mesh"):
-        tree = build_canonical(primitive_boxes(tris))
-        scene = cal.THESIS_SCENE_OF_MESH.get(name)
-        for preset, p in PRESETS.items():
-            row = {"mesh": name, "triangles": int(len(tris)), "preset": preset}
-            for key, ctl in (("text_only", 0), ("calibrated", CONTROL_LATENCY)):
-                t = time.perf_counter()
-                r = simulate(tree, replace(p, control_latency=ctl))
-                row[f"{key}_seconds"] = r["seconds"]
-                row[f"{key}_simulation_seconds"] = time.perf_counter() - t
-            row["traffic_bytes"] = r["traffic_total_bytes"]
-            if scene:
-                row["thesis_scene"] = scene
-                row["thesis_seconds"] = cal.thesis_seconds(scene, preset)
-                row["text_only_ratio"] = row["text_only_seconds"] / row["thesis_seconds"]
-                row["calibrated_ratio"] = row["calibrated_seconds"] / row["thesis_seconds"]
-            rows.append(row)
+    # one cell per mesh, on Dask (a local cluster unless $HWRT_SCHEDULER names one)
+    run = uuid.uuid4().hex[:8]
+    cells = [(f"model-{run}-{k}", _model_rows, (name, tris)) for k, (name, tris) in enumerate(meshes)]
+    done = {}
+    if cells:
+        with dask_client(warm_up=warm_up) as client:
+            run_cells(cells, done.__setitem__, client, desc="bench model: simulate")
+    rows = [row for key, _, _ in cells for row in done[key]]
     fill = {}
     if meshes:
         name, tris = next(((n, t) for n, t in meshes if n == "bunny"), meshes[0])
