@@ -36,9 +36,8 @@ from hwbvh.files import check_output_dir, json_text, jsonable, write_files
 
 STRATEGIES = ("rebuild", "refit", "adaptive", "embree")
 # The adaptive strategy rebuilds once the refitted tree's SAH cost exceeds this multiple of the
-# cost right after the last rebuild. Rendering time follows the SAH cost roughly linearly and a
-# refit costs ~1/30 of a rebuild, so a tree 1.5x worse already spends more in one frame's
-# traversal than the rebuild it saves on the small scenes the built-ins make.
+# cost right after the last rebuild. The SAH cost estimates traversal work per ray, so this
+# bounds what refitting may add to a frame's render at about half again of a fresh tree's.
 ADAPTIVE_THRESHOLD = 1.5
 PRESET_NAMES = ("HWBVH-C", "HWBVH-HP")
 FRAME_NAME = "frame_{:04d}.exr"
