@@ -1,0 +1,540 @@
+"""The command line's contract on every input: bad input exits 2 with one line naming the file,
+key or option, before any work and without touching an output; --json is strict JSON; signals
+clean up; every option says what it does and its default."""
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hwbvh.errors import InputError, ParameterError
+from hwrt.cli import main, make_parser
+
+ROOT = Path(__file__).resolve().parents[1]
+TETRA_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+
+
+def strict_json(text):
+    """json.loads that refuses NaN and Infinity, as a browser's JSON.parse does."""
+    def refuse(name):
+        raise ValueError(f"not strict JSON: {name}")
+    return json.loads(text, parse_constant=refuse)
+
+
+def call(capsys, *argv):
+    """Run the CLI in this process: (exit status, stdout, stderr)."""
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as e:                     # argparse's own exits (usage errors, --version)
+        rc = e.code
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def run(*argv, env=None, **kw):
+    return subprocess.run([sys.executable, "-m", "hwrt.cli", *map(str, argv)], capture_output=True,
+                          text=True, timeout=600, env=env, **kw)
+
+
+def one_line_error(err):
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+@pytest.fixture
+def tetra(tmp_path):
+    p = tmp_path / "tetra.obj"
+    p.write_text(TETRA_OBJ)
+    return p
+
+
+def write_ply(path, tris):
+    import trimesh
+    V = np.asarray(tris, np.float64).reshape(-1, 3)
+    trimesh.Trimesh(V, np.arange(len(V)).reshape(-1, 3), process=False).export(path)
+    return path
+
+
+@pytest.fixture
+def sphere_ply(tmp_path):
+    from scenes.meshes import uv_sphere
+    import trimesh
+    V, F = uv_sphere(10, 16)
+    p = tmp_path / "sphere.ply"
+    trimesh.Trimesh(V, F, process=False).export(p)
+    return p
+
+
+def scene_dict(**extra):
+    d = {"camera": {"eye": [0, 0, 4], "target": [0, 0, 0]}, "film": {"width": 32, "height": 24},
+         "materials": {"m": {"type": "diffuse"}},
+         "lights": [{"type": "point", "position": [2, 2, 2], "intensity": [10, 10, 10]}],
+         "shapes": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m",
+                     "subdiv": [6, 8]}]}
+    d.update(extra)
+    return d
+
+
+# ---------------------------------------------------------------------------------------
+# 1. smooth normals need no optional package
+# ---------------------------------------------------------------------------------------
+def test_smooth_normals_are_area_weighted_unit_vectors():
+    from scenes.loader import smooth_normals
+    # an octahedron: at each vertex the faces around it sum to the vertex's own direction
+    V = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    F = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4],
+                  [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    N = smooth_normals(V, F)
+    assert N.shape == (8, 3, 3)
+    np.testing.assert_allclose(N, V[F], atol=1e-12)
+    # area weighting: a large and a small face meeting at a vertex (an open fan)
+    V2 = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0], [0, 0, 1]], float)
+    F2 = np.array([[0, 1, 2], [0, 2, 3]])                    # normals +z (area 50) and +x (area 5)
+    n0 = smooth_normals(V2, F2)[0, 0]
+    np.testing.assert_allclose(n0, np.array([5, 0, 50]) / np.hypot(5, 50), atol=1e-12)
+    # a degenerate face keeps a unit normal from its neighbours or none at all, never NaN
+    V3 = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float)
+    assert np.isfinite(smooth_normals(V3, np.array([[0, 1, 2]]))).all()
+
+
+def test_smooth_mesh_scene_renders_without_scipy(tmp_path, sphere_ply):
+    """The README's own example (a mesh with "smooth": true) on a machine without SciPy."""
+    d = scene_dict()
+    d["shapes"] = [{"type": "mesh", "filename": sphere_ply.name, "material": "m", "smooth": True,
+                    "transform": {"scale": 1.2}}]
+    scene = tmp_path / "smooth.json"
+    scene.write_text(json.dumps(d))
+    from scenes import compile_scene, load_scene
+    c = compile_scene(load_scene(scene))
+    np.testing.assert_allclose(np.linalg.norm(c.normals, axis=2), 1.0, atol=1e-6)
+    out = tmp_path / "smooth.exr"
+    code = ("import sys; sys.modules['scipy'] = None\n"       # SciPy is not a dependency
+            "from hwrt.cli import main\n"
+            f"sys.exit(main(['render', {str(scene)!r}, '-o', {str(out)!r}, '--json']))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    for word in ("scipy", "sparse", "Traceback", "falling back"):
+        assert word not in r.stderr, r.stderr
+    assert strict_json(r.stdout)["rays"]["primary"] == 32 * 24 and out.exists()
+
+
+# ---------------------------------------------------------------------------------------
+# 2-3. outputs checked before any work; no output overwrites an input
+# ---------------------------------------------------------------------------------------
+def _unwritable_dir(tmp_path):
+    if os.geteuid() == 0:                    # root writes through permission bits
+        return Path("/proc")                 # no regular files can be created in procfs
+    d = tmp_path / "readonly"
+    d.mkdir()
+    d.chmod(0o555)
+    return d
+
+
+@pytest.mark.parametrize("case", ["existing-dir", "under-a-file", "read-only-dir"])
+def test_render_output_checked_before_any_work(tmp_path, capsys, case):
+    if case == "existing-dir":
+        out = tmp_path / "x.exr"
+        out.mkdir()
+    elif case == "under-a-file":
+        (tmp_path / "plain").write_text("")
+        out = tmp_path / "plain" / "x.exr"
+    else:
+        out = _unwritable_dir(tmp_path) / "sub" / "x.exr"
+    t = time.perf_counter()
+    # a render this size takes minutes: the check must come first
+    rc, out_text, err = call(capsys, "render", "cornell", "-o", out, "--width", 4000,
+                             "--height", 3000, "--spp", 64, "--json")
+    assert time.perf_counter() - t < 30
+    line = one_line_error(err)
+    assert rc == 2 and out_text == "" and str(out) in line and "internal error" not in line
+    assert ".tmp-" not in line
+    assert not list(tmp_path.rglob(".tmp-*"))
+
+
+def test_png_preview_path_is_checked_too(tmp_path, capsys):
+    (tmp_path / "x.png").mkdir()
+    rc, _, err = call(capsys, "render", "cornell", "-o", tmp_path / "x.exr", "--png",
+                      "--width", 4000, "--height", 3000)
+    assert rc == 2 and str(tmp_path / "x.png") in one_line_error(err)
+    assert not (tmp_path / "x.exr").exists()
+
+
+@pytest.mark.parametrize("flag", ["--out", "--dump-aabbs", "--dump-handoff"])
+def test_build_outputs_checked_before_any_work(tmp_path, capsys, tetra, flag):
+    (tmp_path / "plain").write_text("")
+    bad = tmp_path / "plain" / "x"
+    rc, out, err = call(capsys, "build", tetra, flag, bad, "--json")
+    assert rc == 2 and out == "" and str(bad) in one_line_error(err)
+    d = tmp_path / "adir"
+    d.mkdir()
+    if flag != "--out":
+        rc, _, err = call(capsys, "build", tetra, flag, d)
+        assert rc == 2 and "is a directory" in one_line_error(err) and str(d) in err
+
+
+def test_verify_and_bench_outputs_checked_before_any_work(tmp_path, capsys, tetra):
+    d = tmp_path / "adir.npz"
+    d.mkdir()
+    rc, _, err = call(capsys, "verify", tetra, "--rays", 10, "--mismatches", d)
+    assert rc == 2 and str(d) in one_line_error(err)
+    plain = tmp_path / "plain"
+    plain.write_text("")
+    for what in ("tti", "accuracy"):
+        rc, _, err = call(capsys, "bench", what, tetra, "--out-dir", plain)
+        assert rc == 2 and str(plain) in one_line_error(err) and "not a directory" in err
+    assert not list(tmp_path.rglob(".tmp-*"))
+
+
+def test_no_output_overwrites_an_input(tmp_path, capsys, tetra):
+    before = tetra.read_bytes()
+    for argv in (["build", tetra, "--dump-aabbs", tetra],
+                 ["build", tetra, "--dump-handoff", tetra],
+                 ["build", tetra, "--dump-aabbs", tmp_path / "." / "tetra.obj"],   # another spelling
+                 ["build", tetra, "--out", tmp_path / "tetra", "--dump-aabbs", tmp_path / "tetra.json"]):
+        rc, out, err = call(capsys, *argv)
+        assert rc == 2 and out == "", err
+        assert str(argv[-1]) in one_line_error(err)
+    link = tmp_path / "link.obj"
+    link.symlink_to(tetra)
+    rc, _, err = call(capsys, "build", tetra, "--dump-aabbs", link)
+    assert rc == 2 and "input" in one_line_error(err)
+    assert tetra.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.obj", "tetra.obj"]
+
+
+def test_write_files_is_all_or_nothing(tmp_path):
+    from hwbvh.files import write_files
+
+    def fails(tmp):
+        Path(tmp).write_bytes(b"half")
+        raise OSError("disk full")
+    with pytest.raises(OSError):
+        write_files([(tmp_path / "a.bin", b"a"), (tmp_path / "b.exr", fails)])
+    assert list(tmp_path.iterdir()) == []
+    write_files([(tmp_path / "a.bin", b"a"), (tmp_path / "b.txt", "b"),
+                 (tmp_path / "c.dat", lambda tmp: Path(tmp).write_bytes(b"c"))])
+    assert sorted(p.read_bytes() for p in tmp_path.iterdir()) == [b"a", b"b", b"c"]
+
+
+# ---------------------------------------------------------------------------------------
+# 4. strict JSON
+# ---------------------------------------------------------------------------------------
+def test_json_text_maps_non_finite_numbers_to_null():
+    from hwbvh.files import json_text
+    obj = {"a": float("inf"), "b": [np.float32("nan"), -np.inf, np.int64(3)], "c": np.array([1.5, np.inf]),
+           "d": (np.bool_(True), None, "x")}
+    assert strict_json(json_text(obj)) == {"a": None, "b": [None, None, 3], "c": [1.5, None],
+                                          "d": [True, None, "x"]}
+
+
+def test_verify_replay_json_is_strict(tmp_path, capsys, tetra):
+    rays = tmp_path / "rays.npz"
+    np.savez(rays, origins=np.array([[0.2, 0.2, -1.0], [5.0, 5.0, 5.0]]),
+             dirs=np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]), tmax=np.array([np.inf, np.inf]))
+    rc, out, err = call(capsys, "verify", tetra, "--replay", rays, "--json")
+    assert rc == 0, err
+    r = strict_json(out)
+    hit, miss = r["replayed"]
+    assert hit["ours"][0] >= 0 and hit["ours"][1] == pytest.approx(1.0)
+    assert miss["ours"] == [-1, None] and miss["embree"] == [-1, None]
+
+
+def test_bench_tti_honours_size_and_writes_strict_json(tmp_path, sphere_ply):
+    out_dir = tmp_path / "out"
+    r = run("bench", "tti", sphere_ply, "--quick", "--width", 32, "--height", 24,
+            "--out-dir", out_dir, "--json")
+    assert r.returncode == 0, r.stderr
+    res = strict_json(r.stdout)
+    assert res["setting"]["width"] == 32 and res["setting"]["height"] == 24
+    strict_json((out_dir / "tti.json").read_text())
+    for line in (out_dir / "tti.jsonl").read_text().splitlines():
+        strict_json(line)
+    # "never behind" rows: break-even budgets that are infinite come out as null
+    assert any(s["break_even_rays_same_traversal"] is None for s in res["break_even"])
+
+
+# ---------------------------------------------------------------------------------------
+# 5 and 10. scene files: negative light, unknown keys
+# ---------------------------------------------------------------------------------------
+BAD_SCENE_EDITS = {
+    "negative-intensity": (lambda d: d["lights"][0].update(intensity=[-1, 1, 1]), "lights\\[0\\].intensity"),
+    "negative-irradiance": (lambda d: d.update(lights=[{"type": "directional", "direction": [0, -1, 0],
+                                                        "irradiance": [1, -2, 1]}]), "irradiance"),
+    "negative-ambient": (lambda d: d.update(integrator={"ambient": [-0.1, 0, 0]}), "integrator.ambient"),
+    "top-level-typo": (lambda d: d.update(light=d.pop("lights")), "'light'.*did you mean 'lights'"),
+    "unknown-top-level": (lambda d: d.update(colour=1), "'colour': unknown key"),
+    "shape-key": (lambda d: d["shapes"][0].update(radius_=2), "shapes\\[0\\].radius_.*'radius'"),
+    "shape-key-of-another-type": (lambda d: d["shapes"][0].update(corners=[]), "shapes\\[0\\].corners"),
+    "material-key": (lambda d: d["materials"]["m"].update(reflectanse=[1, 1, 1]), "materials.m.reflectanse"),
+    "light-key": (lambda d: d["lights"][0].update(power=3), "lights\\[0\\].power"),
+    "camera-key": (lambda d: d["camera"].update(fovy=30), "camera.fovy.*'fov'"),
+    "film-key": (lambda d: d["film"].update(samples=4), "film.samples"),
+    "integrator-key": (lambda d: d.update(integrator={"maxdepth": 3}), "integrator.maxdepth.*'max_depth'"),
+    "film-jitter-not-bool": (lambda d: d["film"].update(jitter="no"), "film.jitter"),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_SCENE_EDITS))
+def test_bad_scene_keys_and_values(tmp_path, capsys, name):
+    from scenes import compile_scene, load_scene
+    edit, match = BAD_SCENE_EDITS[name]
+    d = scene_dict()
+    edit(d)
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(d))
+    with pytest.raises(InputError, match=match):
+        compile_scene(load_scene(p))
+    rc, out, err = call(capsys, "render", p, "-o", tmp_path / "o.exr")
+    assert rc == 2 and out == "" and str(p) in one_line_error(err)
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_unknown_mesh_transform_key(tmp_path, tetra):
+    from scenes import compile_scene, load_scene
+    d = scene_dict(shapes=[{"type": "mesh", "filename": str(tetra), "material": "m",
+                            "transform": {"rotate_x": 30}}])
+    p = tmp_path / "t.json"
+    p.write_text(json.dumps(d))
+    with pytest.raises(InputError, match="shapes\\[0\\].transform.rotate_x.*'rotate_y'"):
+        compile_scene(load_scene(p))
+
+
+def test_builtin_and_mesh_scenes_use_known_keys_only(tetra):
+    from scenes import BUILTIN, compile_scene, load_scene, transform_scene
+    for name in BUILTIN:
+        compile_scene(transform_scene(load_scene(name, width=8, height=6), 2.0))
+    compile_scene(load_scene(tetra))
+
+
+def test_obj_face_index_zero_is_an_error(tmp_path, capsys):
+    p = tmp_path / "zero.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 0 2 4\n")
+    from hwbvh.primitives import load_mesh_arrays
+    with pytest.raises(InputError, match="line 6: face index 0"):
+        load_mesh_arrays(p)
+    rc, _, err = call(capsys, "build", p)
+    assert rc == 2 and str(p) in one_line_error(err) and "index 0" in err
+    q = tmp_path / "slashes.obj"
+    q.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/0 3/1\n")
+    with pytest.raises(InputError, match="index 0"):
+        load_mesh_arrays(q)
+    ok = tmp_path / "ok.obj"                           # 10, 20, comments: not index 0
+    ok.write_text("v 0 0 0\n" * 10 + "v 1 0 0\nv 0 1 0\n# f 0 1 2\nf 10 11 12\nf -3 -2 -1\n")
+    V, F = load_mesh_arrays(ok)
+    assert V[F].tolist() == [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]] * 2
+
+
+# ---------------------------------------------------------------------------------------
+# 6. build --json: kernel loading apart from building
+# ---------------------------------------------------------------------------------------
+def test_build_json_reports_startup_apart_from_build(tetra):
+    r = run("build", tetra, "--json")                  # a fresh process: kernels still to load
+    assert r.returncode == 0, r.stderr
+    res = strict_json(r.stdout)
+    assert res["triangles"] == 4
+    assert res["build_seconds"] < 0.05 < res["startup_seconds"] + 0.05
+    assert res["startup_seconds"] > res["build_seconds"]
+
+
+# ---------------------------------------------------------------------------------------
+# 7. option values: exit 2, one line naming the option
+# ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("argv,flag", [
+    (["render", "cornell", "--seed", "-1"], "--seed"),
+    (["render", "cornell", "--width", "0"], "--width"),
+    (["bench", "build", "--repeat", "0"], "--repeat"),
+    (["bench", "tti", "--quick", "--width", "0"], "--width"),
+    (["verify", "cornell", "--rays", "0"], "--rays"),
+    (["build", "m.obj", "--leaf-size", "four"], "--leaf-size"),
+    (["simulate", "m.obj", "--clock-mhz", "-5"], "--clock-mhz"),
+    (["simulate", "m.obj", "--control-latency", "-1"], "--control-latency"),
+])
+def test_bad_option_values_exit_2_in_one_line(capsys, argv, flag):
+    rc, out, err = call(capsys, *argv)
+    line = one_line_error(err)
+    assert rc == 2 and out == "" and flag in line and "internal error" not in line
+
+
+def test_library_errors_name_parameters_and_the_cli_names_options(capsys, tetra):
+    import hwbvh
+    from scenes.meshes import sphere
+    for kw, param in (({"leaf_size": 0}, "leaf_size"), ({"bins": 1}, "bins"),
+                      ({"builder": "fast"}, "builder"), ({"capacity": 0}, "capacity")):
+        with pytest.raises(ParameterError) as e:
+            hwbvh.build(sphere(4, 6), **kw)
+        assert e.value.parameter == param and "--" not in str(e.value)
+    rc, _, err = call(capsys, "build", tetra, "--bins", 100)
+    assert rc == 2 and one_line_error(err).startswith("hwrt: error: --bins: ")
+
+
+# ---------------------------------------------------------------------------------------
+# 8. signals: temporary files removed, 130 / 143
+# ---------------------------------------------------------------------------------------
+SIGNAL_DURING_WRITE = textwrap.dedent("""
+    import os, signal, sys, time
+    from pathlib import Path
+    import hwrt.cli as cli
+    from hwbvh.files import write_files
+
+    def slow_write(tmp):
+        Path(tmp).write_bytes(b"half an image")
+        os.kill(os.getpid(), signal.{sig})
+        time.sleep(30)                      # the handler interrupts this
+        Path(tmp).write_bytes(b"a whole image")
+
+    def fake_build(args):                   # an output being written when the signal comes
+        write_files([(args.out + ".exr", slow_write)])
+
+    cli.cmd_build = fake_build
+    sys.exit(cli.main(["build", "mesh.obj", "--out", sys.argv[1]]))
+""")
+
+
+@pytest.mark.parametrize("sig,code,word", [("SIGTERM", 143, "terminated"), ("SIGINT", 130, "interrupted")])
+def test_signal_during_a_write_removes_the_temporary_file(tmp_path, sig, code, word):
+    r = subprocess.run([sys.executable, "-c", SIGNAL_DURING_WRITE.format(sig=sig), str(tmp_path / "x")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == code, r.stderr
+    assert one_line_error(r.stderr) == f"hwrt: {word}"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_sigterm_during_a_render_leaves_nothing(tmp_path):
+    out = tmp_path / "x.exr"
+    env = dict(os.environ, HWRT_PROGRESS="1")
+    p = subprocess.Popen([sys.executable, "-m", "hwrt.cli", "render", "cornell", "-o", str(out),
+                          "--width", "64", "--height", "48", "--spp", "4096", "--png"],
+                         stderr=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+    try:
+        seen = b""
+        while b"render cornell" not in seen:       # the progress bar: rendering has started
+            chunk = p.stderr.read1(4096)
+            assert chunk, "the render ended before it could be signalled"
+            seen += chunk
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 143, (seen + err).decode()
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------
+# 9. resume file with a cut last line
+# ---------------------------------------------------------------------------------------
+def test_resume_file_with_a_cut_last_line_keeps_the_next_record(tmp_path):
+    from hwrt.study import Cells
+    p = tmp_path / "tti.jsonl"
+    p.write_text(json.dumps({"key": "a", "v": 1}) + "\n" + '{"key": "b", "v": 2, "render_sec')
+    cells = Cells(p)
+    assert cells.get("a") and not cells.get("b")
+    cells.add({"key": "b", "v": 3})
+    again = Cells(p)
+    assert again.get("a")["v"] == 1 and again.get("b")["v"] == 3
+    assert [json.loads(line)["key"] for line in p.read_text().splitlines()] == ["a", "b"]
+    # a whole record that only lacks its newline is kept
+    q = tmp_path / "acc.jsonl"
+    q.write_text(json.dumps({"key": "c", "v": 4}))
+    Cells(q).add({"key": "d", "v": 5})
+    assert set(Cells(q).done) == {"c", "d"}
+
+
+# ---------------------------------------------------------------------------------------
+# 10. options honoured or rejected; verify --rays N traces N rays
+# ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("argv,flag", [
+    (["bench", "build", "--width", "64"], "--width"),
+    (["bench", "trace", "--out-dir", "x"], "--out-dir"),
+    (["bench", "accuracy", "--spp", "2"], "--spp"),
+    (["bench", "model", "--repeat", "2"], "--repeat"),
+    (["bench", "tti", "--rays", "10"], "--rays"),
+])
+def test_bench_options_a_benchmark_does_not_read_are_errors(capsys, argv, flag):
+    rc, out, err = call(capsys, *argv)
+    assert rc == 2 and out == "" and flag in one_line_error(err) and "does not read" in err
+
+
+def test_bench_scale_takes_no_meshes(capsys, tetra):
+    rc, _, err = call(capsys, "bench", "scale", tetra)
+    assert rc == 2 and str(tetra) in one_line_error(err)
+
+
+def test_bench_quick_sizes_give_way_to_explicit_ones():
+    from hwrt.cli import _bench_options
+    p = make_parser()
+    a = p.parse_args(["bench", "tti", "--quick", "--width", "40"])
+    _bench_options(a)
+    assert (a.width, a.height, a.repeat, a.spp) == (40, 120, 1, 1)
+    a = p.parse_args(["bench", "accuracy", "--height", "30", "--repeat", "2"])
+    _bench_options(a)
+    assert (a.width, a.height, a.repeat, a.out_dir) == (160, 30, 2, "renders/bench")
+
+
+@pytest.mark.parametrize("kind", ["primary", "random", "bounces", "shadow"])
+def test_verify_traces_exactly_the_rays_asked_for(capsys, tmp_path, sphere_ply, kind):
+    rc, out, err = call(capsys, "verify", sphere_ply, "--rays", 1001, "--kind", kind,
+                        "--mismatches", tmp_path / "m.npz", "--json")
+    assert rc == 0, err
+    r = strict_json(out)
+    assert r["rays"] == r["rays_requested"] == 1001
+    assert r["agree"] + r["tie"] + r["mismatch"] == 1001
+
+
+def test_verify_says_so_when_it_traces_fewer(capsys, tmp_path):
+    # one sliver seen edge-on by the framing camera: almost no first ray hits it
+    p = write_ply(tmp_path / "sliver.ply", [[[0, 0, 0], [1, 0, 0], [0.5, 1e-7, 0]]])
+    rc, out, err = call(capsys, "verify", p, "--rays", 50, "--kind", "shadow", "--json",
+                        "--mismatches", tmp_path / "m.npz")
+    assert rc == 0, err
+    r = strict_json(out)
+    assert r["rays_requested"] == 50
+    if r["rays"] != 50:
+        assert "of the 50 requested" in err
+
+
+def test_replay_rejects_options_of_a_verification_run(capsys, tmp_path, tetra):
+    rc, _, err = call(capsys, "verify", tetra, "--replay", tmp_path / "x.npz", "--rays", 10)
+    assert rc == 2 and "--rays" in one_line_error(err)
+
+
+# ---------------------------------------------------------------------------------------
+# 12. --help and --version
+# ---------------------------------------------------------------------------------------
+def _subparsers(parser):
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return action.choices
+    return {}
+
+
+def test_every_option_has_help_and_shows_its_default():
+    parser = make_parser()
+    for name, sub in _subparsers(parser).items():
+        text = sub.format_help()
+        for action in sub._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help, f"hwrt {name} {action.option_strings or action.dest}: no help text"
+            if action.option_strings and action.default is not None and action.default is not False:
+                assert "default" in sub._get_formatter()._get_help_string(action), (name, action.dest)
+        assert "SPEC" not in text and "``" not in text
+    assert "(default: 4)" in _subparsers(parser)["build"].format_help()       # --leaf-size
+    assert "jitter (default: 0)" in _subparsers(parser)["render"].format_help()   # --seed
+
+
+def test_top_level_help_is_plain_text_and_version_comes_from_the_package(capsys):
+    from importlib.metadata import version
+    rc, out, _ = call(capsys, "--help")
+    assert rc == 0 and "SPEC" not in out and "``" not in out and ":class:" not in out
+    assert "null" in out and "143" in out            # the JSON and exit-status conventions
+    rc, out, _ = call(capsys, "--version")
+    assert rc == 0 and out.strip() == f"hwrt {version('hwrt')}"
