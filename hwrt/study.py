@@ -318,11 +318,9 @@ def bench_accuracy(args):
     from tqdm import tqdm
     from raytracer.render import make_tracer, render, warm_up
     from scenes import compile_scene, transform_scene
-    from traversal.api import Tracer
     from traversal.verify import classify
     from traversal.embree_ref import embree_intersect, embree_scene
     from traversal import raysets
-    import hwbvh
 
     quick = args.quick
     W, H = args.width, args.height
