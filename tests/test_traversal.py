@@ -2,12 +2,14 @@
 every hit checked against Embree on generated meshes."""
 import numpy as np
 import pytest
+from numba import njit
 
 import hwbvh
 from traversal import Tracer
-from traversal.aabb_unit import GAMMA3_F32, aabb_batch
+from traversal.aabb_unit import aabb_hit_at, near_far_planes
+from traversal.config import GAMMA3_F32
 from traversal.embree_ref import embree_occluded, embree_scene
-from traversal.triangle_unit import band_eps2, mt_batch, preprocess
+from traversal.triangle_unit import TRI_WORDS, band_eps2, mt_valid_at, preprocess
 from traversal.verify import verify_mesh
 from scenes.meshes import grid_sheet, random_soup, uv_sphere
 
@@ -17,12 +19,42 @@ F32 = np.float32
 WIDEN = F32(1 + 2 * GAMMA3_F32)
 
 
-def aabb(box, o, d, tmin=0.0, tmax=np.inf):
-    n = len(o)
-    hit, tn = aabb_batch(np.asarray(box, F32).reshape(1, 6).repeat(n, 0), np.asarray(o, F32),
-                         np.asarray(d, F32), np.full(n, tmin, F32), np.full(n, tmax, F32), WIDEN,
-                         F32(1))
+@njit(error_model="numpy")
+def aabb_batch(box, O, D, tmin, tmax, widen, one):
+    """Ray i against ``box`` through the AABB unit -> (hit, tnear)."""
+    n = O.shape[0]
+    hit = np.empty(n, np.bool_)
+    tn = np.empty(n, O.dtype)
+    for i in range(n):
+        ix = one / D[i, 0]
+        iy = one / D[i, 1]
+        iz = one / D[i, 2]
+        kx, ky, kz = near_far_planes(ix, iy, iz)
+        hit[i], tn[i] = aabb_hit_at(box, 0, O[i, 0], O[i, 1], O[i, 2], ix, iy, iz, kx, ky, kz,
+                                    tmin, tmax, widen)
     return hit, tn
+
+
+@njit(error_model="numpy")
+def mt_batch(rows, O, D, tmin, tmax, eps2, one, edge):
+    """Ray i against preprocessed triangle i through the Moller-Trumbore unit -> (hit, t, u, v)."""
+    n = O.shape[0]
+    hit = np.empty(n, np.bool_)
+    out = np.empty((3, n), O.dtype)
+    flat = rows.ravel()
+    for i in range(n):
+        dx = D[i, 0]
+        dy = D[i, 1]
+        dz = D[i, 2]
+        hit[i], out[0, i], out[1, i], out[2, i] = mt_valid_at(
+            flat, TRI_WORDS * i, O[i, 0], O[i, 1], O[i, 2], dx, dy, dz, dx * dx + dy * dy + dz * dz,
+            tmin[i], tmax[i], eps2, one, edge)
+    return hit, out[0], out[1], out[2]
+
+
+def aabb(box, o, d, tmin=0.0, tmax=np.inf):
+    return aabb_batch(np.asarray(box, F32), np.asarray(o, F32), np.asarray(d, F32), F32(tmin),
+                      F32(tmax), WIDEN, F32(1))
 
 
 def test_aabb_unit_signed_zero_directions():

@@ -1,15 +1,16 @@
-"""Every hand-kept copy of the two hardware units against one reference, bit for bit.
+"""The two hardware units, as every kernel runs them, against one reference, bit for bit.
 
-The copies: the Moller-Trumbore datapath in ``triangle_unit.mt_hit_at`` (early exits),
-``triangle_unit.mt_valid_at`` (branch-free, single-ray traversal), ``packet._mt`` (a packet
-lane, also as run by ``packet._triangle``'s lane loop) and ``verify._mt64`` (float64
-verification); the slab test in ``aabb_unit.aabb_hit_at`` and ``packet._slab`` (also as run by
-``packet._box``'s lane loop). The reference is written here once, in NumPy, from the units'
+The Moller-Trumbore datapath (``triangle_unit.mt_datapath``) as the single-ray traversal calls
+it (``mt_valid_at``) and as a packet lane does (``packet._mt``, and ``packet._triangle``'s
+closest-hit and any-hit lane loops, which LLVM vectorises), plus the verifier's own float64 copy
+(``verify._mt64``); the slab test (``aabb_unit.slab_test``) through ``aabb_hit_at`` and through
+a packet lane (``packet._slab`` with the planes ``packet._planes`` picks from the signs of d,
+and ``packet._box``'s lane loop). The reference is written here once, in NumPy, from the units'
 definition (thesis appendix A, Figs. A.2-A.4): one IEEE operation at a time in the working
 precision, in the datapath's order. NumPy rounds every operation on its own, so it is
-independent of how Numba and LLVM compile the kernels.
+independent of how Numba and LLVM compile (inline, vectorise, contract) the kernels.
 
-"Bit for bit": the same verdict, and the same bits of every output the copy defines (NaN
+"Bit for bit": the same verdict, and the same bits of every output the caller defines (NaN
 matches NaN whatever its payload). Inputs: seeded random rays and triangles/boxes plus the hard
 cases: axis-parallel rays (1/d = +-inf, signed zeros), origins on slab planes, rays through
 shared edges and vertices, rays in and grazing a triangle's plane or a box face, zero-area
@@ -27,7 +28,7 @@ from traversal.config import EDGE_EPS_F32, EDGE_EPS_F64, GAMMA3_F32, GAMMA3_F64
 from traversal.packet import (BEST, BU, BV, MASK, NF, NI, NM, PRIM, P, _box, _lane_setup,
                               _mt, _planes, _slab, _triangle)
 from traversal.triangle_unit import (TRI_E1, TRI_E2, TRI_NORMS, TRI_V0, TRI_WORDS, band_eps2,
-                                     mt_hit_at, mt_valid_at, preprocess)
+                                     mt_valid_at, preprocess)
 from traversal.verify import _mt64
 
 DTYPES = (np.float32, np.float64)
@@ -96,8 +97,8 @@ def ref_slab(boxes, O, D, tmin, tmax, widen):
 # ---------------------------------------------------------------------------------------------
 
 @njit(error_model="numpy")
-def run_single_mt(rows, O, D, tmin, tmax, eps2, one, edge, branch_free):
-    """mt_valid_at (branch_free) or mt_hit_at, as the single-ray traversal calls them."""
+def run_single_mt(rows, O, D, tmin, tmax, eps2, one, edge):
+    """mt_valid_at, as the single-ray traversal calls it."""
     n = O.shape[0]
     flat = rows.ravel()
     ok = np.zeros(n, np.bool_)
@@ -107,12 +108,8 @@ def run_single_mt(rows, O, D, tmin, tmax, eps2, one, edge, branch_free):
         dy = D[i, 1]
         dz = D[i, 2]
         dd = dx * dx + dy * dy + dz * dz
-        if branch_free:
-            r = mt_valid_at(flat, TRI_WORDS * i, O[i, 0], O[i, 1], O[i, 2], dx, dy, dz, dd,
-                            tmin[i], tmax[i], eps2, one, edge)
-        else:
-            r = mt_hit_at(flat, TRI_WORDS * i, O[i, 0], O[i, 1], O[i, 2], dx, dy, dz, dd,
-                          tmin[i], tmax[i], eps2, one, edge)
+        r = mt_valid_at(flat, TRI_WORDS * i, O[i, 0], O[i, 1], O[i, 2], dx, dy, dz, dd,
+                        tmin[i], tmax[i], eps2, one, edge)
         ok[i] = r[0]
         out[i, 0] = r[1]
         out[i, 1] = r[2]
@@ -454,14 +451,10 @@ def test_moller_trumbore_copies_are_the_reference_bit_for_bit(T):
             valid, t, u, v, det = ref_mt(rows, O, D, tmin, tmax, eps2, edge)
             tuv = np.stack([t, u, v], 1)
             valid_total += valid.sum()
-            for branch_free in (True, False):
-                ok, out = run_single_mt(rows, O, D, tmin, tmax, eps2, one, edge, branch_free)
-                what = "mt_valid_at" if branch_free else "mt_hit_at"
-                assert np.array_equal(ok, valid), _first_diff(f"{where} {what} verdict", ok == valid, O, D)
-                # mt_valid_at returns every output; mt_hit_at defines t, u, v on a hit only
-                rows_ = slice(None) if branch_free else valid
-                same = same_bits(out[rows_], tuv[rows_]).all(1)
-                assert same.all(), _first_diff(f"{where} {what} t/u/v", same, out[rows_], tuv[rows_])
+            ok, out = run_single_mt(rows, O, D, tmin, tmax, eps2, one, edge)
+            assert np.array_equal(ok, valid), _first_diff(f"{where} mt_valid_at verdict", ok == valid, O, D)
+            same = same_bits(out, tuv).all(1)
+            assert same.all(), _first_diff(f"{where} mt_valid_at t/u/v", same, out, tuv)
             for anyhit in (False, True):
                 d_ok, d_out, l_ok, l_out = run_packet_mt(rows, O, D, tmin, tmax, eps2, one, edge, anyhit)
                 assert np.array_equal(d_ok, valid), _first_diff(f"{where} packet._mt verdict",

@@ -16,8 +16,7 @@ Kernels use IEEE division (error_model="numpy": 1/0 = inf, never an exception).
 Functions are written without fixed float types: float32 inputs give the hardware's float32
 unit, float64 inputs the float64 variant of the accuracy study.
 """
-import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from hwbvh.format import BOX_MAX
 from .config import GAMMA3_F32, GAMMA3_F64  # noqa: F401  (re-exported for the tracer's widening)
@@ -31,19 +30,21 @@ def near_far_planes(ix, iy, iz):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def aabb_hit_at(f, b, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, tmax, widen):
-    """Box ``f[b:b + 6]`` (min xyz, max xyz in a flat array) against a ray with reciprocal direction ``(ix, iy, iz)``, near-plane
-    offsets ``(kx, ky, kz)`` and interval [tmin, tmax]. Returns (hit, tnear).
+def slab_test(nx_, ny_, nz_, fx_, fy_, fz_, ox, oy, oz, ix, iy, iz, tmin, tmax, widen):
+    """The unit's datapath, for the single-ray traversal (``aabb_hit_at``) and the packet lanes
+    alike: a box given by its near planes (nx_, ny_, nz_) and far planes (fx_, fy_, fz_) against
+    a ray with origin ``o``, reciprocal direction ``(ix, iy, iz)`` and interval [tmin, tmax].
+    Returns (hit, tnear).
 
     Subtract, then multiply, per plane (the unit's subtractors and multipliers). A NaN plane
     distance (origin on a slab plane with d = 0: 0 * inf) compares false in the selects below
     and is ignored, so the ray counts as inside that closed slab."""
-    nx = (f[b + kx] - ox) * ix
-    fx = (f[b + BOX_MAX - kx] - ox) * ix
-    ny = (f[b + 1 + ky] - oy) * iy
-    fy = (f[b + 1 + BOX_MAX - ky] - oy) * iy
-    nz = (f[b + 2 + kz] - oz) * iz
-    fz = (f[b + 2 + BOX_MAX - kz] - oz) * iz
+    nx = (nx_ - ox) * ix
+    fx = (fx_ - ox) * ix
+    ny = (ny_ - oy) * iy
+    fy = (fy_ - oy) * iy
+    nz = (nz_ - oz) * iz
+    fz = (fz_ - oz) * iz
     tnear = nx if nx > tmin else tmin
     tnear = ny if ny > tnear else tnear
     tnear = nz if nz > tnear else tnear
@@ -53,21 +54,11 @@ def aabb_hit_at(f, b, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, tmax, widen):
     return tnear <= tfar * widen, tnear
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def aabb_batch(boxes, origins, dirs, tmin, tmax, widen, one):
-    """Batch form: ray i against box i (``one`` is 1 in the working float type, so the divider
-    stays in that precision). Returns (hit bool (n,), tnear (n,))."""
-    n = origins.shape[0]
-    hit = np.empty(n, dtype=np.bool_)
-    tn = np.empty(n, dtype=origins.dtype)
-    flat = boxes.ravel()
-    for i in prange(n):
-        ix = one / dirs[i, 0]
-        iy = one / dirs[i, 1]
-        iz = one / dirs[i, 2]
-        kx, ky, kz = near_far_planes(ix, iy, iz)
-        h, t = aabb_hit_at(flat, 6 * i, origins[i, 0], origins[i, 1], origins[i, 2],
-                           ix, iy, iz, kx, ky, kz, tmin[i], tmax[i], widen)
-        hit[i] = h
-        tn[i] = t
-    return hit, tn
+@njit(cache=True, error_model="numpy", inline="always")
+def aabb_hit_at(f, b, ox, oy, oz, ix, iy, iz, kx, ky, kz, tmin, tmax, widen):
+    """Box ``f[b:b + 6]`` (min xyz, max xyz in a flat array) against a ray with reciprocal
+    direction ``(ix, iy, iz)``, near-plane offsets ``(kx, ky, kz)`` (``near_far_planes``) and
+    interval [tmin, tmax], through ``slab_test``. Returns (hit, tnear)."""
+    return slab_test(f[b + kx], f[b + 1 + ky], f[b + 2 + kz],
+                     f[b + BOX_MAX - kx], f[b + 1 + BOX_MAX - ky], f[b + 2 + BOX_MAX - kz],
+                     ox, oy, oz, ix, iy, iz, tmin, tmax, widen)

@@ -1,15 +1,16 @@
-"""Packet traversal: 16 coherent rays walk the raw tree together (Wald et al. 2001).
+"""Packet traversal: P coherent rays (``traversal.config.PACKET_RAYS``, 16) walk the raw tree
+together (Wald et al. 2001).
 
 The units are the same as in ``traverse``: every lane's box test and Moller-Trumbore test
-does the operations of ``aabb_hit_at`` and ``mt_hit_at`` in the same order, so each lane's
-answer is bit for bit the single-ray answer (the closest hit is unique: exact-t ties go to
-the lower primitive index). What changes is the loop order: a node is fetched once for the
-packet and its boxes and triangles are tested against all 16 lanes in one branch-free loop,
-which LLVM's loop vectoriser turns into SIMD code (AVX2/AVX-512 on this machine). Scalar Numba
-has no other route to SIMD.
+runs the datapath the single-ray path runs (``aabb_unit.slab_test``,
+``triangle_unit.mt_datapath``), so each lane's answer is bit for bit the single-ray answer (the
+closest hit is unique: exact-t ties go to the lower primitive index). What changes is the loop order: a node is fetched once for the
+packet and its boxes and triangles are tested against all P lanes in one branch-free loop,
+which LLVM's loop vectoriser turns into SIMD code (AVX2 or AVX-512, as the CPU offers). Scalar
+Numba has no other route to SIMD.
 
 A packet visits the union of its lanes' nodes, so it pays only when the rays are coherent.
-``trace_batch`` sends 16 consecutive rays through here when they share a direction octant
+``trace_batch`` sends P consecutive rays through here when they share a direction octant
 (primary rays of a camera, shadow rays toward a light, a mirror's reflections); any other group
 goes ray by ray.
 """
@@ -20,9 +21,10 @@ from numba import njit
 
 from hwbvh.config import LEAF_FLAG
 from hwbvh.format import BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, WORDS_PER_NODE
+from .aabb_unit import slab_test
 from .config import PACKET_RAYS as P
 from .rawtree import read_index
-from .triangle_unit import TRI_E1, TRI_E2, TRI_NORMS, TRI_V0, TRI_WORDS
+from .triangle_unit import TRI_E1, TRI_E2, TRI_NORMS, TRI_V0, TRI_WORDS, mt_datapath
 
 
 # Lane state lives in flat scratch arrays, one row of P per quantity at a constant offset, so
@@ -45,26 +47,11 @@ LANES_R = 0x0202020202020202      # bit 1: hits the right box
 @njit(cache=True, error_model="numpy", inline="always")
 def _slab(F, k, nx_, ny_, nz_, fx_, fy_, fz_, widen):
     """Lane k against a box given by its near planes (nx_, ny_, nz_) and far planes for the
-    packet's octant: the AABB unit's operations in ``aabb_hit_at``'s order. Returns the hit
-    flag. (The comparator on the sign of 1/d picks the same planes for every lane, since the
-    lanes share the sign bits of d.)"""
-    ox = F[OX + k]; oy = F[OY + k]; oz = F[OZ + k]
-    ix = F[IX + k]; iy = F[IY + k]; iz = F[IZ + k]
-    nx = (nx_ - ox) * ix
-    fx = (fx_ - ox) * ix
-    ny = (ny_ - oy) * iy
-    fy = (fy_ - oy) * iy
-    nz = (nz_ - oz) * iz
-    fz = (fz_ - oz) * iz
-    a = F[TMIN + k]
-    b = F[BEST + k]
-    tn = nx if nx > a else a
-    tn = ny if ny > tn else tn
-    tn = nz if nz > tn else tn
-    tf = fx if fx < b else b
-    tf = fy if fy < tf else tf
-    tf = fz if fz < tf else tf
-    return tn <= tf * widen
+    packet's octant, through the AABB unit's ``slab_test``. Returns the hit flag. (The
+    comparator on the sign of 1/d picks the same planes for every lane, since the lanes share
+    the sign bits of d.)"""
+    return slab_test(nx_, ny_, nz_, fx_, fy_, fz_, F[OX + k], F[OY + k], F[OZ + k],
+                     F[IX + k], F[IY + k], F[IZ + k], F[TMIN + k], F[BEST + k], widen)[0]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -111,28 +98,11 @@ def _box(f, b, kx, ky, kz, F, M, M64, widen):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, lo, hi, one):
-    """Lane k against one triangle: the Moller-Trumbore unit's operations in ``mt_hit_at``'s
-    order, with every check evaluated (no early exit). Returns (valid, t, u, v)."""
-    dx = F[DX + k]; dy = F[DY + k]; dz = F[DZ + k]
-    px = dy * e2z - dz * e2y
-    py = dz * e2x - dx * e2z
-    pz = dx * e2y - dy * e2x
-    det = e1x * px + e1y * py + e1z * pz
-    inv = one / det
-    sx = F[OX + k] - v0x
-    sy = F[OY + k] - v0y
-    sz = F[OZ + k] - v0z
-    u = (sx * px + sy * py + sz * pz) * inv
-    qx = sy * e1z - sz * e1y
-    qy = sz * e1x - sx * e1z
-    qz = sx * e1y - sy * e1x
-    v = (dx * qx + dy * qy + dz * qz) * inv
-    t = (e2x * qx + e2y * qy + e2z * qz) * inv
-    # "not in the band" rather than "det^2 > band": the same verdict as the single-ray unit when
-    # the band is NaN (|d|^2 = inf times |e1|^2 |e2|^2 = 0, or 0 times inf)
-    ok = (not (det * det <= band * F[DD + k])) & (u >= lo) & (u <= hi) & (v >= lo) \
-        & (u + v <= hi) & (t >= F[TMIN + k]) & (t <= F[BEST + k])
-    return ok, t, u, v
+    """Lane k against one triangle through the Moller-Trumbore unit's ``mt_datapath``.
+    Returns (valid, t, u, v)."""
+    return mt_datapath(v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band,
+                       F[OX + k], F[OY + k], F[OZ + k], F[DX + k], F[DY + k], F[DZ + k],
+                       F[DD + k], lo, hi, F[TMIN + k], F[BEST + k], one)
 
 
 @njit(cache=True, error_model="numpy", inline="always")

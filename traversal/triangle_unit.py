@@ -12,7 +12,7 @@ Triangles are preprocessed once into ``(n, TRI_WORDS)`` rows ``v0, e1, e2, |e1|^
 vertex/edge form the unit's subtractors produce), in the working precision.
 """
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .config import BAND_K
 
@@ -43,82 +43,53 @@ def band_eps2(dtype):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def mt_hit_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge):
-    """Triangle row ``tris[b:b + TRI_WORDS]`` of the flattened preprocessed array
-    (``b = TRI_WORDS * j``). Returns (valid, t, u, v). ``dd`` = |d|^2, ``eps2`` = (k*eps)^2 and
-    ``one`` = 1 in the working float type (so that the divider stays in that precision);
-    ``edge`` >= 0 widens the barycentric checks (``traversal.config.EDGE_EPS_F32``)."""
-    e1x = tris[b + TRI_E1]; e1y = tris[b + TRI_E1 + 1]; e1z = tris[b + TRI_E1 + 2]
-    e2x = tris[b + TRI_E2]; e2y = tris[b + TRI_E2 + 1]; e2z = tris[b + TRI_E2 + 2]
+def mt_datapath(v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, ox, oy, oz, dx, dy, dz, dd,
+                lo, hi, tmin, tmax, one):
+    """The unit's datapath and valid check, for the single-ray traversal (``mt_valid_at``) and
+    the packet lanes alike. Triangle ``v0, e1, e2`` with ``band`` = (k*eps)^2 |e1|^2 |e2|^2; ray
+    ``o, d`` with ``dd`` = |d|^2; barycentric limits ``lo`` = -edge and ``hi`` = 1 + edge;
+    ``one`` = 1 in the working float type (so that the divider stays in that precision).
+    Returns (valid, t, u, v); t, u, v are meaningful only when valid.
+
+    As the hardware evaluates it: every datapath output is computed and the valid check is one
+    AND of its conditions, with no early exit. A random ray would make each early exit an
+    unpredictable branch, and one branch costs more than the rest of the test (measured on
+    incoherent rays: 3-12% of the whole trace); packet lanes need it branch-free to run in
+    SIMD."""
     # p = d x e2 ; det = e1 . p
     px = dy * e2z - dz * e2y
     py = dz * e2x - dx * e2z
     pz = dx * e2y - dy * e2x
     det = e1x * px + e1y * py + e1z * pz
-    if det * det <= eps2 * tris[b + TRI_NORMS] * dd:  # parallel band (relative), also det == 0
-        return False, tmax, tmax, tmax
     inv = one / det                              # the divider (Fig. A.4)
-    sx = ox - tris[b + TRI_V0]; sy = oy - tris[b + TRI_V0 + 1]; sz = oz - tris[b + TRI_V0 + 2]
+    # s = o - v0 ; q = s x e1
+    sx = ox - v0x
+    sy = oy - v0y
+    sz = oz - v0z
     u = (sx * px + sy * py + sz * pz) * inv
-    if not (u >= -edge and u <= one + edge):
-        return False, tmax, tmax, tmax
     qx = sy * e1z - sz * e1y
     qy = sz * e1x - sx * e1z
     qz = sx * e1y - sy * e1x
     v = (dx * qx + dy * qy + dz * qz) * inv
-    if not (v >= -edge and u + v <= one + edge):
-        return False, tmax, tmax, tmax
     t = (e2x * qx + e2y * qy + e2z * qz) * inv
-    if not (t >= tmin and t <= tmax):
-        return False, tmax, tmax, tmax
-    return True, t, u, v
+    # outside the parallel band (relative; also det == 0; a NaN band, |d|^2 = inf times
+    # |e1|^2 |e2|^2 = 0, counts as outside), inside the widened triangle, t in [tmin, tmax]
+    valid = (not (det * det <= band * dd)) & (u >= lo) & (u <= hi) & (v >= lo) & (u + v <= hi) \
+        & (t >= tmin) & (t <= tmax)
+    return valid, t, u, v
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def mt_valid_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge):
-    """``mt_hit_at`` as the hardware evaluates it: every datapath output is computed and the
-    valid check is one AND of its conditions, with no early exit. Same operations in the same
-    order, so (valid, t, u, v) agree with ``mt_hit_at`` whenever valid (t, u, v are not
-    meaningful otherwise). Traversal uses this form: a random ray makes each early exit an
-    unpredictable branch, and one branch costs more than the rest of the test (measured on
-    incoherent rays: 3-12% of the whole trace)."""
-    e1x = tris[b + TRI_E1]; e1y = tris[b + TRI_E1 + 1]; e1z = tris[b + TRI_E1 + 2]
-    e2x = tris[b + TRI_E2]; e2y = tris[b + TRI_E2 + 1]; e2z = tris[b + TRI_E2 + 2]
-    px = dy * e2z - dz * e2y
-    py = dz * e2x - dx * e2z
-    pz = dx * e2y - dy * e2x
-    det = e1x * px + e1y * py + e1z * pz
-    inv = one / det
-    sx = ox - tris[b + TRI_V0]; sy = oy - tris[b + TRI_V0 + 1]; sz = oz - tris[b + TRI_V0 + 2]
-    u = (sx * px + sy * py + sz * pz) * inv
-    qx = sy * e1z - sz * e1y
-    qy = sz * e1x - sx * e1z
-    qz = sx * e1y - sy * e1x
-    v = (dx * qx + dy * qy + dz * qz) * inv
-    t = (e2x * qx + e2y * qy + e2z * qz) * inv
-    valid = (not (det * det <= eps2 * tris[b + TRI_NORMS] * dd)) & (u >= -edge) \
-        & (u <= one + edge) & (v >= -edge) & (u + v <= one + edge) & (t >= tmin) & (t <= tmax)
-    return valid, t, u, v
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def mt_batch(tris, origins, dirs, tmin, tmax, eps2, one, edge):
-    """Batch form: ray i against preprocessed triangle i -> (hit, t, u, v)."""
-    n = origins.shape[0]
-    hit = np.empty(n, dtype=np.bool_)
-    t = np.empty(n, dtype=origins.dtype)
-    u = np.empty(n, dtype=origins.dtype)
-    v = np.empty(n, dtype=origins.dtype)
-    flat = tris.ravel()
-    for i in prange(n):
-        dx = dirs[i, 0]; dy = dirs[i, 1]; dz = dirs[i, 2]
-        h, ti, ui, vi = mt_hit_at(flat, TRI_WORDS * i, origins[i, 0], origins[i, 1], origins[i, 2], dx, dy, dz,
-                               dx * dx + dy * dy + dz * dz, tmin[i], tmax[i], eps2, one, edge)
-        hit[i] = h
-        t[i] = ti
-        u[i] = ui
-        v[i] = vi
-    return hit, t, u, v
+    """Triangle row ``tris[b:b + TRI_WORDS]`` of the flattened preprocessed array
+    (``b = TRI_WORDS * j``) against one ray through ``mt_datapath``. Returns (valid, t, u, v).
+    ``eps2`` = (k*eps)^2; ``edge`` >= 0 widens the barycentric checks
+    (``traversal.config.EDGE_EPS_F32``)."""
+    return mt_datapath(tris[b + TRI_V0], tris[b + TRI_V0 + 1], tris[b + TRI_V0 + 2],
+                       tris[b + TRI_E1], tris[b + TRI_E1 + 1], tris[b + TRI_E1 + 2],
+                       tris[b + TRI_E2], tris[b + TRI_E2 + 1], tris[b + TRI_E2 + 2],
+                       eps2 * tris[b + TRI_NORMS], ox, oy, oz, dx, dy, dz, dd,
+                       -edge, one + edge, tmin, tmax, one)
 
 
 @njit(cache=True, error_model="numpy")
