@@ -182,10 +182,11 @@ def _tree_stats(u, f):
     nslots = u.shape[0]
     stack = np.empty(nslots + 1, dtype=np.int64)
     dstack = np.empty(nslots + 1, dtype=np.int64)
-    sp = 0
     stack[0] = 0
     dstack[0] = 0
     sp = 1
+    lo = WORD_BOX                 # min x, y, z
+    hi = WORD_BOX + BOX_MAX       # max x, y, z
     internal_area = 0.0
     leaf_area = 0.0
     nodes = 0
@@ -196,8 +197,6 @@ def _tree_stats(u, f):
         sp -= 1
         i = stack[sp]
         d = dstack[sp]
-        lo = WORD_BOX
-        hi = WORD_BOX + BOX_MAX
         dx = np.float64(f[i, hi]) - np.float64(f[i, lo])
         dy = np.float64(f[i, hi + 1]) - np.float64(f[i, lo + 1])
         dz = np.float64(f[i, hi + 2]) - np.float64(f[i, lo + 2])
