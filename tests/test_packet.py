@@ -117,9 +117,9 @@ def test_packets_in_float64():
 
 def test_packets_and_single_rays_agree_on_shared_axis_aligned_faces():
     """City blocks: boxes side by side, so rays hit triangles that lie exactly on node-box
-    planes, where a triangle's t can round an ulp nearer than its box's entry distance. The
-    single-ray path once culled such a box on pop without the box test's slack (570 of 100k
-    answers differed from the packet path's); both paths must keep it."""
+    planes, where a triangle's t can round an ulp nearer than its box's entry distance. Culling
+    such a box on pop without the box test's slack would lose the hit on one path; both paths
+    must keep it."""
     import trimesh
     rng = np.random.default_rng(5)
     parts = []
@@ -191,8 +191,8 @@ def test_packet_stack_overflow_is_an_error():
 def test_packets_agree_where_the_parallel_band_is_nan(tri_scale, dir_scale):
     """|e1|^2 |e2|^2 underflows to 0 on tiny triangles and |d|^2 overflows to inf on long
     directions (or the other way round), so the band eps^2 |e1|^2 |e2|^2 |d|^2 is NaN: both
-    paths must then read "not in the band" (the packet lanes once read "det^2 > band", false,
-    and lost those hits)."""
+    paths must then read "not in the band" (reading "det^2 > band", false for NaN, would lose
+    those hits on one path only)."""
     tris = (grid_sheet(16, 16, wave=0.0).astype(np.float64) * tri_scale).astype(np.float32)
     with np.errstate(over="ignore"):                # |e1|^2 |e2|^2 overflows on the large ones
         pk, single = pair(tris)

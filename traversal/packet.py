@@ -4,10 +4,10 @@ together (Wald et al. 2001).
 The units are the same as in ``traverse``: every lane's box test and Moller-Trumbore test
 runs the datapath the single-ray path runs (``aabb_unit.slab_test``,
 ``triangle_unit.mt_datapath``), so each lane's answer is bit for bit the single-ray answer (the
-closest hit is unique: exact-t ties go to the lower primitive index). What changes is the loop order: a node is fetched once for the
-packet and its boxes and triangles are tested against all P lanes in one branch-free loop,
-which LLVM's loop vectoriser turns into SIMD code (AVX2 or AVX-512, as the CPU offers). Scalar
-Numba has no other route to SIMD.
+closest hit is unique: exact-t ties go to the lower primitive index). What changes is the loop
+order: a node is fetched once for the packet and its boxes and triangles are tested against all
+P lanes in one branch-free loop, which LLVM's loop vectoriser turns into SIMD code (AVX2 or
+AVX-512, as the CPU offers). Scalar Numba has no other route to SIMD.
 
 A packet visits the union of its lanes' nodes, so it pays only when the rays are coherent.
 ``trace_batch`` sends P consecutive rays through here when they share a direction octant
