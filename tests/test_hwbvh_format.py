@@ -28,6 +28,26 @@ def test_node_dtype_is_the_spec_layout():
     assert raw[36:] == bytes(12)
 
 
+def test_kernel_word_offsets_read_the_spec_fields():
+    """The 32-bit word offsets the kernels use (derived from NODE_DTYPE) land on the SPEC's
+    bytes: box 0..23, a 24..27, b 28..31, flags 32..35, padding 36..47."""
+    from hwbvh.config import LEAF_FLAG
+    from hwbvh.format import (BOX_MAX, PAD_WORDS, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, WORD_PAD,
+                              WORDS_PER_NODE, node_views)
+    assert (WORDS_PER_NODE, WORD_BOX, BOX_MAX, WORD_A, WORD_B, WORD_FLAGS, WORD_PAD, PAD_WORDS) == \
+        (12, 0, 3, 6, 7, 8, 9, 3)
+    n = np.zeros(2, NODE_DTYPE)
+    n["bounds"][1] = [-1, -2, -3, 4, 5, 6]
+    n["a"][1], n["b"][1], n["flags"][1] = 0xABCDEF, 77, LEAF_FLAG
+    u, f = node_views(n)
+    assert f[1, WORD_BOX:WORD_BOX + 3].tolist() == [-1, -2, -3]
+    assert f[1, WORD_BOX + BOX_MAX:WORD_BOX + BOX_MAX + 3].tolist() == [4, 5, 6]
+    assert (u[1, WORD_A], u[1, WORD_B], u[1, WORD_FLAGS]) == (0xABCDEF, 77, 1)
+    assert not u[1, WORD_PAD:WORD_PAD + PAD_WORDS].any() and not u[0].any()
+    flat = u.reshape(-1)                     # the flat word view the traversal kernels read
+    assert flat[WORDS_PER_NODE * 1 + WORD_A] == 0xABCDEF
+
+
 def test_index_list_is_24_bit_packed_8_per_word_with_ffffff_tail():
     ids = np.array([0, 1, 0xABCDEF, 0xFFFFFE, 5, 6, 7, 8, 9, 10], np.uint32)
     data = pack_indices(ids)
