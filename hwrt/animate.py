@@ -603,6 +603,9 @@ def _bench_files(out_dir, rows, summary, runs, frames, args):
 def _bench_markdown(summary, frames, args, mach):
     L = [f"# Animation benchmark: {frames} frames at {args.width}x{args.height}, {args.spp} spp",
          "", f"Machine: {mach['cpu']}, {mach['cores']} cores, Numba {mach['numba']}.", "",
+         "Animations: " + "; ".join(
+             f"{r['animation']} ({', '.join(f'{k} {v}' for k, v in r['animation_info'].items())})"
+             if r["animation_info"] else r["animation"] for r in summary) + ".", "",
          "Time to image over the animation (seconds; build + render, software timings; the "
          "HWBVH columns put the simulated hardware build in place of the software build):", "",
          "| animation | triangles | rebuild | refit | adaptive | embree | HWBVH-C rebuild | HWBVH-HP rebuild |",
