@@ -142,7 +142,7 @@ def bench_tti(args):
     from tqdm import tqdm
     from raytracer.render import make_tracer, render, warm_up
     from scenes import compile_scene
-    from traversal.embree_ref import embree_scene
+    from traversal.tracers import VerifyingTracer
 
     quick = args.quick
     W, H = args.width, args.height
@@ -172,8 +172,9 @@ def bench_tti(args):
             if traversal == "numba":        # --verify at a small size: every ray vs Embree
                 small = compile_scene(_setting(load(), 64, 48, 1, depth))
                 tr, _, _ = make_tracer(small, builder, traversal)
-                v = render(small, tr, verify=embree_scene(small.vertices, small.faces)).stats["verify"]
-                clean = v["mismatch"] == 0
+                checked = VerifyingTracer(tr, small.triangles, small.vertices, small.faces)
+                render(small, checked)
+                clean = checked.summary()["mismatch"] == 0
             b_med, b_spread = _median(builds)
             r_med, r_spread = _median(renders)
             cells.add({"key": key, "scene": name, "builder": builder, "traversal": traversal,
@@ -320,6 +321,7 @@ def bench_accuracy(args):
     from scenes import compile_scene, transform_scene
     from traversal.verify import classify
     from traversal.embree_ref import embree_intersect, embree_scene
+    from traversal.tracers import CountingTracer
     from traversal import raysets
 
     quick = args.quick
@@ -355,9 +357,12 @@ def bench_accuracy(args):
                                           setting["bins"], setting["precision"],
                                           setting["triangle_test"] == "watertight")
             t0 = time.perf_counter()
-            res = render(scene, tracer, seed=0, offset=setting["offset"], counters=True)
+            res = render(scene, tracer, seed=0, offset=setting["offset"])
             renders.append(time.perf_counter() - t0)
             builds.append(b)
+        counting = CountingTracer(tracer)          # work per ray, outside the timed renders
+        render(scene, counting, seed=0, offset=setting["offset"])
+        per_ray = counting.work()
         err = res.image - refs[(name, ref_spp)]
         # disagreement with Embree on random rays through this tree and these units
         O, D = raysets.incoherent(scene.triangles, 20_000 if quick else 100_000)
@@ -370,8 +375,7 @@ def bench_accuracy(args):
         cells.add({"key": key, "scene": name, "knob": knob, "value": val, "build_seconds": b_med,
                    "render_seconds": r_med, "total_seconds": b_med + r_med,
                    "render_spread": r_spread, "sah_cost": info.get("sah_cost"),
-                   "nodes_per_ray": res.stats.get("work", {}).get("nodes_per_ray"),
-                   "tris_per_ray": res.stats.get("work", {}).get("tris_per_ray"),
+                   "nodes_per_ray": per_ray["nodes_per_ray"], "tris_per_ray": per_ray["tris_per_ray"],
                    "mismatch_rate": counts["mismatch"] / counts["rays"],
                    "tie_rate": counts["tie"] / counts["rays"], "holes": holes, "hole_probes": probes,
                    "rmse": float(np.sqrt(np.mean(err ** 2))), "max_error": float(np.abs(err).max())})

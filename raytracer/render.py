@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hwbvh.errors import ParameterError
 from traversal.camera import look_at_basis, tile_order
 from traversal.offset import STRATEGY_CODES
 from . import stages
@@ -90,11 +91,9 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
 def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
                 precision="float32", watertight=False):
     """(tracer, build_seconds, build_info). Builders: hwbvh, sweep, embree."""
-    from hwbvh.errors import InputError
-
     if builder == "embree":
         if traversal != "embree":
-            raise InputError("traversal", "Embree's tree can only be traversed by Embree "
+            raise ParameterError("traversal", "Embree's tree can only be traversed by Embree "
                              "(builder 'embree' needs traversal 'embree')")
         from traversal.embree_ref import EmbreeTracer
         t = time.perf_counter()
@@ -115,9 +114,9 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
     if traversal == "numba":
         return Tracer(bvh, precision=precision, watertight=watertight), secs, info
     if traversal == "embree":
-        raise InputError("traversal", "Embree traverses its own tree only "
+        raise ParameterError("traversal", "Embree traverses its own tree only "
                          "(traversal 'embree' needs builder 'embree')")
-    raise InputError("traversal", f"unknown traversal {traversal!r}")
+    raise ParameterError("traversal", f"unknown traversal {traversal!r}")
 
 
 def scene_passes(scene):
@@ -208,9 +207,9 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     ``offset``: secondary-ray offset strategy (traversal.offset.STRATEGIES).
     stats: rays per kind, the passes the scene needs, and seconds per stage."""
     if offset not in STRATEGY_CODES:
-        raise ValueError(f"offset: unknown strategy {offset!r}")
+        raise ParameterError("offset", f"unknown strategy {offset!r} (choose from {', '.join(STRATEGY_CODES)})")
     if int(seed) < 0:
-        raise ValueError(f"seed: must be non-negative, got {seed}")
+        raise ParameterError("seed", f"must be non-negative, got {seed}")
     W, H, spp = scene.width, scene.height, scene.spp
     npix = W * H
     passes = scene_passes(scene)
