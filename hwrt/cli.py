@@ -537,27 +537,38 @@ def make_parser():
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=cmd_verify)
 
-    an = sub.add_parser("animate", help="render an animation, a tree per frame, one EXR per frame")
+    an = sub.add_parser("animate", help="render an animation, a tree per frame, one EXR per frame",
+                        description="Render an animated scene frame by frame, updating the tree "
+                                    "each frame by the chosen strategy; one EXR per frame, a GIF "
+                                    "preview and a CSV in the output directory. A rerun into the "
+                                    "same directory resumes at the first missing frame.")
     an.add_argument("scene", help="built-in animation (exploding, cloth, marbles, flythrough), "
                                   "scene file, or frame pattern of mesh files ('f_%%04d.ply' or a glob)")
     an.add_argument("--frames", type=_positive, help="frames to render (default: the animation's)")
-    an.add_argument("--fps", type=float, help="frames per second of animation time (default 30)")
+    an.add_argument("--fps", type=_positive_float,
+                    help="frames per second of animation time (default: the animation's, else 30)")
     an.add_argument("--strategy", default="rebuild",
                     help="tree update per frame: rebuild, refit, adaptive or embree")
-    an.add_argument("--threshold", type=float,
-                    help="adaptive: rebuild when the SAH cost grows past this factor of the last rebuild's")
-    an.add_argument("--width", type=_positive)
-    an.add_argument("--height", type=_positive)
-    an.add_argument("--spp", type=_positive)
-    an.add_argument("--max-depth", type=_positive)
-    an.add_argument("--mesh", help="exploding: the mesh that breaks (default: bunny, else generated)")
-    an.add_argument("--triangles", type=_positive, help="generated animations: about this many triangles")
-    an.add_argument("--physics", help="marbles: pybullet, analytic or auto (default)")
+    from .animate import ADAPTIVE_THRESHOLD
+    an.add_argument("--threshold", type=_positive_float,
+                    help="adaptive: rebuild when the SAH cost grows past this factor of the last "
+                         f"rebuild's (default: {ADAPTIVE_THRESHOLD})")
+    an.add_argument("--width", type=_positive, help="image width (default: the animation's)")
+    an.add_argument("--height", type=_positive, help="image height (default: the animation's)")
+    an.add_argument("--spp", type=_positive, help="samples per pixel (default: the animation's)")
+    an.add_argument("--max-depth", type=_positive,
+                    help="longest reflection/refraction path (default: the animation's)")
+    an.add_argument("--mesh", help="exploding: the mesh that breaks (default: the bunny of the mesh "
+                                   "directory, else a generated sphere)")
+    an.add_argument("--triangles", type=_positive,
+                    help="exploding (generated sphere) and cloth: about this many triangles")
+    an.add_argument("--physics", help="marbles: pybullet, analytic or auto (default: auto)")
     an.add_argument("--verify", action="store_true",
                     help="check every ray (closest hits and shadows) against Embree")
-    an.add_argument("--seed", type=int, default=0)
-    an.add_argument("-o", "--output", metavar="DIR", help="default renders/animate-<scene>-<strategy>")
-    an.add_argument("--json", action="store_true")
+    an.add_argument("--seed", type=_non_negative, default=0, help="seed of the pixel jitter")
+    an.add_argument("-o", "--output", metavar="DIR",
+                    help="output directory (default: renders/animate-<scene>-<strategy>)")
+    an.add_argument("--json", action="store_true", help="print one JSON object")
     an.set_defaults(func=cmd_animate)
 
     be = sub.add_parser("bench", help="benchmarks against peers measured in the same run",
