@@ -6,12 +6,13 @@
 """
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from hwbvh.format import node_views, pack_indices, tree_stats
 from .aabb_unit import GAMMA3_F32, GAMMA3_F64
-from .traverse import trace_batch
+from hwbvh.parallel import run_ranges
+from .config import CHUNK_RAYS
+from .traverse import trace_chunks
 from .triangle_unit import band_eps2, preprocess
 from .config import EDGE_EPS_F32, EDGE_EPS_F64   # the valid check's slack, with its reason
 
@@ -104,11 +105,15 @@ class Tracer:
         v = np.empty(m, self.dtype)
         cnt = np.zeros((n if counters else 0, 2), np.int64)
         ng = np.empty((n if normals else 0, 3), self.dtype)
-        over, self.last_packets = trace_batch(self._u1, self._f1, self.index_bytes, self._tris1, self.raw,
-                           o, d, lo, hi, self.eps2,
-                           self.one, self.widen, self.edge, self.depth, anyhit,
-                           self.packets and not counters and self.raw is None, prim, t, u, v, ng, cnt,
-                           numba.get_num_threads())
+        nchunks = (n + CHUNK_RAYS - 1) // CHUNK_RAYS
+        over = np.zeros(nchunks, np.int64)
+        traced = np.zeros(nchunks, np.int64)
+        run_ranges(trace_chunks, nchunks, self._u1, self._f1, self.index_bytes, self._tris1,
+                   self.raw, o, d, lo, hi, self.eps2, self.one, self.widen, self.edge, self.depth,
+                   anyhit, self.packets and not counters and self.raw is None, prim, t, u, v, ng,
+                   cnt, over, traced)
+        over = int(over.sum())
+        self.last_packets = int(traced.sum())
         if over:
             raise RuntimeError(f"traversal stack overflow on {over} rays: the tree is deeper "
                                f"than its recorded depth {self.depth} (corrupted tree?)")

@@ -12,7 +12,7 @@ answering wrongly. Exact-t ties between triangles go to the lower primitive inde
 answer does not depend on the visiting order.
 """
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from hwbvh.config import LEAF_FLAG
 from hwbvh.format import WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, WORDS_PER_NODE
@@ -166,37 +166,26 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
     return over, npk
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def trace_batch(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
-                depth, anyhit, packets, out_prim, out_t, out_u, out_v, out_ng, counters, nthreads):
-    """All rays; ``out_t``, ``out_u``, ``out_v`` are (n,) or, when only ``out_prim`` is wanted,
-    (0,); ``out_ng`` is (n, 3) for geometric normals or (0, 3); ``counters`` is (n, 2)
-    int (nodes visited, triangles tested) or (0, 2). ``nthreads``: Numba's thread count
-    (``numba.get_num_threads()``, passed in because calling it here would stop the caching).
-    Returns (rays whose stack would have overflowed (0 on a valid tree), packets traced)."""
+@njit(cache=True, nogil=True, error_model="numpy")
+def trace_chunks(c0, c1, u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
+                 depth, anyhit, packets, out_prim, out_t, out_u, out_v, out_ng, counters,
+                 overflow, packets_traced):
+    """Chunks c0..c1 of CHUNK_RAYS rays each (the last may be short), with one stack and one
+    packet scratch for the call; ``hwbvh.parallel.run_ranges`` hands the chunk ranges out to
+    its threads. ``out_t``, ``out_u``, ``out_v`` are (n,) or, when only ``out_prim`` is wanted,
+    (0,); ``out_ng`` is (n, 3) for geometric normals or (0, 3); ``counters`` is (n, 2) int
+    (nodes visited, triangles tested) or (0, 2). Per chunk, ``overflow`` gets the rays whose
+    stack would have overflowed (0 on a valid tree) and ``packets_traced`` the packets."""
     n = O.shape[0]
-    nchunks = (n + CHUNK_RAYS - 1) // CHUNK_RAYS
-    # One work item per thread, taking every T-th chunk: the static schedule of prange would
-    # give each thread a contiguous half of the batch, and a wavefront of secondary rays is
-    # ordered by kind (mirror, reflection, refraction), so one half can cost far more.
-    T = max(1, min(nthreads, nchunks))
-    overflow = np.zeros(T, dtype=np.int64)
-    packets_traced = np.zeros(T, dtype=np.int64)
-    for w in prange(T):
-        stack = np.empty(depth + 2, dtype=np.int64)
-        stack_t = np.empty(depth + 2, dtype=O.dtype)
-        F = np.empty(NF, dtype=O.dtype)
-        I = np.empty(NI, dtype=np.int32)
-        M = np.zeros(NM, dtype=np.uint8)
-        M64 = M.view(np.uint64)
-        over = 0
-        npk = 0
-        for c in range(w, nchunks, T):
-            o_, p_ = _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
-                                 c * CHUNK_RAYS, min(n, (c + 1) * CHUNK_RAYS), anyhit, packets, stack,
-                                 stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v, out_ng, counters)
-            over += o_
-            npk += p_
-        overflow[w] = over
-        packets_traced[w] = npk
-    return overflow.sum(), packets_traced.sum()
+    stack = np.empty(depth + 2, dtype=np.int64)
+    stack_t = np.empty(depth + 2, dtype=O.dtype)
+    F = np.empty(NF, dtype=O.dtype)
+    I = np.empty(NI, dtype=np.int32)
+    M = np.zeros(NM, dtype=np.uint8)
+    M64 = M.view(np.uint64)
+    for c in range(c0, c1):
+        o_, p_ = _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
+                              c * CHUNK_RAYS, min(n, (c + 1) * CHUNK_RAYS), anyhit, packets, stack,
+                              stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v, out_ng, counters)
+        overflow[c] = o_
+        packets_traced[c] = p_
