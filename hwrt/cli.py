@@ -282,18 +282,18 @@ def cmd_animate(args):
 # The options each benchmark reads, with their defaults (None: see BENCH_NONE). Any other
 # option given to a benchmark is an error, so that no option is silently ignored.
 BENCH_OPTIONS = {
-    "build": {"meshes": [], "mesh_dir": None, "repeat": 5},
-    "scale": {"repeat": 3},
-    "trace": {"meshes": [], "mesh_dir": None, "repeat": 5, "rays": 500_000},
+    "build": {"meshes": [], "mesh_dir": None, "repeat": 5, "out_dir": None},
+    "scale": {"repeat": 3, "out_dir": None},
+    "trace": {"meshes": [], "mesh_dir": None, "repeat": 5, "rays": 500_000, "out_dir": None},
     "render": {"meshes": [], "repeat": 5, "out_dir": None, "width": None, "height": None,
                "spp": None, "max_depth": None},
     "tti": {"meshes": [], "mesh_dir": None, "repeat": 5, "quick": False, "fresh": False,
             "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1, "max_depth": 5},
     "accuracy": {"meshes": [], "mesh_dir": None, "repeat": 3, "quick": False, "fresh": False,
                  "out_dir": "renders/bench", "width": 160, "height": 120},
-    "model": {"meshes": [], "mesh_dir": None},
-    "contention": {"meshes": [], "repeat": 5, "width": 320, "height": 240, "spp": 1},
-    "trees": {"meshes": [], "repeat": 5, "width": None, "height": None, "spp": None},
+    "model": {"meshes": [], "mesh_dir": None, "out_dir": None},
+    "contention": {"meshes": [], "repeat": 5, "width": 320, "height": 240, "spp": 1, "out_dir": None},
+    "trees": {"meshes": [], "repeat": 5, "width": None, "height": None, "spp": None, "out_dir": None},
     "animation": {"quick": False, "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1,
                   "max_depth": None, "frames": None},
 }
@@ -304,7 +304,8 @@ BENCH_NONE = {"mesh_dir": "$HWRT_MESHES or ../shared/meshes, else generated mesh
               "spp": "the scene's", "max_depth": "the scene's"}
 BENCH_COMMON = {"repeat": 5, "rays": 500_000, "out_dir": "renders/bench", "width": 320,
                 "height": 240, "spp": 1, "max_depth": 5}
-BENCH_WRITES_OUT_DIR = ("tti", "accuracy")   # checked here; bench render checks its own files
+BENCH_WRITES_OUT_DIR = ("tti", "accuracy")
+BENCH_REPORTS = ("build", "scale", "trace", "model", "contention", "trees")  # --out-dir: OUT/<what>.md, .json   # checked here; bench render checks its own files
 
 
 def _bench_help(dest, text):
@@ -336,7 +337,7 @@ def _bench_options(args):
                 setattr(args, dest, default)
         return
     for dest in sorted(vars(args)):
-        if dest in ("command", "func", "what", "json") or dest in table \
+        if dest in ("command", "func", "what", "json", "argv") or dest in table \
                 or getattr(args, dest) in (None, False, []):
             continue
         if dest == "meshes":
@@ -358,17 +359,33 @@ def cmd_bench(args):
           "trace": bench.bench_trace, "render": bench.bench_render,
           "tti": study.bench_tti, "accuracy": study.bench_accuracy,
           "model": bench.bench_model}.get(args.what)
+    if args.what in BENCH_REPORTS and args.out_dir:
+        check_output_dir(args.out_dir, [f"{args.what}.md", f"{args.what}.json"], inputs=args.meshes)
     if args.what == "contention":
         from . import contention
-        return _emit(args, contention.bench_contention(args), contention.human)
-    if args.what == "trees":
+        fn, human = contention.bench_contention, contention.human
+    elif args.what == "trees":
         from . import trees
-        return _emit(args, trees.bench_trees(args), trees.human)
-    if args.what == "animation":
+        fn, human = trees.bench_trees, trees.human
+    elif args.what == "animation":
         from . import animate
-        return _emit(args, animate.bench_animation(args), animate.human_bench)
+        fn, human = animate.bench_animation, animate.human_bench
+    else:
+        human = bench.human(args.what)
     result = fn(args)
-    _emit(args, result, bench.human(args.what))
+    if args.what in BENCH_REPORTS and args.out_dir:
+        _write_report(args, result, human)
+    _emit(args, result, human)
+
+
+def _write_report(args, result, human):
+    """OUT/<what>.md (the table and the command that made it) and OUT/<what>.json."""
+    from hwbvh.files import json_text, write_files
+    import shlex
+    command = "hwrt " + " ".join(shlex.quote(a) for a in args.argv)
+    md = (f"# hwrt bench {args.what}\n\nMade by `{command}`.\n\n```text\n{human(result)}\n```\n")
+    write_files([(os.path.join(args.out_dir, f"{args.what}.md"), md),
+                 (os.path.join(args.out_dir, f"{args.what}.json"), json_text(result, indent=1) + "\n")])
 
 
 # --------------------------------------------------------------------------------------
@@ -623,7 +640,9 @@ def _option_of(parser, args, parameter):
 
 def main(argv=None):
     parser = make_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
+    args.argv = argv
     try:
         previous = signal.signal(signal.SIGTERM, _raise_terminated)
     except ValueError:                        # not the main thread: leave signals alone

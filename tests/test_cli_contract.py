@@ -453,7 +453,7 @@ def test_resume_file_with_a_cut_last_line_keeps_the_next_record(tmp_path):
 # ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("argv,flag", [
     (["bench", "build", "--width", "64"], "--width"),
-    (["bench", "trace", "--out-dir", "x"], "--out-dir"),
+    (["bench", "animation", "--rays", "10"], "--rays"),
     (["bench", "accuracy", "--spp", "2"], "--spp"),
     (["bench", "model", "--repeat", "2"], "--repeat"),
     (["bench", "tti", "--rays", "10"], "--rays"),
@@ -538,3 +538,13 @@ def test_top_level_help_is_plain_text_and_version_comes_from_the_package(capsys)
     assert "null" in out and "143" in out            # the JSON and exit-status conventions
     rc, out, _ = call(capsys, "--version")
     assert rc == 0 and out.strip() == f"hwrt {version('hwrt')}"
+
+
+def test_bench_report_written_to_out_dir(tmp_path):
+    from hwrt.cli import main
+    out = tmp_path / "docs"
+    assert main(["bench", "trees", "cornell", "--repeat", "1", "--width", "16", "--height", "12",
+                 "--spp", "1", "--out-dir", str(out), "--json"]) == 0
+    md = (out / "trees.md").read_text()
+    assert "hwrt bench trees cornell --repeat 1" in md and "render vs work" in md
+    assert json.loads((out / "trees.json").read_text())["rows"][0]["scene"] == "cornell"
