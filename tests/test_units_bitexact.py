@@ -14,7 +14,10 @@ independent of how Numba and LLVM compile (inline, vectorise, contract) the kern
 matches NaN whatever its payload). Inputs: seeded random rays and triangles/boxes plus the hard
 cases: axis-parallel rays (1/d = +-inf, signed zeros), origins on slab planes, rays through
 shared edges and vertices, rays in and grazing a triangle's plane or a box face, zero-area
-triangles and flat boxes, coordinates near 1e30 and 1e-30, and t exactly at t_min / t_max.
+triangles and flat boxes, coordinates near 1e30, 1e12, 1e-12 and 1e-30, directions near 1e25 and
+1e-25, and t exactly at t_min / t_max. Beside the reference: the parallel band's verdicts do not
+change when the scene or the directions are scaled by a power of two (the band's squares must
+not leave the float range), and the preprocessed band words are what the unit assumes.
 The test wrappers are compiled without Numba's cache, so they always inline the current units.
 """
 import math
@@ -27,8 +30,8 @@ from traversal.aabb_unit import aabb_hit_at, near_far_planes
 from traversal.config import EDGE_EPS_F32, EDGE_EPS_F64, GAMMA3_F32, GAMMA3_F64
 from traversal.packet import (BEST, BU, BV, MASK, NF, NI, NM, PRIM, P, _box, _lane_setup,
                               _mt, _planes, _slab, _triangle)
-from traversal.triangle_unit import (TRI_E1, TRI_E2, TRI_NORMS, TRI_V0, TRI_WORDS, band_eps2,
-                                     mt_valid_at, preprocess)
+from traversal.triangle_unit import (TRI_E1, TRI_E2, TRI_NORMS, TRI_SCALE, TRI_V0, TRI_WORDS,
+                                     band_eps2, mt_valid_at, preprocess)
 from traversal.verify import _mt64
 
 DTYPES = (np.float32, np.float64)
@@ -39,6 +42,20 @@ GAMMA3 = {np.float32: GAMMA3_F32, np.float64: GAMMA3_F64}
 # ---------------------------------------------------------------------------------------------
 # The reference
 # ---------------------------------------------------------------------------------------------
+
+def ref_ray_band(D):
+    """The ray's side of the parallel band: c_R = 2^-e with 2^e <= max |d_i| < 2^(e+1) (e
+    clamped so that c_R is a normal number), and |d c_R|^2 summed x, y, z."""
+    T = D.dtype.type
+    info = np.finfo(T)
+    m = np.abs(D).max(1)
+    e = np.clip(np.frexp(m)[1] - 1, info.minexp, info.maxexp - 2)
+    cr = np.ldexp(np.ones(len(D)), -e).astype(T)          # a power of two: exact in T
+    S = D * cr[:, None]
+    with np.errstate(all="ignore"):
+        dd = S[:, 0] * S[:, 0] + S[:, 1] * S[:, 1] + S[:, 2] * S[:, 2]
+    return cr, dd
+
 
 def ref_mt(rows, O, D, tmin, tmax, eps2, edge):
     """Moller-Trumbore with the unit's valid check, every ray against its own preprocessed row.
@@ -65,8 +82,10 @@ def ref_mt(rows, O, D, tmin, tmax, eps2, edge):
         qz = sx * e1y - sy * e1x
         v = (dx * qx + dy * qy + dz * qz) * inv
         t = (e2x * qx + e2y * qy + e2z * qz) * inv
-        dd = dx * dx + dy * dy + dz * dz
-        parallel = det * det <= eps2 * rows[:, TRI_NORMS] * dd    # the relative parallel band
+        # the relative parallel band, det scaled by the row's c_T and the ray's c_R
+        cr, dd = ref_ray_band(D)
+        ds = det * rows[:, TRI_SCALE] * cr
+        parallel = ds * ds <= eps2 * rows[:, TRI_NORMS] * dd
         valid = ~parallel & (u >= -edge) & (u <= one + edge) & (v >= -edge) \
             & (u + v <= one + edge) & (t >= tmin) & (t <= tmax)
     return valid, t, u, v, det
@@ -151,7 +170,7 @@ def run_packet_mt(rows, O, D, tmin, tmax, eps2, one, edge, anyhit):
             r = _mt(F, k, flat[b + TRI_V0], flat[b + TRI_V0 + 1], flat[b + TRI_V0 + 2],
                     flat[b + TRI_E1], flat[b + TRI_E1 + 1], flat[b + TRI_E1 + 2],
                     flat[b + TRI_E2], flat[b + TRI_E2 + 1], flat[b + TRI_E2 + 2],
-                    eps2 * flat[b + TRI_NORMS], -edge, one + edge, one)
+                    eps2 * flat[b + TRI_NORMS], flat[b + TRI_SCALE], -edge, one + edge, one)
             direct_ok[i] = r[0]
             direct[i, 0] = r[1]
             direct[i, 1] = r[2]
@@ -290,11 +309,15 @@ def triangle_cases(seed):
     cases["zero area"] = (tris, O, tris.mean(1) - O)
 
     # huge and tiny scales: overflow to inf / NaN and underflow to zero and subnormals in the
-    # products, and mixes (a tiny triangle seen along a huge direction: |d|^2 overflows)
+    # products, and mixes (a tiny triangle seen along a huge direction); at 1e12 and 1e-12
+    # and for 1e25 and 1e-25 directions the datapath stays in range but the band's unscaled
+    # squares would not
     base = rng.uniform(-1, 1, (n, 3, 3))
     O = rng.uniform(-2, 2, (n, 3))
     D = base.mean(1) - O
     for name, ts, ds, os_ in (("huge", 1e30, 1.0, 1e30), ("tiny", 1e-30, 1.0, 1e-30),
+                              ("large", 1e12, 1.0, 1e12), ("small", 1e-12, 1.0, 1e-12),
+                              ("long rays", 1.0, 1e25, 1.0), ("short rays", 1.0, 1e-25, 1.0),
                               ("huge rays, tiny triangles", 1e-30, 1e30, 1e-30),
                               ("tiny rays, huge triangles", 1e30, 1e-30, 1e30),
                               ("far from the origin", 1.0, 1.0, 1.0)):
@@ -419,12 +442,13 @@ def triangle_inputs(T, seed=7):
         tmin, tmax = _at_the_limits(rng, t, tmin, tmax)
         out.append((name, tris, rows, O, D, tmin, tmax))
         if name == "grazing":
-            # the parallel band's edge: the row's |e1|^2 |e2|^2 word set so that the band
-            # eps2 * word * |d|^2 lands within a few ulps of det^2 (the unit takes the word as
-            # given; here it is an input like any other)
+            # the parallel band's edge: the row's |e1|^2 |e2|^2 c_T^2 word set so that the band
+            # eps2 * word * |d c_R|^2 lands within a few ulps of (det c_T c_R)^2 (the unit takes
+            # the word as given; here it is an input like any other)
+            cr, dd = ref_ray_band(D)
             with np.errstate(all="ignore"):
-                dd = (D * D).sum(1, dtype=T)
-                word = (det * det) / (band_eps2(T) * dd)
+                ds = det * rows[:, TRI_SCALE] * cr
+                word = (ds * ds) / (band_eps2(T) * dd)
             ok = np.flatnonzero(np.isfinite(word) & (word > 0))
             up, down = word[ok], word[ok]
             words = [up]
@@ -517,3 +541,83 @@ def test_slab_test_copies_are_the_reference_bit_for_bit(T):
         assert np.array_equal(direct, hit), _first_diff(f"{where} packet._slab", direct == hit, B, O, D)
         assert np.array_equal(loop, hit), _first_diff(f"{where} packet._box", loop == hit, B, O, D)
     assert hits > 5000 and nan_planes > 500     # hits and misses; origins on slab planes occur
+
+
+# tri_k, dir_k: the scene (triangles and origins) scaled by 2^tri_k, the directions by 2^dir_k.
+# Each leaves the range of an unscaled band term (|e1|^2 |e2|^2 ~ 2^(4 tri_k), |d|^2 ~
+# 2^(2 dir_k), or their product with (k eps)^2 ~ 2^-42 / 2^-100) while every datapath value
+# stays a normal number, so the unit's answers must be those at scale 1.
+POW2_SCALES = {np.float32: [(40, 0), (-36, 0), (0, 80), (0, -80), (30, -60), (-30, 60)],
+               np.float64: [(300, 0), (-300, 0), (0, 600), (0, -600), (250, -500)]}
+
+
+@pytest.mark.parametrize("T", DTYPES, ids=lambda t: t.__name__)
+def test_band_verdicts_do_not_depend_on_a_power_of_two_scale(T):
+    """A product with a power of two is exact, so scaling the scene by 2^a and the directions by
+    2^b changes no verdict, no u or v, and t by exactly 2^(a - b), as long as the datapath stays
+    in range. The band's squares (|e1|^2 |e2|^2 ~ size^4, |d|^2) leave the float range long
+    before the datapath does (in float32 from sizes of ~4e9 and ~1e-10 on), which made every
+    ray on a 1e12-sized mesh read as parallel; the grazing rays here straddle the band's edge."""
+    eps2 = band_eps2(T)
+    one = T(1)
+    edge = T(EDGE[T])
+    cases = triangle_cases(5)
+    for name in ("grazing", "random"):
+        tris, O, D = (np.asarray(x, T) for x in cases[name])
+        rows = preprocess(tris, T)
+        n = len(O)
+        tmin = np.zeros(n, T)
+        tmax = np.full(n, np.inf, T)
+        ok0, out0 = run_single_mt(rows, O, D, tmin, tmax, eps2, one, edge)
+        in_band = run_single_mt(rows, O, D, tmin, tmax, T(0), one, edge)[0] & ~ok0
+        assert ok0.sum() > n // 5 and (name == "random" or in_band.sum() > n // 100)
+        for a, b in POW2_SCALES[T]:
+            where = f"{T.__name__} {name} scene 2^{a} directions 2^{b}"
+            sa, sb = T(2.0 ** a), T(2.0 ** b)
+            tris_s, O_s, D_s = tris * sa, O * sa, D * sb
+            assert np.array_equal(tris_s / sa, tris) and np.array_equal(D_s / sb, D)  # exact
+            rows_s = preprocess(tris_s, T)
+            ok, out = run_single_mt(rows_s, O_s, D_s, tmin, tmax, eps2, one, edge)
+            assert np.array_equal(ok, ok0), _first_diff(f"{where} mt_valid_at verdict", ok == ok0, O, D)
+            want = out0.copy()
+            want[:, 0] *= T(2.0 ** (a - b))
+            same = same_bits(out[ok], want[ok0]).all(1)
+            assert same.all(), _first_diff(f"{where} mt_valid_at t/u/v", same, out[ok], want[ok0])
+            d_ok, d_out, l_ok, _ = run_packet_mt(rows_s, O_s, D_s, tmin, tmax, eps2, one, edge, False)
+            assert np.array_equal(d_ok, ok0) and np.array_equal(l_ok, ok0), where
+            assert same_bits(d_out[ok], want[ok0]).all(), where
+
+
+@pytest.mark.parametrize("T", DTYPES, ids=lambda t: t.__name__)
+def test_preprocessed_band_words(T):
+    """Each row's c_T is a normal power of two and its band word is |e1|^2 |e2|^2 (float64, from
+    the stored edges) times c_T^2, rounded once to T, near 1; so where the unscaled word is a
+    normal number it is that word times c_T^2, exactly. Degenerate triangles get a zero word."""
+    rng = np.random.default_rng(21)
+    n = 6000
+    lo, hi = (-18, 14) if T == np.float32 else (-70, 70)     # sizes; |e1|^2 |e2|^2 finite in f64
+    size = 10.0 ** rng.uniform(lo, hi, (n, 1, 1))
+    tris = rng.uniform(-1, 1, (n, 3, 3)) * size + rng.uniform(-1, 1, (n, 1, 3)) * size * 10
+    tris[:200, 2] = tris[:200, 0]                               # a repeated vertex
+    tris = tris.astype(T)
+    rows = preprocess(tris, T)
+    c = rows[:, TRI_SCALE].astype(np.float64)
+    m, _ = np.frexp(c)
+    assert (m == 0.5).all() and (c >= np.finfo(T).tiny).all() and np.isfinite(c).all()
+    e1 = rows[:, TRI_E1:TRI_E1 + 3].astype(np.float64)
+    e2 = rows[:, TRI_E2:TRI_E2 + 3].astype(np.float64)
+    assert np.array_equal(e1, (tris[:, 1] - tris[:, 0]).astype(np.float64))
+    norms = (e1 * e1).sum(1) * (e2 * e2).sum(1)
+    assert np.isfinite(norms).all()
+    assert np.array_equal(rows[:, TRI_NORMS], (norms * c * c).astype(T))
+    assert (rows[:200, TRI_NORMS] == 0).all()
+    word = rows[200:, TRI_NORMS].astype(np.float64)
+    assert ((word >= 0.25) & (word < 4)).all()               # |e1| |e2| c_T in [0.5, 2)
+    with np.errstate(all="ignore"):
+        unscaled = norms.astype(T)
+    normal = (unscaled >= np.finfo(T).tiny) & np.isfinite(unscaled)
+    if T == np.float32:
+        assert normal.mean() > 0.3 and (~normal).sum() > 100     # both kinds occur
+    else:
+        assert normal[200:].all()
+    assert np.array_equal(rows[normal, TRI_NORMS], (unscaled[normal] * c[normal] ** 2).astype(T))

@@ -17,6 +17,8 @@ GAMMA3_F64 = 3 * 2.0**-53 / (1 - 3 * 2.0**-53)
 # The parallel band is relative: det^2 <= (BAND_K*eps)^2 |e1|^2 |e2|^2 |d|^2 rejects rays
 # closer than ~2.4e-7 rad (float32) / ~4.4e-16 rad (float64) to the triangle's plane, whatever
 # the triangle's size (an absolute epsilon would drop every hit on a 1e-4-sized triangle).
+# The unit evaluates it on terms scaled by powers of two (triangle_unit), so it holds wherever
+# the datapath's own values stay in the float range, not only where those squares do.
 BAND_K = 4.0
 
 # Barycentric slack of the valid check, in units of the triangle. The float32 Moller-Trumbore

@@ -24,14 +24,16 @@ from hwbvh.format import BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, WORDS_PE
 from .aabb_unit import slab_test
 from .config import PACKET_RAYS as P
 from .rawtree import read_index
-from .triangle_unit import TRI_E1, TRI_E2, TRI_NORMS, TRI_V0, TRI_WORDS, mt_datapath
+from .triangle_unit import (TRI_E1, TRI_E2, TRI_NORMS, TRI_SCALE, TRI_V0, TRI_WORDS, mt_datapath,
+                            ray_band_terms)
 
 
 # Lane state lives in flat scratch arrays, one row of P per quantity at a constant offset, so
 # LLVM can prove that the rows do not overlap and vectorise the lane loops (with a dozen
 # separate arrays it would need more run-time alias checks than it allows, and gives up).
-OX, OY, OZ, DX, DY, DZ, IX, IY, IZ, DD, TMIN, BEST, BU, BV = [r * P for r in range(14)]
-NF = 14 * P           # floats per packet scratch
+# DD and RS hold the ray's side of the parallel band (``triangle_unit.ray_band_terms``).
+OX, OY, OZ, DX, DY, DZ, IX, IY, IZ, DD, RS, TMIN, BEST, BU, BV = [r * P for r in range(15)]
+NF = 15 * P           # floats per packet scratch
 PRIM = 0
 NI = P            # int32s per packet scratch
 # Lane masks are bytes, read back 8 lanes at a time through a uint64 view of the same bytes:
@@ -97,12 +99,12 @@ def _box(f, b, kx, ky, kz, F, M, M64, widen):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, lo, hi, one):
+def _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale, lo, hi, one):
     """Lane k against one triangle through the Moller-Trumbore unit's ``mt_datapath``.
     Returns (valid, t, u, v)."""
-    return mt_datapath(v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band,
+    return mt_datapath(v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale,
                        F[OX + k], F[OY + k], F[OZ + k], F[DX + k], F[DY + k], F[DZ + k],
-                       F[DD + k], lo, hi, F[TMIN + k], F[BEST + k], one)
+                       F[DD + k], F[RS + k], lo, hi, F[TMIN + k], F[BEST + k], one)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -114,19 +116,22 @@ def _triangle(tris, j, F, I, M, bit, eps2, one, edge, anyhit):
     e1x = tris[b + TRI_E1]; e1y = tris[b + TRI_E1 + 1]; e1z = tris[b + TRI_E1 + 2]
     e2x = tris[b + TRI_E2]; e2y = tris[b + TRI_E2 + 1]; e2z = tris[b + TRI_E2 + 2]
     band = eps2 * tris[b + TRI_NORMS]
+    tscale = tris[b + TRI_SCALE]
     lo = -edge
     hi = one + edge
     jj = np.int32(j)
     if anyhit:
         for k in range(P):
-            ok, t, u, v = _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, lo, hi, one)
+            ok, t, u, v = _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale,
+                              lo, hi, one)
             a = M[ALIVE + k]
             take = ok & (((M[MASK + k] >> bit) & a & 1) != 0)
             I[PRIM + k] = jj if take else I[PRIM + k]
             M[ALIVE + k] = a & np.uint8(not take)
         return
     for k in range(P):
-        ok, t, u, v = _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, lo, hi, one)
+        ok, t, u, v = _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale,
+                          lo, hi, one)
         p = I[PRIM + k]
         take = ok & (((M[MASK + k] >> bit) & M[ALIVE + k] & 1) != 0) & \
             ((t < F[BEST + k]) | (p < 0) | (jj < p))
@@ -189,7 +194,9 @@ def _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one):
     F[IX + k] = ix
     F[IY + k] = iy
     F[IZ + k] = iz
-    F[DD + k] = dx * dx + dy * dy + dz * dz
+    rs, dd = ray_band_terms(dx, dy, dz)
+    F[DD + k] = dd
+    F[RS + k] = rs
     M[ALIVE + k] = np.uint8(ok)
     I[PRIM + k] = -1
     F[BU + k] = zero

@@ -3,16 +3,30 @@
 One ray against one triangle per call, with the unit's valid check: ``det`` outside the parallel
 band, ``u >= 0``, ``v >= 0``, ``u + v <= 1``, ``t`` in ``[t_min, t_max]``.
 
-The parallel band is *relative*: ``det^2 <= band2`` with ``band2 = (k*eps)^2 |e1|^2 |e2|^2
-|d|^2`` (precomputed per triangle without the ``|d|^2`` factor). ``det = -d . (e1 x e2)``, so this
-rejects rays within about ``k*eps`` radians of the triangle's plane whatever the triangle's size;
-an absolute epsilon would drop every hit on a 1e-4-sized triangle (det ~ 1e-8).
+The parallel band is *relative*: ``det^2 <= (k*eps)^2 |e1|^2 |e2|^2 |d|^2``. ``det = -d . (e1 x
+e2)``, so this rejects rays within about ``k*eps`` radians of the triangle's plane whatever the
+triangle's size; an absolute epsilon would drop every hit on a 1e-4-sized triangle (det ~ 1e-8).
 
-Triangles are preprocessed once into ``(n, TRI_WORDS)`` rows ``v0, e1, e2, |e1|^2 |e2|^2`` (the
-vertex/edge form the unit's subtractors produce), in the working precision.
+Evaluated as written, its squares leave the float range long before the datapath does. In
+float32 with ``|d|`` near 1: ``|e1|^2 |e2|^2`` and ``det^2`` overflow for edges above ~4e9, so
+every ray on a 1e12-sized mesh read as parallel; the band turns subnormal below edges of ~5e-7,
+zero below ~1e-8 (grazing rays no longer rejected) and ``det^2`` zero below ~5e-12, so every ray
+on a 1e-12-sized mesh read as parallel; and ``|d|^2`` leaves the range for directions above
+~2e19 or below ~1e-19 whatever the mesh. So both sides are scaled by powers of two before
+squaring: ``det`` by ``c_T`` (per triangle, ``|e1| |e2| c_T`` in [0.5, 2)) and by ``c_R`` (per
+ray, ``max |d_i| c_R`` in [1, 2)), ``|e1|^2 |e2|^2`` by ``c_T^2`` and ``|d|^2`` by ``c_R^2``.
+Then every term of the test is near 1 (the smallest, ``(k*eps)^2``, is 2^-42 in float32; only
+``det^2`` deep inside the band, which reads as inside either way, goes lower), for any triangle
+and ray whose ``det`` is itself in range. A product with a power of two is exact and commutes with
+rounding, so wherever every unscaled term was a normal number (all ordinary scenes: in float32,
+edges from ~5e-7 to ~4e9 seen along directions near 1) the verdict is the same, bit for bit.
+
+Triangles are preprocessed once into ``(n, TRI_WORDS)`` rows ``v0, e1, e2, |e1|^2 |e2|^2 c_T^2,
+c_T`` (the vertex/edge form the unit's subtractors produce), in the working precision.
 """
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 from .config import BAND_K
 
@@ -20,12 +34,23 @@ from .config import BAND_K
 TRI_V0 = 0            # vertex 0
 TRI_E1 = 3            # e1 = v1 - v0
 TRI_E2 = 6            # e2 = v2 - v0
-TRI_NORMS = 9         # |e1|^2 |e2|^2, the scale of the parallel band
-TRI_WORDS = 10
+TRI_NORMS = 9         # |e1|^2 |e2|^2 c_T^2, the scale of the parallel band (in [0.25, 4))
+TRI_SCALE = 10        # c_T, the power of two that brings det to that scale
+TRI_WORDS = 11
+
+
+def _half_exponent(x):
+    """h with x * 4^-h in [0.5, 2) (x > 0 finite; 0 for 0 and non-finite x), from float64 x."""
+    return np.frexp(x)[1] // 2
 
 
 def preprocess(tris, dtype=np.float32):
-    """(n, 3, 3) triangles -> (n, TRI_WORDS) rows v0, e1, e2, |e1|^2*|e2|^2 in ``dtype``."""
+    """(n, 3, 3) triangles -> (n, TRI_WORDS) rows v0, e1, e2, |e1|^2 |e2|^2 c_T^2, c_T in
+    ``dtype``. The squared norms are taken in float64 from the stored edges, each scaled by its
+    own power of two before the product, so nothing overflows or underflows on the way.
+    ``c_T`` stays a normal number of ``dtype``: where that clamps it (|e1| |e2| below 2^-127,
+    edges under ~1e-19 in float32) the word drops below 0.25 instead, still a normal number
+    for edges down to ~1e-28, far below where ``det`` itself underflows."""
     t = np.asarray(tris, dtype=dtype)
     out = np.empty((len(t), TRI_WORDS), dtype=dtype)
     out[:, TRI_V0:TRI_V0 + 3] = t[:, 0]
@@ -33,7 +58,17 @@ def preprocess(tris, dtype=np.float32):
     out[:, TRI_E2:TRI_E2 + 3] = t[:, 2] - t[:, 0]
     e1 = out[:, TRI_E1:TRI_E1 + 3].astype(np.float64)
     e2 = out[:, TRI_E2:TRI_E2 + 3].astype(np.float64)
-    out[:, TRI_NORMS] = ((e1 * e1).sum(1) * (e2 * e2).sum(1)).astype(dtype)
+    n1 = (e1 * e1).sum(1)
+    n2 = (e2 * e2).sum(1)
+    h1 = _half_exponent(n1)
+    h2 = _half_exponent(n2)
+    info = np.finfo(dtype)
+    h = np.clip(h1 + h2, -info.maxexp + 1, -info.minexp)     # c_T = 2^-h, normal in dtype
+    # n1 n2 4^-h, as (n1 4^-h1) (n2 4^-h2) 4^(h1 + h2 - h): the same rounding as n1 n2 in
+    # float64 then scaled, without its overflow
+    norms = np.ldexp(np.ldexp(n1, -2 * h1) * np.ldexp(n2, -2 * h2), 2 * (h1 + h2 - h))
+    out[:, TRI_NORMS] = norms.astype(dtype)
+    out[:, TRI_SCALE] = np.ldexp(1.0, -h).astype(dtype)
     return out
 
 
@@ -42,13 +77,53 @@ def band_eps2(dtype):
     return dtype((BAND_K * eps) ** 2)
 
 
+def ray_scale(m):
+    """The power of two c with m * c in [1, 2), m > 0 (clamped to the normal range: a subnormal
+    m gives m * c < 1, an m at or above 2^(maxexp - 1) one in [2, 4)). Kernels get the bit-level
+    version below, in m's own type."""
+    m = np.asarray(m)
+    info = np.finfo(m.dtype)
+    e = np.clip(np.frexp(m)[1] - 1, info.minexp, info.maxexp - 2)
+    return np.ldexp(m.dtype.type(1), -e)
+
+
+@overload(ray_scale, inline="always")
+def _ray_scale_kernel(m):
+    """From m's exponent bits: an integer subtraction, branch-free, so that LLVM hoists it out of
+    the traversal loop (m depends on the ray only) and vectorises it over packet lanes."""
+    if m == types.float32:
+        def impl(m):
+            e = (np.int64(np.float32(m).view(np.uint32)) >> 23) & 0xFF      # biased exponent
+            e = min(max(e, 1), 253)
+            return np.uint32((254 - e) << 23).view(np.float32)
+        return impl
+    if m == types.float64:
+        def impl(m):
+            e = (np.int64(np.float64(m).view(np.uint64)) >> 52) & 0x7FF
+            e = min(max(e, 1), 2045)
+            return np.uint64((2046 - e) << 52).view(np.float64)
+        return impl
+    return None
+
+
 @njit(cache=True, error_model="numpy", inline="always")
-def mt_datapath(v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, ox, oy, oz, dx, dy, dz, dd,
-                lo, hi, tmin, tmax, one):
+def ray_band_terms(dx, dy, dz):
+    """The ray's side of the parallel band: (c_R, |d c_R|^2), c_R = ``ray_scale(max |d_i|)``."""
+    c = ray_scale(max(abs(dx), max(abs(dy), abs(dz))))
+    sx = dx * c
+    sy = dy * c
+    sz = dz * c
+    return c, sx * sx + sy * sy + sz * sz
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def mt_datapath(v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale, ox, oy, oz, dx, dy, dz,
+                dd, rscale, lo, hi, tmin, tmax, one):
     """The unit's datapath and valid check, for the single-ray traversal (``mt_valid_at``) and
-    the packet lanes alike. Triangle ``v0, e1, e2`` with ``band`` = (k*eps)^2 |e1|^2 |e2|^2; ray
-    ``o, d`` with ``dd`` = |d|^2; barycentric limits ``lo`` = -edge and ``hi`` = 1 + edge;
-    ``one`` = 1 in the working float type (so that the divider stays in that precision).
+    the packet lanes alike. Triangle ``v0, e1, e2`` with ``band`` = (k*eps)^2 |e1|^2 |e2|^2
+    c_T^2 and ``tscale`` = c_T; ray ``o, d`` with ``dd`` = |d c_R|^2 and ``rscale`` = c_R
+    (``ray_band_terms``); barycentric limits ``lo`` = -edge and ``hi`` = 1 + edge; ``one`` = 1
+    in the working float type (so that the divider stays in that precision).
     Returns (valid, t, u, v); t, u, v are meaningful only when valid.
 
     As the hardware evaluates it: every datapath output is computed and the valid check is one
@@ -72,9 +147,10 @@ def mt_datapath(v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, ox, oy, oz, d
     qz = sx * e1y - sy * e1x
     v = (dx * qx + dy * qy + dz * qz) * inv
     t = (e2x * qx + e2y * qy + e2z * qz) * inv
-    # outside the parallel band (relative; also det == 0; a NaN band, |d|^2 = inf times
-    # |e1|^2 |e2|^2 = 0, counts as outside), inside the widened triangle, t in [tmin, tmax]
-    valid = (not (det * det <= band * dd)) & (u >= lo) & (u <= hi) & (v >= lo) & (u + v <= hi) \
+    # outside the parallel band (relative, on det scaled by powers of two to near 1; also
+    # det == 0), inside the widened triangle, t in [tmin, tmax]
+    ds = det * tscale * rscale
+    valid = (not (ds * ds <= band * dd)) & (u >= lo) & (u <= hi) & (v >= lo) & (u + v <= hi) \
         & (t >= tmin) & (t <= tmax)
     return valid, t, u, v
 
@@ -84,12 +160,15 @@ def mt_valid_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge
     """Triangle row ``tris[b:b + TRI_WORDS]`` of the flattened preprocessed array
     (``b = TRI_WORDS * j``) against one ray through ``mt_datapath``. Returns (valid, t, u, v).
     ``eps2`` = (k*eps)^2; ``edge`` >= 0 widens the barycentric checks
-    (``traversal.config.EDGE_EPS_F32``)."""
+    (``traversal.config.EDGE_EPS_F32``). ``dd``, the caller's |d|^2, is not read: the band
+    takes the scaled terms of ``ray_band_terms``, which depend on the ray only, so LLVM
+    computes them once per ray, outside the traversal loop."""
+    rscale, dds = ray_band_terms(dx, dy, dz)
     return mt_datapath(tris[b + TRI_V0], tris[b + TRI_V0 + 1], tris[b + TRI_V0 + 2],
                        tris[b + TRI_E1], tris[b + TRI_E1 + 1], tris[b + TRI_E1 + 2],
                        tris[b + TRI_E2], tris[b + TRI_E2 + 1], tris[b + TRI_E2 + 2],
-                       eps2 * tris[b + TRI_NORMS], ox, oy, oz, dx, dy, dz, dd,
-                       -edge, one + edge, tmin, tmax, one)
+                       eps2 * tris[b + TRI_NORMS], tris[b + TRI_SCALE], ox, oy, oz, dx, dy, dz,
+                       dds, rscale, -edge, one + edge, tmin, tmax, one)
 
 
 @njit(cache=True, error_model="numpy")
