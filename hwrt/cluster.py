@@ -93,8 +93,10 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
     else:
         n = workers or os.cpu_count() or 1
         threads = str(max(1, int(threads_per_cell)))
+        # the scheduler's HTTP port is left to the system: 8787 may be another cluster's
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=logging.CRITICAL,
+                               scheduler_kwargs={"dashboard_address": ":0"},
                                env={"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads})
         client = Client(cluster, set_as_default=False)
     try:
@@ -116,10 +118,27 @@ def describe(client):
     return f"the Dask scheduler at {client.scheduler.address} ({n} workers)"
 
 
-def run_cells(cells, on_result, client=None, desc="cells", weight=None, progress=True):
+def timing_host(client):
+    """The host (as in the workers' addresses) where ``client``'s timed cells run: the first
+    in address order, so that every timing of a run comes from one machine."""
+    from distributed.comm import get_address_host
+
+    hosts = sorted({get_address_host(w) for w in client.scheduler_info().get("workers", {})})
+    if not hosts:
+        raise ParameterError("scheduler", f"the Dask scheduler at {client.scheduler.address} "
+                                          f"has no workers")
+    return hosts[0]
+
+
+def run_cells(cells, on_result, client=None, desc="cells", weight=None, progress=True, host=None):
     """Run ``cells`` (a list of ``(key, fn, args)``) and call ``on_result(key, result)`` in this
     process as each finishes, with a progress bar over ``weight(key)`` units (default 1 each)
-    on stderr. ``client=None`` runs them here, in order."""
+    on stderr. ``client=None`` runs them here, in order.
+
+    ``host`` (see :func:`timing_host`) runs the cells one at a time, in order, on that host's
+    workers: a timed cell then shares the machine with no other cell of the run, whatever the
+    cluster's shape. Should every worker there be lost, the cell runs on another host rather
+    than wait."""
     from tqdm import tqdm
 
     weight = weight or (lambda key: 1)
@@ -130,6 +149,14 @@ def run_cells(cells, on_result, client=None, desc="cells", weight=None, progress
         if client is None:
             for key, fn, args in cells:
                 on_result(key, fn(*args))
+                bar.update(weight(key))
+            return
+        if host is not None:
+            for key, fn, args in cells:
+                fut = client.submit(fn, *args, key=key, pure=False, retries=RETRIES,
+                                    workers=[host], allow_other_workers=True)
+                on_result(key, fut.result())
+                fut.release()
                 bar.update(weight(key))
             return
         from distributed import as_completed
