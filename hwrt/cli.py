@@ -288,9 +288,10 @@ BENCH_OPTIONS = {
     "render": {"meshes": [], "repeat": 5, "out_dir": None, "width": None, "height": None,
                "spp": None, "max_depth": None},
     "tti": {"meshes": [], "mesh_dir": None, "repeat": 5, "quick": False, "fresh": False,
-            "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1, "max_depth": 5},
+            "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1, "max_depth": 5,
+            "scheduler": None},
     "accuracy": {"meshes": [], "mesh_dir": None, "repeat": 3, "quick": False, "fresh": False,
-                 "out_dir": "renders/bench", "width": 160, "height": 120},
+                 "out_dir": "renders/bench", "width": 160, "height": 120, "scheduler": None},
     "model": {"meshes": [], "mesh_dir": None, "out_dir": None},
     "contention": {"meshes": [], "repeat": 5, "width": 320, "height": 240, "spp": 1, "out_dir": None},
     "trees": {"meshes": [], "repeat": 5, "width": None, "height": None, "spp": None, "out_dir": None},
@@ -301,7 +302,8 @@ BENCH_QUICK = {"tti": {"repeat": 1, "width": 160, "height": 120},     # --quick:
                "accuracy": {"repeat": 1, "width": 64, "height": 48}}
 BENCH_NONE = {"mesh_dir": "$HWRT_MESHES or ../shared/meshes, else generated meshes",
               "out_dir": "no files", "width": "the scene's", "height": "the scene's",
-              "spp": "the scene's", "max_depth": "the scene's"}
+              "spp": "the scene's", "max_depth": "the scene's",
+              "scheduler": "$HWRT_SCHEDULER, else a local cluster of one worker with every core"}
 BENCH_COMMON = {"repeat": 5, "rays": 500_000, "out_dir": "renders/bench", "width": 320,
                 "height": 240, "spp": 1, "max_depth": 5}
 BENCH_WRITES_OUT_DIR = ("tti", "accuracy")
@@ -606,6 +608,9 @@ def make_parser():
     be.add_argument("--fresh", action="store_true",
                     help=_bench_help("fresh", "start over, ignoring finished cells"))
     be.add_argument("--out-dir", help=_bench_help("out_dir", "where result files go"))
+    be.add_argument("--scheduler", metavar="ADDRESS",
+                    help=_bench_help("scheduler", "a running Dask scheduler, tcp://HOST:PORT, whose "
+                                                  "workers run the cells one at a time on one host"))
     be.add_argument("--width", type=_positive, help=_bench_help("width", "image width"))
     be.add_argument("--height", type=_positive, help=_bench_help("height", "image height"))
     be.add_argument("--spp", type=_positive, help=_bench_help("spp", "samples per pixel"))

@@ -1,4 +1,4 @@
-"""The figures the project exists to show (issue 6).
+"""The figures the project exists to show: time to image, and what accuracy costs.
 
 ``bench_tti``: time to image (thesis Eq. 4.1: construction + rendering) per scene and
 acceleration path. ``bench_accuracy``: what each accuracy knob costs in time and buys in
@@ -8,14 +8,23 @@ Both take a mesh directory (default ../shared/meshes when present, else generate
 show a progress bar, print the machine into their results, and resume after an interruption:
 every finished cell is appended to ``OUT/<name>.jsonl`` at once, and a rerun skips the cells
 already there (``--fresh`` starts over).
+
+Cells run on Dask (``hwrt.cluster``): by default an embedded local cluster of one worker with
+every core, else the workers of a scheduler. Either way the cells are timed one at a time, all
+on one machine (``cluster.timing_host``), so that no cell shares the machine with another and
+every figure compares with the others; the machine in the results is that one. A cell is a
+module-level function of picklable arguments (a scene is described, not loaded, so that a
+worker loads it itself); ``use_dask=False`` runs the same cells in this process.
 """
 import csv
 import io
 import json
 import os
 import statistics
-import sys
+import threading
 import time
+import uuid
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +34,7 @@ from .bench import machine
 from .paths import default_mesh_dir, mesh_files
 
 TTI_PATHS = ("hwbvh-C", "hwbvh-HP", "hwbvh-sw", "sweep", "embree")
+TTI_TREES = (("hwbvh", "numba"), ("sweep", "numba"), ("embree", "embree"))   # (builder, traversal)
 
 
 def output_names(name):
@@ -36,15 +46,16 @@ class Cells:
     """Finished cells on disk, one JSON object per line, keyed by ``key``.
 
     An interruption can cut the last line short. Such a line is dropped when the file is
-    opened (its cell runs again), so that the next record starts on a line of its own."""
+    opened (its cell runs again), so that the next record starts on a line of its own.
+    ``fresh`` ignores the cells on disk; they are replaced when the first new cell is saved,
+    so that a run that fails before any cell (a scheduler that does not answer) changes
+    nothing on disk."""
 
     def __init__(self, path, fresh=False):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self.done = {}
-        if fresh and self.path.exists():
-            self.path.unlink()
-        if self.path.exists():
+        self.truncate = fresh
+        if not fresh and self.path.exists():
             self._load()
 
     def _load(self):
@@ -72,19 +83,22 @@ class Cells:
 
     def add(self, row):
         self.done[row["key"]] = row
-        with open(self.path, "a") as f:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.path, "w" if self.truncate else "a") as f:
             f.write(json_text(row) + "\n")
             f.flush()
             os.fsync(f.fileno())
+        self.truncate = False
 
 
 def _scene_specs(args, quick):
-    """[(name, loader returning a scene dict)]: built-in scenes, then meshes."""
-    from scenes import load_scene, mesh_scene
+    """[(name, kind, source)]: built-in scenes, then meshes, each described for
+    :func:`load_scene_spec` (kind ``builtin``, ``mesh`` with an absolute path, or
+    ``generated`` with the name of a generated mesh)."""
     from scenes.builtin import BUILTIN
     from scenes.meshes import GENERATED
 
-    specs = [(n, (lambda n=n: load_scene(n))) for n in (["cornell"] if quick else list(BUILTIN))]
+    specs = [(n, "builtin", n) for n in (["cornell"] if quick else list(BUILTIN))]
     paths = [Path(m) for m in getattr(args, "meshes", [])]
     if not paths:
         d = Path(args.mesh_dir) if args.mesh_dir else default_mesh_dir()
@@ -93,18 +107,43 @@ def _scene_specs(args, quick):
     if quick:
         paths = sorted(paths, key=lambda p: p.stat().st_size)[:1]
     if paths:
-        specs += [(p.stem, (lambda p=p: mesh_scene(str(p)))) for p in paths]
+        specs += [(p.stem, "mesh", os.path.abspath(p)) for p in paths]
     else:
-        import tempfile
-        import trimesh
-        tmp = Path(tempfile.mkdtemp(prefix="hwrt-gen-"))
-        for name, fn in list(GENERATED.items())[:1 if quick else None]:
-            tris = fn()
-            f = tmp / f"{name}.ply"
+        specs += [(n, "generated", n) for n in list(GENERATED)[:1 if quick else None]]
+    return specs
+
+
+_generated = {"dir": None, "lock": threading.Lock()}
+
+
+def _generated_mesh(name):
+    """The file of a generated mesh, written once per process into a directory that goes
+    with the process (scenes read their meshes from files)."""
+    import tempfile
+    import trimesh
+    from scenes.meshes import GENERATED
+
+    with _generated["lock"]:
+        if _generated["dir"] is None:
+            _generated["dir"] = tempfile.TemporaryDirectory(prefix="hwrt-gen-")
+        f = Path(_generated["dir"].name) / f"{name}.ply"
+        if not f.exists():
+            tris = GENERATED[name]()
             trimesh.Trimesh(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3),
                             process=False).export(f)
-            specs.append((name, (lambda f=f: mesh_scene(str(f)))))
-    return specs
+    return f
+
+
+def load_scene_spec(spec):
+    """The scene dict of one of :func:`_scene_specs`' descriptions."""
+    from scenes import load_scene, mesh_scene
+
+    name, kind, source = spec
+    if kind == "builtin":
+        return load_scene(source)
+    if kind == "generated":
+        return mesh_scene(str(_generated_mesh(source)))
+    return mesh_scene(source)
 
 
 def _setting(d, width, height, spp, depth):
@@ -118,14 +157,16 @@ def _median(xs):
     return statistics.median(xs), [min(xs), max(xs)]
 
 
-def _write_outputs(out_dir, name, rows, md, plot_files, extra):
+def _write_outputs(out_dir, name, rows, md, plot_files, extra, where=None):
+    """The CSV, JSON, summary and plots; ``where``: the machine the cells were timed on
+    (default: this one)."""
     buf = io.StringIO()
     flat = [{k: (json_text(v) if isinstance(v, (dict, list)) else v) for k, v in r.items()} for r in rows]
     keys = sorted({k for r in flat for k in r})
     w = csv.DictWriter(buf, fieldnames=keys)
     w.writeheader()
     w.writerows(flat)
-    result = {"rows": rows, "machine": machine()}
+    result = {"rows": rows, "machine": where or machine()}
     result.update(extra)
     files = [(os.path.join(out_dir, f"{name}.csv"), buf.getvalue()),
              (os.path.join(out_dir, f"{name}.json"), json_text(result, indent=1) + "\n"),
@@ -135,68 +176,134 @@ def _write_outputs(out_dir, name, rows, md, plot_files, extra):
     return result
 
 
+class _Timing:
+    """Runs timed cells one at a time on one machine: this process, or one host of a
+    Dask cluster."""
+
+    def __init__(self, client):
+        from .cluster import timing_host
+        self.client = client
+        self.host = timing_host(client) if client is not None else None
+
+    def run(self, jobs, on_result, desc, progress):
+        """``jobs``: [(key, fn, args)]; ``on_result(key, result)`` in this process."""
+        from .cluster import run_cells
+        run_cells(jobs, on_result, self.client, desc=desc, progress=progress, host=self.host)
+
+    def machine(self):
+        """The machine the cells were timed on."""
+        if self.client is None:
+            return machine()
+        got = {}
+        self.run([(f"machine-{_run_id()}", machine, ())], got.__setitem__,
+                 "machine", False)
+        return next(iter(got.values()))
+
+
+@contextmanager
+def _timing(scheduler, use_dask, warm_up):
+    """A :class:`_Timing` whose workers ran ``warm_up`` once each (this process, without
+    Dask). The embedded cluster is one worker with as many kernel threads as this process
+    would use, so a cell there runs as it would here."""
+    if not use_dask:
+        warm_up()
+        yield _Timing(None)
+        return
+    import numba
+    from .cluster import dask_client
+    with dask_client(scheduler, workers=1, threads_per_cell=numba.config.NUMBA_NUM_THREADS,
+                     warm_up=warm_up) as client:
+        yield _Timing(client)
+
+
+def _run_id():
+    """A prefix that keeps one run's Dask keys apart from another's on a shared scheduler."""
+    return uuid.uuid4().hex[:8]
+
+
 # --------------------------------------------------------------------------------------
 # time to image
 # --------------------------------------------------------------------------------------
-def bench_tti(args):
-    from tqdm import tqdm
-    from raytracer.render import make_tracer, render, warm_up
+def warm_up_tti():
+    """Load the kernels of every tree a time-to-image cell builds and traverses."""
+    from raytracer.render import warm_up
+    for builder, traversal in TTI_TREES:
+        warm_up(builder, traversal, parallel_build=True)
+
+
+def _tti_key(name, builder, W, H, spp, depth, repeat):
+    return json.dumps([name, builder, W, H, spp, depth, repeat])
+
+
+def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat):
+    """One scene and tree: ``repeat`` timed builds and renders, then (our traversal) every
+    ray of a small render checked against Embree. The record of the cell, without its key."""
+    from raytracer.render import make_tracer, render
     from scenes import compile_scene
     from traversal.tracers import VerifyingTracer
 
-    quick = args.quick
+    name = spec[0]
+    scene = compile_scene(_setting(load_scene_spec(spec), W, H, spp, depth))
+    builds, renders = [], []
+    for _ in range(repeat):
+        tracer, b, info = make_tracer(scene, builder, traversal)
+        t0 = time.perf_counter()
+        res = render(scene, tracer)
+        renders.append(time.perf_counter() - t0)
+        builds.append(b)
+    clean = None
+    if traversal == "numba":        # --verify at a small size: every ray vs Embree
+        small = compile_scene(_setting(load_scene_spec(spec), 64, 48, 1, depth))
+        tr, _, _ = make_tracer(small, builder, traversal)
+        checked = VerifyingTracer(tr, small.triangles, small.vertices, small.faces)
+        render(small, checked)
+        clean = checked.summary()["mismatch"] == 0
+    b_med, b_spread = _median(builds)
+    r_med, r_spread = _median(renders)
+    return {"scene": name, "builder": builder, "traversal": traversal,
+            "triangles": int(len(scene.triangles)), "build_seconds": b_med,
+            "build_spread": b_spread, "render_seconds": r_med, "render_spread": r_spread,
+            "rays": int(sum(res.stats["rays"].values())), "ray_kinds": res.stats["rays"],
+            "sah_cost": info.get("sah_cost"), "verify_clean": clean,
+            "simulated_build_seconds": info.get("simulated_build_seconds")}
+
+
+def bench_tti(args, *, use_dask=True, progress=True):
+    """Time to image per scene and path; cells on Dask (``args.scheduler``, else the embedded
+    local cluster) or, with ``use_dask=False``, in this process."""
     W, H = args.width, args.height
     spp, depth = args.spp, args.max_depth
     repeat = args.repeat
     out_dir = args.out_dir
     cells = Cells(os.path.join(out_dir, "tti.jsonl"), fresh=args.fresh)
-    for b, t in (("hwbvh", "numba"), ("sweep", "numba"), ("embree", "embree")):
-        warm_up(b, t, parallel_build=True)
-    specs = _scene_specs(args, quick)
-    bar = tqdm(total=len(specs) * 3, desc="bench tti", file=sys.stderr, unit="cell")
-    for name, load in specs:
-        scene = compile_scene(_setting(load(), W, H, spp, depth))
-        for builder, traversal in (("hwbvh", "numba"), ("sweep", "numba"), ("embree", "embree")):
-            key = json.dumps([name, builder, W, H, spp, depth, repeat])
-            if cells.get(key):
-                bar.update(1)
-                continue
-            builds, renders = [], []
-            for _ in range(repeat):
-                tracer, b, info = make_tracer(scene, builder, traversal)
-                t0 = time.perf_counter()
-                res = render(scene, tracer)
-                renders.append(time.perf_counter() - t0)
-                builds.append(b)
-            clean = None
-            if traversal == "numba":        # --verify at a small size: every ray vs Embree
-                small = compile_scene(_setting(load(), 64, 48, 1, depth))
-                tr, _, _ = make_tracer(small, builder, traversal)
-                checked = VerifyingTracer(tr, small.triangles, small.vertices, small.faces)
-                render(small, checked)
-                clean = checked.summary()["mismatch"] == 0
-            b_med, b_spread = _median(builds)
-            r_med, r_spread = _median(renders)
-            cells.add({"key": key, "scene": name, "builder": builder, "traversal": traversal,
-                       "triangles": int(len(scene.triangles)), "build_seconds": b_med,
-                       "build_spread": b_spread, "render_seconds": r_med, "render_spread": r_spread,
-                       "rays": int(sum(res.stats["rays"].values())), "ray_kinds": res.stats["rays"],
-                       "sah_cost": info.get("sah_cost"), "verify_clean": clean,
-                       "simulated_build_seconds": info.get("simulated_build_seconds")})
-            bar.update(1)
-    bar.close()
+    specs = _scene_specs(args, args.quick)
+    run = _run_id()
+    jobs, keys = [], {}
+    for spec in specs:
+        for builder, traversal in TTI_TREES:
+            key = _tti_key(spec[0], builder, W, H, spp, depth, repeat)
+            if not cells.get(key):
+                keys[f"tti-{run}-{len(jobs)}"] = key
+                jobs.append((f"tti-{run}-{len(jobs)}", tti_cell,
+                             (spec, builder, traversal, W, H, spp, depth, repeat)))
+    where = None
+    if jobs:
+        with _timing(getattr(args, "scheduler", None), use_dask, warm_up_tti) as timing:
+            timing.run(jobs, lambda k, record: cells.add({"key": keys[k], **record}),
+                       "bench tti", progress)
+            where = timing.machine()
     rows, summary = _tti_rows(cells, specs, W, H, spp, depth, repeat)
     md = _tti_markdown(rows, summary, W, H, spp, depth)
     plots = _tti_plot(rows, out_dir)
     return _write_outputs(out_dir, "tti", rows, md, plots,
                           {"setting": {"width": W, "height": H, "spp": spp, "max_depth": depth,
-                                       "repeat": repeat}, "break_even": summary})
+                                       "repeat": repeat}, "break_even": summary}, where)
 
 
 def _tti_rows(cells, specs, W, H, spp, depth, repeat):
     rows, summary = [], []
-    for name, _ in specs:
-        got = {b: cells.get(json.dumps([name, b, W, H, spp, depth, repeat])) for b in ("hwbvh", "sweep", "embree")}
+    for name, _, _ in specs:
+        got = {b: cells.get(_tti_key(name, b, W, H, spp, depth, repeat)) for b, _ in TTI_TREES}
         if not all(got.values()):
             continue
         hw = got["hwbvh"]
@@ -315,78 +422,131 @@ def _holes(setting):
     return int((h.prim < 0).sum()), int(len(targets))
 
 
-def bench_accuracy(args):
-    from tqdm import tqdm
-    from raytracer.render import make_tracer, render, warm_up
+REFERENCE_DEPTH = 8                  # the reference renders follow paths this long
+REFERENCE_SPP_OF_SPP_KNOB = 16       # the spp knob's values converge toward this many samples
+# random rays per cell checked against Embree: the mismatch and tie rates resolve 1e-5
+# (--quick: 5e-5)
+MISMATCH_RAYS = 100_000
+MISMATCH_RAYS_QUICK = 20_000
+
+
+def warm_up_accuracy():
+    """Load the kernels of both trees' builds and traversals."""
+    from raytracer.render import warm_up
+    warm_up("hwbvh", "numba", parallel_build=True)
+    warm_up("sweep", "numba")
+
+
+def _accuracy_setting(knob, val):
+    """(the knobs of a cell, the scene's scale): ``BASE`` with ``knob`` set to ``val``."""
+    if knob != "offset_at_scale":
+        return dict(BASE, **{knob: val}), 1.0
+    strategy, scale = val.split("@")
+    return dict(BASE, offset=strategy), float(scale)
+
+
+def _reference_spp(knob, setting):
+    return REFERENCE_SPP_OF_SPP_KNOB if knob == "spp" else setting["spp"]
+
+
+def accuracy_reference(spec, W, H, spp):
+    """The high-accuracy image the cells of a scene are compared with: the sweep tree,
+    float64, long paths."""
+    from raytracer.render import make_tracer, render
+    from scenes import compile_scene
+
+    rs = compile_scene(_setting(load_scene_spec(spec), W, H, spp, REFERENCE_DEPTH))
+    tr, _, _ = make_tracer(rs, "sweep", "numba", precision="float64")
+    return render(rs, tr, seed=0).image
+
+
+def accuracy_cell(spec, knob, val, W, H, repeat, rays, reference):
+    """One knob at one value (the others at ``BASE``): timed builds and renders, the work per
+    ray, the image error against ``reference``, the disagreement with Embree on ``rays``
+    random rays and the holes of a closed sphere. The record of the cell, without its key."""
+    from raytracer.render import make_tracer, render
     from scenes import compile_scene, transform_scene
-    from traversal.verify import classify
+    from traversal import raysets
     from traversal.embree_ref import embree_intersect, embree_scene
     from traversal.tracers import CountingTracer
-    from traversal import raysets
+    from traversal.verify import classify
 
+    setting, scale = _accuracy_setting(knob, val)
+    d = load_scene_spec(spec)
+    scene = compile_scene(_setting(transform_scene(d, scale) if scale != 1.0 else d,
+                                   W, H, setting["spp"], setting["max_depth"]))
+    builds, renders = [], []
+    for _ in range(repeat):
+        tracer, b, info = make_tracer(scene, setting["builder"], "numba", setting["leaf_size"],
+                                      setting["bins"], setting["precision"],
+                                      setting["triangle_test"] == "watertight")
+        t0 = time.perf_counter()
+        res = render(scene, tracer, seed=0, offset=setting["offset"])
+        renders.append(time.perf_counter() - t0)
+        builds.append(b)
+    counting = CountingTracer(tracer)          # work per ray, outside the timed renders
+    render(scene, counting, seed=0, offset=setting["offset"])
+    per_ray = counting.work()
+    err = res.image - reference
+    # disagreement with Embree on random rays through this tree and these units
+    O, D = raysets.incoherent(scene.triangles, rays)
+    h = tracer.intersect(O, D)
+    te, pe, *_ = embree_intersect(embree_scene(scene.vertices, scene.faces), O, D)
+    counts, _ = classify(scene.triangles, O, D, 0.0, np.inf, h.prim.astype(np.int64), h.t, pe, te)
+    holes, probes = _holes(setting)
+    b_med, b_spread = _median(builds)
+    r_med, r_spread = _median(renders)
+    return {"scene": spec[0], "knob": knob, "value": val, "build_seconds": b_med,
+            "render_seconds": r_med, "total_seconds": b_med + r_med,
+            "render_spread": r_spread, "sah_cost": info.get("sah_cost"),
+            "nodes_per_ray": per_ray["nodes_per_ray"], "tris_per_ray": per_ray["tris_per_ray"],
+            "mismatch_rate": counts["mismatch"] / counts["rays"],
+            "tie_rate": counts["tie"] / counts["rays"], "holes": holes, "hole_probes": probes,
+            "rmse": float(np.sqrt(np.mean(err ** 2))), "max_error": float(np.abs(err).max())}
+
+
+def bench_accuracy(args, *, use_dask=True, progress=True):
+    """What each accuracy knob costs and buys; cells on Dask (``args.scheduler``, else the
+    embedded local cluster) or, with ``use_dask=False``, in this process. The reference
+    images the pending cells need are cells too, run first."""
     quick = args.quick
     W, H = args.width, args.height
     repeat = args.repeat
+    rays = MISMATCH_RAYS_QUICK if quick else MISMATCH_RAYS
     cells = Cells(os.path.join(args.out_dir, "accuracy.jsonl"), fresh=args.fresh)
-    warm_up("hwbvh", "numba", parallel_build=True)
-    warm_up("sweep", "numba")
     specs = _scene_specs(args, quick)[:1 if quick else 3]
-    work = [(name, load, knob, val) for name, load in specs for knob, vals in KNOBS.items() for val in vals]
-    refs = {}
-    bar = tqdm(total=len(work), desc="bench accuracy", file=sys.stderr, unit="cell")
-    for name, load, knob, val in work:
-        setting = dict(BASE, **({knob: val} if knob != "offset_at_scale" else {}))
-        scale = 1.0
-        if knob == "offset_at_scale":
-            strategy, scale = val.split("@")
-            setting["offset"], scale = strategy, float(scale)
-        key = json.dumps([name, knob, val, W, H, repeat])
-        if cells.get(key):
-            bar.update(1)
-            continue
-        ref_spp = 16 if knob == "spp" else setting["spp"]
-        if (name, ref_spp) not in refs:      # high-accuracy reference: sweep, float64, depth 8
-            rs = compile_scene(_setting(load(), W, H, ref_spp, 8))
-            tr, _, _ = make_tracer(rs, "sweep", "numba", precision="float64")
-            refs[(name, ref_spp)] = render(rs, tr, seed=0).image
-        scene = compile_scene(_setting(transform_scene(load(), scale) if scale != 1.0 else load(),
-                                       W, H, setting["spp"], setting["max_depth"]))
-        builds, renders = [], []
-        for _ in range(repeat):
-            tracer, b, info = make_tracer(scene, setting["builder"], "numba", setting["leaf_size"],
-                                          setting["bins"], setting["precision"],
-                                          setting["triangle_test"] == "watertight")
-            t0 = time.perf_counter()
-            res = render(scene, tracer, seed=0, offset=setting["offset"])
-            renders.append(time.perf_counter() - t0)
-            builds.append(b)
-        counting = CountingTracer(tracer)          # work per ray, outside the timed renders
-        render(scene, counting, seed=0, offset=setting["offset"])
-        per_ray = counting.work()
-        err = res.image - refs[(name, ref_spp)]
-        # disagreement with Embree on random rays through this tree and these units
-        O, D = raysets.incoherent(scene.triangles, 20_000 if quick else 100_000)
-        h = tracer.intersect(O, D)
-        te, pe, *_ = embree_intersect(embree_scene(scene.vertices, scene.faces), O, D)
-        counts, _ = classify(scene.triangles, O, D, 0.0, np.inf, h.prim.astype(np.int64), h.t, pe, te)
-        holes, probes = _holes(setting)
-        b_med, b_spread = _median(builds)
-        r_med, r_spread = _median(renders)
-        cells.add({"key": key, "scene": name, "knob": knob, "value": val, "build_seconds": b_med,
-                   "render_seconds": r_med, "total_seconds": b_med + r_med,
-                   "render_spread": r_spread, "sah_cost": info.get("sah_cost"),
-                   "nodes_per_ray": per_ray["nodes_per_ray"], "tris_per_ray": per_ray["tris_per_ray"],
-                   "mismatch_rate": counts["mismatch"] / counts["rays"],
-                   "tie_rate": counts["tie"] / counts["rays"], "holes": holes, "hole_probes": probes,
-                   "rmse": float(np.sqrt(np.mean(err ** 2))), "max_error": float(np.abs(err).max())})
-        bar.update(1)
-    bar.close()
-    rows = [cells.get(json.dumps([n, k, v, W, H, repeat])) for n, _, k, v in work]
+    work = [(spec, knob, val) for spec in specs for knob, vals in KNOBS.items() for val in vals]
+    key_of = lambda spec, knob, val: json.dumps([spec[0], knob, val, W, H, repeat])
+    pending = [(spec, knob, val) for spec, knob, val in work if not cells.get(key_of(spec, knob, val))]
+    where = None
+    if pending:
+        run = _run_id()
+        needed = list(dict.fromkeys((spec, _reference_spp(knob, _accuracy_setting(knob, val)[0]))
+                                    for spec, knob, val in pending))
+        ref_jobs = {f"accuracy-{run}-ref-{i}": (accuracy_reference, (spec, W, H, ref_spp))
+                    for i, (spec, ref_spp) in enumerate(needed)}
+        ref_of = dict(zip(ref_jobs, needed))
+        refs = {}
+        with _timing(getattr(args, "scheduler", None), use_dask, warm_up_accuracy) as timing:
+            timing.run([(k, fn, a) for k, (fn, a) in ref_jobs.items()],
+                       lambda k, image: refs.__setitem__(ref_of[k], image),
+                       "bench accuracy: references", progress)
+            jobs, keys = [], {}
+            for spec, knob, val in pending:
+                k = f"accuracy-{run}-{len(jobs)}"
+                keys[k] = key_of(spec, knob, val)
+                ref = refs[(spec, _reference_spp(knob, _accuracy_setting(knob, val)[0]))]
+                jobs.append((k, accuracy_cell, (spec, knob, val, W, H, repeat, rays, ref)))
+            timing.run(jobs, lambda k, record: cells.add({"key": keys[k], **record}),
+                       "bench accuracy", progress)
+            where = timing.machine()
+    rows = [cells.get(key_of(spec, k, v)) for spec, k, v in work]
     rows = [r for r in rows if r]
     md = _accuracy_markdown(rows)
     plots = _accuracy_plots(rows, args.out_dir)
     return _write_outputs(args.out_dir, "accuracy", rows, md, plots,
-                          {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE}})
+                          {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE}},
+                          where)
 
 
 def _accuracy_markdown(rows):

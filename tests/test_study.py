@@ -1,10 +1,15 @@
-"""Smoke tests of the study benchmarks (--quick), their outputs, and resuming."""
+"""Smoke tests of the study benchmarks (--quick), their outputs, resuming, and their cells
+on Dask."""
 import json
 import subprocess
 import sys
+import time
+from argparse import Namespace
 
 import numpy as np
 import pytest
+
+TIMINGS = {"build_seconds", "build_spread", "render_seconds", "render_spread", "total_seconds"}
 
 
 def run(*args):
@@ -22,11 +27,17 @@ def mesh_dir(tmp_path_factory):
     return d
 
 
-def test_tti_quick_outputs_and_resume(tmp_path, mesh_dir):
-    out = tmp_path / "b"
+@pytest.fixture(scope="module")
+def tti_quick(tmp_path_factory, mesh_dir):
+    """``bench tti --quick`` on the command line: its cells on the embedded local cluster."""
+    out = tmp_path_factory.mktemp("tti") / "b"
     r = run("bench", "tti", "--quick", "--mesh-dir", mesh_dir, "--out-dir", out, "--json")
     assert r.returncode == 0, r.stderr
-    res = json.loads(r.stdout)
+    return out, json.loads(r.stdout)
+
+
+def test_tti_quick_outputs_and_resume(tti_quick, mesh_dir):
+    out, res = tti_quick
     paths = {(x["scene"], x["path"]) for x in res["rows"]}
     assert {("cornell", p) for p in ("hwbvh-C", "hwbvh-HP", "hwbvh-sw", "sweep", "embree")} <= paths
     assert ("ball", "embree") in paths
@@ -64,3 +75,65 @@ def test_accuracy_quick(tmp_path, mesh_dir):
     assert get[("spp", "8")]["rmse"] < get[("spp", "1")]["rmse"]
     assert all(x["holes"] == 0 for x in rows)
     assert (out / "accuracy.png").exists() and (out / "accuracy.md").exists()
+
+
+def untimed(record):
+    return {k: v for k, v in record.items() if k not in TIMINGS}
+
+
+def test_tti_on_a_one_worker_cluster_equals_the_in_process_run(tti_quick, mesh_dir, tmp_path):
+    """The command line's run (cells on a local cluster of one worker) against the same cells
+    run in this process: equal in everything but the timings."""
+    from hwrt import study
+    out, on_cluster = tti_quick
+    args = Namespace(quick=True, width=160, height=120, spp=1, max_depth=5, repeat=1, fresh=False,
+                     meshes=[], mesh_dir=str(mesh_dir), out_dir=str(tmp_path / "here"))
+    here = study.bench_tti(args, use_dask=False, progress=False)
+    assert on_cluster["setting"] == here["setting"]
+    assert [untimed(r) for r in on_cluster["rows"]] == [untimed(r) for r in here["rows"]]
+    assert on_cluster["machine"] == here["machine"]      # every core, as in this process
+    records = lambda d: {json.loads(x)["key"]: untimed(json.loads(x))
+                         for x in (d / "tti.jsonl").read_text().splitlines()}
+    assert records(out) == records(tmp_path / "here")
+
+
+def test_timed_cells_run_one_at_a_time_on_one_host_of_a_larger_cluster():
+    """On a scheduler with two single-thread workers, cells given a host never overlap."""
+    from distributed import Client, LocalCluster
+    from hwrt.cluster import run_cells, timing_host
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=50) as cluster, Client(cluster) as client:
+        host = timing_host(client)
+        spans = {}
+        cells = [(f"span-{k}", _span, (0.2,)) for k in range(6)]
+        run_cells(cells, spans.__setitem__, client, progress=False, host=host)
+    assert list(spans) == [k for k, _, _ in cells]                 # in order
+    ordered = sorted(spans.values())
+    assert all(a[1] <= b[0] for a, b in zip(ordered, ordered[1:])), ordered
+
+
+def _span(seconds):
+    t0 = time.time()
+    time.sleep(seconds)
+    return t0, time.time()
+
+
+def test_unreachable_scheduler_fails_fast_and_keeps_the_cells(tmp_path, mesh_dir):
+    def refused(what, out, *more):
+        t0 = time.perf_counter()
+        r = run("bench", what, "--quick", "--mesh-dir", mesh_dir, "--out-dir", out,
+                "--scheduler", "tcp://127.0.0.1:9", *more)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert r.stderr.startswith("hwrt: error: --scheduler: no Dask scheduler answers")
+        assert time.perf_counter() - t0 < 30
+
+    refused("accuracy", tmp_path / "a")
+    assert not (tmp_path / "a").exists()
+    # --fresh replaces the saved cells only once a new one is saved
+    out = tmp_path / "t"
+    out.mkdir()
+    (out / "tti.jsonl").write_text('{"key": "kept"}\n')
+    refused("tti", out, "--fresh")
+    assert [p.name for p in out.iterdir()] == ["tti.jsonl"]
+    assert (out / "tti.jsonl").read_text() == '{"key": "kept"}\n'
