@@ -112,6 +112,9 @@ def test_fresnel_limits():
 
 @pytest.mark.parametrize("scale,shift,edge_frac", [
     (1e-3, 0.0, 0.03), (1e3, 0.0, 0.03), (1e3, 1e5, 0.03),
+    # 1e12: legal coordinates (up to hwbvh's 1e15) where the float32 band's squares overflow
+    # unless scaled (triangle_unit), which had read every ray as parallel.
+    (1e12, 0.0, 0.03),
     # The unit-sized box moved to 1e5: float32 spacing there (0.0078) is 0.4% of the box, so the
     # 48x96 glass sphere's vertices move by ~1/13 of a triangle and its refraction speckles. The
     # geometry itself changed; acne or leaks would instead darken whole walls (median check).

@@ -5,12 +5,12 @@ import pytest
 from numba import njit
 
 import hwbvh
-from traversal import Tracer
+from traversal import Tracer, raysets
 from traversal.aabb_unit import aabb_hit_at, near_far_planes
 from traversal.config import GAMMA3_F32
 from traversal.embree_ref import embree_occluded, embree_scene
 from traversal.triangle_unit import TRI_WORDS, band_eps2, mt_valid_at, preprocess
-from traversal.verify import verify_mesh
+from traversal.verify import t_tolerance, verify_mesh
 from scenes.meshes import grid_sheet, random_soup, uv_sphere
 
 from .naive import ray_triangle_f64
@@ -352,3 +352,82 @@ def test_answers_do_not_depend_on_the_thread_count_or_batch_split():
     assert np.array_equal(np.concatenate([p.prim for p in parts]), both.prim)
     assert np.array_equal(np.concatenate([p.t for p in parts]), both.t)
     assert np.array_equal(tracer.occluded(o, d, 0.0, 0.5), tracer.intersect(o, d, 0.0, 0.5).prim >= 0)
+
+
+def _scale_meshes():
+    """A closed sphere and a waved grid (indexed, for Embree), at scale 1."""
+    tris, V, F = closed_sphere()
+    grid = grid_sheet(30, 30)
+    return {"sphere": (V.astype(np.float64), F),
+            "grid": (grid.reshape(-1, 3).astype(np.float64),
+                     np.arange(len(grid) * 3, dtype=np.int32).reshape(-1, 3))}
+
+
+@pytest.mark.parametrize("scale", [1e12, 1e-12])
+@pytest.mark.parametrize("mesh", ["sphere", "grid"])
+def test_hits_on_1e12_and_1e_12_meshes_match_float64_and_embree(mesh, scale):
+    """Such meshes are legal input (hwbvh accepts coordinates up to 1e15); the float32 unit's
+    parallel band once read every ray on them as parallel. Every answer agrees with Embree (or
+    both are right, by the verifier's float64 re-test), hits the float64 tracer's primitive, and
+    its t is within the verifier's tolerance of the float64 t. At 1e12 on camera, random, bounce
+    and shadow rays. At 1e-12 on camera and random rays, t on camera rays: a ray that starts
+    within float32 rounding of a 1e-14-sized triangle (a bounce, a shadow ray, the odd random
+    one) gets its t from a numerator (~|s| |e1| |e2| ~ 1e-40) that is subnormal in float32, a
+    limit of the datapath (Embree's as well), not of the band."""
+    V, F = _scale_meshes()[mesh]
+    V = (V * scale).astype(F32)
+    tris = V[F]
+    kinds = ["primary", "random"] + (["bounces", "shadow"] if scale > 1 else [])
+    bvh = hwbvh.build(tris)
+    f64 = Tracer(bvh, precision="float64")
+    for kind in kinds:
+        counts, _, (o, d, tmax), h, _ = verify_mesh(tris, V, F, kind, 4000, bvh=bvh)
+        assert counts["mismatch"] == 0 and counts["agree"] >= 0.99 * counts["rays"], (kind, counts)
+        ref = f64.intersect(o, d, 0.0, np.inf if tmax is None else tmax)
+        assert np.array_equal(h.prim, ref.prim), kind
+        hit = h.prim >= 0
+        assert kind in ("bounces", "shadow") or hit.mean() > 0.1, kind
+        if scale > 1 or kind == "primary":
+            err = np.abs(h.t[hit] - ref.t[hit])
+            assert (err <= t_tolerance(o[hit], d[hit], ref.t[hit])).all(), kind
+
+
+def test_power_of_two_scales_change_no_answer():
+    """A power-of-two scale is exact in the builder (boxes, SAH comparisons) and in both units,
+    so the answers must not change: a scene at 2^40 (~1e12) gives the same primitives and
+    barycentrics, bit for bit, and t times 2^40; at 2^-40 (~1e-12) the same primitives and
+    barycentrics, and t within the verifier's tolerance (t's numerator is partly subnormal
+    there);
+    directions scaled by 2^80 or 2^-80 (|d|^2 out of float32 range) divide t by that and
+    change nothing else, and so in float64 by 2^600 or 2^-600 (out of its range)."""
+    for mesh, (V, F) in _scale_meshes().items():
+        tris = V[F].astype(F32)
+        o = np.concatenate([raysets.primary(tris, 3000)[0], raysets.incoherent(tris, 3000, seed=2)[0]])
+        d = np.concatenate([raysets.primary(tris, 3000)[1], raysets.incoherent(tris, 3000, seed=2)[1]])
+        o, d = o.astype(F32), d.astype(F32)
+        bvh = hwbvh.build(tris)
+        ref = Tracer(bvh).intersect(o, d)
+        assert 0.2 < (ref.prim >= 0).mean() < 0.9
+        for k in (40, -40):
+            c = F32(2.0 ** k)
+            h = Tracer(hwbvh.build(tris * c)).intersect(o * c, d)
+            assert np.array_equal(h.prim, ref.prim) and np.array_equal(h.u, ref.u) and \
+                np.array_equal(h.v, ref.v), (mesh, k)
+            if k > 0:
+                assert np.array_equal(h.t, ref.t * c), (mesh, k)
+            else:
+                hit = ref.prim >= 0
+                err = np.abs(h.t[hit] - ref.t[hit] * c)
+                assert (err <= t_tolerance(o[hit] * c, d[hit], ref.t[hit] * c)).all(), (mesh, k)
+        for k in (80, -80):
+            c = F32(2.0 ** k)
+            assert np.array_equal((d * c) / c, d)                      # exact, no subnormals
+            h = Tracer(bvh).intersect(o, d * c)
+            assert np.array_equal(h.prim, ref.prim) and np.array_equal(h.u, ref.u) and \
+                np.array_equal(h.v, ref.v) and np.array_equal(h.t, ref.t / c), (mesh, k)
+        ref64 = Tracer(bvh, precision="float64").intersect(o, d)
+        for k in (600, -600):
+            c = 2.0 ** k
+            h = Tracer(bvh, precision="float64").intersect(o, d.astype(np.float64) * c)
+            assert np.array_equal(h.prim, ref64.prim) and np.array_equal(h.u, ref64.u) and \
+                np.array_equal(h.v, ref64.v) and np.array_equal(h.t, ref64.t / c), (mesh, k)
