@@ -578,7 +578,7 @@ def bench_model(args):
     cells = [(f"model-{run}-{k}", _model_rows, (name, tris)) for k, (name, tris) in enumerate(meshes)]
     done = {}
     if cells:
-        with dask_client(warm_up=warm_up) as client:
+        with dask_client(getattr(args, "scheduler", None), warm_up=warm_up) as client:
             run_cells(cells, done.__setitem__, client, desc="bench model: simulate")
     rows = [row for key, _, _ in cells for row in done[key]]
     fill = {}

@@ -292,7 +292,7 @@ BENCH_OPTIONS = {
             "scheduler": None},
     "accuracy": {"meshes": [], "mesh_dir": None, "repeat": 3, "quick": False, "fresh": False,
                  "out_dir": "renders/bench", "width": 160, "height": 120, "scheduler": None},
-    "model": {"meshes": [], "mesh_dir": None, "out_dir": None},
+    "model": {"meshes": [], "mesh_dir": None, "out_dir": None, "scheduler": None},
     "contention": {"meshes": [], "repeat": 5, "width": 320, "height": 240, "spp": 1, "out_dir": None},
     "trees": {"meshes": [], "repeat": 5, "width": None, "height": None, "spp": None, "out_dir": None},
     "animation": {"quick": False, "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1,
