@@ -401,7 +401,7 @@ def compile_scene(d, source=None):
     camera = {"eye": ctx.vec(cam, "eye", "camera"), "target": ctx.vec(cam, "target", "camera"),
               "up": ctx.vec(cam, "up", "camera", default=[0, 1, 0]),
               "fov": ctx.num(cam, "fov", "camera", default=40.0, lo=1e-3, hi=179.0)}
-    if np.allclose(camera["eye"], camera["target"]):
+    if np.array_equal(camera["eye"], camera["target"]):
         ctx.fail("camera.target", "must differ from camera.eye")
     film = ctx.obj(d, "film", default={})
     ctx.keys(film, FILM_KEYS, "film")
