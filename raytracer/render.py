@@ -174,10 +174,10 @@ class _Buffers:
 def _scene_arrays(scene):
     """The compiled scene as the kernels read it: per-triangle unit geometric normals and
     coordinate magnitudes (for ray offsets), material tables, and a light table."""
-    tris64 = scene.triangles.astype(np.float64)
-    ng = np.cross(tris64[:, 1] - tris64[:, 0], tris64[:, 2] - tris64[:, 0])
-    face_n = ng / np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
-    tri_mag = np.abs(scene.triangles).reshape(-1, 9).max(axis=1).astype(np.float64)
+    tris = np.ascontiguousarray(scene.triangles, np.float32)
+    face_n = np.empty((len(tris), 3))
+    tri_mag = np.empty(len(tris))
+    run_ranges(stages.triangle_terms, len(tris), tris, face_n, tri_mag, min_items=4096)
     L = len(scene.lights)
     kind = np.zeros(L, np.int64)
     pos = np.zeros((L, 3))
@@ -193,11 +193,27 @@ def _scene_arrays(scene):
             ldir[k] = -np.asarray(light["direction"], np.float64)
             val[k] = light["irradiance"]
     f64 = lambda a: np.ascontiguousarray(a, np.float64)
-    return (np.ascontiguousarray(face_n), np.ascontiguousarray(scene.normals, np.float32),
+    return (face_n, np.ascontiguousarray(scene.normals, np.float32),
             np.ascontiguousarray(scene.material, np.int32), tri_mag, f64(scene.kd),
             f64(scene.kd) / np.pi, f64(scene.ks),
             f64(scene.shininess), f64(scene.kr), f64(scene.ior), kind, pos, ldir, val,
             f64(scene.ambient), f64(scene.background), float(scene.cutoff))
+
+
+def _fill_uniform(lo, hi, state, out):
+    bits = np.random.PCG64()
+    bits.state = state
+    bits.advance(lo)                          # one 64-bit draw per double
+    np.random.Generator(bits).random(out=out[lo:hi])
+
+
+def _jitter(seed, sample, npix, out):
+    """The pixel offsets of one sample pass: ``default_rng([seed, sample])``'s first 2 * npix
+    uniforms (x for every pixel, then y), drawn in parallel by advancing copies of the stream.
+    Returns (x, y), views of ``out``."""
+    state = np.random.default_rng([seed, sample]).bit_generator.state
+    run_ranges(_fill_uniform, 2 * npix, state, out, min_items=1 << 16)
+    return out[:npix], out[npix:]
 
 
 def render(scene, tracer, seed=0, progress=None, offset="relative"):
@@ -232,6 +248,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     gx = int(np.ceil(np.sqrt(spp)))
     gy = int(np.ceil(spp / gx))
     no_jitter = np.zeros(0)
+    jit_buf = np.empty(2 * npix) if scene.jitter else no_jitter
     code = STRATEGY_CODES[offset]
     clock = time.perf_counter
 
@@ -245,8 +262,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     for s in range(spp):
         lap("generate")
         if scene.jitter:
-            rng = np.random.default_rng([seed, s])
-            jx, jy = rng.random(npix), rng.random(npix)
+            jx, jy = _jitter(seed, s, npix, jit_buf)
         else:
             jx = jy = no_jitter
         run_ranges(stages.generate_camera_rays, npix, order, W, H, jx, jy, float(s % gx),
@@ -268,7 +284,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
             h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
             lap("intersect")
             run_ranges(stages.shade, nb, nb, O, D, wgt, pix, n, h.prim, h.t, h.u, h.v, *sa, code,
-                       n_lights > 0, spawn, bounce == 0, bounce == 0 and s == 0, aov_depth,
+                       n_lights > 0, spawn, bounce == 0, eye, bounce == 0 and s == 0, aov_depth,
                        aov_normal, aov_prim, film, buf.contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix,
                        sh_cnt[:nb], sp_O, sp_D, sp_W, sp_pix, sp_cnt[:nb])
             lap("shade")

@@ -39,12 +39,42 @@ def n_blocks(n):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def triangle_terms(lo, hi, tris, face_n, tri_mag):
+    """Per triangle lo..hi of (n, 3, 3) float32 ``tris``: the unit geometric normal e1 x e2 in
+    float64 and the largest coordinate magnitude (the scale of its rounding error, for ray
+    offsets)."""
+    for j in range(lo, hi):
+        ax = np.float64(tris[j, 1, 0]) - np.float64(tris[j, 0, 0])
+        ay = np.float64(tris[j, 1, 1]) - np.float64(tris[j, 0, 1])
+        az = np.float64(tris[j, 1, 2]) - np.float64(tris[j, 0, 2])
+        bx = np.float64(tris[j, 2, 0]) - np.float64(tris[j, 0, 0])
+        by = np.float64(tris[j, 2, 1]) - np.float64(tris[j, 0, 1])
+        bz = np.float64(tris[j, 2, 2]) - np.float64(tris[j, 0, 2])
+        nx = ay * bz - az * by
+        ny = az * bx - ax * bz
+        nz = ax * by - ay * bx
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        ln = ln if ln > 1e-300 else 1e-300
+        face_n[j, 0] = nx / ln
+        face_n[j, 1] = ny / ln
+        face_n[j, 2] = nz / ln
+        m = 0.0
+        for v in range(3):
+            for c in range(3):
+                a = abs(np.float64(tris[j, v, c]))
+                m = a if a > m else m
+        tri_mag[j] = m
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def generate_camera_rays(lo, hi, order, width, height, jit_x, jit_y, cell_x, cell_y, grid_x,
                          grid_y, jitter, eye, cu, cv, cw, half, aspect, O, D, wgt, pix, Ot, Dt):
     """Camera rays of one sample pass for queue slots lo..hi: slot q is pixel order[q]
     (row-major index). The sample falls at the pixel centre, or with ``jitter`` at cell
     (cell_x, cell_y) of a grid_x x grid_y stratification plus the pixel's uniform offsets
-    jit_x/jit_y (indexed by pixel). Pinhole camera with basis (cu, cv, cw), tan(fov/2) = half."""
+    jit_x/jit_y (indexed by pixel). Pinhole camera with basis (cu, cv, cw), tan(fov/2) = half.
+    Writes D, pix and the tracer's copies Ot, Dt; ``shade`` takes the origin (the eye) and the
+    weight (1) of camera rays as given, so O and wgt are not written."""
     for q in range(lo, hi):
         p = order[q]
         px = np.float64(p % width) + 0.5
@@ -62,9 +92,7 @@ def generate_camera_rays(lo, hi, order, width, height, jit_x, jit_y, cell_x, cel
         dy = dy / ln
         dz = dz / ln
         for c in range(3):
-            O[q, c] = eye[c]
-            Ot[q, c] = eye[c]
-            wgt[q, c] = 1.0
+            Ot[q, c] = eye[c]               # O and wgt are implied (eye, 1) for camera rays
         D[q, 0] = dx
         D[q, 1] = dy
         D[q, 2] = dz
@@ -124,14 +152,15 @@ def _own(film, contrib, direct, q, i, c0, c1, c2):
 def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
           face_n, shading_n, material, tri_mag, kd, kd_pi, ks, shininess, kr, ior,
           light_kind, light_pos, light_dir, light_val, ambient, background, cutoff,
-          offset, do_shadow, do_spawn, camera, first, aov_depth, aov_normal, aov_prim,
+          offset, do_shadow, do_spawn, camera, eye, first, aov_depth, aov_normal, aov_prim,
           film, contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt, sp_O, sp_D, sp_W, sp_pix, sp_cnt):
     """Shade the rays of blocks b0..b1 (of nb, BLOCK rays each, n in all) from their closest
     hits (see the module text).
 
-    Adds ray i's own contribution (background or ambient) to ``film`` at its pixel when
-    ``camera`` (a camera wavefront holds each pixel once, so no two threads add to the same
-    pixel), else writes it to ``contrib[i]`` for ``accumulate``. Block b's shadow
+    ``camera``: the queue holds camera rays, whose origin is ``eye`` and weight 1 (O and wgt
+    are not read); each pixel appears once in it, so ray i adds its own contribution
+    (background or ambient) to ``film`` directly, where other queues write it to ``contrib[i]``
+    for ``accumulate``. Block b's shadow
     rays toward light l at (b * L + l) * BLOCK onward (origin and direction in the tracer's
     precision, t_max, the light brought if visible, pixel), ``sh_cnt[b, l]`` of them; its
     reflections at b * BLOCK and refractions at (n_blocks + b) * BLOCK onward (float64 origin,
@@ -144,9 +173,12 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
         n_refl = 0
         n_refr = 0
         for i in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
-            w0 = wgt[i, 0]
-            w1 = wgt[i, 1]
-            w2 = wgt[i, 2]
+            if camera:
+                w0 = w1 = w2 = 1.0
+            else:
+                w0 = wgt[i, 0]
+                w1 = wgt[i, 1]
+                w2 = wgt[i, 2]
             p = hit_prim[i]
             if p < 0:
                 # -- a miss sees the background --
@@ -159,9 +191,14 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
             t = np.float64(hit_t[i])
             u = np.float64(hit_u[i])
             v = np.float64(hit_v[i])
-            Px = O[i, 0] + dx * t
-            Py = O[i, 1] + dy * t
-            Pz = O[i, 2] + dz * t
+            if camera:
+                Px = eye[0] + dx * t
+                Py = eye[1] + dy * t
+                Pz = eye[2] + dz * t
+            else:
+                Px = O[i, 0] + dx * t
+                Py = O[i, 1] + dy * t
+                Pz = O[i, 2] + dz * t
             # -- normals: geometric (unit, per face) and interpolated shading normal --
             ngx = face_n[p, 0]
             ngy = face_n[p, 1]

@@ -1,5 +1,6 @@
 """Pinhole camera (look-at, vertical field of view, resolution) producing ray arrays."""
 import numpy as np
+from numba import njit
 
 
 def look_at_basis(eye, target, up):
@@ -39,10 +40,20 @@ def tile_order(width, height, tile=4):
     by row inside a tile, tiles row by row; partial tiles at the right and bottom edges. A
     renderer issues its camera rays in this order so that 16 consecutive rays are a 4x4 block
     of neighbours, which the packet traversal needs (``traversal.packet``)."""
-    ys, xs = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
-    tiles_x = -(-width // tile)
-    key = ((ys // tile) * tiles_x + xs // tile) * (tile * tile) + (ys % tile) * tile + xs % tile
-    return np.argsort(key.ravel(), kind="stable")
+    out = np.empty(width * height, np.int64)
+    _tile_order(width, height, tile, out)
+    return out
+
+
+@njit(cache=True)
+def _tile_order(width, height, tile, out):
+    k = 0
+    for ty in range(0, height, tile):
+        for tx in range(0, width, tile):
+            for y in range(ty, min(ty + tile, height)):
+                for x in range(tx, min(tx + tile, width)):
+                    out[k] = y * width + x
+                    k += 1
 
 
 def frame_bounds(lo, hi, fov_deg=40.0, direction=(0.35, 0.45, 1.0)):
