@@ -63,7 +63,7 @@ def pin_threading(setup=None):
 
 THREADING = pin_threading()
 
-RANGES_PER_THREAD = 4          # enough to rebalance around a slowed thread, few enough calls
+RANGES_PER_THREAD = 8          # enough to rebalance around a slowed thread, few enough calls
 
 _pool = None
 _pool_lock = threading.Lock()

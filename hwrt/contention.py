@@ -5,8 +5,8 @@ competing job slows it, against how much the same job slows Embree (TBB's work-s
 For each threading set-up of ``hwbvh.parallel`` a child process (the set-up must be chosen
 before the first parallel region) measures, after warm-up, our build + render and Embree's
 build + render of one scene, alternating run by run, first alone and then beside a competitor:
-one process with a thread per core, each sorting arrays in NumPy (which releases the GIL), so
-every core is kept busy by another program.
+one process per core, each sorting an array in NumPy without pause, so every core is kept busy
+by another program.
 """
 import json
 import os
@@ -16,14 +16,10 @@ import sys
 import time
 
 COMPETITOR = """
-import threading, numpy as np
-def work():
-    a = np.random.default_rng(0).random(1 << 20)
-    while True:
-        np.sort(a)
-for _ in range({threads}):
-    threading.Thread(target=work, daemon=True).start()
-threading.Event().wait()
+import numpy as np
+a = np.random.default_rng(0).random(1 << 20)
+while True:
+    np.sort(a)
 """
 
 
@@ -57,13 +53,15 @@ def child(scene_spec, repeat, width, height, spp):
         warm_up(path, traversal, parallel_build=True)
         render(scene, make_tracer(scene, path, traversal)[0])
     quiet = _measure(scene, repeat)
-    busy_proc = subprocess.Popen([sys.executable, "-c", COMPETITOR.format(threads=os.cpu_count() or 2)])
+    competitors = [subprocess.Popen([sys.executable, "-c", COMPETITOR])
+                   for _ in range(os.cpu_count() or 2)]
     try:
-        time.sleep(0.5)                       # let the competitor's threads start
+        time.sleep(0.5)                       # let the competitors start
         busy = _measure(scene, repeat)
     finally:
-        busy_proc.kill()
-        busy_proc.wait()
+        for p in competitors:
+            p.kill()
+            p.wait()
     from hwbvh.parallel import THREADING
     print(json.dumps({"setup": THREADING, "layer": numba.threading_layer(), "quiet": quiet,
                       "busy": busy}))
