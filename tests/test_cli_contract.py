@@ -546,5 +546,5 @@ def test_bench_report_written_to_out_dir(tmp_path):
     assert main(["bench", "trees", "cornell", "--repeat", "1", "--width", "16", "--height", "12",
                  "--spp", "1", "--out-dir", str(out), "--json"]) == 0
     md = (out / "trees.md").read_text()
-    assert "hwrt bench trees cornell --repeat 1" in md and "render vs work" in md
+    assert "hwrt bench trees cornell --repeat 1" in md and "single-ray" in md
     assert json.loads((out / "trees.json").read_text())["rows"][0]["scene"] == "cornell"
