@@ -20,7 +20,6 @@ The canonical tree lives in arrays of ``2N + n_top`` slots: a task over records
 ``[s, s + n)`` writes its nodes depth-first (left child right after its parent) into slots
 ``[2s, 2s + 2n - 1)``; upper nodes live at ``2N + k``.
 """
-import os
 from dataclasses import dataclass, field
 
 import numpy as np

@@ -36,6 +36,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numba import njit, prange
 
+from .files import figure_png
 from . import config
 from .config import (AABB_BYTES, CONTROL_LATENCY, LAT_BINNING, LAT_PARTITION, LAT_PRIM_BUFFER,
                      LAT_SAH, NODE_BYTES, THREAD_SWITCH, WORD_BYTES)
@@ -454,18 +455,9 @@ def sweep(mesh, out_dir, leaf_sizes=(4, 8, 16, 32, 64), grid=(2, 4, 8, 16), jobs
                            "thesis_mean": 0.036, "thesis_max": 0.088}}
 
 
-def _png(fig):
-    import io
-    import matplotlib.pyplot as plt
-    fig.tight_layout()
-    b = io.BytesIO()
-    fig.savefig(b, format="png", dpi=110)
-    plt.close(fig)
-    return b.getvalue()
 
 
 def _sweep_plots(rows, out_dir, leaf_sizes, grid):
-    import io
     import os
     import matplotlib
     matplotlib.use("Agg")
@@ -488,7 +480,7 @@ def _sweep_plots(rows, out_dir, leaf_sizes, grid):
         ax.set_ylabel("speedup over w=2, Tsize=2")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    files.append((os.path.join(out_dir, "fig4_2_speedup.png"), _png(fig)))
+    files.append((os.path.join(out_dir, "fig4_2_speedup.png"), figure_png(fig, dpi=110)))
     # Fig. 4.3 style: cycles against leaf size, one panel per Tsize, one line per w
     fig, axes = plt.subplots(2, 2, figsize=(9, 7), squeeze=False)
     for ax, t in zip(axes.ravel(), grid):
@@ -501,5 +493,5 @@ def _sweep_plots(rows, out_dir, leaf_sizes, grid):
         ax.set_ylabel("cycles (sum over subtrees)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    files.append((os.path.join(out_dir, "fig4_3_leaf_size.png"), _png(fig)))
+    files.append((os.path.join(out_dir, "fig4_3_leaf_size.png"), figure_png(fig, dpi=110)))
     return files

@@ -181,3 +181,14 @@ def write_files(pairs):
             for tmp, _ in tmps:
                 if os.path.exists(tmp):
                     os.unlink(tmp)
+
+
+def figure_png(fig, dpi=100):
+    """A matplotlib figure as PNG bytes (for :func:`write_files`); closes the figure."""
+    import io
+    import matplotlib.pyplot as plt
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    plt.close(fig)
+    return buf.getvalue()

@@ -31,6 +31,7 @@ import time
 
 import numpy as np
 
+from hwbvh.files import figure_png
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.files import check_output_dir, json_text, jsonable, write_files
 
@@ -516,13 +517,6 @@ def _bench_summary(runs):
     return out
 
 
-def _png(fig):
-    fig.tight_layout()
-    b = io.BytesIO()
-    fig.savefig(b, format="png", dpi=100)
-    import matplotlib.pyplot as plt
-    plt.close(fig)
-    return b.getvalue()
 
 
 def _bench_files(out_dir, rows, summary, runs, frames, args):
@@ -560,7 +554,7 @@ def _bench_files(out_dir, rows, summary, runs, frames, args):
                 ax.set_xlabel("frame")
             if a == 0 and b == 0:
                 ax.legend(fontsize=7, loc="upper left")
-    files.append((os.path.join(out_dir, BENCH_FILES["per_frame"]), _png(fig)))
+    files.append((os.path.join(out_dir, BENCH_FILES["per_frame"]), figure_png(fig)))
     # totals over the animation
     fig, ax = plt.subplots(figsize=(9, 4))
     labels = list(STRATEGIES) + ["HWBVH-C rebuild", "HWBVH-HP rebuild"]
@@ -576,7 +570,7 @@ def _bench_files(out_dir, rows, summary, runs, frames, args):
     ax.set_xticks(np.arange(len(summary)) + 0.4 - w / 2, [r["animation"] for r in summary])
     ax.set_ylabel(f"time to image, {frames} frames (s)")
     ax.legend(fontsize=8)
-    files.append((os.path.join(out_dir, BENCH_FILES["totals"]), _png(fig)))
+    files.append((os.path.join(out_dir, BENCH_FILES["totals"]), figure_png(fig)))
     # SAH drift of refit (and adaptive) against rebuild
     fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.2), squeeze=False)
     for ax, name in zip(axes[0], names):
@@ -592,7 +586,7 @@ def _bench_files(out_dir, rows, summary, runs, frames, args):
         ax.set_xlabel("frame (red: adaptive rebuilds)")
         ax.set_ylabel("SAH cost / rebuild's")
         ax.legend(fontsize=8)
-    files.append((os.path.join(out_dir, BENCH_FILES["drift"]), _png(fig)))
+    files.append((os.path.join(out_dir, BENCH_FILES["drift"]), figure_png(fig)))
     files.append((os.path.join(out_dir, BENCH_FILES["csv"]), _csv_text(rows)))
     files.append((os.path.join(out_dir, BENCH_FILES["json"]),
                   json_text({"summary": summary, "rows": rows, "machine": machine()}, indent=1) + "\n"))

@@ -27,6 +27,7 @@ from collections import OrderedDict
 from dataclasses import replace
 from pathlib import Path
 
+from hwbvh.files import figure_png
 from hwbvh import config
 from hwbvh.cycle_model import PRESETS, check_params
 from hwbvh.errors import InputError, ParameterError
@@ -329,13 +330,6 @@ def summarise(rows, meshes, configs):
 # --------------------------------------------------------------------------------------
 # files
 # --------------------------------------------------------------------------------------
-def _png(fig):
-    import matplotlib.pyplot as plt
-    fig.tight_layout()
-    b = io.BytesIO()
-    fig.savefig(b, format="png", dpi=100)
-    plt.close(fig)
-    return b.getvalue()
 
 
 def _csv(rows):
@@ -399,7 +393,7 @@ def plots(rows, summary, meshes, configs, grid):
         for ax in axes.ravel()[len(scopes):]:
             ax.axis("off")
         axes.ravel()[0].legend(fontsize=6, loc="upper right")
-        files.append((name, _png(fig)))
+        files.append((name, figure_png(fig)))
     files += _thesis_plots(by_cfg, meshes, grid)
     return files
 
@@ -436,7 +430,7 @@ def _thesis_plots(by_cfg, meshes, grid):
             ax.set_ylabel(f"speedup over w = {min(ws)}, Tsize = {min(ts)}")
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
-        files.append(("fig4_2_speedup.png", _png(fig)))
+        files.append(("fig4_2_speedup.png", figure_png(fig)))
     if len(leaves) > 1:
         # Fig. 4.3: cycles against leaf size, one panel per Tsize, one line per w
         tshow = (ts or [fixed["tsize"]])[:4]
@@ -452,7 +446,7 @@ def _thesis_plots(by_cfg, meshes, grid):
             ax.set_ylabel("cycles (geometric mean over meshes)")
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
-        files.append(("fig4_3_leaf_size.png", _png(fig)))
+        files.append(("fig4_3_leaf_size.png", figure_png(fig)))
     return files
 
 
@@ -461,7 +455,7 @@ def markdown(result):
     varied = [k for k in KNOBS if len({c[k] for c in result["configs"]}) > 1] or list(KNOBS)
     lab = lambda c: label(c, varied)
     f = result["cost_model"]
-    lines = [f"# Design-space exploration\n",
+    lines = ["# Design-space exploration\n",
              f"{result['cells']} cells: {len(result['configs'])} configurations x {len(result['meshes'])} "
              f"meshes; {result['computed']} computed" + (
                  f" in {result['compute_seconds']:.1f} s ({result['cells_per_second']:.0f} cells/s) on "

@@ -79,7 +79,7 @@ def test_refit_cost_is_one_streaming_pass_through_the_ram_pairs():
 # --------------------------------------------------------------------------------------
 # built-in animations: a valid tree every frame under every strategy
 # --------------------------------------------------------------------------------------
-from hwrt.animate import STRATEGIES, TreeUpdater, run  # noqa: E402
+from hwrt.animate import STRATEGIES, run  # noqa: E402
 from scenes.animation import load_animation  # noqa: E402
 
 TINY = {"width": 16, "height": 12, "spp": 1}
