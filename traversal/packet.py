@@ -10,7 +10,7 @@ P lanes in one branch-free loop, which LLVM's loop vectoriser turns into SIMD co
 AVX-512, as the CPU offers). Scalar Numba has no other route to SIMD.
 
 A packet visits the union of its lanes' nodes, so it pays only when the rays are coherent.
-``trace_batch`` sends P consecutive rays through here when they share a direction octant
+``traverse.trace_chunks`` sends P consecutive rays through here when they share a direction octant
 (primary rays of a camera, shadow rays toward a light, a mirror's reflections); any other group
 goes ray by ray.
 """
