@@ -395,7 +395,7 @@ def _sweep_kernel(cleft, cright, ccount, cstart, unit_pos_by_w, root, ws, ts, ct
     return out
 
 
-def sweep(mesh, out_dir, leaf_sizes=(4, 8, 16, 32, 64), grid=(2, 4, 8, 16), jobs=None,
+def subtree_design_space(mesh, out_dir, leaf_sizes=(4, 8, 16, 32, 64), grid=(2, 4, 8, 16), jobs=None,
           n_subtrees=5, lo=4096, hi=8192, control_latency=CONTROL_LATENCY):
     """Design-space exploration like thesis 4.2.1 on subtrees of lo..hi primitives cut from a
     real mesh: a CSV of cycles per (leaf size, w, Tsize) and plots in the style of Figs. 4.2
@@ -445,7 +445,7 @@ def sweep(mesh, out_dir, leaf_sizes=(4, 8, 16, 32, 64), grid=(2, 4, 8, 16), jobs
     wr.writeheader()
     wr.writerows(rows)
     os.makedirs(out_dir, exist_ok=True)
-    csv_path = os.path.join(out_dir, "sweep.csv")
+    csv_path = os.path.join(out_dir, "subtree_design_space.csv")
     plots = _sweep_plots(rows, out_dir, leaf_sizes, grid)
     write_files([(csv_path, buf.getvalue())] + plots)
     shares = np.concatenate(shares)

@@ -556,7 +556,7 @@ def bench_model(args):
     import uuid
     from tqdm import tqdm
     from hwbvh import calibration as cal
-    from hwbvh.cycle_model import CONTROL_LATENCY, sweep
+    from hwbvh.cycle_model import CONTROL_LATENCY, subtree_design_space
     from hwbvh.primitives import as_triangles
     from .cluster import dask_client, run_cells
     from .explore import warm_up
@@ -586,6 +586,6 @@ def bench_model(args):
         name, tris = next(((n, t) for n, t in meshes if n == "bunny"), meshes[0])
         with tempfile.TemporaryDirectory() as d:
             for key, ctl in (("text_only", 0), ("calibrated", CONTROL_LATENCY)):
-                fill[key] = sweep(tris, d, control_latency=ctl)["fill_share"]
+                fill[key] = subtree_design_space(tris, d, control_latency=ctl)["fill_share"]
         fill["mesh"] = name
     return {"fit": fit, "rows": rows, "fill_share": fill, "machine": machine()}

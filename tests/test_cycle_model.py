@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hwbvh.builder import build_canonical
-from hwbvh.cycle_model import PRESETS, footprint_bytes, params_for, simulate, simulate_mesh, sweep
+from hwbvh.cycle_model import PRESETS, footprint_bytes, params_for, simulate, simulate_mesh, subtree_design_space
 from hwbvh.errors import InputError
 from hwbvh.primitives import primitive_boxes
 from scenes.meshes import bumpy_sphere, random_soup
@@ -92,7 +92,7 @@ def test_parameters_are_checked():
 
 def test_design_space_trends(tmp_path):
     tris = bumpy_sphere(40_000)
-    r = sweep(tris, tmp_path, leaf_sizes=(4, 64), n_subtrees=2)
+    r = subtree_design_space(tris, tmp_path, leaf_sizes=(4, 64), n_subtrees=2)
     get = {(x["leaf_size"], x["w"], x["tsize"]): x["speedup"] for x in r["rows"]}
     # leaf size 4: threads dominate; w alone barely helps
     assert get[(4, 2, 16)] > get[(4, 16, 2)]
@@ -100,7 +100,7 @@ def test_design_space_trends(tmp_path):
     # leaf size 64: width dominates; threads alone barely help
     assert get[(64, 16, 2)] > get[(64, 2, 16)]
     assert get[(64, 2, 16)] < 1.3
-    assert (tmp_path / "sweep.csv").exists() and (tmp_path / "fig4_2_speedup.png").exists()
+    assert (tmp_path / "subtree_design_space.csv").exists() and (tmp_path / "fig4_2_speedup.png").exists()
 
 
 def test_cli_simulate_json(tmp_path):
