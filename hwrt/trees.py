@@ -34,22 +34,25 @@ def bench_trees(args):
     rows = []
     for spec in args.meshes or DEFAULT_SCENES:
         scene = _scene(spec, args)
-        tracers, work, sah = {}, {}, {}
+        tracers, sah = {}, {}
         for b in BUILDERS:
             tracers[b], _, info = make_tracer(scene, b, "numba")
             sah[b] = info.get("sah_cost")
-            counting = CountingTracer(tracers[b])
-            render(scene, counting)
-            w = counting.work("all")
-            work[b] = dict(w, work_per_ray=w["nodes_per_ray"] + w["tris_per_ray"])
-        work_ratio = work["sweep"]["work_per_ray"] / work["hwbvh"]["work_per_ray"]
         row = {"scene": scene.name, "width": scene.width, "height": scene.height, "spp": scene.spp,
-               "sah_cost": sah, "work": work, "work_ratio": work_ratio}
-        # packets (as the renderer runs), then the single-ray unit the counters model
+               "sah_cost": sah}
+        # packets (as the renderer runs them), then the single-ray unit alone; each against
+        # the work it does
         for mode, packets in (("packets", True), ("single_ray", False)):
-            trace_only, renders = {}, {b: [] for b in BUILDERS}
+            work = {}
             for b in BUILDERS:
                 tracers[b].packets = packets
+                counting = CountingTracer(tracers[b], as_run=True)
+                render(scene, counting)
+                w = counting.work("all")
+                work[b] = dict(w, work_per_ray=w["nodes_per_ray"] + w["tris_per_ray"])
+            work_ratio = work["sweep"]["work_per_ray"] / work["hwbvh"]["work_per_ray"]
+            trace_only, renders = {}, {b: [] for b in BUILDERS}
+            for b in BUILDERS:
                 recording = RecordingTracer(tracers[b])
                 render(scene, recording)              # also the warm-up render of this mode
                 trace_only[b] = statistics.median(recording.replay_seconds()
@@ -61,7 +64,8 @@ def bench_trees(args):
                     renders[b].append(time.perf_counter() - t)
             render_s = {b: statistics.median(renders[b]) for b in BUILDERS}
             ratio = lambda x: x["sweep"] / x["hwbvh"]
-            row[mode] = {"render_seconds": render_s, "trace_only_seconds": trace_only,
+            row[mode] = {"work": work, "work_ratio": work_ratio,
+                         "render_seconds": render_s, "trace_only_seconds": trace_only,
                          "render_ratio": ratio(render_s), "trace_ratio": ratio(trace_only),
                          "render_vs_work": ratio(render_s) / work_ratio - 1,
                          "trace_vs_work": ratio(trace_only) / work_ratio - 1}
@@ -70,21 +74,20 @@ def bench_trees(args):
 
 
 def human(r):
-    lines = [f"{'scene':<10}{'SAH hw/sweep':>14}{'work/ray hw':>12}{'sweep':>7}{'work':>7}  "
-             f"{'path':<11}{'render':>7}{'trace':>7}{'render vs':>10}{'trace vs':>9}",
-             f"{'':<10}{'':>14}{'':>12}{'':>7}{'ratio':>7}  {'':<11}{'ratio':>7}{'ratio':>7}"
+    lines = [f"{'scene':<10}{'SAH hw/sweep':>14}  {'path':<11}{'work/ray hw':>12}{'sweep':>7}"
+             f"{'work':>7}{'render':>7}{'trace':>7}{'render vs':>10}{'trace vs':>9}",
+             f"{'':<10}{'':>14}  {'':<11}{'':>12}{'':>7}{'ratio':>7}{'ratio':>7}{'ratio':>7}"
              f"{'work':>10}{'work':>9}"]
     for x in r["rows"]:
-        head = ""
         for k, mode in enumerate(("packets", "single_ray")):
             m = x[mode]
-            head = (f"{x['scene']:<10}{x['sah_cost']['hwbvh']:>7.1f}/{x['sah_cost']['sweep']:<6.1f}"
-                    f"{x['work']['hwbvh']['work_per_ray']:>12.1f}{x['work']['sweep']['work_per_ray']:>7.1f}"
-                    f"{x['work_ratio']:>7.3f}") if k == 0 else " " * len(head)
-            lines.append(f"{head}  {mode.replace('_', '-'):<11}{m['render_ratio']:>7.3f}"
-                         f"{m['trace_ratio']:>7.3f}{100 * m['render_vs_work']:>+9.1f}%"
-                         f"{100 * m['trace_vs_work']:>+8.1f}%")
-    lines.append("ratios are sweep / hwbvh; work = nodes visited + triangles tested per ray by the "
-                 "single-ray unit, over closest-hit and shadow rays; trace = the render's rays "
-                 "traced again alone")
+            head = f"{x['scene']:<10}{x['sah_cost']['hwbvh']:>7.1f}/{x['sah_cost']['sweep']:<6.1f}" \
+                if k == 0 else " " * 24
+            lines.append(f"{head}  {mode.replace('_', '-'):<11}"
+                         f"{m['work']['hwbvh']['work_per_ray']:>12.1f}{m['work']['sweep']['work_per_ray']:>7.1f}"
+                         f"{m['work_ratio']:>7.3f}{m['render_ratio']:>7.3f}{m['trace_ratio']:>7.3f}"
+                         f"{100 * m['render_vs_work']:>+9.1f}%{100 * m['trace_vs_work']:>+8.1f}%")
+    lines.append("ratios are sweep / hwbvh; work = nodes visited + triangles tested per ray as the "
+                 "path runs them (a packet's rays each count the packet's tests), over closest-hit "
+                 "and shadow rays; trace = the render's rays traced again alone")
     return "\n".join(lines)

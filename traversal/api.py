@@ -95,7 +95,7 @@ class Tracer:
         self.packets = bool(packets)
         self.last_packets = 0          # packets the last query traced (the rest went ray by ray)
 
-    def _run(self, origins, dirs, tmin, tmax, anyhit, counters, normals=False):
+    def _run(self, origins, dirs, tmin, tmax, anyhit, counters, normals=False, as_run=False):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)
         n = len(o)
         prim = np.empty(n, np.int32)
@@ -110,7 +110,7 @@ class Tracer:
         traced = np.zeros(nchunks, np.int64)
         run_ranges(trace_chunks, nchunks, self._u1, self._f1, self.index_bytes, self._tris1,
                    self.raw, o, d, lo, hi, self.eps2, self.one, self.widen, self.edge, self.depth,
-                   anyhit, self.packets and not counters and self.raw is None, prim, t, u, v, ng,
+                   anyhit, self.packets and (as_run or not counters) and self.raw is None, prim, t, u, v, ng,
                    cnt, over, traced)
         over = int(over.sum())
         self.last_packets = int(traced.sum())
@@ -119,14 +119,18 @@ class Tracer:
                                f"than its recorded depth {self.depth} (corrupted tree?)")
         return prim, t, u, v, (ng if normals else None), (cnt if counters else None)
 
-    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False, normals=True):
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False, normals=True,
+                  as_run=False):
         """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays). ``normals=False``
-        skips the geometric normals (ng is then None) for callers that look them up."""
-        prim, t, u, v, ng, cnt = self._run(origins, dirs, tmin, tmax, False, counters, normals)
+        skips the geometric normals (ng is then None) for callers that look them up.
+        ``counters``: nodes visited and triangles tested per ray, by the single-ray unit; with
+        ``as_run`` as the query actually runs them (a packet's rays each count every node and
+        triangle the packet tests)."""
+        prim, t, u, v, ng, cnt = self._run(origins, dirs, tmin, tmax, False, counters, normals, as_run)
         return Hits(t=t, prim=prim, u=u, v=v, ng=ng, counters=cnt)
 
-    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False):
+    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False, as_run=False):
         """True where any triangle is hit in [tmin, tmax]; returns (blocked, counters or None)
-        when counters=True."""
-        prim, _, _, _, _, cnt = self._run(origins, dirs, tmin, tmax, True, counters)
+        when counters=True (``as_run`` as for :meth:`intersect`)."""
+        prim, _, _, _, _, cnt = self._run(origins, dirs, tmin, tmax, True, counters, False, as_run)
         return (prim >= 0, cnt) if counters else prim >= 0

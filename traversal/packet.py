@@ -205,7 +205,7 @@ def _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one):
 
 @njit(cache=True, error_model="numpy", _nrt=False)
 def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, lo, hi, anyhit,
-                 stack, F, I, M, M64, out_prim, out_t, out_u, out_v):
+                 stack, F, I, M, M64, out_prim, out_t, out_u, out_v, counters):
     """Rays [lo, hi) (exactly P, sharing a direction octant) as one packet; ``O``/``D`` are the
     (n, 3) origins and directions seen flat (3n,). Scratch: ``F``
     (NF,) of the working float type, ``I`` (NI,) int32, ``M`` (NM,) uint8 and ``M64`` its
@@ -241,11 +241,14 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
     ky = BOX_MAX if negy else 0
     kz = BOX_MAX if negz else 0
     over = 0
+    visited = 0                 # work as the packet does it: every lane takes part in every
+    tested = 0                  # node visit and triangle test of the packet
     if nlive > 0 and _box(f, WORD_BOX, kx, ky, kz, F, M, M64, widen) != 0:
         node = 0
         bit = 0           # which bit of M[MASK] holds the current node's lanes; -1: not known
         sp = 0
         while True:
+            visited += 1
             base = WORDS_PER_NODE * node
             if u[base + WORD_FLAGS] & LEAF_FLAG:
                 # leaf: the lanes whose ray reaches its box test its primitives
@@ -253,6 +256,7 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
                     bit = 0 if _box(f, base + WORD_BOX, kx, ky, kz, F, M, M64, widen) != 0 else -1
                 if bit >= 0:
                     first = np.int64(u[base + WORD_A])
+                    tested += np.int64(u[base + WORD_B])
                     for p in range(first, first + np.int64(u[base + WORD_B])):
                         _triangle(tris, read_index(ib, p), F, I, M, bit, eps2, one, edge, anyhit)
                     if anyhit:
@@ -315,4 +319,8 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
             outt[k] = F[BEST + k] if h else inf
             outu[k] = F[BU + k] if h else zero
             outv[k] = F[BV + k] if h else zero
+    if counters.shape[0] > 0:
+        for k in range(n):
+            counters[lo + k, 0] = visited
+            counters[lo + k, 1] = tested
     return over

@@ -88,14 +88,16 @@ def _shifted(origins, dirs, tmin, tmax):
 
 
 class CountingTracer:
-    """Counts traversal work: nodes visited and triangles tested per ray, as the single-ray
-    unit does them, for closest-hit and any-hit (shadow) queries apart. Only our traversal has
-    counters."""
+    """Counts traversal work: nodes visited and triangles tested per ray, for closest-hit and
+    any-hit (shadow) queries apart. By default as the single-ray unit does them; with
+    ``as_run`` as the queries actually run (rays traced as a packet each count every node and
+    triangle the packet tests). Only our traversal has counters."""
 
-    def __init__(self, inner):
+    def __init__(self, inner, as_run=False):
         if not getattr(inner, "has_counters", False):
             raise ValueError("work counters need the hwbvh traversal (traversal.Tracer)")
         self.inner = inner
+        self.as_run = bool(as_run)
         self.totals = {kind: {"nodes": 0, "triangles": 0, "rays": 0} for kind in ("closest", "shadow")}
 
     def _add(self, kind, counters):
@@ -105,12 +107,14 @@ class CountingTracer:
         t["rays"] += len(counters)
 
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
-        h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals, counters=True)
+        h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals, counters=True,
+                                 as_run=self.as_run)
         self._add("closest", h.counters)
         return h
 
     def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
-        blocked, counters = self.inner.occluded(origins, dirs, tmin, tmax, counters=True)
+        blocked, counters = self.inner.occluded(origins, dirs, tmin, tmax, counters=True,
+                                                as_run=self.as_run)
         self._add("shadow", counters)
         return blocked
 

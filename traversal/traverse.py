@@ -127,7 +127,8 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
         b = min(hi, a + P)
         if packets and b - a == P and coherent(D, a, b):
             over += trace_packet(u, f, ib, tris, O.reshape(-1), D.reshape(-1), tmin, tmax, eps2, one, widen, edge, a, b,
-                                 anyhit, stack, F, I, M, M64, out_prim, out_t, out_u, out_v) * (b - a)
+                                 anyhit, stack, F, I, M, M64, out_prim, out_t, out_u, out_v,
+                                 counters) * (b - a)
             npk += 1
             a = b
             continue
