@@ -124,3 +124,23 @@ def test_counting_and_recording_wrappers():
     res = render(sc, rec)
     assert rec.rays() == sum(res.stats["rays"].values())
     assert rec.replay_seconds() > 0
+
+
+def test_counters_as_run_count_packet_work():
+    sc = small("cornell", 32, 32, 1)
+    tracer, _, _ = make_tracer(sc)
+    from traversal import raysets
+    O, D = raysets.primary(sc.triangles, 1024)           # camera rays in 4x4 tiles
+    plain = tracer.intersect(O, D)
+    run = tracer.intersect(O, D, counters=True, as_run=True)
+    packets = tracer.last_packets
+    single = tracer.intersect(O, D, counters=True)
+    assert np.array_equal(run.prim, plain.prim) and np.array_equal(run.t, plain.t)
+    assert packets > 0 and tracer.last_packets == 0
+    m = 16 * (len(O) // 16)
+    c = run.counters[:m].reshape(-1, 16, 2)
+    packed = (c == c[:, :1]).all(axis=(1, 2))            # a packet's lanes share its work
+    assert packed.sum() >= packets
+    # a packet visits the union of its rays' nodes: at least each of its rays' own count
+    own = single.counters[:m].reshape(-1, 16, 2)
+    assert (c[packed][..., 0] >= own[packed][..., 0]).all()
