@@ -39,7 +39,8 @@ def _emit(args, result, human):
 
 
 def _kv(result, keys):
-    return "\n".join(f"{k:>18}: {result[k]}" for k in keys if k in result)
+    width = max((len(k) for k in keys if k in result), default=0)
+    return "\n".join(f"{k:>{width}}: {result[k]}" for k in keys if k in result)
 
 
 # --------------------------------------------------------------------------------------
@@ -150,7 +151,8 @@ def cmd_verify(args):
 
     if args.replay:
         for flag, value in (("--rays", args.rays), ("--kind", args.kind),
-                            ("--mismatches", args.mismatches)):
+                            ("--mismatches", args.mismatches),
+                            ("--accel", None if args.accel == "bvh" else args.accel)):
             if value is not None:
                 raise InputError(flag, "is for a verification run; --replay re-traces the file's rays")
         label, tris, verts, faces = _scene_geometry(args.scene)
@@ -161,9 +163,18 @@ def cmd_verify(args):
     out = args.mismatches or os.path.join("renders", f"verify-{_stem(args.scene)}-{kind}-mismatches.npz")
     check_outputs([out], inputs=[args.scene])
     label, tris, verts, faces = _scene_geometry(args.scene)
-    counts, labels, (O, D, tmax), h, (te, pe) = verify_mesh(tris, verts, faces, kind, rays)
+    tracer = None
+    if args.accel == "grid":
+        from traversal.grid import GridTracer, warm_up_grid
+        warm_up_grid()              # the build time below measures the build, not JIT start-up
+        tracer = GridTracer(tris)
+    counts, labels, (O, D, tmax), h, (te, pe) = verify_mesh(tris, verts, faces, kind, rays,
+                                                            accel=args.accel, tracer=tracer)
     result = dict(counts)
-    result.update({"kind": kind, "scene": label, "rays_requested": rays})
+    result.update({"kind": kind, "scene": label, "rays_requested": rays, "accel": args.accel})
+    if tracer is not None:
+        result.update({k: v for k, v in tracer.stats().items()
+                       if k in ("build_seconds", "memory_bytes", "references_per_triangle")})
     if counts["rays"] != rays:
         print(f"hwrt: note: {counts['rays']} of the {rays} requested {kind} rays: too few of the "
               f"first rays hit the mesh", file=sys.stderr)
@@ -175,7 +186,7 @@ def cmd_verify(args):
                  tmax=(np.full(len(bad), np.inf) if tmax is None else np.asarray(tmax)[bad]))
         write_files([(out, buf.getvalue())])
         result["mismatch_file"] = out
-    _emit(args, result, lambda r: _kv(r, ["scene", "kind", "rays", "rays_requested", "agree", "tie",
+    _emit(args, result, lambda r: _kv(r, ["scene", "accel", "kind", "rays", "rays_requested", "agree", "tie",
                                           "mismatch", "mismatch_file"]))
 
 
@@ -219,6 +230,9 @@ def cmd_render(args):
                          "embree, or --traversal numba with --builder hwbvh or sweep")
     if args.verify and args.traversal == "embree":
         raise InputError("--verify", "checks our traversal against Embree; use --traversal numba")
+    if args.accel == "grid" and (args.builder != "hwbvh" or args.traversal != "numba"):
+        raise InputError("--accel", "--accel grid builds and traverses its own structure: it takes "
+                         "no --builder and no --traversal embree")
     d = load_scene(args.scene)
     film = d.setdefault("film", {})
     integ = d.setdefault("integrator", {"type": "whitted"})
@@ -233,7 +247,10 @@ def cmd_render(args):
     check_outputs([out, png], inputs=[args.scene])
     scene = compile_scene(d)
     startup_s = warm_up(args.builder, args.traversal)
-    tracer, build_s, info = make_tracer(scene, args.builder, args.traversal)
+    if args.accel == "grid":
+        from traversal.grid import warm_up_grid
+        startup_s += warm_up_grid()
+    tracer, build_s, info = make_tracer(scene, args.builder, args.traversal, accel=args.accel)
     checked = None
     if args.verify:
         from traversal.tracers import VerifyingTracer
@@ -245,8 +262,8 @@ def cmd_render(args):
     res = render(scene, tracer, seed=args.seed, progress=bar.update)
     render_s = time.perf_counter() - t0
     bar.close()
-    result = {"output": out, "scene": scene.name, "builder": args.builder, "traversal": args.traversal,
-              "triangles": int(len(scene.triangles)), "width": scene.width, "height": scene.height,
+    result = {"output": out, "scene": scene.name, "accel": args.accel, "builder": args.builder,
+              "traversal": args.traversal, "triangles": int(len(scene.triangles)), "width": scene.width, "height": scene.height,
               "spp": scene.spp, "max_depth": scene.max_depth,
               "build_seconds": build_s, "render_seconds": render_s,
               "time_to_image_seconds": build_s + render_s,
@@ -254,14 +271,15 @@ def cmd_render(args):
               "startup_seconds": startup_s,
               "rays": res.stats["rays"],
               "passes": res.stats["passes"]}
-    result.update({k: v for k, v in info.items() if k in ("nodes", "sah_cost")})
+    result.update({k: v for k, v in info.items() if k in ("nodes", "sah_cost", "memory_bytes",
+                                                           "references_per_triangle")})
     sim = info.get("simulated_build_seconds")
     if sim:
         result["time_to_image_simulated_seconds"] = {k: v + render_s for k, v in sim.items()}
     if checked is not None:
         result["verify"] = checked.summary()
-    meta = {"scene": scene.name, "builder": args.builder, "traversal": args.traversal,
-            "build_seconds": build_s, "render_seconds": render_s, "spp": scene.spp,
+    meta = {"scene": scene.name, "accel": args.accel, "builder": args.builder,
+            "traversal": args.traversal, "build_seconds": build_s, "render_seconds": render_s, "spp": scene.spp,
             "max_depth": scene.max_depth}
     meta.update({f"rays_{k}": v for k, v in res.stats["rays"].items()})
     files = [(out, exr_writer(out, res, meta, layers=not args.no_layers))]
@@ -271,7 +289,8 @@ def cmd_render(args):
     write_files(files)
     result["wall_seconds"] = time.perf_counter() - t_start
     _emit(args, result, lambda r: _kv(r, ["output", "png", "scene", "triangles", "build_seconds",
-                                          "render_seconds", "time_to_image_seconds", "rays", "verify"]))
+                                          "render_seconds", "time_to_image_seconds",
+                                          "simulated_build_seconds", "rays", "verify"]))
 
 
 def cmd_animate(args):
@@ -534,6 +553,8 @@ def make_parser():
                    help="the tree: hwbvh (the hardware's), sweep (full SAH) or embree")
     r.add_argument("--traversal", choices=["numba", "embree"], default="numba",
                    help="numba: our units on the raw nodes; embree: Embree on its own tree")
+    r.add_argument("--accel", choices=["bvh", "grid"], default="bvh",
+                   help="acceleration structure: bvh (built by --builder) or grid (uniform grid)")
     r.add_argument("--verify", action="store_true", help="check every ray against Embree")
     r.add_argument("--png", action="store_true",
                    help="also write a tone-mapped PNG preview beside the EXR")
@@ -551,6 +572,8 @@ def make_parser():
     v.add_argument("--mismatches", metavar="F.npz",
                    help="where mismatching rays are written (default: "
                         "renders/verify-<scene>-<kind>-mismatches.npz, only if there are any)")
+    v.add_argument("--accel", choices=["bvh", "grid"], default="bvh",
+                   help="acceleration structure checked: bvh (hwbvh's tree) or grid (uniform grid)")
     v.add_argument("--replay", metavar="F.npz",
                    help="re-trace the rays of a mismatch file instead (default: a new run)")
     v.add_argument("--json", action="store_true", help="print one JSON object")
