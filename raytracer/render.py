@@ -89,8 +89,22 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
 
 
 def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
-                precision="float32", watertight=False):
-    """(tracer, build_seconds, build_info). Builders: hwbvh, sweep, embree."""
+                precision="float32", watertight=False, accel="bvh"):
+    """(tracer, build_seconds, build_info). ``accel``: "bvh" (builders hwbvh, sweep, embree) or
+    "grid" (``traversal.grid.GridTracer``, traversal "numba" and the default builder only)."""
+    if accel == "grid":
+        if builder != "hwbvh" or traversal != "numba":
+            raise ParameterError("accel", "the grid has its own build and traversal "
+                                 "(accel 'grid' needs the default builder and traversal 'numba')")
+        if precision != "float32" or watertight:
+            raise ParameterError("accel", "the grid traces with the float32 Moller-Trumbore unit "
+                                 "only (accel 'grid' needs precision 'float32', watertight False)")
+        from traversal.grid import GridTracer
+        t = time.perf_counter()
+        tr = GridTracer(scene.triangles)
+        return tr, time.perf_counter() - t, dict(tr.stats(), accel="grid")
+    if accel != "bvh":
+        raise ParameterError("accel", f"unknown acceleration structure {accel!r} (choose bvh or grid)")
     if builder == "embree":
         if traversal != "embree":
             raise ParameterError("traversal", "Embree's tree can only be traversed by Embree "

@@ -54,3 +54,32 @@ BARY_TOL = 1e-4
 PACKET_RAYS = 16
 # Rays per parallel work item of a batch (each work item allocates one traversal stack).
 CHUNK_RAYS = 64
+
+# --- Uniform grid (grid) -------------------------------------------------------------------
+# Cells per triangle of the density heuristic (cells ~ GRID_DENSITY * N, cubic where the mesh's
+# bounds allow). Fewer cells test more triangles per cell; more cells step through more empty
+# ones and insert each triangle into more of them (memory). On the bunny, densities 2 to 8
+# trace within a few percent of each other and 16 is ~25% slower; 4 keeps ~3 references per
+# triangle.
+GRID_DENSITY = 4.0
+# The cell count never exceeds this (int64 cell offsets: 8 bytes per cell, 128 MiB at the cap).
+GRID_MAX_CELLS = 2**24
+# References (triangle ids in cells, 4 bytes each) never exceed GRID_MAX_REFS_PER_TRI * N. A
+# triangle is inserted into every cell its bounding box overlaps, so one huge triangle alone
+# could reach every cell, and N of them N * cells; above the cap the resolution is coarsened
+# until the references fit (one cell holds exactly N, so it always ends).
+GRID_MAX_REFS_PER_TRI = 16
+# Each triangle's box is padded before insertion, so that every point at which the triangle unit
+# can report a hit lies in a cell that lists it: by GRID_PAD_TRI of the triangle's extent (the
+# unit's barycentric slack, EDGE_EPS_F32 = 2^-18, twice over) and GRID_PAD_COORD of its largest
+# coordinate magnitude (16 float32 ulps: the rounding of a float32 hit point).
+GRID_PAD_TRI = 2.0**-17
+GRID_PAD_COORD = 2.0**-19
+# Traversal stops once the current cell ends beyond the closest hit by this much, relative to
+# t + |o|/|d| (a few times the float32 unit's rounding of t, ~1e-6 relative): a hit at the same
+# t, or rounded nearer, in the next cell is still found and ties go to the lower index.
+GRID_STOP_SLACK = 2.0**-16
+# Per-ray mailbox entries (direct-mapped on the triangle id; a power of two): a triangle spanning
+# several cells is tested once per ray while its id stays in the mailbox; a forgotten id is only
+# tested again, with the same answer.
+GRID_MAILBOX = 32

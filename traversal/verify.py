@@ -178,15 +178,25 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None):
     return counts, labels, h, (te, pe)
 
 
-def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=0):
-    """Build (unless given), trace a ray set of ``kind`` and classify against Embree."""
+def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=0, accel="bvh",
+                tracer=None):
+    """Build (unless given), trace a ray set of ``kind`` and classify against Embree.
+    ``accel``: "bvh" (``bvh`` if given, else hwbvh's build) or "grid" (``grid.GridTracer``);
+    ``tracer``: an already built tracer of ``tris`` to check instead."""
     import hwbvh
     from . import raysets
     from .api import Tracer
     from .embree_ref import embree_scene
 
-    bvh = bvh or hwbvh.build(tris)
-    tracer = Tracer(bvh)
+    if tracer is not None:
+        pass
+    elif accel == "grid":
+        from .grid import GridTracer
+        tracer = GridTracer(tris)
+    elif accel == "bvh":
+        tracer = Tracer(bvh or hwbvh.build(tris))
+    else:
+        raise ValueError(f"accel must be 'bvh' or 'grid', got {accel!r}")
     scene = embree_scene(vertices, faces)
     tmax = None
     if kind == "primary":

@@ -1,0 +1,275 @@
+"""The uniform grid: every answer against the BVH traversal (same triangle unit, same tie rule,
+so the same answers bit for bit), Embree and a float64 brute force, on the hard ray cases; its
+memory bounded on degenerate input; the CLI's --accel."""
+import json
+
+import numpy as np
+import pytest
+
+import hwbvh
+from hwrt.cli import main
+from raytracer.render import make_tracer, render
+from scenes import compile_scene, load_scene
+from traversal import Tracer, raysets
+from traversal.config import GRID_MAX_CELLS, GRID_MAX_REFS_PER_TRI
+from traversal.embree_ref import embree_intersect, embree_scene
+from traversal.grid import GridTracer, density_resolution
+from traversal.verify import classify
+
+from .naive import ray_triangle_f64
+
+
+def tessellated_cube(k):
+    """The unit cube's surface, each face k x k quads of two triangles: vertices on the 1/k
+    lattice, so many rays run exactly through shared edges and vertices."""
+    tris = []
+    s = np.linspace(0.0, 1.0, k + 1)
+    for axis in range(3):
+        a, b = (axis + 1) % 3, (axis + 2) % 3
+        for side in (0.0, 1.0):
+            for i in range(k):
+                for j in range(k):
+                    q = []
+                    for di, dj in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                        p = np.zeros(3)
+                        p[axis] = side
+                        p[a] = s[i + di]
+                        p[b] = s[j + dj]
+                        q.append(p)
+                    tris += [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]
+    return np.asarray(tris, np.float32)
+
+
+def sphere(n_lat=24, n_lon=48):
+    th = np.linspace(0, np.pi, n_lat + 1)
+    ph = np.linspace(0, 2 * np.pi, n_lon, endpoint=False)
+    v = np.stack([np.outer(np.sin(th), np.cos(ph)), np.outer(np.sin(th), np.sin(ph)),
+                  np.outer(np.cos(th), np.ones_like(ph))], -1).reshape(-1, 3)
+    faces = []
+    for i in range(n_lat):
+        for j in range(n_lon):
+            a, b = i * n_lon + j, i * n_lon + (j + 1) % n_lon
+            c, d = a + n_lon, b + n_lon
+            faces += [[a, c, d], [a, d, b]]
+    faces = np.asarray(faces, np.int32)
+    keep = np.array([len({*f}) == 3 for f in faces])
+    return v.astype(np.float32), faces[keep]
+
+
+def soup(n, seed):
+    rng = np.random.default_rng(seed)
+    centres = rng.random((n, 1, 3))
+    return (centres + rng.normal(scale=0.03, size=(n, 3, 3))).astype(np.float32)
+
+
+def bvh_tracer(tris):
+    return Tracer(hwbvh.build(tris))
+
+
+def same_as_bvh(grid, bvh, o, d, tmin=0.0, tmax=np.inf):
+    g = grid.intersect(o, d, tmin, tmax)
+    b = bvh.intersect(o, d, tmin, tmax)
+    np.testing.assert_array_equal(g.prim, b.prim)
+    np.testing.assert_array_equal(g.t, b.t)
+    np.testing.assert_array_equal(g.ng, b.ng)
+    np.testing.assert_array_equal(grid.occluded(o, d, tmin, tmax), bvh.occluded(o, d, tmin, tmax))
+    return g
+
+
+def agrees_with_embree(tris, vertices, faces, hits, o, d):
+    te, pe, *_ = embree_intersect(embree_scene(vertices, faces), o, d)
+    counts, _ = classify(tris, o, d, 0.0, np.inf, hits.prim.astype(np.int64), hits.t, pe, te)
+    assert counts["mismatch"] == 0, counts
+    return counts
+
+
+def indexed(tris):
+    return tris.reshape(-1, 3), np.arange(3 * len(tris), dtype=np.int32).reshape(-1, 3)
+
+
+def hard_rays(grid, rng):
+    """Axis-parallel rays on the vertex lattice (through shared edges and vertices), rays whose
+    origins lie on cell planes, rays parallel to cell planes (in them and between them),
+    starting outside and inside the grid."""
+    lattice = np.linspace(0.0, 1.0, 9)
+    O, D = [], []
+    for axis in range(3):
+        a, b = (axis + 1) % 3, (axis + 2) % 3
+        for x in lattice:
+            for y in lattice:
+                for start, sign in ((-0.5, 1.0), (1.5, -1.0), (0.5, 1.0), (0.5, -1.0)):
+                    o = np.zeros(3)
+                    o[axis], o[a], o[b] = start, x, y
+                    d = np.zeros(3)
+                    d[axis] = sign
+                    O.append(o)
+                    D.append(d)
+    # diagonals through lattice vertices
+    for x in lattice:
+        for y in lattice:
+            O.append([x - 0.5, y - 0.5, -0.5])
+            D.append([1.0, 1.0, 1.0])
+    cs = (grid.gmax - grid.gmin) / np.asarray(grid.resolution)
+    planes = [grid.gmin[k] + cs[k] * np.arange(grid.resolution[k] + 1) for k in range(3)]
+    for _ in range(400):
+        o = rng.uniform(-0.2, 1.2, 3)
+        k = rng.integers(3)
+        o[k] = rng.choice(planes[k])                          # origin on a cell plane
+        d = rng.normal(size=3)
+        if rng.random() < 0.5:
+            d[k] = 0.0                                        # and parallel to it
+        if rng.random() < 0.3:
+            d[(k + 1) % 3] = 0.0                              # axis-parallel along a plane
+        O.append(o)
+        D.append(d)
+    return np.asarray(O, np.float32), np.asarray(D, np.float32)
+
+
+def test_hard_rays_match_the_bvh_embree_and_the_float64_brute_force():
+    tris = tessellated_cube(4)
+    grid = GridTracer(tris)
+    bvh = bvh_tracer(tris)
+    rng = np.random.default_rng(3)
+    o, d = hard_rays(grid, rng)
+    h = same_as_bvh(grid, bvh, o, d)
+    assert (h.prim >= 0).mean() > 0.5
+    agrees_with_embree(tris, *indexed(tris), h, o, d)
+    # float64 brute force: where it finds a hit clearly inside a triangle, the same t
+    for i in range(0, len(o), 7):
+        best = np.inf
+        for tri in tris:
+            hit, t, u, v = ray_triangle_f64(o[i], d[i], tri)
+            if hit and min(u, v, 1 - u - v) > 1e-3 and t > 1e-6:
+                best = min(best, t)
+        if np.isfinite(best):
+            assert abs(h.t[i] - best) <= 1e-5 * (1 + best), (i, h.t[i], best)
+    # intervals: random [tmin, tmax] on the same rays, with explicit resolutions (cell planes
+    # on the lattice and off it)
+    lo = rng.uniform(0.0, 1.0, len(o)).astype(np.float32)
+    hi = (lo + rng.uniform(0.0, 1.5, len(o))).astype(np.float32)
+    for res in ((4, 4, 4), (1, 7, 3), 1):
+        same_as_bvh(GridTracer(tris, resolution=res), bvh, o, d, lo, hi)
+
+
+@pytest.mark.parametrize("mesh", ["sphere", "soup"])
+def test_no_mismatch_against_embree(mesh):
+    if mesh == "sphere":
+        vertices, faces = sphere()
+        tris = vertices[faces]
+    else:
+        tris = soup(3000, 1)
+        vertices, faces = indexed(tris)
+    grid = GridTracer(tris)
+    bvh = bvh_tracer(tris)
+    for o, d in (raysets.primary(tris, 6000), raysets.incoherent(tris, 6000, 2)):
+        h = same_as_bvh(grid, bvh, o, d)
+        counts = agrees_with_embree(tris, vertices, faces, h, o, d)
+        assert counts["agree"] > 0.99 * counts["rays"]
+
+
+def bounded(grid, n):
+    assert grid.references <= GRID_MAX_REFS_PER_TRI * max(n, 1)
+    assert len(grid.offsets) - 1 <= GRID_MAX_CELLS
+    assert grid.memory_bytes <= 8 * (len(grid.offsets)) + 4 * grid.references + 44 * n
+    assert grid.references_per_triangle == grid.references / max(n, 1)
+
+
+def degenerate_cases():
+    rng = np.random.default_rng(7)
+    small = soup(2000, 4)
+    huge = np.array([[[-10, -10, 0.5], [30, -10, 0.5], [-10, 30, 0.5]]], np.float32)
+    many_huge = huge + rng.normal(scale=0.1, size=(300, 3, 3)).astype(np.float32)
+    clump = (np.float32(0.5) + rng.normal(scale=1e-4, size=(2000, 3, 3))).astype(np.float32)
+    corners = np.array([[[0, 0, 0], [0.01, 0, 0], [0, 0.01, 0]],
+                        [[1, 1, 1], [0.99, 1, 1], [1, 0.99, 1]]], np.float32)
+    flat = small.copy()
+    flat[:, :, 2] = 0.25
+    line = np.zeros((50, 3, 3), np.float32)
+    line[:, :, 0] = rng.random((50, 3))                       # zero extent in y and z
+    point = np.full((20, 3, 3), 0.5, np.float32)
+    return {"huge triangle": np.concatenate([small, huge]),
+            "many huge triangles": np.concatenate([small, many_huge]),
+            "all in one cell": np.concatenate([clump, corners]),
+            "flat": flat, "zero-extent axes": line, "a point": point}
+
+
+@pytest.mark.parametrize("case", list(degenerate_cases()))
+def test_degenerate_input_stays_bounded_and_right(case):
+    tris = degenerate_cases()[case]
+    grid = GridTracer(tris)
+    bounded(grid, len(tris))
+    bvh = bvh_tracer(tris)
+    o, d = raysets.incoherent(tris, 3000, 5)
+    axis = np.zeros((300, 3), np.float32)
+    axis[np.arange(300), np.arange(300) % 3] = 1.0           # axis-parallel, some in a flat mesh's plane
+    ao = np.asarray(tris, np.float32).reshape(-1, 3)[np.random.default_rng(1).integers(0, 3 * len(tris), 300)]
+    o = np.concatenate([o, ao - 0.7 * axis])
+    d = np.concatenate([d, axis])
+    same_as_bvh(grid, bvh, o, d)
+    if case == "flat":
+        assert grid.resolution[2] == 1
+    if case == "many huge triangles":
+        # the density heuristic's resolution would need ~300 x cells references: coarsened
+        assert np.prod(grid.resolution) < np.prod(density_resolution(np.ptp(tris.reshape(-1, 3), 0), len(tris)))
+
+
+def test_resolution_and_input_checks():
+    tris = soup(200, 2)
+    assert GridTracer(tris, resolution=(3, 5, 2)).resolution == (3, 5, 2)
+    assert GridTracer(tris, resolution=6).resolution == (6, 6, 6)
+    for bad in (0, (2, 0, 2), 2.5, (1, 2)):
+        with pytest.raises(ValueError, match="resolution"):
+            GridTracer(tris, resolution=bad)
+    with pytest.raises(ValueError, match="resolution"):
+        GridTracer(np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]] * 40, np.float32), resolution=64)
+    with pytest.raises(ValueError, match="non-finite"):
+        GridTracer(np.full((1, 3, 3), np.nan, np.float32))
+    empty = GridTracer(np.zeros((0, 3, 3), np.float32))
+    h = empty.intersect(np.zeros((2, 3)), np.array([[0, 0, 1.0], [1, 0, 0]]))
+    assert (h.prim == -1).all() and np.isinf(h.t).all()
+    # rays the unit rejects (zero or non-finite direction, empty interval) miss
+    g = GridTracer(tris)
+    o = np.full((3, 3), 0.5)
+    d = np.array([[0, 0, 0], [np.nan, 0, 1], [0, 0, 1]], np.float64)
+    assert (g.intersect(o, d, 0.0, np.array([1.0, 1.0, -1.0])).prim == -1).all()
+
+
+def small(name, w, h, spp=1):
+    return compile_scene(load_scene(name, width=w, height=h, spp=spp))
+
+
+def test_cornell_renders_like_the_bvh():
+    sc = small("cornell", 32, 24)
+    bvh, _, _ = make_tracer(sc)
+    grid, secs, info = make_tracer(sc, accel="grid")
+    assert grid.dtype == np.float32 and grid.has_counters is False
+    assert info["memory_bytes"] == grid.memory_bytes and info["references_per_triangle"] > 0
+    o = np.tile(np.asarray(sc.camera["eye"], np.float64), (3, 1))
+    d = np.array([[0.0, -1.0, 0.0], [0.0, -0.6, -0.8], [0.0, 1.0, 0.0]])
+    h = grid.intersect(o, d, 0.0, np.inf, normals=False)
+    assert h.prim.dtype == np.int32 and len(h.t) == 3 and h.ng is None
+    assert grid.occluded(o, d, 0.0, np.full(3, 1e30)).dtype == bool
+    a = render(sc, bvh)
+    b = render(sc, grid)
+    assert a.stats["rays"] == b.stats["rays"]
+    assert (np.abs(a.image - b.image).max(axis=2) > 0.02).mean() < 0.01
+
+
+def test_cli_accel(tmp_path, capsys):
+    assert main(["render", "cornell", "--accel", "grid", "--builder", "sweep"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--accel" in err and "\n" not in err
+    assert main(["render", "cornell", "--accel", "grid", "--traversal", "embree",
+                 "--builder", "embree"]) == 2
+    capsys.readouterr()
+    out = tmp_path / "c.exr"
+    assert main(["render", "cornell", "--accel", "grid", "-o", str(out), "--width", "16",
+                 "--height", "12", "--spp", "1", "--json"]) in (0, None)
+    r = json.loads(capsys.readouterr().out)
+    assert r["accel"] == "grid" and r["memory_bytes"] > 0 and r["references_per_triangle"] > 0
+    assert out.exists()
+    assert main(["verify", "cornell", "--accel", "grid", "--rays", "2000", "--json",
+                 "--mismatches", str(tmp_path / "m.npz")]) in (0, None)
+    r = json.loads(capsys.readouterr().out)
+    assert r["accel"] == "grid" and r["mismatch"] == 0 and r["rays"] == 2000
+    assert r["build_seconds"] >= 0 and r["memory_bytes"] > 0 and r["references_per_triangle"] > 0
