@@ -144,3 +144,20 @@ def test_counters_as_run_count_packet_work():
     # a packet visits the union of its rays' nodes: at least each of its rays' own count
     own = single.counters[:m].reshape(-1, 16, 2)
     assert (c[packed][..., 0] >= own[packed][..., 0]).all()
+
+
+def test_kept_buffers_do_not_leak_between_renders():
+    from raytracer.render import release_buffers
+    big, tiny = small("cornell", 40, 30, 1), small("marbles", 12, 9, 2)
+    tracer_big, _, _ = make_tracer(big)
+    tracer_tiny, _, _ = make_tracer(tiny)
+    release_buffers()
+    fresh_big = render(big, tracer_big, seed=4)
+    release_buffers()
+    fresh_tiny = render(tiny, tracer_tiny, seed=4)
+    # kept buffers from a larger render, then from a smaller one, give the same images
+    again_tiny = render(tiny, tracer_tiny, seed=4)
+    again_big = render(big, tracer_big, seed=4)
+    assert np.array_equal(again_tiny.image, fresh_tiny.image)
+    assert np.array_equal(again_big.image, fresh_big.image)
+    assert np.array_equal(again_big.prim, fresh_big.prim)
