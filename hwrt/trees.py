@@ -51,18 +51,19 @@ def bench_trees(args):
                 w = counting.work("all")
                 work[b] = dict(w, work_per_ray=w["nodes_per_ray"] + w["tris_per_ray"])
             work_ratio = work["sweep"]["work_per_ray"] / work["hwbvh"]["work_per_ray"]
-            trace_only, renders = {}, {b: [] for b in BUILDERS}
+            recordings = {}
             for b in BUILDERS:
-                recording = RecordingTracer(tracers[b])
-                render(scene, recording)              # also the warm-up render of this mode
-                trace_only[b] = statistics.median(recording.replay_seconds()
-                                                  for _ in range(args.repeat))
-            for _ in range(args.repeat):
+                recordings[b] = RecordingTracer(tracers[b])
+                render(scene, recordings[b])          # also the warm-up render of this mode
+            renders, replays = {b: [] for b in BUILDERS}, {b: [] for b in BUILDERS}
+            for _ in range(args.repeat):              # both trees alternate, run by run
                 for b in BUILDERS:
                     t = time.perf_counter()
                     render(scene, tracers[b])
                     renders[b].append(time.perf_counter() - t)
+                    replays[b].append(recordings[b].replay_seconds())
             render_s = {b: statistics.median(renders[b]) for b in BUILDERS}
+            trace_only = {b: statistics.median(replays[b]) for b in BUILDERS}
             ratio = lambda x: x["sweep"] / x["hwbvh"]
             row[mode] = {"work": work, "work_ratio": work_ratio,
                          "render_seconds": render_s, "trace_only_seconds": trace_only,
