@@ -13,6 +13,9 @@ Tree update strategies (thesis 2.4, "BVH Updating"):
   degradation heuristic). Its SAH evaluation is part of its build time;
 * ``embree``: Embree builds every frame (embreex) and traverses its own tree, the software peer.
 
+The strategies update a BVH. Another acceleration structure (``accel``, e.g. the uniform grid)
+has no refit: it is rebuilt every frame, so ``rebuild`` is its only strategy.
+
 A frame whose triangle count differs from the previous one's forces a rebuild under refit and
 adaptive (a refit keeps the topology); the frame's ``rebuild_reason`` says so.
 
@@ -59,13 +62,21 @@ BENCH_FILES = {"per_frame": "animation_tti_per_frame.png", "totals": "animation_
 class TreeUpdater:
     """Keeps one strategy's tree across frames. ``update(scene)`` -> (tracer, row dict)."""
 
-    def __init__(self, strategy="rebuild", threshold=ADAPTIVE_THRESHOLD):
+    def __init__(self, strategy="rebuild", threshold=ADAPTIVE_THRESHOLD, accel="bvh"):
+        from raytracer.render import ACCELS
         if strategy not in STRATEGIES:
             raise ParameterError("strategy", f"unknown strategy {strategy!r} (choose from {', '.join(STRATEGIES)})")
+        if accel not in ACCELS:
+            raise ParameterError("accel", f"unknown acceleration structure {accel!r} "
+                                          f"(choose from {', '.join(ACCELS)})")
+        if accel != "bvh" and strategy != "rebuild":
+            raise ParameterError("strategy", f"{strategy!r} updates a BVH; the {accel} is rebuilt "
+                                             "every frame (strategy 'rebuild')")
         if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or \
                 not math.isfinite(threshold) or threshold < 1.0:
             raise ParameterError("threshold", f"must be a number >= 1 (SAH growth factor), got {threshold!r}")
         self.strategy = strategy
+        self.accel = accel
         self.threshold = float(threshold)
         self.refitter = None
         self.sah_at_rebuild = None
@@ -130,6 +141,15 @@ class TreeUpdater:
         from traversal import Tracer
 
         tris = scene.triangles
+        if self.accel != "bvh":
+            from raytracer.render import make_tracer
+            from .bench import structure_figures
+            tracer, build_s, _ = make_tracer(scene, accel=self.accel)
+            return tracer, {"rebuilt": True, "rebuild_reason": f"the {self.accel} is rebuilt every frame",
+                            "build_seconds": build_s, "simulated_build_seconds": None,
+                            "simulated_energy_joules": None, "simulation_seconds": 0.0,
+                            "sah_cost": None, "sah_growth": None, "nodes": None,
+                            **structure_figures(tracer, len(tris))}
         if self.strategy == "embree":
             from raytracer.render import make_tracer
             tracer, build_s, _ = make_tracer(scene, builder="embree", traversal="embree")
@@ -158,12 +178,16 @@ class TreeUpdater:
         return tracer, row
 
 
-def warm_up(strategy):
-    """Load the kernels a strategy uses (build, refit, traversal) on a tiny input, so that the
-    first frame's timings measure work, not JIT loading."""
+def warm_up(strategy, accel="bvh"):
+    """Load the kernels a strategy (or another structure ``accel``) uses (build, refit,
+    traversal) on a tiny input, so that the first frame's timings measure work, not JIT loading."""
     from raytracer.render import warm_up as render_warm_up
     t = time.perf_counter()
-    if strategy == "embree":
+    if accel != "bvh":
+        from .bench import warm_up_accel
+        render_warm_up("hwbvh", "numba")          # the render's own kernels
+        warm_up_accel(accel)
+    elif strategy == "embree":
         render_warm_up("embree", "embree")
     else:
         render_warm_up("hwbvh", "numba", parallel_build=True)
@@ -197,12 +221,14 @@ def open_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
                           mesh=mesh, triangles=triangles, physics=physics)
 
 
-def _run_params(anim, strategy, threshold, scene):
+def _run_params(anim, strategy, threshold, scene, accel="bvh"):
     p = {"scene": anim.name, "source": str(anim.source), "strategy": strategy,
          "width": scene.width, "height": scene.height, "spp": scene.spp,
          "max_depth": scene.max_depth, "fps": anim.fps, "animation": anim.info}
     if strategy == "adaptive":
         p["threshold"] = threshold
+    if accel != "bvh":                # a BVH run's state names no structure
+        p["accel"] = accel
     return jsonable(p)
 
 
@@ -277,14 +303,14 @@ def _preview(out_dir, frames, fps):
 
 
 def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_THRESHOLD,
-        verify=False, progress=None, seed=0, inspect=None):
+        verify=False, progress=None, seed=0, inspect=None, accel="bvh"):
     """Render ``frames`` frames of ``anim`` (scenes.animation.Animation) under a tree update
-    ``strategy``. With ``out_dir``: one EXR per frame (written atomically), the run state
+    ``strategy`` (``accel`` other than "bvh": that structure, rebuilt every frame). With ``out_dir``: one EXR per frame (written atomically), the run state
     (animation.json, also what a rerun resumes from, at the first missing frame), a CSV and a
     GIF preview. Without it nothing is written (benchmarks). ``inspect(i, scene, bvh)`` sees
     every frame's tree (None under embree). Returns the result dict."""
     t_start = time.perf_counter()
-    updater = TreeUpdater(strategy, threshold)
+    updater = TreeUpdater(strategy, threshold, accel)
     frames = anim.frames if frames is None else frames
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
         raise ParameterError("frames", f"must be a positive integer, got {frames!r}")
@@ -295,7 +321,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     t = time.perf_counter()
     first = anim.scene(0)
     first_scene_s = time.perf_counter() - t
-    params = _run_params(anim, strategy, updater.threshold, first)
+    params = _run_params(anim, strategy, updater.threshold, first, accel)
     rows = {}
     if out_dir is not None:
         out_dir = _check_output_dir(out_dir, anim, frames)
@@ -305,7 +331,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
             (out_dir is None or os.path.exists(os.path.join(out_dir, FRAME_NAME.format(start)))):
         start += 1
     rows = {k: v for k, v in rows.items() if k < start}
-    startup_s = warm_up(strategy)
+    startup_s = warm_up(strategy, accel)
     if 0 < start < frames:
         last = max(k for k, r in rows.items() if r["rebuilt"])
         updater.restore(anim.scene(last).triangles)
@@ -338,7 +364,8 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
             from raytracer.output import write_exr
             t = time.perf_counter()
             path = os.path.join(out_dir, FRAME_NAME.format(i))
-            meta = {"scene": anim.name, "builder": "embree" if strategy == "embree" else "hwbvh",
+            meta = {"scene": anim.name, "accel": accel,
+                    "builder": "embree" if strategy == "embree" else "hwbvh",
                     "traversal": "embree" if strategy == "embree" else "numba",
                     "build_seconds": out["build_seconds"], "render_seconds": render_s,
                     "spp": scene.spp, "max_depth": scene.max_depth, "frame": i,
@@ -357,8 +384,8 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
             inspect(i, scene, bvh)
         if progress:
             progress(i)
-    result = {"strategy": strategy, "scene": anim.name, **{k: v for k, v in params.items()
-                                                          if k not in ("scene", "strategy")},
+    result = {"strategy": strategy, "scene": anim.name, "accel": accel,
+              **{k: v for k, v in params.items() if k not in ("scene", "strategy", "accel")},
               "frames": [rows[k] for k in range(frames)], "resumed_from": start,
               "startup_seconds": startup_s}
     ordered = result["frames"]
@@ -367,7 +394,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         if strategy == "adaptive" else None
     for key in ("build_seconds", "render_seconds", "time_to_image_seconds", "simulation_seconds"):
         result[f"{key}_total"] = sum(r[key] or 0.0 for r in ordered)
-    if strategy != "embree":
+    if strategy != "embree" and accel == "bvh":
         result["time_to_image_simulated_seconds_total"] = {
             k: sum(r["time_to_image_simulated_seconds"][k] for r in ordered) for k in PRESET_NAMES}
     if verify:
@@ -401,8 +428,10 @@ def cmd_animate(args):
                           max_depth=args.max_depth, fps=args.fps, mesh=args.mesh,
                           triangles=args.triangles, physics=args.physics)
     frames = args.frames or anim.frames
-    out = args.output or os.path.join("renders", f"animate-{anim.name}-{args.strategy}")
-    bar = tqdm(total=frames, desc=f"animate {anim.name} ({args.strategy})", unit="frame",
+    accel = getattr(args, "accel", "bvh")
+    how = args.strategy if accel == "bvh" else accel
+    out = args.output or os.path.join("renders", f"animate-{anim.name}-{how}")
+    bar = tqdm(total=frames, desc=f"animate {anim.name} ({how})", unit="frame",
                file=sys.stderr, disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
     done = {"n": 0}
 
@@ -413,7 +442,7 @@ def cmd_animate(args):
         done["n"] += 1
     threshold = ADAPTIVE_THRESHOLD if args.threshold is None else args.threshold
     result = run(anim, args.strategy, frames, out, threshold=threshold, verify=args.verify,
-                 progress=tick, seed=args.seed)
+                 progress=tick, seed=args.seed, accel=accel)
     bar.close()
     return jsonable(result)
 

@@ -113,6 +113,16 @@ def human(what):
                     o3 = f"{s['open3d_mrays']:>8.2f}" if "open3d_mrays" in s else f"{'-':>8}"
                     lines.append(f"{m['mesh']:<14}{k:<12}{s['rays']:>9}{s['ours_mrays']:>11.2f}"
                                  f"{s['embreex_mrays']:>9.2f}{s['ratio_vs_embreex']:>7.2f}{o3}")
+            if r.get("accels"):
+                lines += ["", f"{'mesh':<14}{'accel':<8}{'build ms':>10}{'MiB':>8}{'refs/tri':>9}"
+                              f"{'set':>12}{'Mr/s':>8}{'vs bvh':>8}"]
+                for m in r["meshes"]:
+                    for a, st in m["accels"].items():
+                        for k, s in st["sets"].items():
+                            lines.append(f"{m['mesh']:<14}{a:<8}{st['build_seconds']*1e3:>10.1f}"
+                                         f"{st['memory_bytes']/2**20:>8.2f}"
+                                         f"{st['references_per_triangle']:>9.2f}{k:>12}"
+                                         f"{s['mrays']:>8.2f}{s['ratio_vs_bvh']:>8.2f}")
             return "\n".join(lines)
         if what == "model":
             f = r["fit"]
@@ -203,20 +213,68 @@ def _open3d_phase(cells, repeat):
         row["ratio_vs_open3d"] = t_o3 / t_ours
 
 
+def warm_up_accel(accel):
+    """Load (or, the first time ever, compile) the kernels of acceleration structure ``accel``
+    (build, intersect with and without normals, occluded) on a tiny input, so that timings
+    measure work, not JIT start-up. The BVH's are loaded by ``raytracer.render.warm_up``.
+    Returns seconds."""
+    from types import SimpleNamespace
+    from raytracer.render import make_tracer
+
+    t = time.perf_counter()
+    tris = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
+    verts = tris.reshape(-1, 3)
+    scene = SimpleNamespace(triangles=tris, vertices=verts,
+                            faces=np.arange(len(verts), dtype=np.int32).reshape(-1, 3))
+    tracer, _, _ = make_tracer(scene, accel=accel)
+    o = np.array([[0.25, 0.25, 2.0], [0.25, 0.25, -1.0]], np.float32)
+    d = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]], np.float32)
+    tracer.intersect(o, d)
+    tracer.intersect(o, d, normals=False)
+    tracer.occluded(o, d, 0.0, np.full(2, 10.0, np.float32))
+    return time.perf_counter() - t
+
+
+def structure_figures(tracer, n_tris):
+    """{memory_bytes, references_per_triangle} of the structure behind ``tracer``: what the
+    structure reports (``stats()``), or for our BVH its nodes, 24-bit index list and
+    preprocessed triangles (the same parts the grid counts: cells, references, triangles)."""
+    stats = getattr(tracer, "stats", None)
+    if callable(stats):
+        s = stats()
+        return {k: s[k] for k in ("memory_bytes", "references_per_triangle") if k in s}
+    from hwbvh.config import INDEX_PAD
+    from hwbvh.format import unpack_indices
+    refs = int(np.count_nonzero(unpack_indices(tracer.index_bytes) != INDEX_PAD))
+    return {"memory_bytes": int(tracer.nodes.nbytes + tracer.index_bytes.nbytes + tracer.tris.nbytes),
+            "references_per_triangle": refs / max(n_tris, 1)}
+
+
 def bench_trace(args):
     """Throughput (Mrays/s) of our intersect/occluded against embreex (and Open3D when it is
     importable) on identical ray sets: primary, incoherent, shadow.
 
+    ``args.accel`` (a list of names from ``raytracer.render.ACCELS``; empty or None: none)
+    traces the same ray sets with each of those acceleration structures too, built by
+    ``make_tracer`` after a warm-up: per structure its build seconds (median of ``repeat``
+    builds), memory bytes, references per triangle and, per ray set, Mrays/s and the speed
+    relative to our BVH (``ratio_vs_bvh`` > 1: faster than the BVH).
+
     Open3D is timed in a second phase, after every mesh's ours/embreex figures: its TBB worker
     threads keep spinning after a call and, timed in between, took CPU from the next
     measurement (up to 25% of ours on this 2-core machine)."""
+    from types import SimpleNamespace
     from tqdm import tqdm
     import hwbvh
     from hwbvh.primitives import as_triangles
+    from raytracer.render import make_tracer
     from traversal import Tracer, raysets
     from traversal.embree_ref import embree_intersect, embree_occluded, embree_scene
 
     n = args.rays
+    accels = list(dict.fromkeys(getattr(args, "accel", None) or []))
+    for accel in accels:
+        warm_up_accel(accel)
     rows, later = [], []
     for name, load in tqdm(mesh_inputs(args), desc="bench trace", file=sys.stderr, unit="mesh"):
         verts, faces = load()
@@ -224,6 +282,17 @@ def bench_trace(args):
         v32, f32 = verts.astype(np.float32), faces.astype(np.int32)
         tracer = Tracer(hwbvh.build(tris))
         emb = embree_scene(v32, f32)
+        structures = {}
+        for accel in accels:
+            scene = SimpleNamespace(triangles=tris, vertices=v32, faces=f32)
+            built = []
+            build_s, spread_b = _median_time(lambda: built.append(make_tracer(scene, accel=accel)),
+                                             args.repeat)
+            st = built[-1][0]
+            structures[accel] = (st, {"build_seconds": build_s,
+                                      "build_spread_s": [min(spread_b), max(spread_b)],
+                                      **structure_figures(st, len(tris)), "sets": {}})
+            del built[:-1]
         sets = {}
         O, D = raysets.primary(tris, n)
         sets["primary"] = (O, D, None)
@@ -236,11 +305,12 @@ def bench_trace(args):
             O32 = np.ascontiguousarray(O, np.float32)
             D32 = np.ascontiguousarray(D, np.float32)
             tm32 = None if tmax is None else np.ascontiguousarray(tmax, np.float32)
+            query = (lambda tr: (lambda: tr.intersect(O32, D32))) if tmax is None else \
+                (lambda tr: (lambda: tr.occluded(O32, D32, 0.0, tm32)))
+            ours = query(tracer)
             if tmax is None:
-                ours = lambda: tracer.intersect(O32, D32)
                 peer = lambda: embree_intersect(emb, O32, D32)
             else:
-                ours = lambda: tracer.occluded(O32, D32, 0.0, tm32)
                 peer = lambda: embree_occluded(emb, O32, D32, tm32)
             t_ours, spread_o = _median_time(ours, args.repeat)
             t_emb, spread_e = _median_time(peer, args.repeat)
@@ -249,9 +319,20 @@ def bench_trace(args):
                          "ours_spread_s": [min(spread_o), max(spread_o)],
                          "embreex_spread_s": [min(spread_e), max(spread_e)]}
             later.append((out[kind], v32, f32, O32, D32, tm32, t_ours))
-        rows.append({"mesh": name, "triangles": int(len(tris)), "sets": out})
+            for accel, (st, row) in structures.items():
+                t_st, spread_s = _median_time(query(st), args.repeat)
+                row["sets"][kind] = {"mrays": len(O) / t_st / 1e6, "ratio_vs_bvh": t_ours / t_st,
+                                     "spread_s": [min(spread_s), max(spread_s)]}
+        row = {"mesh": name, "triangles": int(len(tris)), "sets": out}
+        if accels:
+            row["accels"] = {accel: r for accel, (_, r) in structures.items()}
+        structures.clear()
+        rows.append(row)
     _open3d_phase(later, args.repeat)
-    return {"meshes": rows, "machine": machine(), "repeat": args.repeat}
+    result = {"meshes": rows, "machine": machine(), "repeat": args.repeat}
+    if accels:
+        result["accels"] = accels
+    return result
 
 
 RENDER_PATHS = (("hwbvh", "numba"), ("embree", "embree"))

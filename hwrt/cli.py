@@ -303,12 +303,13 @@ def cmd_animate(args):
 BENCH_OPTIONS = {
     "build": {"meshes": [], "mesh_dir": None, "repeat": 5, "out_dir": None},
     "scale": {"repeat": 3, "out_dir": None},
-    "trace": {"meshes": [], "mesh_dir": None, "repeat": 5, "rays": 500_000, "out_dir": None},
+    "trace": {"meshes": [], "mesh_dir": None, "repeat": 5, "rays": 500_000, "out_dir": None,
+              "accel": None},
     "render": {"meshes": [], "repeat": 5, "out_dir": None, "width": None, "height": None,
                "spp": None, "max_depth": None},
     "tti": {"meshes": [], "mesh_dir": None, "repeat": 5, "quick": False, "fresh": False,
             "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1, "max_depth": 5,
-            "scheduler": None},
+            "scheduler": None, "accel": None},
     "accuracy": {"meshes": [], "mesh_dir": None, "repeat": 3, "quick": False, "fresh": False,
                  "out_dir": "renders/bench", "width": 160, "height": 120, "scheduler": None},
     "model": {"meshes": [], "mesh_dir": None, "out_dir": None, "scheduler": None},
@@ -468,6 +469,7 @@ def _version():
 
 
 def make_parser():
+    from raytracer.render import ACCELS
     p = _Parser(prog="hwrt", description=DESCRIPTION, epilog=EPILOG)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -553,7 +555,7 @@ def make_parser():
                    help="the tree: hwbvh (the hardware's), sweep (full SAH) or embree")
     r.add_argument("--traversal", choices=["numba", "embree"], default="numba",
                    help="numba: our units on the raw nodes; embree: Embree on its own tree")
-    r.add_argument("--accel", choices=["bvh", "grid"], default="bvh",
+    r.add_argument("--accel", choices=ACCELS, default="bvh",
                    help="acceleration structure: bvh (built by --builder) or grid (uniform grid)")
     r.add_argument("--verify", action="store_true", help="check every ray against Embree")
     r.add_argument("--png", action="store_true",
@@ -572,7 +574,7 @@ def make_parser():
     v.add_argument("--mismatches", metavar="F.npz",
                    help="where mismatching rays are written (default: "
                         "renders/verify-<scene>-<kind>-mismatches.npz, only if there are any)")
-    v.add_argument("--accel", choices=["bvh", "grid"], default="bvh",
+    v.add_argument("--accel", choices=ACCELS, default="bvh",
                    help="acceleration structure checked: bvh (hwbvh's tree) or grid (uniform grid)")
     v.add_argument("--replay", metavar="F.npz",
                    help="re-trace the rays of a mismatch file instead (default: a new run)")
@@ -590,7 +592,11 @@ def make_parser():
     an.add_argument("--fps", type=_positive_float,
                     help="frames per second of animation time (default: the animation's, else 30)")
     an.add_argument("--strategy", default="rebuild",
-                    help="tree update per frame: rebuild, refit, adaptive or embree")
+                    help="tree update per frame: rebuild, refit, adaptive or embree (refit, "
+                         "adaptive and embree update a BVH; other --accel structures rebuild)")
+    an.add_argument("--accel", choices=ACCELS, default="bvh",
+                    help="acceleration structure: bvh (updated by --strategy) or another, "
+                         "rebuilt every frame")
     from .animate import ADAPTIVE_THRESHOLD
     an.add_argument("--threshold", type=_positive_float,
                     help="adaptive: rebuild when the SAH cost grows past this factor of the last "
@@ -639,6 +645,11 @@ def make_parser():
     be.add_argument("--spp", type=_positive, help=_bench_help("spp", "samples per pixel"))
     be.add_argument("--max-depth", type=_positive,
                     help=_bench_help("max_depth", "longest reflection/refraction path"))
+    be.add_argument("--accel", action="append", choices=ACCELS, metavar="NAME",
+                    help=f"an acceleration structure ({', '.join(ACCELS)}); repeat the option "
+                         "for more. trace: also trace the ray sets with each (default: the BVH "
+                         "against its peers only); tti: the structures timed beside the BVH "
+                         "paths, which are always timed (default: every one)")
     be.add_argument("--frames", type=_positive,
                     help="frames per animation (read by animation; default 60, with --quick 12)")
     be.add_argument("--json", action="store_true", help="print one JSON object")

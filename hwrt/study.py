@@ -37,6 +37,14 @@ TTI_PATHS = ("hwbvh-C", "hwbvh-HP", "hwbvh-sw", "sweep", "embree")
 TTI_TREES = (("hwbvh", "numba"), ("sweep", "numba"), ("embree", "embree"))   # (builder, traversal)
 
 
+def tti_structures(chosen=None):
+    """The acceleration structures other than the BVH that time to image times, each a path
+    of its own named after it: ``chosen`` (names from ``raytracer.render.ACCELS``), default
+    every one. Their cells are keyed by the structure's name where a BVH cell has its builder."""
+    from raytracer.render import ACCELS
+    return tuple(a for a in (chosen or ACCELS) if a != "bvh")
+
+
 def output_names(name):
     """The files a study called ``name`` writes in its output directory."""
     return [f"{name}{ext}" for ext in (".jsonl", ".csv", ".json", ".md", ".png")]
@@ -225,47 +233,56 @@ def _run_id():
 # time to image
 # --------------------------------------------------------------------------------------
 def warm_up_tti():
-    """Load the kernels of every tree a time-to-image cell builds and traverses."""
+    """Load the kernels of every tree and structure a time-to-image cell builds and traverses."""
     from raytracer.render import warm_up
+    from .bench import warm_up_accel
     for builder, traversal in TTI_TREES:
         warm_up(builder, traversal, parallel_build=True)
+    for accel in tti_structures():
+        warm_up_accel(accel)
 
 
 def _tti_key(name, builder, W, H, spp, depth, repeat):
     return json.dumps([name, builder, W, H, spp, depth, repeat])
 
 
-def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat):
-    """One scene and tree: ``repeat`` timed builds and renders, then (our traversal) every
-    ray of a small render checked against Embree. The record of the cell, without its key."""
+def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat, accel="bvh"):
+    """One scene and tree (``accel`` "bvh") or other structure (``accel``, its own build; the
+    builder is then the default): ``repeat`` timed builds and renders, then (our traversal)
+    every ray of a small render checked against Embree. The record of the cell, without its key."""
     from raytracer.render import make_tracer, render
     from scenes import compile_scene
     from traversal.tracers import VerifyingTracer
+    from .bench import structure_figures
 
     name = spec[0]
     scene = compile_scene(_setting(load_scene_spec(spec), W, H, spp, depth))
     builds, renders = [], []
     for _ in range(repeat):
-        tracer, b, info = make_tracer(scene, builder, traversal)
+        tracer, b, info = make_tracer(scene, builder, traversal, accel=accel)
         t0 = time.perf_counter()
         res = render(scene, tracer)
         renders.append(time.perf_counter() - t0)
         builds.append(b)
+    figures = structure_figures(tracer, len(scene.triangles)) if traversal == "numba" else {}
     clean = None
     if traversal == "numba":        # --verify at a small size: every ray vs Embree
         small = compile_scene(_setting(load_scene_spec(spec), 64, 48, 1, depth))
-        tr, _, _ = make_tracer(small, builder, traversal)
+        tr, _, _ = make_tracer(small, builder, traversal, accel=accel)
         checked = VerifyingTracer(tr, small.triangles, small.vertices, small.faces)
         render(small, checked)
         clean = checked.summary()["mismatch"] == 0
     b_med, b_spread = _median(builds)
     r_med, r_spread = _median(renders)
-    return {"scene": name, "builder": builder, "traversal": traversal,
+    record = {"scene": name, "builder": builder, "traversal": traversal,
             "triangles": int(len(scene.triangles)), "build_seconds": b_med,
             "build_spread": b_spread, "render_seconds": r_med, "render_spread": r_spread,
             "rays": int(sum(res.stats["rays"].values())), "ray_kinds": res.stats["rays"],
             "sah_cost": info.get("sah_cost"), "verify_clean": clean,
-            "simulated_build_seconds": info.get("simulated_build_seconds")}
+            "simulated_build_seconds": info.get("simulated_build_seconds"), **figures}
+    if accel != "bvh":
+        record["accel"] = accel
+    return record
 
 
 def bench_tti(args, *, use_dask=True, progress=True):
@@ -279,33 +296,36 @@ def bench_tti(args, *, use_dask=True, progress=True):
     specs = _scene_specs(args, args.quick)
     run = _run_id()
     jobs, keys = [], {}
+    structures = tti_structures(getattr(args, "accel", None))
+    trees = [(b, t, "bvh", b) for b, t in TTI_TREES] + [("hwbvh", "numba", a, a) for a in structures]
     for spec in specs:
-        for builder, traversal in TTI_TREES:
-            key = _tti_key(spec[0], builder, W, H, spp, depth, repeat)
+        for builder, traversal, accel, tree in trees:
+            key = _tti_key(spec[0], tree, W, H, spp, depth, repeat)
             if not cells.get(key):
                 keys[f"tti-{run}-{len(jobs)}"] = key
                 jobs.append((f"tti-{run}-{len(jobs)}", tti_cell,
-                             (spec, builder, traversal, W, H, spp, depth, repeat)))
+                             (spec, builder, traversal, W, H, spp, depth, repeat, accel)))
     where = None
     if jobs:
         with _timing(getattr(args, "scheduler", None), use_dask, warm_up_tti) as timing:
             timing.run(jobs, lambda k, record: cells.add({"key": keys[k], **record}),
                        "bench tti", progress)
             where = timing.machine()
-    rows, summary = _tti_rows(cells, specs, W, H, spp, depth, repeat)
+    rows, summary = _tti_rows(cells, specs, W, H, spp, depth, repeat, structures)
     md = _tti_markdown(rows, summary, W, H, spp, depth)
-    plots = _tti_plot(rows, out_dir)
+    plots = _tti_plot(rows, out_dir, TTI_PATHS + structures)
     return _write_outputs(out_dir, "tti", rows, md, plots,
                           {"setting": {"width": W, "height": H, "spp": spp, "max_depth": depth,
                                        "repeat": repeat}, "break_even": summary}, where)
 
 
-def _tti_rows(cells, specs, W, H, spp, depth, repeat):
+def _tti_rows(cells, specs, W, H, spp, depth, repeat, structures=()):
     rows, summary = [], []
     for name, _, _ in specs:
         got = {b: cells.get(_tti_key(name, b, W, H, spp, depth, repeat)) for b, _ in TTI_TREES}
         if not all(got.values()):
             continue
+        others = {a: cells.get(_tti_key(name, a, W, H, spp, depth, repeat)) for a in structures}
         hw = got["hwbvh"]
         sim = hw["simulated_build_seconds"] or {}
         for path, build, src in (("hwbvh-C", sim.get("HWBVH-C"), hw), ("hwbvh-HP", sim.get("HWBVH-HP"), hw),
@@ -316,7 +336,20 @@ def _tti_rows(cells, specs, W, H, spp, depth, repeat):
                          "total_seconds": (build or 0) + src["render_seconds"],
                          "render_spread": src["render_spread"], "rays": src["rays"],
                          "sah_cost": src["sah_cost"], "verify_clean": src["verify_clean"],
-                         "traversal": src["traversal"]})
+                         "traversal": src["traversal"], "accel": "bvh",
+                         "memory_bytes": src.get("memory_bytes"),
+                         "references_per_triangle": src.get("references_per_triangle")})
+        for accel, src in others.items():
+            if src:
+                rows.append({"scene": name, "path": accel, "triangles": src["triangles"],
+                             "build_seconds": src["build_seconds"],
+                             "render_seconds": src["render_seconds"],
+                             "total_seconds": src["build_seconds"] + src["render_seconds"],
+                             "render_spread": src["render_spread"], "rays": src["rays"],
+                             "sah_cost": None, "verify_clean": src["verify_clean"],
+                             "traversal": src["traversal"], "accel": accel,
+                             "memory_bytes": src.get("memory_bytes"),
+                             "references_per_triangle": src.get("references_per_triangle")})
         # At what ray budget does each hardware build stop paying for itself? Against Embree's
         # build and traversal, and against the full-SAH sweep tree through the same traversal
         # (a better tree costs fewer seconds per ray but a longer build).
@@ -345,14 +378,20 @@ def _tti_rows(cells, specs, W, H, spp, depth, repeat):
 def _tti_markdown(rows, summary, W, H, spp, depth):
     lines = [f"Time to image (build + render), Whitted {W}x{H}, {spp} spp, depth {depth}.\n",
              "Medians of the repeated runs; the render spread is min-max over them.\n",
-             "| scene | path | build s | render s (spread) | total s | rays | SAH | verify |",
-             "|---|---|---:|---:|---:|---:|---:|---|"]
+             "Memory: the structure's nodes or cells, its triangle references and preprocessed "
+             "triangles (our traversal only); refs/tri: references per triangle.\n",
+             "| scene | path | build s | render s (spread) | total s | rays | SAH | memory MiB "
+             "| refs/tri | verify |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     for r in rows:
         sah = f"{r['sah_cost']:.1f}" if r["sah_cost"] else "-"
+        mem = "-" if r.get("memory_bytes") is None else f"{r['memory_bytes'] / 2**20:.2f}"
+        refs = "-" if r.get("references_per_triangle") is None else f"{r['references_per_triangle']:.2f}"
         ver = {True: "clean", False: "MISMATCH", None: "n/a"}[r["verify_clean"]]
         lo, hi = r["render_spread"]
         lines.append(f"| {r['scene']} | {r['path']} | {r['build_seconds']:.4f} | {r['render_seconds']:.3f} "
-                     f"({lo:.3f}-{hi:.3f}) | {r['total_seconds']:.3f} | {r['rays']} | {sah} | {ver} |")
+                     f"({lo:.3f}-{hi:.3f}) | {r['total_seconds']:.3f} | {r['rays']} | {sah} | {mem} "
+                     f"| {refs} | {ver} |")
     lines += ["", "Break-even ray budget: a hardware build (simulated) saves build time against a "
               "peer; where its tree costs more per ray, it stays ahead in time to image up to "
               "this many rays. Against Embree (its build and traversal) and against the full-SAH "
@@ -370,7 +409,7 @@ def _tti_markdown(rows, summary, W, H, spp, depth):
     return "\n".join(lines) + "\n"
 
 
-def _tti_plot(rows, out_dir):
+def _tti_plot(rows, out_dir, paths=TTI_PATHS):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -379,12 +418,12 @@ def _tti_plot(rows, out_dir):
     if not scenes:
         return []
     fig, ax = plt.subplots(figsize=(max(8, len(scenes) * 1.2), 5))
-    width = 0.16
+    width = 0.8 / len(paths)
     x = np.arange(len(scenes))
-    for k, path in enumerate(TTI_PATHS):
+    for k, path in enumerate(paths):
         b = [next((r["build_seconds"] for r in rows if r["scene"] == s and r["path"] == path), 0) or 0 for s in scenes]
         rd = [next((r["render_seconds"] for r in rows if r["scene"] == s and r["path"] == path), 0) for s in scenes]
-        pos = x + (k - 2) * width
+        pos = x + (k - (len(paths) - 1) / 2) * width
         ax.bar(pos, b, width, color=f"C{k}", alpha=0.45)
         ax.bar(pos, rd, width, bottom=b, color=f"C{k}", label=path)
     ax.set_xticks(x, scenes, rotation=45, ha="right")

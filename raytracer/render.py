@@ -89,6 +89,9 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
     return time.perf_counter() - t
 
 
+ACCELS = ("bvh", "grid")      # the acceleration structures make_tracer builds (accel=)
+
+
 def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
                 precision="float32", watertight=False, accel="bvh"):
     """(tracer, build_seconds, build_info). ``accel``: "bvh" (builders hwbvh, sweep, embree) or
