@@ -168,6 +168,10 @@ def cmd_verify(args):
         from traversal.grid import GridTracer, warm_up_grid
         warm_up_grid()              # the build time below measures the build, not JIT start-up
         tracer = GridTracer(tris)
+    elif args.accel == "kdtree":
+        from traversal.kdtree import KdTreeTracer, warm_up_kdtree
+        warm_up_kdtree()            # the build time below measures the build, not JIT start-up
+        tracer = KdTreeTracer(tris)
     counts, labels, (O, D, tmax), h, (te, pe) = verify_mesh(tris, verts, faces, kind, rays,
                                                             accel=args.accel, tracer=tracer)
     result = dict(counts)
@@ -230,9 +234,9 @@ def cmd_render(args):
                          "embree, or --traversal numba with --builder hwbvh or sweep")
     if args.verify and args.traversal == "embree":
         raise InputError("--verify", "checks our traversal against Embree; use --traversal numba")
-    if args.accel == "grid" and (args.builder != "hwbvh" or args.traversal != "numba"):
-        raise InputError("--accel", "--accel grid builds and traverses its own structure: it takes "
-                         "no --builder and no --traversal embree")
+    if args.accel != "bvh" and (args.builder != "hwbvh" or args.traversal != "numba"):
+        raise InputError("--accel", f"--accel {args.accel} builds and traverses its own structure: "
+                         "it takes no --builder and no --traversal embree")
     d = load_scene(args.scene)
     film = d.setdefault("film", {})
     integ = d.setdefault("integrator", {"type": "whitted"})
@@ -250,6 +254,9 @@ def cmd_render(args):
     if args.accel == "grid":
         from traversal.grid import warm_up_grid
         startup_s += warm_up_grid()
+    elif args.accel == "kdtree":
+        from traversal.kdtree import warm_up_kdtree
+        startup_s += warm_up_kdtree()
     tracer, build_s, info = make_tracer(scene, args.builder, args.traversal, accel=args.accel)
     checked = None
     if args.verify:
@@ -556,7 +563,8 @@ def make_parser():
     r.add_argument("--traversal", choices=["numba", "embree"], default="numba",
                    help="numba: our units on the raw nodes; embree: Embree on its own tree")
     r.add_argument("--accel", choices=ACCELS, default="bvh",
-                   help="acceleration structure: bvh (built by --builder) or grid (uniform grid)")
+                   help="acceleration structure: bvh (built by --builder), grid (uniform grid) "
+                        "or kdtree (SAH kd-tree)")
     r.add_argument("--verify", action="store_true", help="check every ray against Embree")
     r.add_argument("--png", action="store_true",
                    help="also write a tone-mapped PNG preview beside the EXR")
@@ -575,7 +583,8 @@ def make_parser():
                    help="where mismatching rays are written (default: "
                         "renders/verify-<scene>-<kind>-mismatches.npz, only if there are any)")
     v.add_argument("--accel", choices=ACCELS, default="bvh",
-                   help="acceleration structure checked: bvh (hwbvh's tree) or grid (uniform grid)")
+                   help="acceleration structure checked: bvh (hwbvh's tree), grid (uniform grid) "
+                        "or kdtree (SAH kd-tree)")
     v.add_argument("--replay", metavar="F.npz",
                    help="re-trace the rays of a mismatch file instead (default: a new run)")
     v.add_argument("--json", action="store_true", help="print one JSON object")

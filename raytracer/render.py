@@ -89,26 +89,32 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
     return time.perf_counter() - t
 
 
-ACCELS = ("bvh", "grid")      # the acceleration structures make_tracer builds (accel=)
+ACCELS = ("bvh", "grid", "kdtree")      # the acceleration structures make_tracer builds (accel=)
 
 
 def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
                 precision="float32", watertight=False, accel="bvh"):
-    """(tracer, build_seconds, build_info). ``accel``: "bvh" (builders hwbvh, sweep, embree) or
-    "grid" (``traversal.grid.GridTracer``, traversal "numba" and the default builder only)."""
-    if accel == "grid":
+    """(tracer, build_seconds, build_info). ``accel``: "bvh" (builders hwbvh, sweep, embree),
+    "grid" (``traversal.grid.GridTracer``) or "kdtree" (``traversal.kdtree.KdTreeTracer``); the
+    last two with traversal "numba" and the default builder only."""
+    if accel in ("grid", "kdtree"):
         if builder != "hwbvh" or traversal != "numba":
-            raise ParameterError("accel", "the grid has its own build and traversal "
-                                 "(accel 'grid' needs the default builder and traversal 'numba')")
+            raise ParameterError("accel", f"the {accel} has its own build and traversal "
+                                 f"(accel '{accel}' needs the default builder and traversal 'numba')")
         if precision != "float32" or watertight:
-            raise ParameterError("accel", "the grid traces with the float32 Moller-Trumbore unit "
-                                 "only (accel 'grid' needs precision 'float32', watertight False)")
-        from traversal.grid import GridTracer
+            raise ParameterError("accel", f"the {accel} traces with the float32 Moller-Trumbore "
+                                 f"unit only (accel '{accel}' needs precision 'float32', "
+                                 "watertight False)")
+        if accel == "grid":
+            from traversal.grid import GridTracer as Structure
+        else:
+            from traversal.kdtree import KdTreeTracer as Structure
         t = time.perf_counter()
-        tr = GridTracer(scene.triangles)
-        return tr, time.perf_counter() - t, dict(tr.stats(), accel="grid")
+        tr = Structure(scene.triangles)
+        return tr, time.perf_counter() - t, dict(tr.stats(), accel=accel)
     if accel != "bvh":
-        raise ParameterError("accel", f"unknown acceleration structure {accel!r} (choose bvh or grid)")
+        raise ParameterError("accel", f"unknown acceleration structure {accel!r} "
+                             "(choose bvh, grid or kdtree)")
     if builder == "embree":
         if traversal != "embree":
             raise ParameterError("traversal", "Embree's tree can only be traversed by Embree "

@@ -83,3 +83,33 @@ GRID_STOP_SLACK = 2.0**-16
 # several cells is tested once per ray while its id stays in the mailbox; a forgotten id is only
 # tested again, with the same answer.
 GRID_MAILBOX = 32
+
+# --- SAH kd-tree (kdtree) ------------------------------------------------------------------
+# The surface area heuristic's costs, as in PBRT and Wald & Havran 2006: one traversal step
+# costs 1, one triangle test 1.5 of it (the Moller-Trumbore unit does more arithmetic than the
+# slab step of one plane), so a split must save at least 2/3 of a triangle test per ray to pay.
+KD_COST_TRAVERSAL = 1.0
+KD_COST_INTERSECT = 1.5
+# A split with one empty side has its cost multiplied by this (WH06's lambda): cutting empty
+# space off lets rays skip it at the price of one traversal step, so it is favoured.
+KD_EMPTY_FACTOR = 0.8
+# Depth cap (PBRT's rule): KD_DEPTH_BASE + KD_DEPTH_LOG2 * log2(N), rounded. Beyond it every
+# node is a leaf, so no input (identical triangles, a clump) can deepen the tree without bound,
+# and the traversal stack has a known size.
+KD_DEPTH_BASE = 8
+KD_DEPTH_LOG2 = 1.3
+# Total references (triangle ids in leaves, 4 bytes each) never exceed KD_MAX_REFS_PER_TRI * N:
+# a triangle is referenced by every leaf it crosses, so huge triangles could multiply the
+# references; a split that would cross the cap makes a leaf instead.
+KD_MAX_REFS_PER_TRI = 16
+# A triangle is kept on each side of a split its box, clipped to the child and padded, reaches:
+# padded like the grid's cells (GRID_PAD_TRI of the triangle's extent and GRID_PAD_COORD of its
+# largest coordinate magnitude), so every point where the unit can report a hit lies in a leaf
+# that lists the triangle, and a triangle in a split plane is referenced on both sides.
+KD_PAD_TRI = GRID_PAD_TRI
+KD_PAD_COORD = GRID_PAD_COORD
+# A leaf accepts hits up to its exit distance plus this slack, relative to t + |o|/|d| (the
+# grid's stop slack, for the same float32 rounding of t), and traversal stops once the closest
+# hit lies that far before the leaf's exit: a hit at the same t just beyond a split plane is
+# still found and ties go to the lower index.
+KD_T_SLACK = GRID_STOP_SLACK

@@ -181,7 +181,8 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None):
 def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=0, accel="bvh",
                 tracer=None):
     """Build (unless given), trace a ray set of ``kind`` and classify against Embree.
-    ``accel``: "bvh" (``bvh`` if given, else hwbvh's build) or "grid" (``grid.GridTracer``);
+    ``accel``: "bvh" (``bvh`` if given, else hwbvh's build), "grid" (``grid.GridTracer``) or
+    "kdtree" (``kdtree.KdTreeTracer``);
     ``tracer``: an already built tracer of ``tris`` to check instead."""
     import hwbvh
     from . import raysets
@@ -193,10 +194,13 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
     elif accel == "grid":
         from .grid import GridTracer
         tracer = GridTracer(tris)
+    elif accel == "kdtree":
+        from .kdtree import KdTreeTracer
+        tracer = KdTreeTracer(tris)
     elif accel == "bvh":
         tracer = Tracer(bvh or hwbvh.build(tris))
     else:
-        raise ValueError(f"accel must be 'bvh' or 'grid', got {accel!r}")
+        raise ValueError(f"accel must be 'bvh', 'grid' or 'kdtree', got {accel!r}")
     scene = embree_scene(vertices, faces)
     tmax = None
     if kind == "primary":

@@ -1,0 +1,205 @@
+"""The SAH kd-tree: every answer against the BVH traversal (same triangle unit, same tie rule,
+so the same answers bit for bit), Embree and a float64 brute force, on the hard ray cases; its
+depth and references within the stated caps on degenerate input; the CLI's --accel."""
+import json
+
+import numpy as np
+import pytest
+
+from hwrt.cli import main
+from raytracer.render import make_tracer, render
+from traversal import raysets
+from traversal.config import KD_MAX_REFS_PER_TRI
+from traversal.kdtree import LEAF, KdTreeTracer, max_depth
+
+from .naive import ray_triangle_f64
+from .test_grid import (agrees_with_embree, bvh_tracer, degenerate_cases, indexed, same_as_bvh,
+                        small, soup, sphere, tessellated_cube)
+
+
+def split_planes(kd):
+    """(axis, position) of every inner node's split plane."""
+    inner = kd.words[:, 0] != LEAF
+    return kd.words[inner, 0], kd.split[inner]
+
+
+def hard_rays(kd, rng):
+    """Axis-parallel rays on the vertex lattice (through shared edges and vertices), diagonals
+    through lattice vertices, rays whose origins lie on split planes, some parallel to them (in
+    the plane) and some axis-parallel along them, starting outside and inside the tree."""
+    lattice = np.linspace(0.0, 1.0, 9)
+    O, D = [], []
+    for axis in range(3):
+        a, b = (axis + 1) % 3, (axis + 2) % 3
+        for x in lattice:
+            for y in lattice:
+                for start, sign in ((-0.5, 1.0), (1.5, -1.0), (0.5, 1.0), (0.5, -1.0)):
+                    o = np.zeros(3)
+                    o[axis], o[a], o[b] = start, x, y
+                    d = np.zeros(3)
+                    d[axis] = sign
+                    O.append(o)
+                    D.append(d)
+    for x in lattice:
+        for y in lattice:
+            O.append([x - 0.5, y - 0.5, -0.5])
+            D.append([1.0, 1.0, 1.0])
+    axes, positions = split_planes(kd)
+    assert len(axes) > 10
+    for _ in range(600):
+        o = rng.uniform(-0.2, 1.2, 3)
+        i = rng.integers(len(axes))
+        k = axes[i]
+        o[k] = positions[i]                                   # origin on a split plane
+        d = rng.normal(size=3)
+        if rng.random() < 0.5:
+            d[k] = 0.0                                        # and in it
+        if rng.random() < 0.3:
+            d[(k + 1) % 3] = 0.0                              # axis-parallel along the plane
+        O.append(o)
+        D.append(d)
+    return np.asarray(O, np.float32), np.asarray(D, np.float32)
+
+
+def test_hard_rays_match_the_bvh_embree_and_the_float64_brute_force():
+    tris = tessellated_cube(4)
+    kd = KdTreeTracer(tris)
+    bvh = bvh_tracer(tris)
+    rng = np.random.default_rng(3)
+    o, d = hard_rays(kd, rng)
+    h = same_as_bvh(kd, bvh, o, d)
+    assert (h.prim >= 0).mean() > 0.5
+    agrees_with_embree(tris, *indexed(tris), h, o, d)
+    for i in range(0, len(o), 7):
+        best = np.inf
+        for tri in tris:
+            hit, t, u, v = ray_triangle_f64(o[i], d[i], tri)
+            if hit and min(u, v, 1 - u - v) > 1e-3 and t > 1e-6:
+                best = min(best, t)
+        if np.isfinite(best):
+            assert abs(h.t[i] - best) <= 1e-5 * (1 + best), (i, h.t[i], best)
+    # intervals: random [tmin, tmax] on the same rays
+    lo = rng.uniform(0.0, 1.0, len(o)).astype(np.float32)
+    hi = (lo + rng.uniform(0.0, 1.5, len(o))).astype(np.float32)
+    same_as_bvh(kd, bvh, o, d, lo, hi)
+
+
+def test_triangles_listed_by_several_leaves_are_found_where_they_are_hit():
+    # long thin triangles crossing many leaves, among small ones: every closest hit as the BVH's
+    rng = np.random.default_rng(11)
+    long = np.zeros((40, 3, 3), np.float32)
+    long[:, 0] = rng.random((40, 3))
+    long[:, 1] = long[:, 0] + [1.5, 0.0, 0.0]
+    long[:, 2] = long[:, 0] + [0.0, 0.02, 0.01]
+    tris = np.concatenate([soup(2000, 3), long])
+    kd = KdTreeTracer(tris)
+    assert kd.references > len(tris)
+    bvh = bvh_tracer(tris)
+    for o, d in (raysets.primary(tris, 4000), raysets.incoherent(tris, 4000, 4)):
+        h = same_as_bvh(kd, bvh, o, d)
+        agrees_with_embree(tris, *indexed(tris), h, o, d)
+
+
+@pytest.mark.parametrize("mesh", ["sphere", "soup"])
+def test_no_mismatch_against_embree(mesh):
+    if mesh == "sphere":
+        vertices, faces = sphere()
+        tris = vertices[faces]
+    else:
+        tris = soup(3000, 1)
+        vertices, faces = indexed(tris)
+    kd = KdTreeTracer(tris)
+    bvh = bvh_tracer(tris)
+    for o, d in (raysets.primary(tris, 6000), raysets.incoherent(tris, 6000, 2)):
+        h = same_as_bvh(kd, bvh, o, d)
+        counts = agrees_with_embree(tris, vertices, faces, h, o, d)
+        assert counts["agree"] > 0.99 * counts["rays"]
+
+
+def within_caps(kd, n):
+    assert kd.max_depth == max_depth(n) and kd.depth <= kd.max_depth
+    assert kd.references <= KD_MAX_REFS_PER_TRI * max(n, 1) == kd.max_references
+    assert kd.references >= n            # every triangle lies in some leaf
+    assert kd.references_per_triangle == kd.references / max(n, 1)
+    assert kd.memory_bytes == kd.words.nbytes + kd.split.nbytes + kd.refs.nbytes + kd.tris.nbytes
+    # one node for each two children, leaves hold exactly the references
+    leaves = kd.words[:, 0] == LEAF
+    assert kd.nodes == 2 * (kd.nodes - leaves.sum()) + 1
+    assert kd.words[leaves, 2].sum() == kd.references
+
+
+def identical(n=500):
+    return np.repeat(np.array([[[0.2, 0.3, 0.4], [0.6, 0.3, 0.5], [0.3, 0.7, 0.45]]], np.float32), n, 0)
+
+
+@pytest.mark.parametrize("case", list(degenerate_cases()) + ["identical"])
+def test_degenerate_input_stays_within_the_caps_and_right(case):
+    tris = identical() if case == "identical" else degenerate_cases()[case]
+    kd = KdTreeTracer(tris)
+    within_caps(kd, len(tris))
+    bvh = bvh_tracer(tris)
+    o, d = raysets.incoherent(tris, 3000, 5)
+    axis = np.zeros((300, 3), np.float32)
+    axis[np.arange(300), np.arange(300) % 3] = 1.0           # axis-parallel, some in a flat mesh's plane
+    ao = np.asarray(tris, np.float32).reshape(-1, 3)[np.random.default_rng(1).integers(0, 3 * len(tris), 300)]
+    o = np.concatenate([o, ao - 0.7 * axis])
+    d = np.concatenate([d, axis])
+    same_as_bvh(kd, bvh, o, d)
+    if case == "identical":
+        # no plane separates identical triangles: a leaf with all of them
+        assert kd.references == len(tris)
+    if case == "many huge triangles":
+        assert kd.references < KD_MAX_REFS_PER_TRI * len(tris)
+
+
+def test_reference_cap_is_enforced():
+    # overlapping huge triangles make every split duplicate them: the cap must hold the tree
+    rng = np.random.default_rng(2)
+    huge = np.array([[[-10, -10, 0.5], [30, -10, 0.5], [-10, 30, 0.5]]], np.float32)
+    tris = np.concatenate([soup(3000, 6), huge + rng.normal(scale=0.3, size=(1500, 3, 3)).astype(np.float32)])
+    kd = KdTreeTracer(tris)
+    within_caps(kd, len(tris))
+
+
+def test_input_checks_and_rays_the_unit_rejects():
+    with pytest.raises(ValueError, match="non-finite"):
+        KdTreeTracer(np.full((1, 3, 3), np.nan, np.float32))
+    with pytest.raises(ValueError, match="triangles"):
+        KdTreeTracer(np.zeros((4, 3), np.float32))
+    empty = KdTreeTracer(np.zeros((0, 3, 3), np.float32))
+    h = empty.intersect(np.zeros((2, 3)), np.array([[0, 0, 1.0], [1, 0, 0]]))
+    assert (h.prim == -1).all() and np.isinf(h.t).all()
+    kd = KdTreeTracer(soup(200, 2))
+    o = np.full((3, 3), 0.5)
+    d = np.array([[0, 0, 0], [np.nan, 0, 1], [0, 0, 1]], np.float64)
+    assert (kd.intersect(o, d, 0.0, np.array([1.0, 1.0, -1.0])).prim == -1).all()
+
+
+def test_cornell_renders_like_the_bvh():
+    sc = small("cornell", 32, 24)
+    bvh, _, _ = make_tracer(sc)
+    kd, secs, info = make_tracer(sc, accel="kdtree")
+    assert kd.dtype == np.float32 and kd.has_counters is False
+    assert info["accel"] == "kdtree" and info["memory_bytes"] == kd.memory_bytes
+    assert info["references_per_triangle"] >= 1 and info["depth"] <= info["max_depth"]
+    a = render(sc, bvh)
+    b = render(sc, kd)
+    assert a.stats["rays"] == b.stats["rays"]
+    assert (np.abs(a.image - b.image).max(axis=2) > 0.02).mean() < 0.01
+
+
+def test_cli_accel(tmp_path, capsys):
+    assert main(["render", "cornell", "--accel", "kdtree", "--builder", "sweep"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--accel" in err and "\n" not in err
+    out = tmp_path / "c.exr"
+    assert main(["render", "cornell", "--accel", "kdtree", "-o", str(out), "--width", "16",
+                 "--height", "12", "--spp", "1", "--json"]) in (0, None)
+    r = json.loads(capsys.readouterr().out)
+    assert r["accel"] == "kdtree" and r["memory_bytes"] > 0 and r["references_per_triangle"] >= 1
+    assert out.exists()
+    assert main(["verify", "cornell", "--accel", "kdtree", "--rays", "2000", "--json",
+                 "--mismatches", str(tmp_path / "m.npz")]) in (0, None)
+    r = json.loads(capsys.readouterr().out)
+    assert r["accel"] == "kdtree" and r["mismatch"] == 0 and r["rays"] == 2000
+    assert r["build_seconds"] >= 0 and r["memory_bytes"] > 0 and r["references_per_triangle"] >= 1

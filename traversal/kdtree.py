@@ -1,0 +1,517 @@
+"""An SAH kd-tree over triangles (Wald & Havran 2006, "On building fast kd-trees for ray
+tracing, and on doing that in O(N log N)"), traversed front to back with the same
+Moller-Trumbore unit as the BVH traversal.
+
+>>> kd = KdTreeTracer(triangles)                # (n, 3, 3)
+>>> hits = kd.intersect(origins, dirs)          # traversal.api.Hits
+>>> blocked = kd.occluded(origins, dirs, tmax=dist)
+
+Build (compiled, ``nogil``): each node looks for the plane of least SAH cost on each axis by a
+sweep over its references' events (start, planar and end events at the bounds of each
+reference, sorted by position with ends before planars before starts, WH06 section 4.2), with
+the costs of ``traversal.config`` (``KD_COST_TRAVERSAL``, ``KD_COST_INTERSECT``,
+``KD_EMPTY_FACTOR``). A node whose best split costs no less than testing its triangles becomes
+a leaf. The references are classified to the sides the sweep counted, and each child's
+references are *perfect*: the triangle is clipped to the child's box (Sutherland-Hodgman in
+float64) and the clipped polygon's bounds are the events below; a triangle that misses the
+child's box is dropped from it. Bounds are padded (``KD_PAD_TRI``, ``KD_PAD_COORD``) so that
+every point where the unit can report a hit lies in a leaf that lists the triangle.
+
+The events are sorted again at every node, so the build is the O(N log^2 N) variant of WH06's
+sweep (same costs, same classification and clipping); WH06's O(N log N) version keeps one
+sorted event list and splits it at each node instead of re-sorting.
+
+Caps, stated in ``traversal.config``: depth ``KD_DEPTH_BASE + KD_DEPTH_LOG2 * log2(N)``
+(PBRT's rule) and ``KD_MAX_REFS_PER_TRI * N`` references in all; a split that would exceed
+either makes a leaf.
+
+Traversal: the ray is clipped to the tree's box; at an inner node the near child is visited
+first with the t interval up to the plane and the far child is pushed with the rest. A leaf's
+triangles go through ``triangle_unit.mt_valid_at``; a hit counts only up to the leaf's exit
+(plus ``KD_T_SLACK``), so a triangle that several leaves list is found where it is hit, and
+exact-t ties go to the lower primitive index as in the BVH traversal. The walk stops once the
+closest hit lies before the current leaf's exit by more than the slack. ``occluded`` returns at
+the first hit.
+"""
+import math
+import time
+
+import numpy as np
+from numba import njit
+from numba.typed import List
+
+from hwbvh.parallel import run_ranges
+from .api import Hits, _rays
+from .config import (CHUNK_RAYS, EDGE_EPS_F32, KD_COST_INTERSECT, KD_COST_TRAVERSAL,
+                     KD_DEPTH_BASE, KD_DEPTH_LOG2, KD_EMPTY_FACTOR, KD_MAX_REFS_PER_TRI,
+                     KD_PAD_COORD, KD_PAD_TRI, KD_T_SLACK)
+from .grid import _slab
+from .rawtree import _ray_ok
+from .triangle_unit import TRI_E1, TRI_E2, TRI_WORDS, band_eps2, mt_valid_at, preprocess
+
+LEAF = 3               # the axis word of a leaf node
+EVENT_END = 0          # event types, in their order at equal positions (WH06)
+EVENT_PLANAR = 1
+EVENT_START = 2
+
+
+def max_depth(n_tris):
+    """The depth cap for ``n_tris`` triangles (PBRT's rule)."""
+    return int(round(KD_DEPTH_BASE + KD_DEPTH_LOG2 * math.log2(max(n_tris, 1))))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _clip_bounds(tris, j, box, pad, out):
+    """Triangle ``j`` clipped to ``box`` (lo xyz, hi xyz) widened by ``pad``: writes the clipped
+    polygon's bounds, widened by ``pad`` and limited to ``box``, to ``out`` (6,). Returns False
+    when the triangle misses the widened box."""
+    a = np.empty((10, 3))
+    b = np.empty((10, 3))
+    for k in range(3):
+        for c in range(3):
+            a[k, c] = tris[j, k, c]
+    n = 3
+    for plane in range(6):
+        ax = plane % 3
+        upper = plane >= 3
+        bound = box[plane] + pad if upper else box[plane] - pad
+        m = 0
+        for k in range(n):
+            p = a[k]
+            q = a[(k + 1) % n]
+            pin = p[ax] <= bound if upper else p[ax] >= bound
+            qin = q[ax] <= bound if upper else q[ax] >= bound
+            if pin:
+                b[m] = p
+                m += 1
+            if pin != qin:
+                s = (bound - p[ax]) / (q[ax] - p[ax])
+                for c in range(3):
+                    b[m, c] = p[c] + s * (q[c] - p[c])
+                b[m, ax] = bound
+                m += 1
+        n = m
+        if n == 0:
+            return False
+        a, b = b, a
+    for c in range(3):
+        lo = a[0, c]
+        hi = a[0, c]
+        for k in range(1, n):
+            lo = min(lo, a[k, c])
+            hi = max(hi, a[k, c])
+        out[c] = min(max(lo - pad, box[c]), box[3 + c])
+        out[3 + c] = min(max(hi + pad, box[c]), box[3 + c])
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _area(ex, ey, ez):
+    return 2.0 * (ex * ey + ey * ez + ez * ex)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _best_split(bounds, box):
+    """The SAH sweep over one node's references on every axis: (cost, axis, position,
+    planar_left); axis -1 when no plane lies strictly inside the box."""
+    m = bounds.shape[0]
+    ext = np.empty(3)
+    for c in range(3):
+        ext[c] = box[3 + c] - box[c]
+    area = _area(ext[0], ext[1], ext[2])
+    best_cost = np.inf
+    best_axis = -1
+    best_pos = 0.0
+    best_left = True
+    if not area > 0:
+        return best_cost, best_axis, best_pos, best_left
+    inv_area = 1.0 / area
+    pos = np.empty(2 * m)
+    kind = np.empty(2 * m, np.int64)
+    for ax in range(3):
+        if not ext[ax] > 0:
+            continue
+        u = (ax + 1) % 3
+        w = (ax + 2) % 3
+        # events grouped by type (ends, planars, starts); the stable sort on position then
+        # orders equal positions by type
+        e = 0
+        for typ in range(3):
+            for i in range(m):
+                lo = bounds[i, ax]
+                hi = bounds[i, 3 + ax]
+                if typ == EVENT_END and lo < hi:
+                    pos[e] = hi
+                    kind[e] = EVENT_END
+                    e += 1
+                elif typ == EVENT_PLANAR and lo == hi:
+                    pos[e] = lo
+                    kind[e] = EVENT_PLANAR
+                    e += 1
+                elif typ == EVENT_START and lo < hi:
+                    pos[e] = lo
+                    kind[e] = EVENT_START
+                    e += 1
+        order = np.argsort(pos[:e], kind="mergesort")
+        n_left = 0
+        n_right = m
+        k = 0
+        while k < e:
+            p = pos[order[k]]
+            n_end = 0
+            n_planar = 0
+            n_start = 0
+            while k < e and pos[order[k]] == p and kind[order[k]] == EVENT_END:
+                n_end += 1
+                k += 1
+            while k < e and pos[order[k]] == p and kind[order[k]] == EVENT_PLANAR:
+                n_planar += 1
+                k += 1
+            while k < e and pos[order[k]] == p and kind[order[k]] == EVENT_START:
+                n_start += 1
+                k += 1
+            n_right -= n_planar + n_end
+            if box[ax] < p < box[3 + ax]:
+                pl = _area(p - box[ax], ext[u], ext[w]) * inv_area
+                pr = _area(box[3 + ax] - p, ext[u], ext[w]) * inv_area
+                for left in (True, False):
+                    nl = n_left + (n_planar if left else 0)
+                    nr = n_right + (0 if left else n_planar)
+                    factor = KD_EMPTY_FACTOR if nl == 0 or nr == 0 else 1.0
+                    cost = KD_COST_TRAVERSAL + KD_COST_INTERSECT * factor * (pl * nl + pr * nr)
+                    if cost < best_cost:
+                        best_cost = cost
+                        best_axis = ax
+                        best_pos = p
+                        best_left = left
+            n_left += n_start + n_planar
+    return best_cost, best_axis, best_pos, best_left
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _grow(a, n):
+    if n <= a.shape[0]:
+        return a
+    out = np.empty((max(n, 2 * a.shape[0]),) + a.shape[1:], a.dtype)
+    out[:a.shape[0]] = a
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def build_kdtree(tris, pads, root_box, depth_cap, ref_cap):
+    """The tree over ``tris`` ((n, 3, 3) float64), ``pads`` (n,) each triangle's padding.
+    Returns (node_words (k, 3) int32: axis or LEAF, first child (children are adjacent) or first
+    reference, reference count; node_split (k,) float64; refs (r,) int32; depth)."""
+    n = tris.shape[0]
+    words = np.zeros((64, 3), np.int32)
+    split = np.zeros(64)
+    refs = np.empty(max(n, 16), np.int32)
+    n_nodes = 1
+    n_refs = 0
+    total = n                  # references held by leaves and pending nodes
+    deepest = 0
+    root_refs = np.arange(n)
+    root_bounds = np.empty((n, 6))
+    keep = np.ones(n, np.bool_)
+    for j in range(n):
+        keep[j] = _clip_bounds(tris, j, root_box, pads[j], root_bounds[j])
+    s_node = List()
+    s_depth = List()
+    s_refs = List()
+    s_bounds = List()
+    s_box = List()
+    s_node.append(0)
+    s_depth.append(0)
+    s_refs.append(root_refs[keep])
+    s_bounds.append(root_bounds[keep])
+    s_box.append(root_box.copy())
+    total = np.int64(keep.sum())
+    while len(s_node) > 0:
+        node = s_node.pop()
+        depth = s_depth.pop()
+        ids = s_refs.pop()
+        bounds = s_bounds.pop()
+        box = s_box.pop()
+        m = ids.shape[0]
+        deepest = max(deepest, depth)
+        ax = -1
+        p = 0.0
+        planar_left = True
+        side = np.empty(0, np.int64)
+        nl = 0
+        nr = 0
+        if m > 0 and depth < depth_cap:
+            cost, ax, p, planar_left = _best_split(bounds, box)
+            if not cost < KD_COST_INTERSECT * m:
+                ax = -1
+        if ax >= 0:
+            side = np.empty(m, np.int64)       # 1 left, 2 right, 3 both
+            for i in range(m):
+                lo = bounds[i, ax]
+                hi = bounds[i, 3 + ax]
+                if lo == hi and lo == p:
+                    side[i] = 1 if planar_left else 2
+                elif hi <= p:
+                    side[i] = 1
+                elif lo >= p:
+                    side[i] = 2
+                else:
+                    side[i] = 3
+                nl += side[i] & 1
+                nr += side[i] >> 1
+            if total + nl + nr - m > ref_cap:
+                ax = -1
+        if ax < 0:
+            refs = _grow(refs, n_refs + m)
+            srt = np.sort(ids)
+            for i in range(m):
+                refs[n_refs + i] = srt[i]
+            words[node, 0] = LEAF
+            words[node, 1] = n_refs
+            words[node, 2] = m
+            n_refs += m
+            continue
+        first = n_nodes
+        n_nodes += 2
+        words = _grow(words, n_nodes)
+        split = _grow(split, n_nodes)
+        words[node, 0] = ax
+        words[node, 1] = first
+        split[node] = p
+        total += nl + nr - m
+        for child in range(2):
+            cbox = box.copy()
+            if child == 0:
+                cbox[3 + ax] = p
+            else:
+                cbox[ax] = p
+            bit = 1 << child
+            cids = np.empty(m, np.int64)
+            cb = np.empty((m, 6))
+            c = 0
+            for i in range(m):
+                if side[i] & bit:
+                    j = ids[i]
+                    if _clip_bounds(tris, j, cbox, pads[j], cb[c]):
+                        cids[c] = j
+                        c += 1
+            total -= (nl if child == 0 else nr) - c
+            s_node.append(first + child)
+            s_depth.append(depth + 1)
+            s_refs.append(cids[:c].copy())
+            s_bounds.append(cb[:c].copy())
+            s_box.append(cbox)
+    return words[:n_nodes].copy(), split[:n_nodes].copy(), refs[:n_refs].copy(), deepest
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def trace_kd_ray(tris, words, split, refs, box, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one,
+                 edge, st_node, st_near, st_far, anyhit):
+    """One ray through the kd-tree: (prim, t, u, v), prim -1 for a miss."""
+    best_t = tmax
+    prim = -1
+    bu = one - one
+    bv = bu
+    if not _ray_ok(ox, oy, oz, dx, dy, dz, tmin, tmax):
+        return prim, best_t, bu, bv
+    # the walk in float64 on the float32 ray (exact conversions)
+    o = (np.float64(ox), np.float64(oy), np.float64(oz))
+    d = (np.float64(dx), np.float64(dy), np.float64(dz))
+    t0, t1 = _slab(o[0], d[0], box[0], box[3], np.float64(tmin), np.float64(tmax))
+    t0, t1 = _slab(o[1], d[1], box[1], box[4], t0, t1)
+    t0, t1 = _slab(o[2], d[2], box[2], box[5], t0, t1)
+    if not t0 <= t1:
+        return prim, best_t, bu, bv
+    scale = max(abs(o[0]), max(abs(o[1]), abs(o[2]))) / max(abs(d[0]), max(abs(d[1]), abs(d[2])))
+    dd = dx * dx + dy * dy + dz * dz
+    top = 0
+    node = 0
+    near_t = t0
+    far_t = t1
+    while True:
+        ax = words[node, 0]
+        if ax != LEAF:
+            s = split[node]
+            oa = o[0] if ax == 0 else (o[1] if ax == 1 else o[2])
+            da = d[0] if ax == 0 else (d[1] if ax == 1 else d[2])
+            below_first = oa < s or (oa == s and da <= 0)
+            first = words[node, 1]
+            near = first if below_first else first + 1
+            far = first + 1 if below_first else first
+            if da == 0:
+                node = near
+                continue
+            tp = (s - oa) / da
+            if tp > far_t or tp <= 0:
+                node = near
+            elif tp < near_t:
+                node = far
+            else:
+                st_node[top] = far
+                st_near[top] = tp
+                st_far[top] = far_t
+                top += 1
+                node = near
+                far_t = tp
+            continue
+        # a leaf: hits count up to its exit plus the slack
+        limit = far_t + KD_T_SLACK * (abs(far_t) + scale)
+        hi = best_t if anyhit else min(best_t, np.float32(limit))
+        for p in range(words[node, 1], words[node, 1] + words[node, 2]):
+            j = np.int64(refs[p])
+            ok, t, tu, tv = mt_valid_at(tris, TRI_WORDS * j, ox, oy, oz, dx, dy, dz, dd, tmin,
+                                        hi, eps2, one, edge)
+            acc = ok & ((t < best_t) | (prim < 0) | (j < prim))
+            if anyhit and acc:
+                return j, t, tu, tv
+            best_t = t if acc else best_t
+            prim = j if acc else prim
+            bu = tu if acc else bu
+            bv = tv if acc else bv
+            hi = best_t if anyhit else min(best_t, np.float32(limit))
+        if prim >= 0 and np.float64(best_t) + KD_T_SLACK * (abs(np.float64(best_t)) + scale) < far_t:
+            break
+        if top == 0:
+            break
+        top -= 1
+        node = st_node[top]
+        near_t = st_near[top]
+        far_t = st_far[top]
+        if prim >= 0 and np.float64(best_t) + KD_T_SLACK * (abs(np.float64(best_t)) + scale) < near_t:
+            break
+    return prim, best_t, bu, bv
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def kd_chunks(c0, c1, tris, words, split, refs, box, stack_size, O, D, tmin, tmax, eps2, one,
+              edge, anyhit, out_prim, out_t, out_u, out_v, out_ng):
+    """Chunks c0..c1 of CHUNK_RAYS rays (``hwbvh.parallel.run_ranges`` hands them out).
+    ``out_t``/``out_u``/``out_v`` are (n,) or (0,) when only ``out_prim`` is wanted; ``out_ng``
+    is (n, 3) for geometric normals or (0, 3)."""
+    n = O.shape[0]
+    st_node = np.empty(stack_size, np.int64)
+    st_near = np.empty(stack_size)
+    st_far = np.empty(stack_size)
+    hits_out = out_t.shape[0] > 0
+    normals = out_ng.shape[0] > 0
+    for i in range(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS)):
+        prim, t, bu, bv = trace_kd_ray(tris, words, split, refs, box, O[i, 0], O[i, 1], O[i, 2],
+                                       D[i, 0], D[i, 1], D[i, 2], tmin[i], tmax[i], eps2, one,
+                                       edge, st_node, st_near, st_far, anyhit)
+        out_prim[i] = prim
+        if hits_out:
+            out_t[i] = t if prim >= 0 else np.inf
+            out_u[i] = bu
+            out_v[i] = bv
+        if normals:
+            gx = one - one
+            gy = gx
+            gz = gx
+            if prim >= 0:
+                b = TRI_WORDS * np.int64(prim)
+                e1 = b + TRI_E1
+                e2 = b + TRI_E2
+                gx = tris[e1 + 1] * tris[e2 + 2] - tris[e1 + 2] * tris[e2 + 1]
+                gy = tris[e1 + 2] * tris[e2] - tris[e1] * tris[e2 + 2]
+                gz = tris[e1] * tris[e2 + 1] - tris[e1 + 1] * tris[e2]
+            out_ng[i, 0] = gx
+            out_ng[i, 1] = gy
+            out_ng[i, 2] = gz
+
+
+class KdTreeTracer:
+    """Ray queries on an SAH kd-tree over ``triangles`` ((n, 3, 3)), with the BVH traversal's
+    float32 triangle unit. Implements the tracer interface of ``traversal.tracers``. After the
+    build: ``build_seconds``, ``memory_bytes`` (nodes, references and preprocessed triangles),
+    ``nodes``, ``leaves``, ``references``, ``references_per_triangle``, ``depth`` and the caps
+    ``max_depth`` and ``max_references``."""
+
+    name = "kdtree"
+    has_counters = False
+    dtype = np.float32
+
+    def __init__(self, triangles):
+        start = time.perf_counter()
+        tris = np.ascontiguousarray(np.asarray(triangles, np.float32).astype(np.float64))
+        if tris.ndim != 3 or tris.shape[1:] != (3, 3):
+            raise ValueError(f"triangles must be (n, 3, 3), got {tris.shape}")
+        if not np.isfinite(tris).all():
+            raise ValueError("triangles: non-finite vertex coordinates")
+        n = len(tris)
+        if n:
+            lo = tris.min(axis=(0, 1))
+            hi = tris.max(axis=(0, 1))
+            ext = (tris.max(axis=1) - tris.min(axis=1)).max(axis=1)
+            mag = np.abs(tris).max(axis=(1, 2))
+            pads = KD_PAD_TRI * ext + KD_PAD_COORD * mag
+        else:
+            lo = hi = np.zeros(3)
+            pads = np.zeros(0)
+        # the tree's box: the mesh's, padded like a triangle's box, and never flat
+        pad = KD_PAD_TRI * (hi - lo).max() + KD_PAD_COORD * np.abs(np.r_[lo, hi]).max()
+        pad = max(pad, np.finfo(np.float32).tiny)
+        pads = np.maximum(pads, np.finfo(np.float32).tiny)
+        self.box = np.r_[lo - pad, hi + pad].astype(np.float64)
+        self.max_depth = max_depth(n)
+        self.max_references = KD_MAX_REFS_PER_TRI * max(n, 1)
+        self.words, self.split, self.refs, depth = build_kdtree(
+            tris, pads, self.box, self.max_depth, self.max_references)
+        self.depth = int(depth)
+        self.nodes = len(self.words)
+        self.leaves = int((self.words[:, 0] == LEAF).sum())
+        self.tris = preprocess(tris, np.float32)
+        self._tris1 = self.tris.reshape(-1)
+        self.eps2 = band_eps2(np.float32)
+        self.one = np.float32(1)
+        self.edge = np.float32(EDGE_EPS_F32)
+        self.references = int(len(self.refs))
+        self.references_per_triangle = self.references / max(n, 1)
+        self.memory_bytes = int(self.words.nbytes + self.split.nbytes + self.refs.nbytes
+                                + self.tris.nbytes)
+        self.build_seconds = time.perf_counter() - start
+
+    def _run(self, origins, dirs, tmin, tmax, anyhit, normals):
+        o, d, lo, hi = _rays(origins, dirs, tmin, tmax, np.float32)
+        n = len(o)
+        prim = np.empty(n, np.int32)
+        m = 0 if anyhit else n
+        t = np.empty(m, np.float32)
+        u = np.empty(m, np.float32)
+        v = np.empty(m, np.float32)
+        ng = np.empty((n if normals else 0, 3), np.float32)
+        run_ranges(kd_chunks, (n + CHUNK_RAYS - 1) // CHUNK_RAYS, self._tris1, self.words,
+                   self.split, self.refs, self.box, self.depth + 1, o, d, lo, hi, self.eps2,
+                   self.one, self.edge, anyhit, prim, t, u, v, ng)
+        return prim, t, u, v, (ng if normals else None)
+
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
+        """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays); ``normals=False``
+        leaves ng None."""
+        prim, t, u, v, ng = self._run(origins, dirs, tmin, tmax, False, normals)
+        return Hits(t=t, prim=prim, u=u, v=v, ng=ng)
+
+    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
+        """True where any triangle is hit in [tmin, tmax]."""
+        return self._run(origins, dirs, tmin, tmax, True, False)[0] >= 0
+
+    def stats(self):
+        """The structure's figures for reports."""
+        return {"build_seconds": self.build_seconds, "memory_bytes": self.memory_bytes,
+                "nodes": self.nodes, "leaves": self.leaves, "depth": self.depth,
+                "max_depth": self.max_depth, "references": self.references,
+                "references_per_triangle": self.references_per_triangle}
+
+
+def warm_up_kdtree():
+    """Load (or, the first time ever, compile) the kd-tree's kernels on a tiny input, so that
+    build and trace timings measure work, not JIT start-up. Returns seconds."""
+    start = time.perf_counter()
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]],
+                    [[0, 0, 2], [1, 0, 2], [0, 1, 2]]], np.float32)
+    kd = KdTreeTracer(tri)
+    o = np.array([[0.25, 0.25, 1.0]], np.float32)
+    d = np.array([[0.0, 0.0, -1.0]], np.float32)
+    kd.intersect(o, d)
+    kd.intersect(o, d, normals=False)
+    kd.occluded(o, d)
+    return time.perf_counter() - start
