@@ -6,20 +6,21 @@ Moller-Trumbore unit as the BVH traversal.
 >>> hits = kd.intersect(origins, dirs)          # traversal.api.Hits
 >>> blocked = kd.occluded(origins, dirs, tmax=dist)
 
-Build (compiled, ``nogil``): each node looks for the plane of least SAH cost on each axis by a
-sweep over its references' events (start, planar and end events at the bounds of each
-reference, sorted by position with ends before planars before starts, WH06 section 4.2), with
-the costs of ``traversal.config`` (``KD_COST_TRAVERSAL``, ``KD_COST_INTERSECT``,
-``KD_EMPTY_FACTOR``). A node whose best split costs no less than testing its triangles becomes
-a leaf. The references are classified to the sides the sweep counted, and each child's
-references are *perfect*: the triangle is clipped to the child's box (Sutherland-Hodgman in
-float64) and the clipped polygon's bounds are the events below; a triangle that misses the
+Build (compiled, ``nogil``): each node looks for the plane of least SAH cost by one sweep over
+its references' events (a start and an end event at the bounds of each reference on each axis,
+or one planar event where the bounds are flat), in WH06's order (axis, then
+position, then ends before planars before starts), with the costs of ``traversal.config``
+(``KD_COST_TRAVERSAL``, ``KD_COST_INTERSECT``, ``KD_EMPTY_FACTOR``). A node whose best split
+costs no less than testing its triangles becomes a leaf. WH06's split classification puts
+each triangle left, right or on both sides from its events on the split axis. References are
+*perfect*: a triangle on both sides is clipped to each child's box (Sutherland-Hodgman in
+float64) and the clipped polygon's bounds give its events below; a triangle that misses the
 child's box is dropped from it. Bounds are padded (``KD_PAD_TRI``, ``KD_PAD_COORD``) so that
 every point where the unit can report a hit lies in a leaf that lists the triangle.
 
-The events are sorted again at every node, so the build is the O(N log^2 N) variant of WH06's
-sweep (same costs, same classification and clipping); WH06's O(N log N) version keeps one
-sorted event list and splits it at each node instead of re-sorting.
+The events are sorted once, at the root; a split keeps the one-sided triangles' events in their
+order and sorts only the straddling triangles' new events, then merges the two lists, so
+that the build is O(N log N) where straddlers are few (WH06's O(sqrt N) per node).
 
 Caps, stated in ``traversal.config``: depth ``KD_DEPTH_BASE + KD_DEPTH_LOG2 * log2(N)``
 (PBRT's rule) and ``KD_MAX_REFS_PER_TRI * N`` references in all; a split that would exceed
@@ -111,10 +112,88 @@ def _area(ex, ey, ez):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _best_split(bounds, box):
-    """The SAH sweep over one node's references on every axis: (cost, axis, position,
-    planar_left); axis -1 when no plane lies strictly inside the box."""
-    m = bounds.shape[0]
+def _add_events(bounds, tri, pos, code, ids, e):
+    """The events of one reference with ``bounds`` (6,) on every axis, from slot ``e`` on:
+    a planar event where the bounds are flat, else a start and an end. Returns the next slot."""
+    for ax in range(3):
+        lo = bounds[ax]
+        hi = bounds[3 + ax]
+        if lo == hi:
+            pos[e] = lo
+            code[e] = 3 * ax + EVENT_PLANAR
+            ids[e] = tri
+            e += 1
+        else:
+            pos[e] = lo
+            code[e] = 3 * ax + EVENT_START
+            ids[e] = tri
+            pos[e + 1] = hi
+            code[e + 1] = 3 * ax + EVENT_END
+            ids[e + 1] = tri
+            e += 2
+    return e
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _sort_events(pos, code, ids):
+    """Events in the order of the sweep: by axis, then position, then type (ends before planars
+    before starts). Sorts by code (axis and type) first, then stably by position within each
+    axis."""
+    order = np.argsort(code, kind="mergesort")
+    p = pos[order]
+    c = code[order]
+    t = ids[order]
+    k = 0
+    for ax in range(3):
+        start = k
+        while k < c.shape[0] and c[k] // 3 == ax:
+            k += 1
+        if k - start > 1:
+            sub = np.argsort(p[start:k], kind="mergesort") + start
+            p[start:k] = p[sub]
+            c[start:k] = c[sub]
+            t[start:k] = t[sub]
+    return p, c, t
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _before(pa, ca, pb, cb):
+    """Event a sorts before event b (axis, position, type)."""
+    if ca // 3 != cb // 3:
+        return ca // 3 < cb // 3
+    if pa != pb:
+        return pa < pb
+    return ca < cb
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _merge(pa, ca, ta, pb, cb, tb):
+    """Two sorted event lists merged into one."""
+    na = pa.shape[0]
+    nb = pb.shape[0]
+    p = np.empty(na + nb)
+    c = np.empty(na + nb, np.int64)
+    t = np.empty(na + nb, np.int64)
+    i = 0
+    j = 0
+    for k in range(na + nb):
+        if j >= nb or (i < na and not _before(pb[j], cb[j], pa[i], ca[i])):
+            p[k] = pa[i]
+            c[k] = ca[i]
+            t[k] = ta[i]
+            i += 1
+        else:
+            p[k] = pb[j]
+            c[k] = cb[j]
+            t[k] = tb[j]
+            j += 1
+    return p, c, t
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _best_split(pos, code, m, box):
+    """The SAH sweep over one node's sorted events (``m`` references) on every axis at once:
+    (cost, axis, position, planar_left); axis -1 when no plane lies strictly inside the box."""
     ext = np.empty(3)
     for c in range(3):
         ext[c] = box[3 + c] - box[c]
@@ -126,65 +205,42 @@ def _best_split(bounds, box):
     if not area > 0:
         return best_cost, best_axis, best_pos, best_left
     inv_area = 1.0 / area
-    pos = np.empty(2 * m)
-    kind = np.empty(2 * m, np.int64)
-    for ax in range(3):
-        if not ext[ax] > 0:
-            continue
-        u = (ax + 1) % 3
-        w = (ax + 2) % 3
-        # events grouped by type (ends, planars, starts); the stable sort on position then
-        # orders equal positions by type
-        e = 0
-        for typ in range(3):
-            for i in range(m):
-                lo = bounds[i, ax]
-                hi = bounds[i, 3 + ax]
-                if typ == EVENT_END and lo < hi:
-                    pos[e] = hi
-                    kind[e] = EVENT_END
-                    e += 1
-                elif typ == EVENT_PLANAR and lo == hi:
-                    pos[e] = lo
-                    kind[e] = EVENT_PLANAR
-                    e += 1
-                elif typ == EVENT_START and lo < hi:
-                    pos[e] = lo
-                    kind[e] = EVENT_START
-                    e += 1
-        order = np.argsort(pos[:e], kind="mergesort")
-        n_left = 0
-        n_right = m
-        k = 0
-        while k < e:
-            p = pos[order[k]]
-            n_end = 0
-            n_planar = 0
-            n_start = 0
-            while k < e and pos[order[k]] == p and kind[order[k]] == EVENT_END:
-                n_end += 1
-                k += 1
-            while k < e and pos[order[k]] == p and kind[order[k]] == EVENT_PLANAR:
-                n_planar += 1
-                k += 1
-            while k < e and pos[order[k]] == p and kind[order[k]] == EVENT_START:
-                n_start += 1
-                k += 1
-            n_right -= n_planar + n_end
-            if box[ax] < p < box[3 + ax]:
-                pl = _area(p - box[ax], ext[u], ext[w]) * inv_area
-                pr = _area(box[3 + ax] - p, ext[u], ext[w]) * inv_area
-                for left in (True, False):
-                    nl = n_left + (n_planar if left else 0)
-                    nr = n_right + (0 if left else n_planar)
-                    factor = KD_EMPTY_FACTOR if nl == 0 or nr == 0 else 1.0
-                    cost = KD_COST_TRAVERSAL + KD_COST_INTERSECT * factor * (pl * nl + pr * nr)
-                    if cost < best_cost:
-                        best_cost = cost
-                        best_axis = ax
-                        best_pos = p
-                        best_left = left
-            n_left += n_start + n_planar
+    e = pos.shape[0]
+    n_left = np.zeros(3, np.int64)
+    n_right = np.full(3, m, np.int64)
+    k = 0
+    while k < e:
+        ax = code[k] // 3
+        p = pos[k]
+        n_end = 0
+        n_planar = 0
+        n_start = 0
+        while k < e and pos[k] == p and code[k] == 3 * ax + EVENT_END:
+            n_end += 1
+            k += 1
+        while k < e and pos[k] == p and code[k] == 3 * ax + EVENT_PLANAR:
+            n_planar += 1
+            k += 1
+        while k < e and pos[k] == p and code[k] == 3 * ax + EVENT_START:
+            n_start += 1
+            k += 1
+        n_right[ax] -= n_planar + n_end
+        if box[ax] < p < box[3 + ax]:
+            u = (ax + 1) % 3
+            w = (ax + 2) % 3
+            pl = _area(p - box[ax], ext[u], ext[w]) * inv_area
+            pr = _area(box[3 + ax] - p, ext[u], ext[w]) * inv_area
+            for left in (True, False):
+                nl = n_left[ax] + (n_planar if left else 0)
+                nr = n_right[ax] + (0 if left else n_planar)
+                factor = KD_EMPTY_FACTOR if nl == 0 or nr == 0 else 1.0
+                cost = KD_COST_TRAVERSAL + KD_COST_INTERSECT * factor * (pl * nl + pr * nr)
+                if cost < best_cost:
+                    best_cost = cost
+                    best_axis = ax
+                    best_pos = p
+                    best_left = left
+        n_left[ax] += n_start + n_planar
     return best_cost, best_axis, best_pos, best_left
 
 
@@ -206,64 +262,84 @@ def build_kdtree(tris, pads, root_box, depth_cap, ref_cap):
     words = np.zeros((64, 3), np.int32)
     split = np.zeros(64)
     refs = np.empty(max(n, 16), np.int32)
+    side = np.zeros(n, np.int64)          # per triangle of the current node: 1 left, 2 right, 3 both
     n_nodes = 1
     n_refs = 0
-    total = n                  # references held by leaves and pending nodes
     deepest = 0
-    root_refs = np.arange(n)
-    root_bounds = np.empty((n, 6))
-    keep = np.ones(n, np.bool_)
+    bounds = np.empty(6)
+    pos = np.empty(6 * n)
+    code = np.empty(6 * n, np.int64)
+    ids = np.empty(6 * n, np.int64)
+    e = 0
+    total = 0                             # references held by leaves and pending nodes
     for j in range(n):
-        keep[j] = _clip_bounds(tris, j, root_box, pads[j], root_bounds[j])
+        if _clip_bounds(tris, j, root_box, pads[j], bounds):
+            e = _add_events(bounds, j, pos, code, ids, e)
+            total += 1
+    pos, code, ids = _sort_events(pos[:e], code[:e], ids[:e])
     s_node = List()
     s_depth = List()
-    s_refs = List()
-    s_bounds = List()
+    s_pos = List()
+    s_code = List()
+    s_ids = List()
     s_box = List()
     s_node.append(0)
     s_depth.append(0)
-    s_refs.append(root_refs[keep])
-    s_bounds.append(root_bounds[keep])
+    s_pos.append(pos)
+    s_code.append(code)
+    s_ids.append(ids)
     s_box.append(root_box.copy())
-    total = np.int64(keep.sum())
     while len(s_node) > 0:
         node = s_node.pop()
         depth = s_depth.pop()
-        ids = s_refs.pop()
-        bounds = s_bounds.pop()
+        pos = s_pos.pop()
+        code = s_code.pop()
+        ids = s_ids.pop()
         box = s_box.pop()
-        m = ids.shape[0]
+        e = pos.shape[0]
+        # the node's triangles: one start or planar event each on axis 0
+        tri = np.empty(e, np.int64)
+        m = 0
+        for k in range(e):
+            if code[k] == EVENT_START or code[k] == EVENT_PLANAR:
+                tri[m] = ids[k]
+                m += 1
         deepest = max(deepest, depth)
         ax = -1
         p = 0.0
         planar_left = True
-        side = np.empty(0, np.int64)
         nl = 0
         nr = 0
         if m > 0 and depth < depth_cap:
-            cost, ax, p, planar_left = _best_split(bounds, box)
+            cost, ax, p, planar_left = _best_split(pos, code, m, box)
             if not cost < KD_COST_INTERSECT * m:
                 ax = -1
         if ax >= 0:
-            side = np.empty(m, np.int64)       # 1 left, 2 right, 3 both
+            # split classification: both sides unless an event on the split axis
+            # shows the triangle on one side only
             for i in range(m):
-                lo = bounds[i, ax]
-                hi = bounds[i, 3 + ax]
-                if lo == hi and lo == p:
-                    side[i] = 1 if planar_left else 2
-                elif hi <= p:
-                    side[i] = 1
-                elif lo >= p:
-                    side[i] = 2
-                else:
-                    side[i] = 3
-                nl += side[i] & 1
-                nr += side[i] >> 1
+                side[tri[i]] = 3
+            for k in range(e):
+                if code[k] // 3 != ax:
+                    continue
+                typ = code[k] % 3
+                if typ == EVENT_END and pos[k] <= p:
+                    side[ids[k]] = 1
+                elif typ == EVENT_START and pos[k] >= p:
+                    side[ids[k]] = 2
+                elif typ == EVENT_PLANAR:
+                    if pos[k] < p or (pos[k] == p and planar_left):
+                        side[ids[k]] = 1
+                    else:
+                        side[ids[k]] = 2
+            for i in range(m):
+                nl += side[tri[i]] & 1
+                nr += side[tri[i]] >> 1
             if total + nl + nr - m > ref_cap:
                 ax = -1
         if ax < 0:
             refs = _grow(refs, n_refs + m)
-            srt = np.sort(ids)
+            srt = np.sort(tri[:m])
             for i in range(m):
                 refs[n_refs + i] = srt[i]
             words[node, 0] = LEAF
@@ -279,27 +355,52 @@ def build_kdtree(tris, pads, root_box, depth_cap, ref_cap):
         words[node, 1] = first
         split[node] = p
         total += nl + nr - m
+        n_both = 0
+        for i in range(m):
+            if side[tri[i]] == 3:
+                tri[n_both] = tri[i]          # the straddling triangles, in place
+                n_both += 1
         for child in range(2):
             cbox = box.copy()
             if child == 0:
                 cbox[3 + ax] = p
             else:
                 cbox[ax] = p
-            bit = 1 << child
-            cids = np.empty(m, np.int64)
-            cb = np.empty((m, 6))
+            bit = child + 1
+            # the events of the triangles on this side only, still sorted
             c = 0
-            for i in range(m):
-                if side[i] & bit:
-                    j = ids[i]
-                    if _clip_bounds(tris, j, cbox, pads[j], cb[c]):
-                        cids[c] = j
-                        c += 1
-            total -= (nl if child == 0 else nr) - c
+            for k in range(e):
+                if side[ids[k]] == bit:
+                    c += 1
+            op = np.empty(c)
+            oc = np.empty(c, np.int64)
+            oi = np.empty(c, np.int64)
+            c = 0
+            for k in range(e):
+                if side[ids[k]] == bit:
+                    op[c] = pos[k]
+                    oc[c] = code[k]
+                    oi[c] = ids[k]
+                    c += 1
+            # the straddling triangles clipped to this side's box: new events, sorted, merged
+            npos = np.empty(6 * n_both)
+            ncode = np.empty(6 * n_both, np.int64)
+            nids = np.empty(6 * n_both, np.int64)
+            ne = 0
+            kept = 0
+            for i in range(n_both):
+                j = tri[i]
+                if _clip_bounds(tris, j, cbox, pads[j], bounds):
+                    ne = _add_events(bounds, j, npos, ncode, nids, ne)
+                    kept += 1
+            total -= n_both - kept
+            npos, ncode, nids = _sort_events(npos[:ne], ncode[:ne], nids[:ne])
+            cp, cc, ci = _merge(op, oc, oi, npos, ncode, nids)
             s_node.append(first + child)
             s_depth.append(depth + 1)
-            s_refs.append(cids[:c].copy())
-            s_bounds.append(cb[:c].copy())
+            s_pos.append(cp)
+            s_code.append(cc)
+            s_ids.append(ci)
             s_box.append(cbox)
     return words[:n_nodes].copy(), split[:n_nodes].copy(), refs[:n_refs].copy(), deepest
 
