@@ -62,12 +62,11 @@ def max_depth(n_tris):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _clip_bounds(tris, j, box, pad, out):
+def _clip_bounds(tris, j, box, pad, out, a, b):
     """Triangle ``j`` clipped to ``box`` (lo xyz, hi xyz) widened by ``pad``: writes the clipped
     polygon's bounds, widened by ``pad`` and limited to ``box``, to ``out`` (6,). Returns False
-    when the triangle misses the widened box."""
-    a = np.empty((10, 3))
-    b = np.empty((10, 3))
+    when the triangle misses the widened box. ``a``, ``b``: (10, 3) scratch polygons (three
+    vertices and one more per clipping plane at most)."""
     for k in range(3):
         for c in range(3):
             a[k, c] = tris[j, k, c]
@@ -134,11 +133,35 @@ def _add_events(bounds, tri, pos, code, ids, e):
     return e
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _before(pa, ca, pb, cb):
+    """Event a sorts before event b (axis, position, type)."""
+    if ca // 3 != cb // 3:
+        return ca // 3 < cb // 3
+    if pa != pb:
+        return pa < pb
+    return ca < cb
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _sort_events(pos, code, ids):
     """Events in the order of the sweep: by axis, then position, then type (ends before planars
     before starts). Sorts by code (axis and type) first, then stably by position within each
-    axis."""
+    axis. A few events (most nodes deep in the tree) are sorted in place by insertion instead,
+    without the sorts' temporary arrays, which cost more than the sorting itself there."""
+    if pos.shape[0] <= 32:
+        for i in range(1, pos.shape[0]):
+            p, c, t = pos[i], code[i], ids[i]
+            k = i
+            while k > 0 and _before(p, c, pos[k - 1], code[k - 1]):
+                pos[k] = pos[k - 1]
+                code[k] = code[k - 1]
+                ids[k] = ids[k - 1]
+                k -= 1
+            pos[k] = p
+            code[k] = c
+            ids[k] = t
+        return pos, code, ids
     order = np.argsort(code, kind="mergesort")
     p = pos[order]
     c = code[order]
@@ -154,16 +177,6 @@ def _sort_events(pos, code, ids):
             c[start:k] = c[sub]
             t[start:k] = t[sub]
     return p, c, t
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _before(pa, ca, pb, cb):
-    """Event a sorts before event b (axis, position, type)."""
-    if ca // 3 != cb // 3:
-        return ca // 3 < cb // 3
-    if pa != pb:
-        return pa < pb
-    return ca < cb
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -267,13 +280,15 @@ def build_kdtree(tris, pads, root_box, depth_cap, ref_cap):
     n_refs = 0
     deepest = 0
     bounds = np.empty(6)
+    poly_a = np.empty((10, 3))
+    poly_b = np.empty((10, 3))
     pos = np.empty(6 * n)
     code = np.empty(6 * n, np.int64)
     ids = np.empty(6 * n, np.int64)
     e = 0
     total = 0                             # references held by leaves and pending nodes
     for j in range(n):
-        if _clip_bounds(tris, j, root_box, pads[j], bounds):
+        if _clip_bounds(tris, j, root_box, pads[j], bounds, poly_a, poly_b):
             e = _add_events(bounds, j, pos, code, ids, e)
             total += 1
     pos, code, ids = _sort_events(pos[:e], code[:e], ids[:e])
@@ -390,12 +405,15 @@ def build_kdtree(tris, pads, root_box, depth_cap, ref_cap):
             kept = 0
             for i in range(n_both):
                 j = tri[i]
-                if _clip_bounds(tris, j, cbox, pads[j], bounds):
+                if _clip_bounds(tris, j, cbox, pads[j], bounds, poly_a, poly_b):
                     ne = _add_events(bounds, j, npos, ncode, nids, ne)
                     kept += 1
             total -= n_both - kept
-            npos, ncode, nids = _sort_events(npos[:ne], ncode[:ne], nids[:ne])
-            cp, cc, ci = _merge(op, oc, oi, npos, ncode, nids)
+            if ne == 0:
+                cp, cc, ci = op, oc, oi
+            else:
+                npos, ncode, nids = _sort_events(npos[:ne], ncode[:ne], nids[:ne])
+                cp, cc, ci = _merge(op, oc, oi, npos, ncode, nids)
             s_node.append(first + child)
             s_depth.append(depth + 1)
             s_pos.append(cp)
