@@ -114,11 +114,11 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
         return tr, time.perf_counter() - t, dict(tr.stats(), accel=accel)
     if accel != "bvh":
         raise ParameterError("accel", f"unknown acceleration structure {accel!r} "
-                             "(choose bvh, grid or kdtree)")
+                                      f"(choose from {', '.join(ACCELS)})")
     if builder == "embree":
         if traversal != "embree":
             raise ParameterError("traversal", "Embree's tree can only be traversed by Embree "
-                             "(builder 'embree' needs traversal 'embree')")
+                                              "(builder 'embree' needs traversal 'embree')")
         from traversal.embree_ref import EmbreeTracer
         t = time.perf_counter()
         tr = EmbreeTracer(scene.vertices, scene.faces)
@@ -139,11 +139,13 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
         return Tracer(bvh, precision=precision, watertight=watertight), secs, info
     if traversal == "embree":
         raise ParameterError("traversal", "Embree traverses its own tree only "
-                         "(traversal 'embree' needs builder 'embree')")
+                                          "(traversal 'embree' needs builder 'embree')")
     raise ParameterError("traversal", f"unknown traversal {traversal!r}")
 
 
 def scene_passes(scene):
+    """Which passes a scene needs: shadow rays (lights and a material that takes direct light),
+    reflection and refraction rays, and the bounce depth (1 when nothing reflects or refracts)."""
     used = np.unique(scene.material)
     reflective = bool((scene.kr[used].max(axis=1) > 0).any() or (scene.ior[used] > 0).any())
     refractive = bool((scene.ior[used] > 0).any())
@@ -151,8 +153,6 @@ def scene_passes(scene):
     return {"shadow": bool(scene.lights) and shades, "reflection": reflective,
             "refraction": refractive,
             "depth": scene.max_depth if (reflective or refractive) else 1}
-
-
 
 
 class _Buffers:
