@@ -100,6 +100,16 @@ def run_ranges(kernel, n, *args, min_items=1):
             kernel(bounds[k], bounds[k + 1], *args)
 
     futures = [_executor().submit(worker) for _ in range(threads - 1)]
-    worker()
-    for f in futures:
-        f.result()
+    try:
+        worker()
+    except BaseException:
+        with lock:
+            next_part[0] = parts              # no range starts after a failure
+        raise
+    finally:
+        # every range in flight ends before this returns or raises: none may write into the
+        # caller's arrays afterwards
+        errors = [f.exception() for f in futures]
+    for e in errors:
+        if e is not None:
+            raise e

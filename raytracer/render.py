@@ -219,19 +219,21 @@ def release_buffers():
     _kept.buffers = None
 
 
-def _scene_arrays(scene):
+def _scene_arrays(scene, lights):
     """The compiled scene as the kernels read it: per-triangle unit geometric normals and
-    coordinate magnitudes (for ray offsets), material tables, and a light table."""
+    coordinate magnitudes (for ray offsets), material tables, and a table of ``lights`` (the
+    scene's, or none when it needs no shadow rays: the shading kernel sizes its shadow slots
+    by this table)."""
     tris = np.ascontiguousarray(scene.triangles, np.float32)
     face_n = np.empty((len(tris), 3))
     tri_mag = np.empty(len(tris))
     run_ranges(stages.triangle_terms, len(tris), tris, face_n, tri_mag, min_items=4096)
-    L = len(scene.lights)
+    L = len(lights)
     kind = np.zeros(L, np.int64)
     pos = np.zeros((L, 3))
     ldir = np.zeros((L, 3))
     val = np.zeros((L, 3))
-    for k, light in enumerate(scene.lights):         # a handful of lights, not primitives
+    for k, light in enumerate(lights):               # a handful of lights, not primitives
         if light["type"] == "point":
             kind[k] = stages.POINT
             pos[k] = light["position"]
@@ -277,7 +279,6 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     W, H, spp = scene.width, scene.height, scene.spp
     npix = W * H
     passes = scene_passes(scene)
-    sa = _scene_arrays(scene)
     film = np.zeros((npix, 3))
     aov_depth = np.full(npix, np.inf, np.float32)
     aov_normal = np.zeros((npix, 3), np.float32)
@@ -285,6 +286,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     rays = {"primary": 0, "shadow": 0, "reflection": 0, "refraction": 0}
     secs = dict.fromkeys(("generate", "intersect", "shade", "pack", "occluded", "accumulate"), 0.0)
     n_lights = len(scene.lights) if passes["shadow"] else 0
+    sa = _scene_arrays(scene, scene.lights if n_lights else [])
     # rays go to the tracer in its own precision (float32 for the hardware units), so it
     # reads them as they are
     buf = _buffers(npix, n_lights, np.dtype(getattr(tracer, "dtype", np.float32)))

@@ -161,3 +161,53 @@ def test_kept_buffers_do_not_leak_between_renders():
     assert np.array_equal(again_tiny.image, fresh_tiny.image)
     assert np.array_equal(again_big.image, fresh_big.image)
     assert np.array_equal(again_big.prim, fresh_big.prim)
+
+
+class _SeesItsOwnSurface:
+    """A broken tracer: every query starts a little behind its origin, so secondary and shadow
+    rays can hit the surface they leave (self-intersection)."""
+
+    def __init__(self, inner, closest):
+        self.inner, self.closest = inner, closest
+
+    def _back(self, o, d):
+        o = np.asarray(o, np.float64)
+        d = np.asarray(d, np.float64)
+        return o - d * (1e-5 * np.abs(o).max(axis=1, keepdims=True) + 1e-5)
+
+    def intersect(self, o, d, tmin=0.0, tmax=np.inf, normals=True):
+        if self.closest:
+            o = self._back(o, d)
+        return self.inner.intersect(o, d, tmin, tmax, normals=normals)
+
+    def occluded(self, o, d, tmin=0.0, tmax=np.inf):
+        if not self.closest:
+            o = self._back(o, d)
+        return self.inner.occluded(o, d, tmin, tmax)
+
+
+@pytest.mark.parametrize("closest", [False, True])
+def test_verification_catches_self_intersection(closest):
+    sc = small("marbles", 32, 24, 1)
+    tracer, _, _ = make_tracer(sc)
+    checked = VerifyingTracer(_SeesItsOwnSurface(tracer, closest), sc.triangles, sc.vertices, sc.faces)
+    render(sc, checked)
+    kind = "closest" if closest else "shadow"
+    assert checked.counts[kind]["mismatch"] > 0, checked.counts
+
+
+def test_shadows_off_with_lights_and_no_diffuse_material():
+    # lights, but only mirrors and glass: no shadow rays, and the light table must not size the
+    # shadow slots (it did, and the kernel wrote past them)
+    d = load_scene("cornell", width=24, height=18, spp=1)
+    for m in d["materials"].values():
+        if m["type"] == "diffuse":
+            m.clear()
+            m.update({"type": "mirror", "reflectance": [0.8, 0.8, 0.8]})
+    d["lights"] = d["lights"] * 6
+    sc = compile_scene(d)
+    tracer, _, _ = make_tracer(sc)
+    res = render(sc, tracer)
+    image, rays, *_ = naive_render(sc, tracer)
+    assert res.stats["rays"]["shadow"] == 0 == rays["shadow"]
+    np.testing.assert_allclose(res.image, image, rtol=1e-6, atol=1e-7)

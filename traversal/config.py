@@ -47,6 +47,11 @@ T_TOL_REL = 1e-5
 # (~3.8e-6) of slack to close cracks. A wrong triangle is off by far more than that, and a
 # closer strict hit still makes any answer a mismatch.
 BARY_TOL = 1e-4
+# Before the start of a ray's interval, a hit counts as a right answer only within
+# BEHIND_TOL_REL (4 float32 ulps) of t + |o|_max/|d|, far less than T_TOL_REL: a secondary ray
+# starts 2^-18 (32 ulps) of the coordinate magnitude off its own surface (OFFSET_REL), and
+# that surface, just behind the origin, must never pass as a hit.
+BEHIND_TOL_REL = 2.0**-21
 
 # --- Work scheduling (not part of the units: answers do not depend on these) -------------
 # Rays per packet. The lane masks are read 8 lanes at a time through a uint64 view, so this is

@@ -11,12 +11,14 @@ Each ray is classified:
   within the tolerance (one answer a hit on the edge, the other a miss);
 * ``mismatch``: anything else.
 
-The tolerances ``T_TOL_REL`` and ``BARY_TOL`` live in ``traversal.config`` with their reasons.
+The tolerances ``T_TOL_REL``, ``BEHIND_TOL_REL`` and ``BARY_TOL`` live in ``traversal.config`` with their reasons.
 """
 import numpy as np
 from numba import njit, prange
 
-from .config import BARY_TOL, T_TOL_REL
+from .config import BARY_TOL, BEHIND_TOL_REL, T_TOL_REL
+
+BEHIND = BEHIND_TOL_REL / T_TOL_REL    # the slack before t_min, as a share of the t tolerance
 
 
 @njit(cache=True, error_model="numpy")
@@ -68,7 +70,7 @@ def _reference(tris, O, D, tmin, tmax, tol_t, pa, pb, out):
                 ok = best == np.inf
             else:
                 t, u, v = _mt64(tris[p], o, d)
-                ok = _margin(u, v) >= -BARY_TOL and t >= tmin[i] - tol_t[i] and \
+                ok = _margin(u, v) >= -BARY_TOL and t >= tmin[i] - tol_t[i] * BEHIND and \
                     t <= tmax[i] + tol_t[i] and not (best < t - tol_t[i])
             out[i, 1 + k] = 1.0 if ok else 0.0
 
@@ -127,7 +129,7 @@ def _reference_any(tris, O, D, tmin, tmax, scale, out):
             m = _margin(u, v)
             if m > BARY_TOL and t > tmin[i] + tol and t < tmax[i] - tol:
                 strict = True
-            if m >= -BARY_TOL and t >= tmin[i] - tol and t <= tmax[i] + tol:
+            if m >= -BARY_TOL and t >= tmin[i] - tol * BEHIND and t <= tmax[i] + tol:
                 loose = True
             if strict and loose:
                 break
