@@ -262,7 +262,7 @@ def bench_trace(args):
 
     Open3D is timed in a second phase, after every mesh's ours/embreex figures: its TBB worker
     threads keep spinning after a call and, timed in between, took CPU from the next
-    measurement (up to 25% of ours on this 2-core machine)."""
+    measurement (up to a quarter of ours on two cores)."""
     from types import SimpleNamespace
     from tqdm import tqdm
     import hwbvh

@@ -31,7 +31,8 @@ from .api import Hits, _rays
 from .config import (CHUNK_RAYS, EDGE_EPS_F32, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
                      GRID_MAX_REFS_PER_TRI, GRID_PAD_COORD, GRID_PAD_TRI, GRID_STOP_SLACK)
 from .rawtree import _ray_ok
-from .triangle_unit import TRI_E1, TRI_E2, TRI_WORDS, band_eps2, mt_valid_at, preprocess
+from .triangle_unit import (TRI_WORDS, band_eps2, mt_valid_at, preprocess,
+                            store_answer, store_normals)
 
 
 def density_resolution(extent, n_tris, density=GRID_DENSITY, max_cells=GRID_MAX_CELLS):
@@ -204,31 +205,12 @@ def grid_chunks(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D, tmi
     is (n, 3) for geometric normals or (0, 3)."""
     n = O.shape[0]
     mailbox = np.empty(GRID_MAILBOX, np.int64)
-    hits_out = out_t.shape[0] > 0
-    normals = out_ng.shape[0] > 0
     for i in range(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS)):
         prim, t, bu, bv = trace_grid_ray(tris, offsets, refs, gmin, gmax, cs, inv, res,
                                          O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
                                          tmin[i], tmax[i], eps2, one, edge, mailbox, anyhit)
-        out_prim[i] = prim
-        if hits_out:
-            out_t[i] = t if prim >= 0 else np.inf
-            out_u[i] = bu
-            out_v[i] = bv
-        if normals:
-            gx = one - one
-            gy = gx
-            gz = gx
-            if prim >= 0:
-                b = TRI_WORDS * np.int64(prim)
-                e1 = b + TRI_E1
-                e2 = b + TRI_E2
-                gx = tris[e1 + 1] * tris[e2 + 2] - tris[e1 + 2] * tris[e2 + 1]
-                gy = tris[e1 + 2] * tris[e2] - tris[e1] * tris[e2 + 2]
-                gz = tris[e1] * tris[e2 + 1] - tris[e1 + 1] * tris[e2]
-            out_ng[i, 0] = gx
-            out_ng[i, 1] = gy
-            out_ng[i, 2] = gz
+        store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v)
+    store_normals(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), tris, out_prim, out_ng, one)
 
 
 class GridTracer:

@@ -48,7 +48,8 @@ from .config import (CHUNK_RAYS, EDGE_EPS_F32, KD_COST_INTERSECT, KD_COST_TRAVER
                      KD_PAD_COORD, KD_PAD_TRI, KD_T_SLACK)
 from .grid import _slab
 from .rawtree import _ray_ok
-from .triangle_unit import TRI_E1, TRI_E2, TRI_WORDS, band_eps2, mt_valid_at, preprocess
+from .triangle_unit import (TRI_WORDS, band_eps2, mt_valid_at, preprocess,
+                            store_answer, store_normals)
 
 LEAF = 3               # the axis word of a leaf node
 EVENT_END = 0          # event types, in their order at equal positions (WH06)
@@ -511,31 +512,12 @@ def kd_chunks(c0, c1, tris, words, split, refs, box, stack_size, O, D, tmin, tma
     st_node = np.empty(stack_size, np.int64)
     st_near = np.empty(stack_size)
     st_far = np.empty(stack_size)
-    hits_out = out_t.shape[0] > 0
-    normals = out_ng.shape[0] > 0
     for i in range(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS)):
         prim, t, bu, bv = trace_kd_ray(tris, words, split, refs, box, O[i, 0], O[i, 1], O[i, 2],
                                        D[i, 0], D[i, 1], D[i, 2], tmin[i], tmax[i], eps2, one,
                                        edge, st_node, st_near, st_far, anyhit)
-        out_prim[i] = prim
-        if hits_out:
-            out_t[i] = t if prim >= 0 else np.inf
-            out_u[i] = bu
-            out_v[i] = bv
-        if normals:
-            gx = one - one
-            gy = gx
-            gz = gx
-            if prim >= 0:
-                b = TRI_WORDS * np.int64(prim)
-                e1 = b + TRI_E1
-                e2 = b + TRI_E2
-                gx = tris[e1 + 1] * tris[e2 + 2] - tris[e1 + 2] * tris[e2 + 1]
-                gy = tris[e1 + 2] * tris[e2] - tris[e1] * tris[e2 + 2]
-                gz = tris[e1] * tris[e2 + 1] - tris[e1 + 1] * tris[e2]
-            out_ng[i, 0] = gx
-            out_ng[i, 1] = gy
-            out_ng[i, 2] = gz
+        store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v)
+    store_normals(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), tris, out_prim, out_ng, one)
 
 
 class KdTreeTracer:

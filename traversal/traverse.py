@@ -20,7 +20,7 @@ from .aabb_unit import aabb_hit_at, near_far_planes
 from .config import CHUNK_RAYS
 from .packet import NF, NI, NM, P, coherent, trace_packet
 from .rawtree import read_index, _ray_ok
-from .triangle_unit import TRI_E1, TRI_E2, TRI_WORDS, mt_valid_at, wt_hit_ray
+from .triangle_unit import TRI_WORDS, mt_valid_at, store_answer, store_normals, wt_hit_ray
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -118,8 +118,6 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
     through the packet kernel (same answers, SIMD box and triangle tests); other groups go
     ray by ray. Returns (rays whose stack would have overflowed, packets traced)."""
     count = counters.shape[0] > 0
-    normals = out_ng.shape[0] > 0
-    hits_out = out_t.shape[0] > 0            # occluded() asks for out_prim only
     over = 0
     npk = 0
     a = lo
@@ -136,34 +134,14 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
             prim, t, bu, bv, nv, nt, of = trace_ray(
                 u, f, ib, tris, raw, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
                 tmin[i], tmax[i], eps2, one, widen, edge, stack, stack_t, anyhit)
-            out_prim[i] = prim
-            if hits_out:
-                out_t[i] = t if prim >= 0 else np.inf
-                out_u[i] = bu
-                out_v[i] = bv
+            store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v)
             if of:
                 over += 1
             if count:
                 counters[i, 0] = nv
                 counters[i, 1] = nt
         a = b
-    if normals:
-        for i in range(lo, hi):
-            # geometric normal e1 x e2 of the hit triangle (0 for a miss)
-            gx = one - one
-            gy = gx
-            gz = gx
-            prim = out_prim[i]
-            if prim >= 0:
-                b = TRI_WORDS * np.int64(prim)
-                e1 = b + TRI_E1
-                e2 = b + TRI_E2
-                gx = tris[e1 + 1] * tris[e2 + 2] - tris[e1 + 2] * tris[e2 + 1]
-                gy = tris[e1 + 2] * tris[e2] - tris[e1] * tris[e2 + 2]
-                gz = tris[e1] * tris[e2 + 1] - tris[e1 + 1] * tris[e2]
-            out_ng[i, 0] = gx
-            out_ng[i, 1] = gy
-            out_ng[i, 2] = gz
+    store_normals(lo, hi, tris, out_prim, out_ng, one)
     return over, npk
 
 

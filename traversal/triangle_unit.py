@@ -171,6 +171,40 @@ def mt_valid_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge
                        dds, rscale, -edge, one + edge, tmin, tmax, one)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v):
+    """Ray i's answer into a batch's outputs, as every traversal writes them: the primitive
+    (-1: a miss) and, unless ``out_t`` is empty (any-hit queries), t (inf for a miss), u, v."""
+    out_prim[i] = prim
+    if out_t.shape[0] > 0:
+        out_t[i] = t if prim >= 0 else np.inf
+        out_u[i] = bu
+        out_v[i] = bv
+
+
+@njit(cache=True, error_model="numpy")
+def store_normals(lo, hi, tris, out_prim, out_ng, one):
+    """Unnormalised geometric normals e1 x e2 of the hit triangles of rays lo..hi (0 for a
+    miss), from the preprocessed rows; nothing when ``out_ng`` is empty."""
+    if out_ng.shape[0] == 0:
+        return
+    for i in range(lo, hi):
+        gx = one - one
+        gy = gx
+        gz = gx
+        prim = out_prim[i]
+        if prim >= 0:
+            b = TRI_WORDS * np.int64(prim)
+            e1 = b + TRI_E1
+            e2 = b + TRI_E2
+            gx = tris[e1 + 1] * tris[e2 + 2] - tris[e1 + 2] * tris[e2 + 1]
+            gy = tris[e1 + 2] * tris[e2] - tris[e1] * tris[e2 + 2]
+            gz = tris[e1] * tris[e2 + 1] - tris[e1 + 1] * tris[e2]
+        out_ng[i, 0] = gx
+        out_ng[i, 1] = gy
+        out_ng[i, 2] = gz
+
+
 @njit(cache=True, error_model="numpy")
 def wt_hit_at(raw, j, ox, oy, oz, kx, ky, kz, sx, sy, sz, tmin, tmax):
     """Watertight ray/triangle test (Woop, Benthin & Wald 2013), for the accuracy study.
