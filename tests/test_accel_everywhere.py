@@ -128,7 +128,7 @@ def test_animate_rebuilds_the_structure_every_frame(accel, tmp_path, capsys):
     for f in r["frames"]:
         assert f["rebuilt"] and f["memory_bytes"] > 0 and f["sah_cost"] is None
         assert f["time_to_image_seconds"] == pytest.approx(f["build_seconds"] + f["render_seconds"])
-    bvh = _animate(capsys, tmp_path / "bvh")
+    _animate(capsys, tmp_path / "bvh")                  # the BVH frames to compare with
     for i in range(2):
         a, chans, meta = read_exr(tmp_path / accel / f"frame_{i:04d}.exr")
         b, _, _ = read_exr(tmp_path / "bvh" / f"frame_{i:04d}.exr")

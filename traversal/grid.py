@@ -27,12 +27,11 @@ import numpy as np
 from numba import njit
 
 from hwbvh.parallel import run_ranges
-from .api import Hits, _rays
-from .config import (CHUNK_RAYS, EDGE_EPS_F32, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
+from .structure import TriangleStructure, checked_triangles, padded_box
+from .config import (CHUNK_RAYS, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
                      GRID_MAX_REFS_PER_TRI, GRID_PAD_COORD, GRID_PAD_TRI, GRID_STOP_SLACK)
 from .rawtree import _ray_ok
-from .triangle_unit import (TRI_WORDS, band_eps2, mt_valid_at, preprocess,
-                            store_answer, store_normals)
+from .triangle_unit import (TRI_WORDS, mt_valid_at, store_answer, store_normals)
 
 
 def density_resolution(extent, n_tris, density=GRID_DENSITY, max_cells=GRID_MAX_CELLS):
@@ -213,7 +212,7 @@ def grid_chunks(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D, tmi
     store_normals(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), tris, out_prim, out_ng, one)
 
 
-class GridTracer:
+class GridTracer(TriangleStructure):
     """Ray queries on a uniform grid over ``triangles`` ((n, 3, 3)), with the BVH traversal's
     float32 triangle unit. ``resolution``: cells per axis (an int for all three or three ints);
     default from the density heuristic. Implements the tracer interface of
@@ -222,27 +221,13 @@ class GridTracer:
     ``references`` and ``references_per_triangle``."""
 
     name = "grid"
-    has_counters = False
-    dtype = np.float32
 
     def __init__(self, triangles, resolution=None):
         start = time.perf_counter()
-        tris = np.ascontiguousarray(np.asarray(triangles, np.float32).astype(np.float64))
-        if tris.ndim != 3 or tris.shape[1:] != (3, 3):
-            raise ValueError(f"triangles must be (n, 3, 3), got {tris.shape}")
-        if not np.isfinite(tris).all():
-            raise ValueError("triangles: non-finite vertex coordinates")
+        tris = checked_triangles(triangles)
         n = len(tris)
-        if n:
-            lo = tris.min(axis=(0, 1))
-            hi = tris.max(axis=(0, 1))
-        else:
-            lo = hi = np.zeros(3)
         # the grid's box: the mesh's, padded like a triangle's box, and never flat
-        pad = GRID_PAD_TRI * (hi - lo).max() + GRID_PAD_COORD * np.abs(np.r_[lo, hi]).max()
-        pad = max(pad, np.finfo(np.float32).tiny)
-        self.gmin = lo - pad
-        self.gmax = hi + pad
+        lo, hi, self.gmin, self.gmax = padded_box(tris, GRID_PAD_TRI, GRID_PAD_COORD)
         extent = self.gmax - self.gmin
         cap = GRID_MAX_REFS_PER_TRI * max(n, 1)
         if resolution is None:
@@ -273,39 +258,16 @@ class GridTracer:
         self.offsets = np.zeros(int(np.prod(res)) + 1, np.int64)
         self.refs = np.empty(total, np.int32)
         _fill(ranges, self._res, self.offsets, self.refs)
-        self.tris = preprocess(tris, np.float32)
-        self._tris1 = self.tris.reshape(-1)
-        self.eps2 = band_eps2(np.float32)
-        self.one = np.float32(1)
-        self.edge = np.float32(EDGE_EPS_F32)
+        self._set_unit(tris)
         self.references = int(total)
         self.references_per_triangle = total / max(n, 1)
         self.memory_bytes = int(self.offsets.nbytes + self.refs.nbytes + self.tris.nbytes)
         self.build_seconds = time.perf_counter() - start
 
-    def _run(self, origins, dirs, tmin, tmax, anyhit, normals):
-        o, d, lo, hi = _rays(origins, dirs, tmin, tmax, np.float32)
-        n = len(o)
-        prim = np.empty(n, np.int32)
-        m = 0 if anyhit else n
-        t = np.empty(m, np.float32)
-        u = np.empty(m, np.float32)
-        v = np.empty(m, np.float32)
-        ng = np.empty((n if normals else 0, 3), np.float32)
-        run_ranges(grid_chunks, (n + CHUNK_RAYS - 1) // CHUNK_RAYS, self._tris1, self.offsets,
-                   self.refs, self.gmin, self.gmax, self._cs, self._inv, self._res, o, d, lo, hi,
-                   self.eps2, self.one, self.edge, anyhit, prim, t, u, v, ng)
-        return prim, t, u, v, (ng if normals else None)
-
-    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
-        """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays); ``normals=False``
-        leaves ng None."""
-        prim, t, u, v, ng = self._run(origins, dirs, tmin, tmax, False, normals)
-        return Hits(t=t, prim=prim, u=u, v=v, ng=ng)
-
-    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
-        """True where any triangle is hit in [tmin, tmax]."""
-        return self._run(origins, dirs, tmin, tmax, True, False)[0] >= 0
+    def _trace(self, o, d, tmin, tmax, anyhit, prim, t, u, v, ng):
+        run_ranges(grid_chunks, (len(o) + CHUNK_RAYS - 1) // CHUNK_RAYS, self._tris1, self.offsets,
+                   self.refs, self.gmin, self.gmax, self._cs, self._inv, self._res, o, d, tmin,
+                   tmax, self.eps2, self.one, self.edge, anyhit, prim, t, u, v, ng)
 
     def stats(self):
         """The structure's figures for reports."""

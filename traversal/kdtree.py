@@ -42,14 +42,13 @@ from numba import njit
 from numba.typed import List
 
 from hwbvh.parallel import run_ranges
-from .api import Hits, _rays
-from .config import (CHUNK_RAYS, EDGE_EPS_F32, KD_COST_INTERSECT, KD_COST_TRAVERSAL,
+from .structure import TriangleStructure, checked_triangles, padded_box
+from .config import (CHUNK_RAYS, KD_COST_INTERSECT, KD_COST_TRAVERSAL,
                      KD_DEPTH_BASE, KD_DEPTH_LOG2, KD_EMPTY_FACTOR, KD_MAX_REFS_PER_TRI,
                      KD_PAD_COORD, KD_PAD_TRI, KD_T_SLACK)
 from .grid import _slab
 from .rawtree import _ray_ok
-from .triangle_unit import (TRI_WORDS, band_eps2, mt_valid_at, preprocess,
-                            store_answer, store_normals)
+from .triangle_unit import (TRI_WORDS, mt_valid_at, store_answer, store_normals)
 
 LEAF = 3               # the axis word of a leaf node
 EVENT_END = 0          # event types, in their order at equal positions (WH06)
@@ -520,7 +519,7 @@ def kd_chunks(c0, c1, tris, words, split, refs, box, stack_size, O, D, tmin, tma
     store_normals(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), tris, out_prim, out_ng, one)
 
 
-class KdTreeTracer:
+class KdTreeTracer(TriangleStructure):
     """Ray queries on an SAH kd-tree over ``triangles`` ((n, 3, 3)), with the BVH traversal's
     float32 triangle unit. Implements the tracer interface of ``traversal.tracers``. After the
     build: ``build_seconds``, ``memory_bytes`` (nodes, references and preprocessed triangles),
@@ -528,31 +527,17 @@ class KdTreeTracer:
     ``max_depth`` and ``max_references``."""
 
     name = "kdtree"
-    has_counters = False
-    dtype = np.float32
 
     def __init__(self, triangles):
         start = time.perf_counter()
-        tris = np.ascontiguousarray(np.asarray(triangles, np.float32).astype(np.float64))
-        if tris.ndim != 3 or tris.shape[1:] != (3, 3):
-            raise ValueError(f"triangles must be (n, 3, 3), got {tris.shape}")
-        if not np.isfinite(tris).all():
-            raise ValueError("triangles: non-finite vertex coordinates")
+        tris = checked_triangles(triangles)
         n = len(tris)
-        if n:
-            lo = tris.min(axis=(0, 1))
-            hi = tris.max(axis=(0, 1))
-            ext = (tris.max(axis=1) - tris.min(axis=1)).max(axis=1)
-            mag = np.abs(tris).max(axis=(1, 2))
-            pads = KD_PAD_TRI * ext + KD_PAD_COORD * mag
-        else:
-            lo = hi = np.zeros(3)
-            pads = np.zeros(0)
+        ext = (tris.max(axis=1) - tris.min(axis=1)).max(axis=1)
+        mag = np.abs(tris).max(axis=(1, 2))
+        pads = np.maximum(KD_PAD_TRI * ext + KD_PAD_COORD * mag, np.finfo(np.float32).tiny)
         # the tree's box: the mesh's, padded like a triangle's box, and never flat
-        pad = KD_PAD_TRI * (hi - lo).max() + KD_PAD_COORD * np.abs(np.r_[lo, hi]).max()
-        pad = max(pad, np.finfo(np.float32).tiny)
-        pads = np.maximum(pads, np.finfo(np.float32).tiny)
-        self.box = np.r_[lo - pad, hi + pad].astype(np.float64)
+        _, _, box_lo, box_hi = padded_box(tris, KD_PAD_TRI, KD_PAD_COORD)
+        self.box = np.r_[box_lo, box_hi].astype(np.float64)
         self.max_depth = max_depth(n)
         self.max_references = KD_MAX_REFS_PER_TRI * max(n, 1)
         self.words, self.split, self.refs, depth = build_kdtree(
@@ -560,40 +545,17 @@ class KdTreeTracer:
         self.depth = int(depth)
         self.nodes = len(self.words)
         self.leaves = int((self.words[:, 0] == LEAF).sum())
-        self.tris = preprocess(tris, np.float32)
-        self._tris1 = self.tris.reshape(-1)
-        self.eps2 = band_eps2(np.float32)
-        self.one = np.float32(1)
-        self.edge = np.float32(EDGE_EPS_F32)
+        self._set_unit(tris)
         self.references = int(len(self.refs))
         self.references_per_triangle = self.references / max(n, 1)
         self.memory_bytes = int(self.words.nbytes + self.split.nbytes + self.refs.nbytes
                                 + self.tris.nbytes)
         self.build_seconds = time.perf_counter() - start
 
-    def _run(self, origins, dirs, tmin, tmax, anyhit, normals):
-        o, d, lo, hi = _rays(origins, dirs, tmin, tmax, np.float32)
-        n = len(o)
-        prim = np.empty(n, np.int32)
-        m = 0 if anyhit else n
-        t = np.empty(m, np.float32)
-        u = np.empty(m, np.float32)
-        v = np.empty(m, np.float32)
-        ng = np.empty((n if normals else 0, 3), np.float32)
-        run_ranges(kd_chunks, (n + CHUNK_RAYS - 1) // CHUNK_RAYS, self._tris1, self.words,
-                   self.split, self.refs, self.box, self.depth + 1, o, d, lo, hi, self.eps2,
+    def _trace(self, o, d, tmin, tmax, anyhit, prim, t, u, v, ng):
+        run_ranges(kd_chunks, (len(o) + CHUNK_RAYS - 1) // CHUNK_RAYS, self._tris1, self.words,
+                   self.split, self.refs, self.box, self.depth + 1, o, d, tmin, tmax, self.eps2,
                    self.one, self.edge, anyhit, prim, t, u, v, ng)
-        return prim, t, u, v, (ng if normals else None)
-
-    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
-        """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays); ``normals=False``
-        leaves ng None."""
-        prim, t, u, v, ng = self._run(origins, dirs, tmin, tmax, False, normals)
-        return Hits(t=t, prim=prim, u=u, v=v, ng=ng)
-
-    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
-        """True where any triangle is hit in [tmin, tmax]."""
-        return self._run(origins, dirs, tmin, tmax, True, False)[0] >= 0
 
     def stats(self):
         """The structure's figures for reports."""

@@ -1,0 +1,74 @@
+"""What the uniform grid and the kd-tree share around their kernels: the checked input, the
+mesh's padded box, the float32 Moller-Trumbore unit's triangle rows, and the batched
+``intersect``/``occluded`` of the tracer interface (``traversal.tracers``)."""
+import numpy as np
+
+from .api import Hits, _rays
+from .config import EDGE_EPS_F32
+from .triangle_unit import band_eps2, preprocess
+
+
+def checked_triangles(triangles):
+    """(n, 3, 3) triangles as float32 coordinates held in float64; ValueError on a bad shape
+    or a non-finite coordinate."""
+    tris = np.ascontiguousarray(np.asarray(triangles, np.float32).astype(np.float64))
+    if tris.ndim != 3 or tris.shape[1:] != (3, 3):
+        raise ValueError(f"triangles must be (n, 3, 3), got {tris.shape}")
+    if not np.isfinite(tris).all():
+        raise ValueError("triangles: non-finite vertex coordinates")
+    return tris
+
+
+def padded_box(tris, pad_tri, pad_coord):
+    """(lo, hi, box_lo, box_hi): the mesh's bounds, and the same box padded like a triangle's
+    (``pad_tri`` of its extent and ``pad_coord`` of its largest coordinate magnitude), never
+    flat. An empty mesh has the empty box at the origin."""
+    if len(tris):
+        lo = tris.min(axis=(0, 1))
+        hi = tris.max(axis=(0, 1))
+    else:
+        lo = hi = np.zeros(3)
+    pad = pad_tri * (hi - lo).max() + pad_coord * np.abs(np.r_[lo, hi]).max()
+    pad = max(pad, np.finfo(np.float32).tiny)
+    return lo, hi, lo - pad, hi + pad
+
+
+class TriangleStructure:
+    """Base of the structures that trace the BVH's float32 triangle unit on their own cells:
+    a subclass calls ``_set_unit`` with its triangles and implements ``_trace``."""
+
+    has_counters = False
+    dtype = np.float32
+
+    def _set_unit(self, tris):
+        self.tris = preprocess(tris, np.float32)
+        self._tris1 = self.tris.reshape(-1)
+        self.eps2 = band_eps2(np.float32)
+        self.one = np.float32(1)
+        self.edge = np.float32(EDGE_EPS_F32)
+
+    def _trace(self, o, d, tmin, tmax, anyhit, prim, t, u, v, ng):
+        """Run the structure's kernel on the checked float32 rays into the outputs."""
+        raise NotImplementedError
+
+    def _run(self, origins, dirs, tmin, tmax, anyhit, normals):
+        o, d, lo, hi = _rays(origins, dirs, tmin, tmax, np.float32)
+        n = len(o)
+        prim = np.empty(n, np.int32)
+        m = 0 if anyhit else n                 # occluded() needs the primitive only
+        t = np.empty(m, np.float32)
+        u = np.empty(m, np.float32)
+        v = np.empty(m, np.float32)
+        ng = np.empty((n if normals else 0, 3), np.float32)
+        self._trace(o, d, lo, hi, anyhit, prim, t, u, v, ng)
+        return prim, t, u, v, (ng if normals else None)
+
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
+        """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays); ``normals=False``
+        leaves ng None."""
+        prim, t, u, v, ng = self._run(origins, dirs, tmin, tmax, False, normals)
+        return Hits(t=t, prim=prim, u=u, v=v, ng=ng)
+
+    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
+        """True where any triangle is hit in [tmin, tmax]."""
+        return self._run(origins, dirs, tmin, tmax, True, False)[0] >= 0
