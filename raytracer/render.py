@@ -160,7 +160,8 @@ class _Buffers:
     spawns more rays than they hold. ``cur``/``nxt``: the current and the next wavefront
     (O, D, wgt, pix, Ot, Dt; see ``raytracer.stages``), swapped after each bounce. The block
     regions (shadow rays ``sh``, their dense queue ``shq``, secondary rays ``sp``) are sized
-    for the current wavefront."""
+    for the current wavefront. ``film`` and ``jitter`` are the frame's radiance sums and one
+    pass's pixel offsets; ``order``: the tile order of the last frame size."""
 
     def __init__(self, n, n_lights, ray_dtype):
         self.L = n_lights
@@ -169,6 +170,23 @@ class _Buffers:
         self.nxt = self._wavefront(n)
         self.cap = 0
         self.ensure_slots(n)
+        self.film = np.empty((0, 3))
+        self.jitter = np.empty(0)
+        self.order = np.empty(0, np.int64)
+        self.order_size = None
+
+    def frame(self, width, height):
+        """(film zeroed, jitter buffer, tile order) for a width x height frame."""
+        npix = width * height
+        if len(self.film) < npix:
+            self.film = np.empty((npix, 3))
+            self.jitter = np.empty(2 * npix)
+        if self.order_size != (width, height):
+            self.order = tile_order(width, height)   # camera rays in 4x4 tiles: coherent packets
+            self.order_size = (width, height)
+        film = self.film[:npix]
+        film.fill(0.0)
+        return film, self.jitter[:2 * npix], self.order
 
     def _wavefront(self, cap):
         f = lambda: np.empty((cap, 3))
@@ -185,7 +203,7 @@ class _Buffers:
         self.contrib = f(S, 3)
         self.sh = [r(L * S, 3), r(L * S, 3), r(L * S), f(L * S, 3), np.empty(L * S, np.int64),
                    np.zeros((nb, L), np.int64)]
-        self.shq = [r(L * S, 3), r(L * S, 3), r(L * S), f(L * S, 3), np.empty(L * S, np.int64)]
+        self.shq = [r(L * S, 3), r(L * S, 3), r(L * S)]
         self.sp = [f(2 * S, 3), f(2 * S, 3), f(2 * S, 3), np.empty(2 * S, np.int64),
                    np.zeros((nb, 2), np.int64)]
         self.cap = S
@@ -279,7 +297,6 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     W, H, spp = scene.width, scene.height, scene.spp
     npix = W * H
     passes = scene_passes(scene)
-    film = np.zeros((npix, 3))
     aov_depth = np.full(npix, np.inf, np.float32)
     aov_normal = np.zeros((npix, 3), np.float32)
     aov_prim = np.full(npix, -1, np.int32)
@@ -294,11 +311,10 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     cu, cv, cw = look_at_basis(cam["eye"], cam["target"], cam["up"])
     eye = np.asarray(cam["eye"], np.float64)
     half = float(np.tan(np.radians(cam["fov"]) / 2))
-    order = tile_order(W, H)                  # camera rays in 4x4 tiles: coherent packets
+    film, jit_buf, order = buf.frame(W, H)
     gx = int(np.ceil(np.sqrt(spp)))
     gy = int(np.ceil(spp / gx))
     no_jitter = np.zeros(0)
-    jit_buf = np.empty(2 * npix) if scene.jitter else no_jitter
     code = STRATEGY_CODES[offset]
     clock = time.perf_counter
 
@@ -315,9 +331,10 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
             jx, jy = _jitter(seed, s, npix, jit_buf)
         else:
             jx = jy = no_jitter
-        run_ranges(stages.generate_camera_rays, npix, order, W, H, jx, jy, float(s % gx),
-                   float(s // gx), float(gx), float(gy), scene.jitter, eye, cu, cv, cw, half, W / H,
-                   *buf.cur, min_items=4096)
+        terms = stages.camera_terms(W, H, half, s % gx, s // gx, gx, gy)
+        O, D, wgt, pix, Ot, Dt = buf.cur
+        run_ranges(stages.generate_camera_rays, npix, order, W, jx, jy, scene.jitter, terms, eye,
+                   cu, cv, cw, D, pix, Ot, Dt, min_items=4096)
         n = npix
         rays["primary"] += n
         lap("generate")
@@ -339,15 +356,20 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
                        sh_cnt[:nb], sp_O, sp_D, sp_W, sp_pix, sp_cnt[:nb])
             lap("shade")
             if n_lights:
-                qO, qD, qT, qC, qpix = buf.shq
+                qO, qD, qT = buf.shq
                 start = stages.run_starts(sh_cnt[:nb])
                 m = int(start[-1])
                 run_ranges(stages.pack_shadow, nb * n_lights, start, sh_cnt[:nb], sh_Ot, sh_Dt,
-                           sh_T, sh_C, sh_pix, qO, qD, qT, qC, qpix, min_items=8)
+                           sh_T, qO, qD, qT, min_items=8)
                 lap("pack")
-                blocked = tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m])
+                blocked = np.ascontiguousarray(tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m]))
                 lap("occluded")
-                stages.accumulate_unblocked(film, qpix, qC, np.ascontiguousarray(blocked), m)
+                if bounce == 0:
+                    run_ranges(stages.accumulate_unblocked, nb, start, sh_cnt[:nb], sh_C, sh_pix,
+                               blocked, film, True, min_items=64)
+                else:
+                    stages.accumulate_unblocked(0, nb, start, sh_cnt[:nb], sh_C, sh_pix, blocked,
+                                                film, False)
                 rays["shadow"] += m
             if bounce > 0:                          # the camera wavefront added its own
                 stages.accumulate(film, pix, buf.contrib, n)

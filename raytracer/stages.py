@@ -16,11 +16,14 @@ the hardware units, so the tracer reads them without a conversion), path weights
    place and the result does not depend on the thread count;
 4. ``pack_shadow`` / ``pack_spawn``: the blocks' runs copied back to back into dense queues,
    light by light and kind by kind (so a light's shadow rays and each kind of secondary ray
-   stay in tile order: coherent packets);
+   stay in tile order: coherent packets); a shadow ray's light and pixel stay in its block;
 5. the tracer's ``occluded`` on the shadow queue;
-6. ``accumulate``: every contribution into the film, in queue order on one thread (film pixels
-   repeat across a wavefront; a fixed order keeps the image independent of the thread count,
-   and at about 1 ns per add a parallel reduction would not pay).
+6. ``accumulate_unblocked`` / ``accumulate``: the light of the unblocked shadow rays and the
+   other contributions into the film, in a fixed order per pixel, so the image does not depend
+   on the thread count. In the camera wavefront every pixel belongs to one block, so blocks
+   accumulate in parallel; later wavefronts repeat pixels across blocks and accumulate in
+   queue order on one thread (they are a fraction of the rays, and at about 1 ns per add a
+   parallel reduction would not pay).
 
 All shading is float64 on float32 hits, formula by formula as tests/naive_whitted.py, so
 images agree with that reference to float rounding.
@@ -66,33 +69,52 @@ def triangle_terms(lo, hi, tris, face_n, tri_mag):
         tri_mag[j] = m
 
 
+def camera_terms(width, height, half, cell_x, cell_y, grid_x, grid_y):
+    """The per-pass constants of ``generate_camera_rays``: (off_x, off_y, inv_gx, inv_gy,
+    kx, bx, ky, by), so that a sample at pixel (x, y) with uniform offsets (jx, jy) lands at
+    screen point sx = (x + (off_x + jx) * inv_gx) * kx - bx, sy = by - (y + ...) * ky (without
+    jitter, at the pixel centre): stratum (cell_x, cell_y) of a grid_x x grid_y grid, pinhole
+    camera with tan(fov/2) = ``half``. Reciprocals, so the kernel does no division but one."""
+    aspect = width / height
+    return (float(cell_x), float(cell_y), 1.0 / grid_x, 1.0 / grid_y, 2.0 * half * aspect / width,
+            half * aspect, 2.0 * half / height, half)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def generate_camera_rays(lo, hi, order, width, height, jit_x, jit_y, cell_x, cell_y, grid_x,
-                         grid_y, jitter, eye, cu, cv, cw, half, aspect, O, D, wgt, pix, Ot, Dt):
+def generate_camera_rays(lo, hi, order, width, jit_x, jit_y, jitter, terms, eye, cu, cv, cw,
+                         D, pix, Ot, Dt):
     """Camera rays of one sample pass for queue slots lo..hi: slot q is pixel order[q]
-    (row-major index). The sample falls at the pixel centre, or with ``jitter`` at cell
-    (cell_x, cell_y) of a grid_x x grid_y stratification plus the pixel's uniform offsets
-    jit_x/jit_y (indexed by pixel). Pinhole camera with basis (cu, cv, cw), tan(fov/2) = half.
+    (row-major index, below 2^31), placed by ``terms`` (``camera_terms``) with the pixel's
+    uniform offsets jit_x/jit_y (indexed by pixel) when ``jitter``. Camera basis (cu, cv, cw).
     Writes D, pix and the tracer's copies Ot, Dt; ``shade`` takes the origin (the eye) and the
     weight (1) of camera rays as given, so O and wgt are not written."""
+    off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
+    ex = np.float32(eye[0])
+    ey = np.float32(eye[1])
+    ez = np.float32(eye[2])
+    w = np.int32(width)
     for q in range(lo, hi):
         p = order[q]
-        px = np.float64(p % width) + 0.5
-        py = np.float64(p // width) + 0.5
+        y = np.int32(p) // w                    # 32-bit: a third of a 64-bit divide's latency
+        x = np.int32(p) - y * w
         if jitter:
-            px = px + ((cell_x + jit_x[p]) / grid_x - 0.5)
-            py = py + ((cell_y + jit_y[p]) / grid_y - 0.5)
-        sx = (2 * px / width - 1) * half * aspect
-        sy = (1 - 2 * py / height) * half
+            px = np.float64(x) + (off_x + jit_x[p]) * inv_gx
+            py = np.float64(y) + (off_y + jit_y[p]) * inv_gy
+        else:
+            px = np.float64(x) + 0.5
+            py = np.float64(y) + 0.5
+        sx = px * kx - bx
+        sy = by - py * ky
         dx = sx * cu[0] + sy * cv[0] + cw[0]
         dy = sx * cu[1] + sy * cv[1] + cw[1]
         dz = sx * cu[2] + sy * cv[2] + cw[2]
-        ln = np.sqrt(dx * dx + dy * dy + dz * dz)
-        dx = dx / ln
-        dy = dy / ln
-        dz = dz / ln
-        for c in range(3):
-            Ot[q, c] = eye[c]               # O and wgt are implied (eye, 1) for camera rays
+        inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+        dx *= inv
+        dy *= inv
+        dz *= inv
+        Ot[q, 0] = ex                       # O and wgt are implied (eye, 1) for camera rays
+        Ot[q, 1] = ey
+        Ot[q, 2] = ez
         D[q, 0] = dx
         D[q, 1] = dy
         D[q, 2] = dz
@@ -367,9 +389,11 @@ def run_starts(cnt):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def pack_shadow(r0, r1, start, sh_cnt, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, qO, qD, qT, qC, qpix):
-    """Shadow runs r0..r1 (run r = light r // nb of block r % nb) to their places in the dense
-    queue, light by light, block by block (``start`` from ``run_starts``)."""
+def pack_shadow(r0, r1, start, sh_cnt, sh_Ot, sh_Dt, sh_T, qO, qD, qT):
+    """The rays of shadow runs r0..r1 (run r = light r // nb of block r % nb) to their places in
+    the dense queue the tracer reads, light by light, block by block (``start`` from
+    ``run_starts``). The light each ray brings and its pixel stay in the block regions, where
+    ``accumulate_unblocked`` reads them."""
     nb, n_lights = sh_cnt.shape
     for r in range(r0, r1):
         l = r // nb
@@ -380,9 +404,7 @@ def pack_shadow(r0, r1, start, sh_cnt, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, qO, qD,
             for c in range(3):
                 qO[dst + k, c] = sh_Ot[src + k, c]
                 qD[dst + k, c] = sh_Dt[src + k, c]
-                qC[dst + k, c] = sh_C[src + k, c]
             qT[dst + k] = sh_T[src + k]
-            qpix[dst + k] = sh_pix[src + k]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -415,12 +437,31 @@ def accumulate(film, pix, contrib, n):
         film[q, 2] += contrib[k, 2]
 
 
-@njit(cache=True, error_model="numpy")
-def accumulate_unblocked(film, pix, contrib, blocked, m):
-    """film[pix[k]] += contrib[k] for the shadow rays k < m that reached their light."""
-    for k in range(m):
-        if not blocked[k]:
-            q = pix[k]
-            film[q, 0] += contrib[k, 0]
-            film[q, 1] += contrib[k, 1]
-            film[q, 2] += contrib[k, 2]
+@njit(cache=True, error_model="numpy", inline="always")
+def _add_unblocked_run(b, l, nb, n_lights, start, sh_cnt, sh_C, sh_pix, blocked, film):
+    src = (b * n_lights + l) * BLOCK
+    dst = start[l * nb + b]
+    for k in range(sh_cnt[b, l]):
+        if not blocked[dst + k]:
+            q = sh_pix[src + k]
+            film[q, 0] += sh_C[src + k, 0]
+            film[q, 1] += sh_C[src + k, 1]
+            film[q, 2] += sh_C[src + k, 2]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def accumulate_unblocked(b0, b1, start, sh_cnt, sh_C, sh_pix, blocked, film, camera):
+    """film[pixel] += the light brought by each shadow ray of blocks b0..b1 that reached its
+    light (``blocked``: the dense queue's answers, ``start`` from ``run_starts``). The blocks
+    of the ``camera`` wavefront own distinct pixels, so ranges of them may run in parallel,
+    light by light within a block. A later wavefront's blocks share pixels: it runs as one
+    range in queue order (light by light, then block by block), a fixed order per pixel."""
+    nb, n_lights = sh_cnt.shape
+    if camera:
+        for b in range(b0, b1):
+            for l in range(n_lights):
+                _add_unblocked_run(b, l, nb, n_lights, start, sh_cnt, sh_C, sh_pix, blocked, film)
+    else:
+        for l in range(n_lights):
+            for b in range(b0, b1):
+                _add_unblocked_run(b, l, nb, n_lights, start, sh_cnt, sh_C, sh_pix, blocked, film)
