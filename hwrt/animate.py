@@ -53,7 +53,7 @@ BENCH_QUICK_FRAMES = 12
 BENCH_QUICK_TRIANGLES = 4000
 BENCH_FILES = {"per_frame": "animation_tti_per_frame.png", "totals": "animation_totals.png",
                "drift": "animation_sah_drift.png", "csv": "animation.csv", "json": "animation.json",
-               "md": "animation.md"}
+               "md": "animation.md", "structures": "animation_structures.png"}
 
 
 # --------------------------------------------------------------------------------------
@@ -469,30 +469,38 @@ def human(r):
 # Benchmark: every built-in animation under every strategy
 # --------------------------------------------------------------------------------------
 def bench_animation(args):
-    """Every built-in animation under every strategy, in one process after warm-up: time to
-    image per frame (build + render), totals, SAH drift of refit against rebuild, the frames
-    at which adaptive rebuilds, and when the hardware's full rebuild beats software refitting.
-    Writes animation.csv/.json/.md and plots to ``--out-dir``."""
+    """Every built-in animation under every strategy, and with every other acceleration
+    structure (``args.accel``: names from ``raytracer.render.ACCELS``; None: all) rebuilt
+    every frame, in one process after warm-up: time to image per frame (build + render),
+    totals, SAH drift of refit against rebuild, the frames at which adaptive rebuilds, and when
+    the hardware's full rebuild beats software refitting. Writes animation.csv/.json/.md and
+    plots to ``--out-dir``."""
     from scenes.animation import ANIMATIONS
+    from raytracer.render import ACCELS
     from tqdm import tqdm
     from .bench import machine
 
     frames = args.frames or (BENCH_QUICK_FRAMES if args.quick else BENCH_FRAMES)
     tris = BENCH_QUICK_TRIANGLES if args.quick else None
     check_output_dir(args.out_dir, BENCH_FILES.values())
+    structures = [a for a in dict.fromkeys(getattr(args, "accel", None) or ACCELS) if a != "bvh"]
     runs = {}
-    cells = [(a, s) for a in ANIMATIONS for s in STRATEGIES]
-    for name, strategy in tqdm(cells, desc="bench animation", file=sys.stderr, unit="run"):
+    # a run is named by its strategy (the BVH's) or by the structure it rebuilds every frame
+    cells = [(a, s, "bvh") for a in ANIMATIONS for s in STRATEGIES] + \
+            [(a, st, st) for a in ANIMATIONS for st in structures]
+    for name, label, accel in tqdm(cells, desc="bench animation", file=sys.stderr, unit="run"):
         anim = open_animation(name, width=args.width, height=args.height, spp=args.spp,
                               max_depth=args.max_depth,
                               triangles=tris if name in ("exploding", "cloth") else None)
-        runs[(name, strategy)] = run(anim, strategy, min(frames, anim.frames))
+        strategy = "rebuild" if accel != "bvh" else label
+        runs[(name, label)] = run(anim, strategy, min(frames, anim.frames), accel=accel)
     rows = []
-    for (name, strategy), r in runs.items():
+    for (name, label), r in runs.items():
         for f in r["frames"]:
             sim = f["simulated_build_seconds"] or {}
             en = f["simulated_energy_joules"] or {}
-            rows.append({"animation": name, "strategy": strategy, "frame": f["frame"],
+            rows.append({"animation": name, "structure": r["accel"], "strategy": r["strategy"],
+                         "frame": f["frame"],
                          "triangles": f["triangles"], "rebuilt": f["rebuilt"],
                          "build_seconds": f["build_seconds"], "render_seconds": f["render_seconds"],
                          "time_to_image_seconds": f["time_to_image_seconds"],
@@ -502,16 +510,23 @@ def bench_animation(args):
                          "simulated_energy_joules_HP": en.get("HWBVH-HP"),
                          "simulation_seconds": f["simulation_seconds"],
                          "sah_cost": f["sah_cost"], "rays": sum(f["rays"].values())})
-    summary = _bench_summary(runs)
+    summary = _bench_summary(runs, structures)
     out_dir = args.out_dir
-    files = _bench_files(out_dir, rows, summary, runs, frames, args)
+    files = _bench_files(out_dir, rows, summary, runs, frames, args, structures)
     write_files(files)
     return jsonable({"rows": rows, "summary": summary, "frames": frames, "machine": machine(),
+                     "structures": structures,
                    "physics": runs[("marbles", "rebuild")]["animation"].get("physics"),
                    "files": [f for f, _ in files]})
 
 
-def _bench_summary(runs):
+def _per_frame(frames):
+    """Mean build, render and time to image per frame (seconds) of one run's frames."""
+    return {k: float(np.mean([f[f"{k}_seconds"] for f in frames]))
+            for k in ("build", "render", "time_to_image")}
+
+
+def _bench_summary(runs, structures):
     out = []
     for name in dict.fromkeys(a for a, _ in runs):
         per = {s: runs[(name, s)] for s in STRATEGIES}
@@ -542,13 +557,17 @@ def _bench_summary(runs):
         row["refit_sah_ratio_max"] = max(drift)
         row["adaptive_rebuild_frames"] = per["adaptive"]["adaptive_rebuild_frames"]
         row["mean_render_seconds"] = {s: r["render_seconds_total"] / n for s, r in per.items()}
+        # every structure rebuilt every frame: the BVH by hwbvh's software build, the others
+        row["structures"] = {"bvh": _per_frame(per["rebuild"]["frames"])}
+        for st in structures:
+            row["structures"][st] = _per_frame(runs[(name, st)]["frames"])
         out.append(row)
     return out
 
 
 
 
-def _bench_files(out_dir, rows, summary, runs, frames, args):
+def _bench_files(out_dir, rows, summary, runs, frames, args, structures):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -616,14 +635,32 @@ def _bench_files(out_dir, rows, summary, runs, frames, args):
         ax.set_ylabel("SAH cost / rebuild's")
         ax.legend(fontsize=8)
     files.append((os.path.join(out_dir, BENCH_FILES["drift"]), figure_png(fig)))
+    # time to image per frame of every structure rebuilt every frame, one panel per animation
+    fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.2), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        reb = runs[(name, "rebuild")]["frames"]
+        x = [f["frame"] for f in reb]
+        ax.plot(x, [f["time_to_image_seconds"] * 1e3 for f in reb], label="bvh (software build)")
+        ax.plot(x, [(f["simulated_build_seconds"]["HWBVH-C"] + f["render_seconds"]) * 1e3 for f in reb],
+                "k--", lw=1, label="bvh (HWBVH-C build)")
+        for st in structures:
+            fr = runs[(name, st)]["frames"]
+            ax.plot([f["frame"] for f in fr], [f["time_to_image_seconds"] * 1e3 for f in fr], label=st)
+        ax.set_yscale("log")
+        ax.set_title(name)
+        ax.set_xlabel("frame")
+        ax.set_ylabel("time to image, ms per frame")
+        ax.legend(fontsize=7)
+    files.append((os.path.join(out_dir, BENCH_FILES["structures"]), figure_png(fig)))
     files.append((os.path.join(out_dir, BENCH_FILES["csv"]), _csv_text(rows)))
     files.append((os.path.join(out_dir, BENCH_FILES["json"]),
                   json_text({"summary": summary, "rows": rows, "machine": machine()}, indent=1) + "\n"))
-    files.append((os.path.join(out_dir, BENCH_FILES["md"]), _bench_markdown(summary, frames, args, machine())))
+    files.append((os.path.join(out_dir, BENCH_FILES["md"]),
+                  _bench_markdown(summary, frames, args, machine(), structures)))
     return files
 
 
-def _bench_markdown(summary, frames, args, mach):
+def _bench_markdown(summary, frames, args, mach, structures):
     L = [f"# Animation benchmark: {frames} frames at {args.width}x{args.height}, {args.spp} spp",
          "", f"Machine: {mach['cpu']}, {mach['cores']} cores, Numba {mach['numba']}.", "",
          "Animations: " + "; ".join(
@@ -654,6 +691,25 @@ def _bench_markdown(summary, frames, args, mach):
     L += ["", "A ratio below 1 means the hardware's full rebuild every frame reaches the image sooner "
           "than refitting in software; the refit's tree is worse, so its render time grows as the "
           "scene moves away from the topology it was built for.", ""]
+    if structures:
+        L += ["Every structure rebuilt every frame (ms per frame, means over the frames; the "
+              "last column against the BVH's software rebuild):", "",
+              "| animation | triangles | structure | build | render | time to image | x BVH |",
+              "|---|---:|---|---:|---:|---:|---:|"]
+        for r in summary:
+            st = r["structures"]
+            base = st["bvh"]["time_to_image"]
+            hw_build = r["simulated_build_per_frame_HWBVH-C_seconds"]
+            cells = [("bvh (software build)", st["bvh"])]
+            cells.append(("bvh (HWBVH-C build)", {"build": hw_build, "render": st["bvh"]["render"],
+                                                 "time_to_image": hw_build + st["bvh"]["render"]}))
+            cells += [(k, v) for k, v in st.items() if k != "bvh"]
+            for label, v in cells:
+                L.append(f"| {r['animation']} | {r['triangles']} | {label} | {v['build'] * 1e3:.2f} | "
+                         f"{v['render'] * 1e3:.2f} | {v['time_to_image'] * 1e3:.2f} | "
+                         f"{v['time_to_image'] / base:.2f} |")
+        L += ["", "A structure that traces well but builds slowly pays its build on every frame of "
+              "a dynamic scene.", ""]
     return "\n".join(L)
 
 
@@ -665,5 +721,12 @@ def human_bench(r):
                      f"{s['refit_tti_total']:>9.2f}{s['adaptive_tti_total']:>9.2f}{s['embree_tti_total']:>9.2f}"
                      f"{s['hw_rebuild_HWBVH-C_tti_total']:>8.2f}{s['hw_rebuild_HWBVH-C_vs_refit']:>11.2f}"
                      f"{s['energy_per_frame_HWBVH-C_joules'] * 1e3:>11.2f}")
+    if r.get("structures"):
+        lines += ["", f"{'animation':<12}{'structure':<10}{'build ms':>10}{'render ms':>10}{'tti ms':>9}"
+                      "   (per frame, rebuilt every frame)"]
+        for s in r["summary"]:
+            for st, v in s["structures"].items():
+                lines.append(f"{s['animation']:<12}{st:<10}{v['build'] * 1e3:>10.2f}"
+                             f"{v['render'] * 1e3:>10.2f}{v['time_to_image'] * 1e3:>9.2f}")
     lines.append("wrote " + ", ".join(r["files"]))
     return "\n".join(lines)

@@ -323,7 +323,7 @@ BENCH_OPTIONS = {
     "contention": {"meshes": [], "repeat": 5, "width": 320, "height": 240, "spp": 1, "out_dir": None},
     "trees": {"meshes": [], "repeat": 5, "width": None, "height": None, "spp": None, "out_dir": None},
     "animation": {"quick": False, "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1,
-                  "max_depth": None, "frames": None},
+                  "max_depth": None, "frames": None, "accel": None},
 }
 BENCH_QUICK = {"tti": {"repeat": 1, "width": 160, "height": 120},     # --quick: small cells
                "accuracy": {"repeat": 1, "width": 64, "height": 48}}
@@ -658,7 +658,9 @@ def make_parser():
                     help=f"an acceleration structure ({', '.join(ACCELS)}); repeat the option "
                          "for more. trace: also trace the ray sets with each (default: the BVH "
                          "against its peers only); tti: the structures timed beside the BVH "
-                         "paths, which are always timed (default: every one)")
+                         "paths, which are always timed (default: every one); animation: the "
+                         "structures rebuilt every frame beside the BVH's strategies (default: "
+                         "every one)")
     be.add_argument("--frames", type=_positive,
                     help="frames per animation (read by animation; default 60, with --quick 12)")
     be.add_argument("--json", action="store_true", help="print one JSON object")

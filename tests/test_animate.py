@@ -343,7 +343,11 @@ def test_bench_animation_writes_its_figures_and_summary(tmp_path, capsys):
     assert rc == 0, err
     r = json.loads(out)
     assert [s["animation"] for s in r["summary"]] == ["exploding", "cloth", "marbles", "flythrough"]
-    assert len(r["rows"]) == 4 * len(STRATEGIES) * 3
+    assert r["structures"] == ["grid", "kdtree"]
+    assert len(r["rows"]) == 4 * (len(STRATEGIES) + 2) * 3
+    for s in r["summary"]:
+        assert set(s["structures"]) == {"bvh", "grid", "kdtree"}
+        assert all(v["build"] > 0 and v["render"] > 0 for v in s["structures"].values())
     for s in r["summary"]:
         assert s["hw_rebuild_HWBVH-C_vs_refit"] > 0 and s["energy_per_frame_HWBVH-C_joules"] > 0
     for f in r["files"]:
