@@ -23,6 +23,21 @@ RETRIES = 2                # re-runs of a cell that raised (a killed worker is r
 QUIET = ("distributed", "tornado", "asyncio", "bokeh")
 
 
+CELL_THREADS_ENV = "HWRT_CELL_THREADS"     # Numba threads per cell on an embedded cluster's workers
+
+
+def _cell(fn, *args):
+    """Run a cell with the Numba thread count its worker's environment asks for
+    (``CELL_THREADS_ENV``). Numba reads NUMBA_NUM_THREADS when first imported, which a worker
+    does before its cluster's environment applies, and its thread count is a setting of the
+    calling thread: so it is set here, in the thread that runs the cell."""
+    want = os.environ.get(CELL_THREADS_ENV)
+    if want:
+        import numba
+        numba.set_num_threads(max(1, min(int(want), numba.config.NUMBA_NUM_THREADS)))
+    return fn(*args)
+
+
 class WarmUp(WorkerPlugin):
     """Worker plugin: run ``fn`` once in each worker process when it starts (and in a
     replacement after a kill). ``fn`` must be importable on the workers (a module-level
@@ -97,7 +112,7 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=logging.CRITICAL,
                                scheduler_kwargs={"dashboard_address": ":0"},
-                               env={"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads})
+                               env={CELL_THREADS_ENV: threads, "OMP_NUM_THREADS": threads})
         client = Client(cluster, set_as_default=False)
     try:
         if warm_up is not None:
@@ -153,14 +168,14 @@ def run_cells(cells, on_result, client=None, desc="cells", weight=None, progress
             return
         if host is not None:
             for key, fn, args in cells:
-                fut = client.submit(fn, *args, key=key, pure=False, retries=RETRIES,
+                fut = client.submit(_cell, fn, *args, key=key, pure=False, retries=RETRIES,
                                     workers=[host], allow_other_workers=True)
                 on_result(key, fut.result())
                 fut.release()
                 bar.update(weight(key))
             return
         from distributed import as_completed
-        futures = {client.submit(fn, *args, key=key, pure=False, retries=RETRIES): key
+        futures = {client.submit(_cell, fn, *args, key=key, pure=False, retries=RETRIES): key
                    for key, fn, args in cells}
         for fut in as_completed(futures, loop=client.loop):
             key = futures[fut]

@@ -196,3 +196,19 @@ def test_dask_cluster_losing_a_worker_gives_the_single_process_result(tmp_path, 
     assert len({json.loads(x)["key"] for x in cells.read_text().splitlines()}) == result["cells"]
     again = ex.explore(meshes, grid, out, use_dask=False, progress=False)
     assert again["computed"] == 0 and again["rows"] == reference["rows"]
+
+
+def _cell_threads():
+    import numba
+    return numba.get_num_threads()
+
+
+def test_embedded_cluster_cells_get_the_threads_asked_for():
+    """A worker imports Numba before its cluster's environment applies; the cell must still
+    run with ``threads_per_cell`` Numba threads, not the worker's default."""
+    from hwrt.cluster import dask_client, run_cells
+
+    got = {}
+    with dask_client(workers=1, threads_per_cell=1) as client:
+        run_cells([("one", _cell_threads, ())], got.__setitem__, client=client, progress=False)
+    assert got == {"one": 1}
