@@ -119,9 +119,10 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
         if traversal != "embree":
             raise ParameterError("traversal", "Embree's tree can only be traversed by Embree "
                                               "(builder 'embree' needs traversal 'embree')")
-        from traversal.embree_ref import EmbreeTracer
+        from traversal.embree_ref import EmbreeTracer, shared_vertices
+        vertices, faces = shared_vertices(scene.vertices, scene.faces)   # not part of the build
         t = time.perf_counter()
-        tr = EmbreeTracer(scene.vertices, scene.faces)
+        tr = EmbreeTracer(vertices, faces)
         return tr, time.perf_counter() - t, {"builder": "embree"}
     import hwbvh
     from traversal import Tracer

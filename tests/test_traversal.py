@@ -431,3 +431,19 @@ def test_power_of_two_scales_change_no_answer():
             h = Tracer(bvh, precision="float64").intersect(o, d.astype(np.float64) * c)
             assert np.array_equal(h.prim, ref64.prim) and np.array_equal(h.u, ref64.u) and \
                 np.array_equal(h.v, ref64.v) and np.array_equal(h.t, ref64.t / c), (mesh, k)
+
+
+def test_shared_vertices_index_the_same_triangles_bit_for_bit():
+    """Embree gets an indexed mesh: each distinct vertex once, the triangles unchanged (a
+    signed zero stays its own vertex: bitwise equality, nothing merged that differs)."""
+    from traversal.embree_ref import shared_vertices
+
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(40, 3)).astype(np.float32)
+    pts[0] = [0.0, 1.0, 2.0]
+    pts[1] = [-0.0, 1.0, 2.0]
+    soup = pts[rng.integers(0, 40, size=(200, 3))]
+    V, F = shared_vertices(soup.reshape(-1, 3), np.arange(600).reshape(-1, 3))
+    assert F.dtype == np.int32 and V.dtype == np.float32
+    assert len(V) == len(np.unique(soup.reshape(-1, 3).view(np.uint32), axis=0)) <= 40
+    assert np.array_equal(V[F].view(np.uint32), soup.view(np.uint32))
