@@ -356,38 +356,38 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
                        aov_normal, aov_prim, film, buf.contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix,
                        sh_cnt[:nb], sp_O, sp_D, sp_W, sp_pix, sp_cnt[:nb])
             lap("shade")
+            no_runs = np.zeros(1, np.int64)
+            sh_start = stages.run_starts(sh_cnt[:nb]) if n_lights else no_runs
+            sp_start = stages.run_starts(sp_cnt[:nb]) if spawn else no_runs
+            m = int(sh_start[-1])
+            k = int(sp_start[-1])
+            buf.ensure_next(k)
+            n_sh = nb * n_lights
+            qO, qD, qT = buf.shq
+            run_ranges(stages.pack, n_sh + (2 * nb if spawn else 0), n_sh, sh_start, sh_cnt[:nb],
+                       sh_Ot, sh_Dt, sh_T, qO, qD, qT, sp_start, sp_cnt[:nb], sp_O, sp_D, sp_W,
+                       sp_pix, *buf.nxt, min_items=8)
+            lap("pack")
             if n_lights:
-                qO, qD, qT = buf.shq
-                start = stages.run_starts(sh_cnt[:nb])
-                m = int(start[-1])
-                run_ranges(stages.pack_shadow, nb * n_lights, start, sh_cnt[:nb], sh_Ot, sh_Dt,
-                           sh_T, qO, qD, qT, min_items=8)
-                lap("pack")
                 blocked = np.ascontiguousarray(tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m]))
                 lap("occluded")
                 if bounce == 0:
-                    run_ranges(stages.accumulate_unblocked, nb, start, sh_cnt[:nb], sh_C, sh_pix,
-                               blocked, film, True, min_items=64)
+                    run_ranges(stages.accumulate_unblocked, nb, sh_start, sh_cnt[:nb], sh_C,
+                               sh_pix, blocked, film, True, min_items=64)
                 else:
-                    stages.accumulate_unblocked(0, nb, start, sh_cnt[:nb], sh_C, sh_pix, blocked,
-                                                film, False)
+                    stages.accumulate_unblocked(0, nb, sh_start, sh_cnt[:nb], sh_C, sh_pix,
+                                                blocked, film, False)
                 rays["shadow"] += m
             if bounce > 0:                          # the camera wavefront added its own
                 stages.accumulate(film, pix, buf.contrib, n)
             lap("accumulate")
             if not spawn:
                 break
-            start = stages.run_starts(sp_cnt[:nb])
-            refl = int(start[nb])
-            k = int(start[-1])
+            refl = int(sp_start[nb])
             rays["reflection"] += refl
             rays["refraction"] += k - refl
-            buf.ensure_next(k)
-            run_ranges(stages.pack_spawn, 2 * nb, start, sp_cnt[:nb], sp_O, sp_D, sp_W, sp_pix,
-                       *buf.nxt, min_items=8)
             buf.cur, buf.nxt = buf.nxt, buf.cur
             n = k
-            lap("pack")
         if progress:
             progress(1)
     image = (film / spp).astype(np.float32).reshape(H, W, 3)

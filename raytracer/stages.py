@@ -14,7 +14,7 @@ the hardware units, so the tracer reads them without a conversion), path weights
    shaded in blocks of ``BLOCK``; each block writes its shadow rays (per light) and its
    secondary rays (per kind) densely into its own region, so no two threads write the same
    place and the result does not depend on the thread count;
-4. ``pack_shadow`` / ``pack_spawn``: the blocks' runs copied back to back into dense queues,
+4. ``pack``: the blocks' runs copied back to back into dense queues,
    light by light and kind by kind (so a light's shadow rays and each kind of secondary ray
    stay in tile order: coherent packets); a shadow ray's light and pixel stay in its block;
 5. the tracer's ``occluded`` on the shadow queue;
@@ -388,43 +388,52 @@ def run_starts(cnt):
     return start
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def pack_shadow(r0, r1, start, sh_cnt, sh_Ot, sh_Dt, sh_T, qO, qD, qT):
-    """The rays of shadow runs r0..r1 (run r = light r // nb of block r % nb) to their places in
-    the dense queue the tracer reads, light by light, block by block (``start`` from
-    ``run_starts``). The light each ray brings and its pixel stay in the block regions, where
-    ``accumulate_unblocked`` reads them."""
+@njit(cache=True, error_model="numpy", inline="always")
+def _pack_shadow_run(r, start, sh_cnt, sh_Ot, sh_Dt, sh_T, qO, qD, qT):
     nb, n_lights = sh_cnt.shape
-    for r in range(r0, r1):
-        l = r // nb
-        b = r - l * nb
-        src = (b * n_lights + l) * BLOCK
-        dst = start[r]
-        for k in range(sh_cnt[b, l]):
-            for c in range(3):
-                qO[dst + k, c] = sh_Ot[src + k, c]
-                qD[dst + k, c] = sh_Dt[src + k, c]
-            qT[dst + k] = sh_T[src + k]
+    l = r // nb
+    b = r - l * nb
+    src = (b * n_lights + l) * BLOCK
+    dst = start[r]
+    for k in range(sh_cnt[b, l]):
+        for c in range(3):
+            qO[dst + k, c] = sh_Ot[src + k, c]
+            qD[dst + k, c] = sh_Dt[src + k, c]
+        qT[dst + k] = sh_T[src + k]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _pack_spawn_run(r, start, sp_cnt, sp_O, sp_D, sp_W, sp_pix, O, D, wgt, pix, Ot, Dt):
+    nb = sp_cnt.shape[0]
+    src = r * BLOCK
+    kind = r // nb
+    dst = start[r]
+    for k in range(sp_cnt[r - kind * nb, kind]):
+        for c in range(3):
+            O[dst + k, c] = sp_O[src + k, c]
+            D[dst + k, c] = sp_D[src + k, c]
+            wgt[dst + k, c] = sp_W[src + k, c]
+            Ot[dst + k, c] = sp_O[src + k, c]
+            Dt[dst + k, c] = sp_D[src + k, c]
+        pix[dst + k] = sp_pix[src + k]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def pack_spawn(r0, r1, start, sp_cnt, sp_O, sp_D, sp_W, sp_pix, O, D, wgt, pix, Ot, Dt):
-    """Secondary-ray runs r0..r1 (reflections of block r for r < nb, refractions of block
-    r - nb after) to their places in the next wavefront, with the tracer's copies of origins
+def pack(r0, r1, n_shadow_runs, sh_start, sh_cnt, sh_Ot, sh_Dt, sh_T, qO, qD, qT,
+         sp_start, sp_cnt, sp_O, sp_D, sp_W, sp_pix, O, D, wgt, pix, Ot, Dt):
+    """Runs r0..r1 of the blocks' queues to their places, back to back (``*_start`` from
+    ``run_starts``), in one pass so that the threads meet once. Runs below ``n_shadow_runs``
+    are shadow runs (run r: light r // nb of block r % nb) copied to the dense queue the tracer
+    reads (qO, qD, qT; a shadow ray's light and pixel stay in its block, where
+    ``accumulate_unblocked`` reads them); the rest are secondary-ray runs (reflections of each
+    block, then refractions) copied to the next wavefront, with the tracer's copies of origins
     and directions."""
-    nb = sp_cnt.shape[0]
     for r in range(r0, r1):
-        src = r * BLOCK
-        kind = r // nb
-        dst = start[r]
-        for k in range(sp_cnt[r - kind * nb, kind]):
-            for c in range(3):
-                O[dst + k, c] = sp_O[src + k, c]
-                D[dst + k, c] = sp_D[src + k, c]
-                wgt[dst + k, c] = sp_W[src + k, c]
-                Ot[dst + k, c] = sp_O[src + k, c]
-                Dt[dst + k, c] = sp_D[src + k, c]
-            pix[dst + k] = sp_pix[src + k]
+        if r < n_shadow_runs:
+            _pack_shadow_run(r, sh_start, sh_cnt, sh_Ot, sh_Dt, sh_T, qO, qD, qT)
+        else:
+            _pack_spawn_run(r - n_shadow_runs, sp_start, sp_cnt, sp_O, sp_D, sp_W, sp_pix, O, D,
+                            wgt, pix, Ot, Dt)
 
 
 @njit(cache=True, error_model="numpy")
