@@ -3,24 +3,19 @@ so the same answers bit for bit), Embree and a float64 brute force, on the hard 
 depth and references within the stated caps on degenerate input; the CLI's --accel."""
 import json
 
+import numba
 import numpy as np
 import pytest
 
 from hwrt.cli import main
 from raytracer.render import make_tracer, render
 from traversal import raysets
-from traversal.config import KD_MAX_REFS_PER_TRI
-from traversal.kdtree import LEAF, KdTreeTracer, max_depth
+from traversal.config import KD_MAX_REFS_PER_TRI, KD_PARALLEL_DEPTH, KD_PARALLEL_MIN_TRIS
+from traversal.kdtree import LEAF, KdTreeTracer, build_kdtree, max_depth, triangle_pads
 
 from .naive import ray_triangle_f64
 from .test_grid import (agrees_with_embree, bvh_tracer, degenerate_cases, indexed, same_as_bvh,
                         small, soup, sphere, tessellated_cube)
-
-
-def split_planes(kd):
-    """(axis, position) of every inner node's split plane."""
-    inner = kd.words[:, 0] != LEAF
-    return kd.words[inner, 0], kd.split[inner]
 
 
 def hard_rays(kd, rng):
@@ -44,7 +39,7 @@ def hard_rays(kd, rng):
         for y in lattice:
             O.append([x - 0.5, y - 0.5, -0.5])
             D.append([1.0, 1.0, 1.0])
-    axes, positions = split_planes(kd)
+    axes, positions = kd.split_planes()
     assert len(axes) > 10
     for _ in range(600):
         o = rng.uniform(-0.2, 1.2, 3)
@@ -121,11 +116,11 @@ def within_caps(kd, n):
     assert kd.references <= KD_MAX_REFS_PER_TRI * max(n, 1) == kd.max_references
     assert kd.references >= n            # every triangle lies in some leaf
     assert kd.references_per_triangle == kd.references / max(n, 1)
-    assert kd.memory_bytes == kd.words.nbytes + kd.split.nbytes + kd.refs.nbytes + kd.tris.nbytes
+    assert kd.memory_bytes == kd.node_words.nbytes + kd.refs.nbytes + kd.tris.nbytes
     # one node for each two children, leaves hold exactly the references
-    leaves = kd.words[:, 0] == LEAF
-    assert kd.nodes == 2 * (kd.nodes - leaves.sum()) + 1
-    assert kd.words[leaves, 2].sum() == kd.references
+    leaves = (kd.node_words[:, 1] & 3) == LEAF
+    assert kd.nodes == 2 * (kd.nodes - leaves.sum()) + 1 and kd.leaves == leaves.sum()
+    assert (kd.node_words[leaves, 1] >> 2).sum() == kd.references
 
 
 def identical(n=500):
@@ -150,6 +145,64 @@ def test_degenerate_input_stays_within_the_caps_and_right(case):
         assert kd.references == len(tris)
     if case == "many huge triangles":
         assert kd.references < KD_MAX_REFS_PER_TRI * len(tris)
+
+
+def walk(nodes, refs):
+    """The tree in a form that does not depend on where its nodes and references are stored:
+    depth-first, (depth, axis, split) per inner node and (depth, its triangles) per leaf."""
+    out, stack = [], [(0, 0)]
+    while stack:
+        node, depth = stack.pop()
+        w = int(nodes[node, 1])
+        if w & 3 == LEAF:
+            first = int(nodes[node, 0])
+            out.append((depth, tuple(refs[first:first + (w >> 2)])))
+        else:
+            out.append((depth, w & 3, float(nodes.view(np.float32)[node, 0])))
+            stack += [((w >> 2) + 1, depth + 1), (w >> 2, depth + 1)]
+    return out
+
+
+def test_the_tree_does_not_depend_on_the_thread_count():
+    # large enough for the subtrees below KD_PARALLEL_DEPTH to be built on the threads
+    tris = np.concatenate([soup(KD_PARALLEL_MIN_TRIS + 2000, 8), tessellated_cube(20)])
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = KdTreeTracer(tris)
+        numba.set_num_threads(max(2, threads))
+        many = KdTreeTracer(tris)
+    finally:
+        numba.set_num_threads(threads)
+    assert np.array_equal(one.node_words, many.node_words) and np.array_equal(one.refs, many.refs)
+    # and the subtrees built apart join into the tree one pass builds (the reference cap is
+    # far away here, so no subtree's share of it matters)
+    kd = one
+    assert kd.references < kd.max_references / 2
+    assert max(d for d, *_ in walk(kd.node_words, kd.refs)) > KD_PARALLEL_DEPTH
+    t64 = np.asarray(tris, np.float32).astype(np.float64)
+    whole = build_kdtree(t64, triangle_pads(t64), kd.box, kd.max_depth, kd.max_references,
+                         parallel_depth=-1)
+    assert walk(kd.node_words, kd.refs) == walk(whole[0], whole[1])
+
+
+def test_the_depth_cap_ends_the_paths_the_sah_would_deepen():
+    # with perfect splits the SAH keeps splitting a dense mesh: the cap is what ends its paths,
+    # every leaf lies at or above it, and a lower cap gives a tree exactly that deep that still
+    # answers every ray as the BVH does
+    tris = sphere(64, 128)
+    tris = tris[0][tris[1]]
+    kd = KdTreeTracer(tris)
+    depths = [d for d, *rest in walk(kd.node_words, kd.refs) if len(rest) == 1]
+    assert kd.depth == kd.max_depth == max(depths) == max_depth(len(tris))
+    low = kd.max_depth - 6
+    t64 = np.asarray(tris, np.float32).astype(np.float64)
+    nodes, refs, depth = build_kdtree(t64, triangle_pads(t64), kd.box, low, kd.max_references)
+    assert depth == low and max(d for d, *_ in walk(nodes, refs)) == low
+    assert len(refs) < kd.references
+    kd.node_words, kd.refs, kd.depth = nodes, refs, depth
+    o, d = raysets.incoherent(tris, 3000, 9)
+    same_as_bvh(kd, bvh_tracer(tris), o, d)
 
 
 def test_reference_cap_is_enforced():

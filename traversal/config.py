@@ -90,19 +90,27 @@ GRID_STOP_SLACK = 2.0**-16
 GRID_MAILBOX = 32
 
 # --- SAH kd-tree (kdtree) ------------------------------------------------------------------
-# The surface area heuristic's costs, as in PBRT and Wald & Havran 2006: one traversal step
-# costs 1, one triangle test 1.5 of it (the Moller-Trumbore unit does more arithmetic than the
-# slab step of one plane), so a split must save at least 2/3 of a triangle test per ray to pay.
+# The surface area heuristic's costs (Wald & Havran 2006's form), in the units of one
+# traversal step, as measured on the kd-tree's own kernel (bunny, dragon, buddha, incoherent
+# rays): a step is a dependent load and a plane test (~17 ns), a triangle test is branch-free
+# (~8 ns more per test), so a test costs about half a step. PBRT's 1 : 1.5 made ~2x the
+# references at the same depth, built 1.5-2x slower and traced incoherent rays 0-15% slower.
 KD_COST_TRAVERSAL = 1.0
-KD_COST_INTERSECT = 1.5
+KD_COST_INTERSECT = 0.5
 # A split with one empty side has its cost multiplied by this (WH06's lambda): cutting empty
 # space off lets rays skip it at the price of one traversal step, so it is favoured.
 KD_EMPTY_FACTOR = 0.8
-# Depth cap (PBRT's rule): KD_DEPTH_BASE + KD_DEPTH_LOG2 * log2(N), rounded. Beyond it every
-# node is a leaf, so no input (identical triangles, a clump) can deepen the tree without bound,
-# and the traversal stack has a known size.
-KD_DEPTH_BASE = 8
-KD_DEPTH_LOG2 = 1.3
+# Depth cap: KD_DEPTH_BASE + KD_DEPTH_LOG2 * log2(N), rounded (20 on the 69k-triangle bunny, 22
+# on 262k triangles). Beyond it every node is a leaf, so no input (identical triangles, a clump)
+# can deepen the tree without bound, and the traversal stack has a known size. With perfect
+# splits the SAH keeps finding splits worth their cost on every mesh measured, so the cap, not
+# the costs, ends most paths. PBRT's 8 + 1.3 log2(N) (29 on the bunny) gave 6-9 references per
+# triangle, ~3x the build time and no faster rays (bunny, dragon_res2, buddha_100k, sponza,
+# classroom: incoherent rays 0-20% slower, primary and shadow rays within the noise);
+# 4 + log2(N) gives 2.3-2.9 references per triangle; 2 + log2(N) builds ~20% faster but leaves
+# ~19 triangles in a leaf for no faster rays.
+KD_DEPTH_BASE = 4
+KD_DEPTH_LOG2 = 1.0
 # Total references (triangle ids in leaves, 4 bytes each) never exceed KD_MAX_REFS_PER_TRI * N:
 # a triangle is referenced by every leaf it crosses, so huge triangles could multiply the
 # references; a split that would cross the cap makes a leaf instead.
@@ -118,3 +126,9 @@ KD_PAD_COORD = GRID_PAD_COORD
 # hit lies that far before the leaf's exit: a hit at the same t just beyond a split plane is
 # still found and ties go to the lower index.
 KD_T_SLACK = GRID_STOP_SLACK
+# The build's nodes down to this depth are built first; the up to 2^KD_PARALLEL_DEPTH subtrees
+# below them are built independently, on as many threads as there are, and joined in a fixed
+# order (each with its share of the reference cap), so the tree is the same on any thread count.
+# Meshes below KD_PARALLEL_MIN_TRIS are built in one pass (threads would cost more than they save).
+KD_PARALLEL_DEPTH = 5
+KD_PARALLEL_MIN_TRIS = 4096
