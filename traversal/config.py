@@ -88,6 +88,15 @@ GRID_STOP_SLACK = 2.0**-16
 # several cells is tested once per ray while its id stays in the mailbox; a forgotten id is only
 # tested again, with the same answer.
 GRID_MAILBOX = 32
+# Packet mailbox entries (direct-mapped, a power of two): a packet's rectangle of cells per
+# slice holds more triangles than one ray's cell, and a forgotten id costs a whole packet's
+# lane loop again (same answers).
+GRID_PACKET_MAILBOX = 128
+# A packet bounds its lanes' ray segments in each slice of cells in float64 and widens the bounds
+# by this much of the lane's coordinate magnitude (|o| + |t d| + the grid's): far above the
+# float64 rounding of a segment's ends (a few 2^-53) and far below the triangles' padding
+# (GRID_PAD_COORD, 2^-19), so a cell is added only where a segment ends that close to its plane.
+GRID_PACKET_WIDEN = 2.0**-40
 
 # --- SAH kd-tree (kdtree) ------------------------------------------------------------------
 # The surface area heuristic's costs (Wald & Havran 2006's form), in the units of one

@@ -29,7 +29,10 @@ from numba import njit
 from hwbvh.parallel import run_ranges
 from .structure import TriangleStructure, checked_triangles, padded_box
 from .config import (CHUNK_RAYS, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
-                     GRID_MAX_REFS_PER_TRI, GRID_PAD_COORD, GRID_PAD_TRI, GRID_STOP_SLACK)
+                     GRID_MAX_REFS_PER_TRI, GRID_PACKET_MAILBOX, GRID_PACKET_WIDEN,
+                     GRID_PAD_COORD, GRID_PAD_TRI, GRID_STOP_SLACK)
+from .packet import (ALIVE, BEST, BU, BV, DX, DY, DZ, MASK, NF, NI, NM, NW, OX, OY, OZ, P, PRIM,
+                     TMIN, _lane_setup, _triangle)
 from .rawtree import _ray_ok
 from .triangle_unit import (TRI_WORDS, mt_valid_at, store_answer, store_normals)
 
@@ -196,19 +199,309 @@ def trace_grid_ray(tris, offsets, refs, gmin, gmax, cs, inv, res, ox, oy, oz, dx
     return prim, best_t, bu, bv
 
 
+# A packet's float64 walk state: one row of P lanes per quantity at a constant offset (as the
+# packet kernel's scratch), so the lane loops index plain rows and run in SIMD.
+W_O = 0              # origin x, y, z: rows 0, 1, 2
+W_D = 3 * P          # direction x, y, z: rows 3, 4, 5
+W_T0 = 6 * P         # t where the lane enters the grid's box (at least t_min)
+W_T1 = 7 * P         # t where it leaves it (at most t_max)
+W_SC = 8 * P         # |o|/|d|, the scale of the stop slack (as in the single-ray walk)
+W_EPS = 9 * P        # how far the lane's bounds in a slice are widened (GRID_PACKET_WIDEN)
+W_IK = 10 * P        # 1/d along the packet's major axis K
+W_OK = 11 * P        # origin on K; origin and direction on the two other axes U and V
+W_OU, W_DU, W_OV, W_DV = 12 * P, 13 * P, 14 * P, 15 * P
+W_ULO, W_UHI, W_VLO, W_VHI = 16 * P, 17 * P, 18 * P, 19 * P    # the lanes' bounds in a slice
+NWF = 20 * P
+S_IN, S_OUT = 0, P   # the lane's first and last slice, in steps from the packet's first
+NWS = 2 * P
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def slicing_axes(D, lo):
+    """Bit a set when every ray of [lo, lo + P) has a direction component on axis a of one
+    strict sign (all > 0 or all < 0): the axes along which the rays can walk the grid's slices
+    together (the other two components may have any signs)."""
+    axes = 0
+    for a in range(3):
+        pos = True
+        neg = True
+        for k in range(P):
+            x = D[lo + k, a]
+            pos &= x > 0
+            neg &= x < 0
+        axes |= (1 << a) if pos | neg else 0
+    return axes
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _packet_lanes(lo, O, D, tmin, tmax, gmin, gmax, F, I, M, W, zero, one):
+    """Lane state of rays [lo, lo + P): the packet kernel's (``packet._lane_setup``) and the
+    walk's, the ray clipped to the grid's box in float64 (exact conversions of the float32
+    ray). A lane that the unit rejects or that misses the box is not live. Returns the live
+    lanes."""
+    gm = max(max(abs(gmin[0]), abs(gmax[0])), max(max(abs(gmin[1]), abs(gmax[1])),
+                                                  max(abs(gmin[2]), abs(gmax[2]))))
+    nlive = 0
+    for k in range(P):
+        i = lo + k
+        ox = O[i, 0]; oy = O[i, 1]; oz = O[i, 2]
+        dx = D[i, 0]; dy = D[i, 1]; dz = D[i, 2]
+        ok = _ray_ok(ox, oy, oz, dx, dy, dz, tmin[i], tmax[i])
+        _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, tmin[i], tmax[i], zero, one)
+        M[MASK + k] = 1                 # every live lane takes part in every triangle test
+        fx, fy, fz = np.float64(F[OX + k]), np.float64(F[OY + k]), np.float64(F[OZ + k])
+        gx, gy, gz = np.float64(F[DX + k]), np.float64(F[DY + k]), np.float64(F[DZ + k])
+        t0, t1 = _slab(fx, gx, gmin[0], gmax[0], np.float64(F[TMIN + k]), np.float64(F[BEST + k]))
+        t0, t1 = _slab(fy, gy, gmin[1], gmax[1], t0, t1)
+        t0, t1 = _slab(fz, gz, gmin[2], gmax[2], t0, t1)
+        live = ok and t0 <= t1
+        M[ALIVE + k] = np.uint8(live)
+        nlive += live
+        W[W_O + k] = fx; W[W_O + P + k] = fy; W[W_O + 2 * P + k] = fz
+        W[W_D + k] = gx; W[W_D + P + k] = gy; W[W_D + 2 * P + k] = gz
+        W[W_T0 + k] = t0 if live else 0.0
+        W[W_T1 + k] = t1 if live else 0.0
+        dmax = max(abs(gx), max(abs(gy), abs(gz)))
+        omax = max(abs(fx), max(abs(fy), abs(fz)))
+        W[W_SC + k] = omax / dmax
+        # |o| + |t d| + the grid's magnitude bounds every coordinate the lane's walk computes
+        W[W_EPS + k] = GRID_PACKET_WIDEN * (omax + abs(W[W_T1 + k]) * dmax + gm)
+    return nlive
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _major_axis(axes, inv, M, W):
+    """Of the axes in ``axes``, the one whose slices the packet's slowest live lane crosses
+    fastest (-1 if none moves along any: the rays then go one by one)."""
+    K = -1
+    best = 0.0
+    for a in range(3):
+        rate = np.inf
+        for k in range(P):
+            rate = min(rate, abs(W[W_D + a * P + k]) * inv[a]) if M[ALIVE + k] != 0 else rate
+        if (axes >> a) & 1 and rate > best:
+            best = rate
+            K = a
+    return K
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _lane_slices(K, step, gmin, inv, nk, M, W, S):
+    """Each live lane's first and last slice along K (where it enters and leaves the box),
+    stored as steps from the packet's first slice, which is returned; the lanes' rows on K, U,
+    V are copied to fixed offsets for the slice loop."""
+    U = (K + 1) % 3
+    V = (K + 2) % 3
+    first = nk if step > 0 else -1
+    for k in range(P):
+        oK = W[W_O + K * P + k]
+        dK = W[W_D + K * P + k]
+        W[W_OK + k] = oK
+        W[W_IK + k] = 1.0 / dK
+        W[W_OU + k] = W[W_O + U * P + k]
+        W[W_DU + k] = W[W_D + U * P + k]
+        W[W_OV + k] = W[W_O + V * P + k]
+        W[W_DV + k] = W[W_D + V * P + k]
+        live = M[ALIVE + k] != 0
+        c_in = min(max(np.int64(np.floor((oK + W[W_T0 + k] * dK - gmin[K]) * inv[K])), 0), nk - 1)
+        c_out = min(max(np.int64(np.floor((oK + W[W_T1 + k] * dK - gmin[K]) * inv[K])), 0), nk - 1)
+        S[S_IN + k] = c_in if live else 0
+        S[S_OUT + k] = c_out if live else 0
+        if live:
+            first = min(first, c_in) if step > 0 else max(first, c_in)
+    for k in range(P):
+        s_in = (S[S_IN + k] - first) * step
+        S[S_IN + k] = s_in
+        S[S_OUT + k] = max(s_in, (S[S_OUT + k] - first) * step)   # never before its start
+    return first
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _slice_bounds(s, xn, xf, F, I, M, W, S, MORE, MORE64):
+    """Slice s (its near and far planes at xn, xf on K): the bounds on U and V of the live
+    lanes' segments in it, widened by each lane's W_EPS, as (ulo, uhi, vlo, vhi) (ulo > uhi:
+    no lane in this slice), and whether some lane goes on past it. A lane's segment runs from
+    where it enters the slice (or the grid, in its first slice) to where it leaves it or its
+    stop limit: its closest hit plus GRID_STOP_SLACK, as in the single-ray walk. Its first slice
+    always counts, so that its entry cell is tested as in the single-ray walk."""
+    # per lane first (no reductions in this loop, so it runs in SIMD), then reduced pairwise
+    for k in range(P):
+        alive = M[ALIVE + k] != 0
+        b64 = np.float64(F[BEST + k])
+        t1 = W[W_T1 + k]
+        tl = t1 if I[PRIM + k] < 0 else \
+            min(t1, b64 + GRID_STOP_SLACK * (abs(b64) + W[W_SC + k]))
+        tn = (xn - W[W_OK + k]) * W[W_IK + k]
+        tf = (xf - W[W_OK + k]) * W[W_IK + k]
+        s_in = S[S_IN + k]
+        s_out = S[S_OUT + k]
+        ta = W[W_T0 + k] if s == s_in else tn
+        tb = tl if s == s_out else min(tf, tl)
+        act = alive & (s >= s_in) & (s <= s_out) & ((ta <= tb) | (s == s_in))
+        tb = max(ta, tb)
+        e = W[W_EPS + k]
+        ua = W[W_OU + k] + ta * W[W_DU + k]
+        ub = W[W_OU + k] + tb * W[W_DU + k]
+        va = W[W_OV + k] + ta * W[W_DV + k]
+        vb = W[W_OV + k] + tb * W[W_DV + k]
+        W[W_ULO + k] = min(ua, ub) - e if act else np.inf
+        W[W_UHI + k] = max(ua, ub) + e if act else -np.inf
+        W[W_VLO + k] = min(va, vb) - e if act else np.inf
+        W[W_VHI + k] = max(va, vb) + e if act else -np.inf
+        MORE[k] = np.uint8(alive & ((s < s_in) | ((s < s_out) & (tf <= tl))))
+    h = P // 2
+    while h > 0:
+        for k in range(h):
+            W[W_ULO + k] = min(W[W_ULO + k], W[W_ULO + h + k])
+            W[W_UHI + k] = max(W[W_UHI + k], W[W_UHI + h + k])
+            W[W_VLO + k] = min(W[W_VLO + k], W[W_VLO + h + k])
+            W[W_VHI + k] = max(W[W_VHI + k], W[W_VHI + h + k])
+        h //= 2
+    more = MORE64[0]
+    for q in range(1, NW):
+        more |= MORE64[q]
+    return W[W_ULO], W[W_UHI], W[W_VLO], W[W_VHI], more != 0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _cell_span(lo, hi, g0, inv_a, n):
+    """Inclusive range of cells along one axis covering coordinates [lo, hi]."""
+    c0 = np.int64(np.floor((lo - g0) * inv_a))
+    c1 = np.int64(np.floor((hi - g0) * inv_a))
+    return min(max(c0, 0), n - 1), min(max(c1, 0), n - 1)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _stride(res, a):
+    """Distance between neighbouring cells along axis a in the cell index."""
+    return 1 if a == 0 else (res[0] if a == 1 else res[0] * res[1])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _packet_answers(lo, F, I, out_prim, out_t, out_u, out_v, zero, one):
+    """The packet's answers into the batch's outputs, as ``store_answer`` writes a ray's."""
+    outp = out_prim[lo:lo + P]              # views indexed from 0, as in packet.trace_packet
+    for k in range(P):
+        outp[k] = I[PRIM + k]
+    if out_t.shape[0] > 0:
+        inf = one / zero
+        outt = out_t[lo:lo + P]
+        outu = out_u[lo:lo + P]
+        outv = out_v[lo:lo + P]
+        for k in range(P):
+            h = I[PRIM + k] >= 0
+            outt[k] = F[BEST + k] if h else inf
+            outu[k] = F[BU + k] if h else zero
+            outv[k] = F[BV + k] if h else zero
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def trace_grid_range(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D, tmin, tmax,
+                     eps2, one, edge, anyhit, packets, mailbox, F, I, M, M64, W, S, MORE, MORE64,
+                     box, out_prim, out_t, out_u, out_v, packets_traced):
+    """Chunks c0..c1 of CHUNK_RAYS rays. With ``packets``, each full group of P consecutive
+    rays whose directions share a strict sign on some axis (``slicing_axes``) is traced as one
+    packet by coherent grid traversal (Wald, Ize, Kensler, Knoll & Parker 2006); the other
+    groups go ray by ray (``trace_grid_ray``). ``packets_traced[c]`` gets chunk c's packets.
+
+    A packet walks the slices of cells across its major axis K (``_major_axis``) front to
+    back. In each slice, the bounds of its lanes' segments on the two other axes
+    (``_slice_bounds``) give a rectangle of cells holding every cell a lane's ray crosses in
+    the slice. Their triangles, once per packet (a mailbox), go through the packet kernel's
+    branch-free lane loop (``packet._triangle``: the single-ray unit's datapath and tie rule)
+    for every live lane. So each lane tests a superset of the triangles its single-ray walk
+    would, and gets the same closest hit; an any-hit lane retires at its first hit. The walk
+    ends when no lane goes on past the slice.
+
+    The packet code is inline here, called once per batch range, so a packet costs no call
+    (the arrays passed to a call are copied field by field). Scratch: ``mailbox``
+    (GRID_MAILBOX,) int64 for single rays; ``F``/``I``/``M``/``M64`` as in
+    ``packet.trace_packet``, ``W`` (NWF,) float64, ``S`` (NWS,) int64, ``MORE`` (P,) uint8 and
+    ``MORE64`` its uint64 view, ``box`` (GRID_PACKET_MAILBOX,) int64 for packets."""
+    zero = one - one
+    n = O.shape[0]
+    for ch in range(c0, c1):
+        npk = 0
+        end = min(n, (ch + 1) * CHUNK_RAYS)
+        for lo in range(ch * CHUNK_RAYS, end, P):
+            axes = slicing_axes(D, lo) if packets and end - lo >= P else 0
+            K = -1
+            if axes != 0:
+                nlive = _packet_lanes(lo, O, D, tmin, tmax, gmin, gmax, F, I, M, W, zero, one)
+                K = _major_axis(axes, inv, M, W) if nlive > 0 else 3     # 3: every lane misses
+            if K < 0:
+                for i in range(lo, min(end, lo + P)):
+                    prim, t, bu, bv = trace_grid_ray(
+                        tris, offsets, refs, gmin, gmax, cs, inv, res, O[i, 0], O[i, 1], O[i, 2],
+                        D[i, 0], D[i, 1], D[i, 2], tmin[i], tmax[i], eps2, one, edge, mailbox,
+                        anyhit)
+                    store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v)
+                continue
+            if K < 3:
+                U = (K + 1) % 3
+                V = (K + 2) % 3
+                nk = res[K]
+                step = 1 if D[lo, K] > 0 else -1
+                c = _lane_slices(K, step, gmin, inv, nk, M, W, S)
+                near = 1 if step < 0 else 0        # plane offsets of a slice's near, far faces
+                sK = _stride(res, K)
+                sU = _stride(res, U)
+                sV = _stride(res, V)
+                for q in range(GRID_PACKET_MAILBOX):
+                    box[q] = -1
+                s = 0
+                while 0 <= c < nk:
+                    ulo, uhi, vlo, vhi, more = _slice_bounds(
+                        s, gmin[K] + (c + near) * cs[K], gmin[K] + (c + 1 - near) * cs[K], F, I,
+                        M, W, S, MORE, MORE64)
+                    if ulo <= uhi:
+                        cu0, cu1 = _cell_span(ulo, uhi, gmin[U], inv[U], res[U])
+                        cv0, cv1 = _cell_span(vlo, vhi, gmin[V], inv[V], res[V])
+                        for cv in range(cv0, cv1 + 1):
+                            for cu in range(cu0, cu1 + 1):
+                                cell = c * sK + cu * sU + cv * sV
+                                for p in range(offsets[cell], offsets[cell + 1]):
+                                    j = np.int64(refs[p])
+                                    slot = j & (GRID_PACKET_MAILBOX - 1)
+                                    if box[slot] != j:
+                                        box[slot] = j
+                                        _triangle(tris, j, F, I, M, 0, eps2, one, edge, anyhit)
+                        if anyhit:
+                            w = M64[0]
+                            for q in range(1, NW):
+                                w |= M64[q]
+                            if w == 0:                      # every lane has found a blocker
+                                break
+                    if not more:
+                        break
+                    s += 1
+                    c += step
+            _packet_answers(lo, F, I, out_prim, out_t, out_u, out_v, zero, one)
+            npk += 1
+        packets_traced[ch] = npk
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def grid_chunks(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D, tmin, tmax, eps2,
-                one, edge, anyhit, out_prim, out_t, out_u, out_v, out_ng):
-    """Chunks c0..c1 of CHUNK_RAYS rays (``hwbvh.parallel.run_ranges`` hands them out).
-    ``out_t``/``out_u``/``out_v`` are (n,) or (0,) when only ``out_prim`` is wanted; ``out_ng``
-    is (n, 3) for geometric normals or (0, 3)."""
+                one, edge, anyhit, packets, out_prim, out_t, out_u, out_v, out_ng, packets_traced):
+    """Chunks c0..c1 of CHUNK_RAYS rays (``hwbvh.parallel.run_ranges`` hands them out), with
+    one mailbox and one packet scratch for the call (``trace_grid_range``). ``out_t``/``out_u``/
+    ``out_v`` are (n,) or (0,) when only ``out_prim`` is wanted; ``out_ng`` is (n, 3) for
+    geometric normals or (0, 3); ``packets_traced`` (chunks,) gets the packets per chunk."""
     n = O.shape[0]
     mailbox = np.empty(GRID_MAILBOX, np.int64)
-    for i in range(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS)):
-        prim, t, bu, bv = trace_grid_ray(tris, offsets, refs, gmin, gmax, cs, inv, res,
-                                         O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
-                                         tmin[i], tmax[i], eps2, one, edge, mailbox, anyhit)
-        store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v)
+    F = np.empty(NF, O.dtype)
+    I = np.empty(NI, np.int32)
+    M = np.zeros(NM, np.uint8)
+    M64 = M.view(np.uint64)
+    W = np.empty(NWF, np.float64)
+    S = np.empty(NWS, np.int64)
+    MORE = np.zeros(P, np.uint8)
+    MORE64 = MORE.view(np.uint64)
+    box = np.empty(GRID_PACKET_MAILBOX, np.int64)
+    trace_grid_range(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D, tmin, tmax,
+                     eps2, one, edge, anyhit, packets, mailbox, F, I, M, M64, W, S, MORE, MORE64,
+                     box, out_prim, out_t, out_u, out_v, packets_traced)
     store_normals(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), tris, out_prim, out_ng, one)
 
 
@@ -222,8 +515,10 @@ class GridTracer(TriangleStructure):
 
     name = "grid"
 
-    def __init__(self, triangles, resolution=None):
+    def __init__(self, triangles, resolution=None, packets=True):
         start = time.perf_counter()
+        self.packets = bool(packets)
+        self.last_packets = 0          # packets the last query traced (the rest went ray by ray)
         tris = checked_triangles(triangles)
         n = len(tris)
         # the grid's box: the mesh's, padded like a triangle's box, and never flat
@@ -265,9 +560,12 @@ class GridTracer(TriangleStructure):
         self.build_seconds = time.perf_counter() - start
 
     def _trace(self, o, d, tmin, tmax, anyhit, prim, t, u, v, ng):
-        run_ranges(grid_chunks, (len(o) + CHUNK_RAYS - 1) // CHUNK_RAYS, self._tris1, self.offsets,
-                   self.refs, self.gmin, self.gmax, self._cs, self._inv, self._res, o, d, tmin,
-                   tmax, self.eps2, self.one, self.edge, anyhit, prim, t, u, v, ng)
+        chunks = (len(o) + CHUNK_RAYS - 1) // CHUNK_RAYS
+        traced = np.zeros(chunks, np.int64)
+        run_ranges(grid_chunks, chunks, self._tris1, self.offsets, self.refs, self.gmin,
+                   self.gmax, self._cs, self._inv, self._res, o, d, tmin, tmax, self.eps2,
+                   self.one, self.edge, anyhit, self.packets, prim, t, u, v, ng, traced)
+        self.last_packets = int(traced.sum())
 
     def stats(self):
         """The structure's figures for reports."""
