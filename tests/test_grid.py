@@ -76,6 +76,24 @@ def same_as_bvh(grid, bvh, o, d, tmin=0.0, tmax=np.inf):
     return g
 
 
+def packets_as_single_rays(grid, bvh, o, d, tmin=0.0, tmax=np.inf):
+    """The batch through the packet path and ray by ray: the same answers bit for bit, and
+    the BVH's. Returns the packets the closest-hit query traced."""
+    grid.packets = False
+    single = grid.intersect(o, d, tmin, tmax)
+    blocked = grid.occluded(o, d, tmin, tmax)
+    grid.packets = True
+    h = same_as_bvh(grid, bvh, o, d, tmin, tmax)
+    traced = grid.last_packets
+    np.testing.assert_array_equal(h.prim, single.prim)
+    np.testing.assert_array_equal(h.t, single.t)
+    np.testing.assert_array_equal(h.u, single.u)
+    np.testing.assert_array_equal(h.v, single.v)
+    np.testing.assert_array_equal(h.ng, single.ng)
+    np.testing.assert_array_equal(grid.occluded(o, d, tmin, tmax), blocked)
+    return traced
+
+
 def agrees_with_embree(tris, vertices, faces, hits, o, d):
     te, pe, *_ = embree_intersect(embree_scene(vertices, faces), o, d)
     counts, _ = classify(tris, o, d, 0.0, np.inf, hits.prim.astype(np.int64), hits.t, pe, te)
@@ -161,10 +179,108 @@ def test_no_mismatch_against_embree(mesh):
         vertices, faces = indexed(tris)
     grid = GridTracer(tris)
     bvh = bvh_tracer(tris)
-    for o, d in (raysets.primary(tris, 6000), raysets.incoherent(tris, 6000, 2)):
+    for kind, (o, d) in (("primary", raysets.primary(tris, 6000)),
+                         ("incoherent", raysets.incoherent(tris, 6000, 2))):
         h = same_as_bvh(grid, bvh, o, d)
         counts = agrees_with_embree(tris, vertices, faces, h, o, d)
         assert counts["agree"] > 0.99 * counts["rays"]
+        # camera rays in pixel tiles go as packets, random ones ray by ray
+        assert (grid.last_packets == 6000 // 16) if kind == "primary" else (grid.last_packets == 0)
+
+
+def shared_sign_groups(d):
+    """Groups of 16 consecutive rays whose directions have one strict sign on some axis: those
+    the grid traces as packets."""
+    g = np.asarray(d)[:len(d) // 16 * 16].reshape(-1, 16, 3)
+    return int(((g > 0).all(1) | (g < 0).all(1)).any(1).sum())
+
+
+def packet_groups(rng, origins, direction, spread):
+    """Groups of 16 rays: origins as given, directions ``direction`` plus up to ``spread`` of
+    noise per component, so that each group's rays share the signs the direction has."""
+    d = np.asarray(direction, np.float64) + rng.uniform(-spread, spread, (len(origins), 3))
+    return np.asarray(origins, np.float32), d.astype(np.float32)
+
+
+def test_packets_answer_as_single_rays_on_the_hard_cases():
+    """Packets of coherent rays: axis-parallel packets on the vertex lattice (through shared
+    edges and vertices, the two other components exactly 0), origins on cell planes, packets
+    whose lanes share only the major axis' sign, packets with dead lanes (non-finite origin,
+    empty interval), lanes that miss the grid beside lanes that hit, lanes starting inside it,
+    and per-lane intervals, for closest and any hit, at several resolutions; groups with no
+    shared sign go ray by ray."""
+    tris = np.concatenate([tessellated_cube(4), soup(400, 8) * np.float32(0.8) + np.float32(0.1)])
+    bvh = bvh_tracer(tris)
+    rng = np.random.default_rng(11)
+    lattice = np.linspace(0.0, 1.0, 9)
+    for res in (None, (4, 4, 4), (7, 3, 5), (1, 1, 1)):
+        grid = GridTracer(tris, resolution=res)
+        cs = (grid.gmax - grid.gmin) / np.asarray(grid.resolution)
+        O, D = [], []
+        # axis-parallel, 16 lattice origins per packet
+        for axis in range(3):
+            for sign in (1.0, -1.0):
+                xy = np.stack(np.meshgrid(lattice[:4], lattice[4:8]), -1).reshape(-1, 2)
+                for shift in (0.0, 0.5):
+                    o = np.zeros((16, 3))
+                    o[:, axis] = -0.5 if sign > 0 else 1.5
+                    o[:, (axis + 1) % 3] = xy[:, 0] + shift
+                    o[:, (axis + 2) % 3] = xy[:, 1]
+                    d = np.zeros((16, 3))
+                    d[:, axis] = sign
+                    O.append(o)
+                    D.append(d)
+        # origins on cell planes, lanes parallel to those planes or not, sharing one sign
+        for _ in range(24):
+            k = rng.integers(3)
+            o = rng.uniform(-0.2, 1.2, (16, 3))
+            o[:, k] = grid.gmin[k] + cs[k] * rng.integers(0, grid.resolution[k] + 1, 16)
+            major = (k + 1 + rng.integers(2)) % 3
+            d = rng.normal(size=(16, 3))
+            d[:, major] = np.abs(d[:, major]) + 0.1
+            d[rng.random(16) < 0.4, k] = 0.0                 # in the cell plane
+            O.append(o)
+            D.append(d * rng.choice([-1.0, 1.0]))
+        # camera-like fans from outside and from inside the grid, wide and narrow
+        for eye, spread in (((0.5, 0.5, -1.0), 0.02), ((0.5, 0.5, -1.0), 0.6), ((0.3, 0.4, 0.5), 0.3),
+                            ((2.0, -1.0, 3.0), 0.05)):
+            eye = np.asarray(eye)
+            o, d = packet_groups(rng, np.tile(eye, (16 * 8, 1)), 0.5 - eye, spread)
+            O.append(o)
+            D.append(d)
+        # lanes that miss the grid's box beside lanes that hit it
+        o = np.tile([0.5, 0.5, -1.0], (16, 1))
+        d = np.tile([0.0, 0.0, 1.0], (16, 1))
+        d[::2, :2] = rng.uniform(0.6, 2.0, (8, 2))
+        O.append(o)
+        D.append(d)
+        o, d = np.concatenate(O).astype(np.float32), np.concatenate(D).astype(np.float32)
+        # dead lanes inside packets: a non-finite origin, an empty interval
+        o[5, 1] = np.inf
+        lo = np.zeros(len(o), np.float32)
+        hi = np.full(len(o), np.inf, np.float32)
+        hi[37] = -1.0
+        assert packets_as_single_rays(grid, bvh, o, d, lo, hi) == shared_sign_groups(d) > 40
+        # per-lane intervals, cutting some hits off at either end (any hit: shadow rays)
+        lo = rng.uniform(0.0, 1.0, len(o)).astype(np.float32)
+        hi = (lo + rng.uniform(0.0, 1.5, len(o))).astype(np.float32)
+        packets_as_single_rays(grid, bvh, o, d, lo, hi)
+        # groups whose directions share no sign on any axis go ray by ray
+        o, d = raysets.incoherent(tris, 320, 4)
+        assert packets_as_single_rays(grid, bvh, o, d) == 0
+
+
+def test_shadow_packets_match_the_bvh():
+    """Shadow rays toward a point light, as the renderer traces them: packets of rays from
+    nearby surface points, any hit within each lane's own distance to the light."""
+    vertices, faces = sphere(32, 64)
+    tris = np.concatenate([vertices[faces], soup(1500, 3) * np.float32(2.5) - np.float32(1.25)])
+    grid = GridTracer(tris)
+    bvh = bvh_tracer(tris)
+    o, d, tmax = raysets.shadow(bvh, tris, 4000)
+    assert packets_as_single_rays(grid, bvh, o, d, 0.0, tmax) > len(o) // 32
+    blocked = grid.occluded(o, d, 0.0, tmax)
+    assert 0.05 < blocked.mean() < 0.95
 
 
 def bounded(grid, n):
