@@ -152,15 +152,19 @@ def test_hard_rays_match_the_bvh_embree_and_the_float64_brute_force():
     h = same_as_bvh(grid, bvh, o, d)
     assert (h.prim >= 0).mean() > 0.5
     agrees_with_embree(tris, *indexed(tris), h, o, d)
-    # float64 brute force: where it finds a hit clearly inside a triangle, the same t
+    # float64 brute force: where its closest hit lies clearly inside a triangle, the same t
+    # (a closer hit on or within the unit's slack of an edge may go either way in float32)
+    checked = 0
     for i in range(0, len(o), 7):
-        best = np.inf
+        best, inside = np.inf, False
         for tri in tris:
-            hit, t, u, v = ray_triangle_f64(o[i], d[i], tri)
-            if hit and min(u, v, 1 - u - v) > 1e-3 and t > 1e-6:
-                best = min(best, t)
-        if np.isfinite(best):
+            _, t, u, v = ray_triangle_f64(o[i], d[i], tri)
+            if min(u, v, 1 - u - v) > -1e-5 and 1e-6 < t < best:
+                best, inside = t, min(u, v, 1 - u - v) > 1e-3
+        if inside:
             assert abs(h.t[i] - best) <= 1e-5 * (1 + best), (i, h.t[i], best)
+            checked += 1
+    assert checked > 10
     # intervals: random [tmin, tmax] on the same rays, with explicit resolutions (cell planes
     # on the lattice and off it)
     lo = rng.uniform(0.0, 1.0, len(o)).astype(np.float32)
