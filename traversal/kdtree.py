@@ -33,7 +33,7 @@ is the same on any thread count.
 Caps, stated in ``traversal.config``: depth ``KD_DEPTH_BASE + KD_DEPTH_LOG2 * log2(N)`` and
 ``KD_MAX_REFS_PER_TRI * N`` references in all; a split that would exceed either makes a leaf
 (each subtree built apart gets a share of the references left under the cap, in proportion to
-its own). At most ``MAX_TRIANGLES - 1`` triangles (the event key's triangle field).
+its own). At most ``MAX_TRIANGLES - 1`` triangles.
 
 Traversal: the ray is clipped to the tree's box; at an inner node the near child is visited
 first with the t interval up to the plane and the far child is pushed with the rest (8-byte
@@ -68,11 +68,14 @@ EVENT_START = 2
 # axis (2 bits) | position (32 bits: the float32 position's order-preserving code) |
 # type (2 bits) | triangle (TRI_BITS bits).
 TRI_BITS = 28
-MAX_TRIANGLES = 1 << TRI_BITS
+# Triangles a tree holds: the event key's triangle field, and int32 reference offsets for up to
+# KD_MAX_REFS_PER_TRI references per triangle.
+MAX_TRIANGLES = min(1 << TRI_BITS, 2**31 // KD_MAX_REFS_PER_TRI)
+MAX_NODES = 1 << 29    # an inner node's word holds (first child << 2) | axis in an int32
 _SH_AXIS = np.uint64(62)
 _SH_POS = np.uint64(30)
 _SH_TYPE = np.uint64(28)
-_MASK_TRI = np.uint64(MAX_TRIANGLES - 1)
+_MASK_TRI = np.uint64((1 << TRI_BITS) - 1)
 _MASK_32 = np.uint64(0xFFFFFFFF)
 _MASK_2 = np.uint64(3)
 _SIGN_32 = np.uint64(0x80000000)
@@ -505,6 +508,8 @@ def build_nodes(tris, pads, ev_in, root_box, depth0, depth_cap, ref_budget, cut_
             continue
         first = n_nodes
         n_nodes += 2
+        if n_nodes > MAX_NODES:
+            raise ValueError("triangles: the kd-tree would need more than 2^29 nodes")
         nodes = _grow(nodes, n_nodes)
         p = _code_pos(code, fbuf, ubuf)
         fbuf[0] = np.float32(p)
@@ -568,7 +573,8 @@ def build_kdtree(tris, pads, box, depth_cap, ref_cap, costs=None, parallel_depth
     ``hwbvh.parallel.run_ranges``, each with a share of the references left under the cap in
     proportion to its own, and joined in a fixed order: the tree does not depend on the
     thread count."""
-    c_trav, c_isect, empty = costs or (KD_COST_TRAVERSAL, KD_COST_INTERSECT, KD_EMPTY_FACTOR)
+    c_trav, c_isect, empty = (float(c) for c in costs or (KD_COST_TRAVERSAL, KD_COST_INTERSECT,
+                                                            KD_EMPTY_FACTOR))
     if parallel_depth is None:
         parallel_depth = KD_PARALLEL_DEPTH if len(tris) >= KD_PARALLEL_MIN_TRIS else -1
     ev = root_events(tris, pads, box)
@@ -592,7 +598,7 @@ def build_kdtree(tris, pads, box, depth_cap, ref_cap, costs=None, parallel_depth
 
     run_ranges(build_range, len(pending))
     k = len(nodes) + sum(len(st[0]) - 1 for st in subtrees)
-    if k >= 1 << 29:
+    if k > MAX_NODES:
         raise ValueError(f"triangles: the kd-tree would need {k} nodes (at most 2^29)")
     out = np.empty((k, 2), np.int32)
     out[:len(nodes)] = nodes
@@ -769,7 +775,8 @@ class KdTreeTracer(TriangleStructure):
         tris = checked_triangles(triangles)
         n = len(tris)
         if n >= MAX_TRIANGLES:
-            raise ValueError(f"triangles: {n} triangles, the kd-tree holds at most {MAX_TRIANGLES - 1}")
+            raise ValueError(f"triangles: {n} triangles, the kd-tree holds at most "
+                             f"{MAX_TRIANGLES - 1}")
         pads = triangle_pads(tris)
         # the tree's box: the mesh's, padded like a triangle's box, never flat, float32 bounds
         _, _, box_lo, box_hi = padded_box(tris, KD_PAD_TRI, KD_PAD_COORD)
