@@ -20,6 +20,15 @@ per-ray mailbox keeps a triangle that spans several cells from being tested agai
 stops once a cell ends beyond the closest hit (with ``GRID_STOP_SLACK``), so a hit at the same
 ``t`` in the next cell is still seen: exact-t ties go to the lower primitive index, as in the
 BVH traversal, and the answer does not depend on the walk. ``occluded`` returns at the first hit.
+
+Packets (coherent grid traversal, Wald, Ize, Kensler, Knoll & Parker 2006): 16 consecutive rays
+(``PACKET_RAYS``) whose directions share a strict sign on some axis walk the grid together, one
+slice of cells across that axis after another; per slice, the rectangle of cells that bounds
+every ray's segment in it has its triangles tested once for the packet, against all 16 rays in
+the BVH packet kernel's SIMD lane loop. Each ray tests a superset of the triangles its own walk
+would, with the same unit and tie rule, so its answer is the same bit for bit. Camera rays in
+pixel tiles, shadow rays toward a light and a mirror's reflections go this way; other groups go
+ray by ray. ``packets=False`` traces every ray alone.
 """
 import time
 
@@ -508,7 +517,9 @@ def grid_chunks(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D, tmi
 class GridTracer(TriangleStructure):
     """Ray queries on a uniform grid over ``triangles`` ((n, 3, 3)), with the BVH traversal's
     float32 triangle unit. ``resolution``: cells per axis (an int for all three or three ints);
-    default from the density heuristic. Implements the tracer interface of
+    default from the density heuristic. ``packets``: trace coherent groups of rays as packets
+    (the same answers; the attribute may be changed later). ``last_packets``: the packets the
+    last query traced. Implements the tracer interface of
     ``traversal.tracers``. After the build: ``resolution`` (3 ints), ``build_seconds``,
     ``memory_bytes`` (cell offsets, references and preprocessed triangles),
     ``references`` and ``references_per_triangle``."""
@@ -580,8 +591,10 @@ def warm_up_grid():
     start = time.perf_counter()
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)
     grid = GridTracer(tri)
-    o = np.array([[0.25, 0.25, 1.0]], np.float32)
-    d = np.array([[0.0, 0.0, -1.0]], np.float32)
+    # two rays: a one-ray batch's broadcast interval is a read-only array, for which Numba
+    # compiles other copies of the kernels than the ones real batches use
+    o = np.array([[0.25, 0.25, 1.0], [0.25, 0.25, -1.0]], np.float32)
+    d = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]], np.float32)
     grid.intersect(o, d)
     grid.intersect(o, d, normals=False)
     grid.occluded(o, d)
