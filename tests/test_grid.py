@@ -326,6 +326,17 @@ def test_degenerate_input_stays_bounded_and_right(case):
     o = np.concatenate([o, ao - 0.7 * axis])
     d = np.concatenate([d, axis])
     same_as_bvh(grid, bvh, o, d)
+    # through packets: fans of rays from a point outside toward the mesh, and the axis-parallel
+    # rays grouped by axis
+    by_axis = np.argsort(np.arange(300) % 3, kind="stable")
+    pts = np.asarray(tris, np.float64).reshape(-1, 3)
+    centre = (pts.min(0) + pts.max(0)) / 2
+    eye = centre + np.array([0.3, 0.5, 2.0]) * max(np.ptp(pts, 0).max(), 1.0)
+    po, pd = packet_groups(np.random.default_rng(2), np.tile(eye, (640, 1)), centre - eye,
+                           0.2 * max(np.ptp(pts, 0).max(), 1.0))
+    o = np.concatenate([np.asarray(po, np.float32), (ao - 0.7 * axis)[by_axis]])
+    d = np.concatenate([np.asarray(pd, np.float32), axis[by_axis]])
+    assert packets_as_single_rays(grid, bvh, o, d) == shared_sign_groups(d) >= 40 + 15
     if case == "flat":
         assert grid.resolution[2] == 1
     if case == "many huge triangles":
