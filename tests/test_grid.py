@@ -274,6 +274,24 @@ def test_packets_answer_as_single_rays_on_the_hard_cases():
         assert packets_as_single_rays(grid, bvh, o, d) == 0
 
 
+@pytest.mark.parametrize("scale, offset", [(1e-6, 0.0), (1e6, 1e7), (1.0, -3e4)])
+def test_packets_on_huge_and_tiny_coordinates(scale, offset):
+    """Camera fans and axis-parallel packets on a scaled and moved scene: the packets' bounds
+    are widened relative to the coordinates' magnitude, so they answer as single rays."""
+    base = np.concatenate([tessellated_cube(3), soup(300, 5)])
+    tris = (base.astype(np.float64) * scale + offset).astype(np.float32)
+    grid = GridTracer(tris)
+    bvh = bvh_tracer(tris)
+    o, d = raysets.primary(tris, 1600)
+    lattice = (np.linspace(0.0, 1.0, 7)[:4] * scale + offset)
+    ao = np.stack(np.meshgrid(lattice, lattice, indexing="ij"), -1).reshape(-1, 2)
+    ao = np.column_stack([ao, np.full(16, offset - scale)])
+    o = np.concatenate([o, ao]).astype(np.float32)
+    d = np.concatenate([d, np.tile([0.0, 0.0, 1.0], (16, 1))]).astype(np.float32)
+    assert packets_as_single_rays(grid, bvh, o, d) == len(o) // 16
+    assert (grid.intersect(o, d).prim >= 0).mean() > 0.2
+
+
 def test_shadow_packets_match_the_bvh():
     """Shadow rays toward a point light, as the renderer traces them: packets of rays from
     nearby surface points, any hit within each lane's own distance to the light."""

@@ -243,38 +243,66 @@ def slicing_axes(D, lo):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _packet_lanes(lo, O, D, tmin, tmax, gmin, gmax, F, I, M, W, zero, one):
-    """Lane state of rays [lo, lo + P): the packet kernel's (``packet._lane_setup``) and the
-    walk's, the ray clipped to the grid's box in float64 (exact conversions of the float32
-    ray). A lane that the unit rejects or that misses the box is not live. Returns the live
-    lanes."""
+def _clip(f, g, ig, lo, hi, t0, t1):
+    """[t0, t1] clipped to the slab [lo, hi] of one axis, branch-free (``ig`` = 1/g; g = 0:
+    the whole line or nothing)."""
+    a = (lo - f) * ig
+    b = (hi - f) * ig
+    inside = (f >= lo) & (f <= hi)
+    near = min(a, b) if g != 0 else (-np.inf if inside else np.inf)
+    far = max(a, b) if g != 0 else (np.inf if inside else -np.inf)
+    return max(t0, near), min(t1, far)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _packet_lanes(lo, Of, Df, tmin, tmax, gmin, gmax, F, I, M, W, zero, one):
+    """Lane state of rays [lo, lo + P) (``Of``/``Df``: the origins and directions seen flat):
+    the packet kernel's (``packet._lane_setup``) and the walk's, the ray clipped to the grid's
+    box in float64 (exact conversions of the float32 ray). A lane that the unit rejects or
+    that misses the box is not live. Returns the live lanes.
+
+    Branch-free, so that it runs in SIMD. The clip multiplies by 1/d where the single-ray walk
+    divides: its ends may differ by a rounding, far inside every padding (a ray that meets the
+    box only within a rounding of its faces reaches no triangle's padded box)."""
     gm = max(max(abs(gmin[0]), abs(gmax[0])), max(max(abs(gmin[1]), abs(gmax[1])),
                                                   max(abs(gmin[2]), abs(gmax[2]))))
+    # views indexed from 0, as in packet.trace_packet, so that LLVM can bound the addresses
+    Os = Of[3 * lo:3 * lo + 3 * P]
+    Ds = Df[3 * lo:3 * lo + 3 * P]
+    As = tmin[lo:lo + P]
+    Bs = tmax[lo:lo + P]
     nlive = 0
     for k in range(P):
-        i = lo + k
-        ox = O[i, 0]; oy = O[i, 1]; oz = O[i, 2]
-        dx = D[i, 0]; dy = D[i, 1]; dz = D[i, 2]
-        ok = _ray_ok(ox, oy, oz, dx, dy, dz, tmin[i], tmax[i])
-        _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, tmin[i], tmax[i], zero, one)
+        ox = Os[3 * k]; oy = Os[3 * k + 1]; oz = Os[3 * k + 2]
+        dx = Ds[3 * k]; dy = Ds[3 * k + 1]; dz = Ds[3 * k + 2]
+        a = As[k]
+        b = Bs[k]
+        # the unit's ray check (rawtree._ray_ok) without branches: x - x == 0 iff x is finite
+        ok = ((ox - ox) == 0) & ((oy - oy) == 0) & ((oz - oz) == 0) & ((dx - dx) == 0) \
+            & ((dy - dy) == 0) & ((dz - dz) == 0) & ((dx != 0) | (dy != 0) | (dz != 0)) \
+            & (a <= b)
+        _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one)
         M[MASK + k] = 1                 # every live lane takes part in every triangle test
         fx, fy, fz = np.float64(F[OX + k]), np.float64(F[OY + k]), np.float64(F[OZ + k])
         gx, gy, gz = np.float64(F[DX + k]), np.float64(F[DY + k]), np.float64(F[DZ + k])
-        t0, t1 = _slab(fx, gx, gmin[0], gmax[0], np.float64(F[TMIN + k]), np.float64(F[BEST + k]))
-        t0, t1 = _slab(fy, gy, gmin[1], gmax[1], t0, t1)
-        t0, t1 = _slab(fz, gz, gmin[2], gmax[2], t0, t1)
-        live = ok and t0 <= t1
+        t0, t1 = _clip(fx, gx, 1.0 / gx, gmin[0], gmax[0], np.float64(F[TMIN + k]),
+                       np.float64(F[BEST + k]))
+        t0, t1 = _clip(fy, gy, 1.0 / gy, gmin[1], gmax[1], t0, t1)
+        t0, t1 = _clip(fz, gz, 1.0 / gz, gmin[2], gmax[2], t0, t1)
+        live = ok & (t0 <= t1)
         M[ALIVE + k] = np.uint8(live)
-        nlive += live
+        nlive += np.int64(live)
         W[W_O + k] = fx; W[W_O + P + k] = fy; W[W_O + 2 * P + k] = fz
         W[W_D + k] = gx; W[W_D + P + k] = gy; W[W_D + 2 * P + k] = gz
-        W[W_T0 + k] = t0 if live else 0.0
-        W[W_T1 + k] = t1 if live else 0.0
+        t0 = t0 if live else 0.0
+        t1 = t1 if live else 0.0
+        W[W_T0 + k] = t0
+        W[W_T1 + k] = t1
         dmax = max(abs(gx), max(abs(gy), abs(gz)))
         omax = max(abs(fx), max(abs(fy), abs(fz)))
         W[W_SC + k] = omax / dmax
         # |o| + |t d| + the grid's magnitude bounds every coordinate the lane's walk computes
-        W[W_EPS + k] = GRID_PACKET_WIDEN * (omax + abs(W[W_T1 + k]) * dmax + gm)
+        W[W_EPS + k] = GRID_PACKET_WIDEN * (omax + abs(t1) * dmax + gm)
     return nlive
 
 
@@ -429,6 +457,8 @@ def trace_grid_range(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D
     ``MORE64`` its uint64 view, ``box`` (GRID_PACKET_MAILBOX,) int64 for packets."""
     zero = one - one
     n = O.shape[0]
+    Of = O.reshape(-1)
+    Df = D.reshape(-1)
     for ch in range(c0, c1):
         npk = 0
         end = min(n, (ch + 1) * CHUNK_RAYS)
@@ -436,7 +466,7 @@ def trace_grid_range(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D
             axes = slicing_axes(D, lo) if packets and end - lo >= P else 0
             K = -1
             if axes != 0:
-                nlive = _packet_lanes(lo, O, D, tmin, tmax, gmin, gmax, F, I, M, W, zero, one)
+                nlive = _packet_lanes(lo, Of, Df, tmin, tmax, gmin, gmax, F, I, M, W, zero, one)
                 K = _major_axis(axes, inv, M, W) if nlive > 0 else 3     # 3: every lane misses
             if K < 0:
                 for i in range(lo, min(end, lo + P)):
