@@ -234,20 +234,22 @@ def test_packets_answer_as_single_rays_on_the_hard_cases():
                     d[:, axis] = sign
                     O.append(o)
                     D.append(d)
-        # origins on cell planes, lanes parallel to those planes or not, sharing one sign
-        for _ in range(24):
+        # origins on cell planes (of the packet's major axis, or of another with lanes parallel
+        # to those planes or not), sharing one sign
+        for _ in range(36):
             k = rng.integers(3)
             o = rng.uniform(-0.2, 1.2, (16, 3))
             o[:, k] = grid.gmin[k] + cs[k] * rng.integers(0, grid.resolution[k] + 1, 16)
-            major = (k + 1 + rng.integers(2)) % 3
+            major = (k + rng.integers(3)) % 3
             d = rng.normal(size=(16, 3))
             d[:, major] = np.abs(d[:, major]) + 0.1
-            d[rng.random(16) < 0.4, k] = 0.0                 # in the cell plane
+            if major != k:
+                d[rng.random(16) < 0.4, k] = 0.0             # in the cell plane
             O.append(o)
             D.append(d * rng.choice([-1.0, 1.0]))
         # camera-like fans from outside and from inside the grid, wide and narrow
-        for eye, spread in (((0.5, 0.5, -1.0), 0.02), ((0.5, 0.5, -1.0), 0.6), ((0.3, 0.4, 0.5), 0.3),
-                            ((2.0, -1.0, 3.0), 0.05)):
+        for eye, spread in (((0.5, 0.5, -1.0), 0.02), ((0.5, 0.5, -1.0), 0.6),
+                            ((0.3, 0.4, 0.5), 0.3), ((2.0, -1.0, 3.0), 0.05)):
             eye = np.asarray(eye)
             o, d = packet_groups(rng, np.tile(eye, (16 * 8, 1)), 0.5 - eye, spread)
             O.append(o)
