@@ -302,7 +302,7 @@ def _packet_lanes(lo, Of, Df, tmin, tmax, gmin, gmax, F, I, M, W, zero, one):
         omax = max(abs(fx), max(abs(fy), abs(fz)))
         W[W_SC + k] = omax / dmax
         # |o| + |t d| + the grid's magnitude bounds every coordinate the lane's walk computes
-        W[W_EPS + k] = GRID_PACKET_WIDEN * (omax + abs(t1) * dmax + gm)
+        W[W_EPS + k] = GRID_PACKET_WIDEN * (omax + max(abs(t0), abs(t1)) * dmax + gm)
     return nlive
 
 
