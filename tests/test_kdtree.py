@@ -73,6 +73,12 @@ def test_hard_rays_match_the_bvh_embree_and_the_float64_brute_force():
                 best = min(best, t)
         if np.isfinite(best):
             assert abs(h.t[i] - best) <= 1e-5 * (1 + best), (i, h.t[i], best)
+    # the same answers whichever step a ray takes: sorted by direction octant, the groups of
+    # PACKET_RAYS share one (the branching step); shuffled, hardly any group does (branch-free)
+    octant = ((np.signbit(d) * [1, 2, 4]).sum(axis=1))
+    for order in (np.argsort(octant, kind="stable"), rng.permutation(len(o))):
+        r = kd.intersect(o[order], d[order])
+        assert np.array_equal(r.prim, h.prim[order]) and np.array_equal(r.t, h.t[order])
     # intervals: random [tmin, tmax] on the same rays
     lo = rng.uniform(0.0, 1.0, len(o)).astype(np.float32)
     hi = (lo + rng.uniform(0.0, 1.5, len(o))).astype(np.float32)

@@ -37,13 +37,15 @@ its own). At most ``MAX_TRIANGLES - 1`` triangles.
 
 Traversal: the ray is clipped to the tree's box; at an inner node the near child is visited
 first with the t interval up to the plane and the far child is pushed with the rest (8-byte
-nodes, see ``KdTreeTracer``). The step branches: on primary and shadow rays the branches are
-predicted and the next node loads early (a branch-free step ran those 20-30% slower, for 10% on
-incoherent rays). A leaf's triangles go through the datapath of ``triangle_unit.mt_valid_at``;
-a hit counts only up to the leaf's exit (plus ``KD_T_SLACK``), so a triangle that several
-leaves list is found where it is hit, and exact-t ties go to the lower primitive index as in
-the BVH traversal. The walk stops once the closest hit lies before the current leaf's exit by
-more than the slack. ``occluded`` returns at the first hit.
+nodes, see ``KdTreeTracer``). Rays go in groups of ``PACKET_RAYS``: a group whose directions
+share an octant (primary and shadow rays, mostly) takes a step that branches, whose branches
+are predicted so that the next node loads early (a branch-free step ran those rays 20-30%
+slower); any other group takes a branch-free step (10-20% faster on incoherent rays, where
+every branch is a coin flip). A leaf's triangles go through the datapath of
+``triangle_unit.mt_valid_at``; a hit counts only up to the leaf's exit (plus ``KD_T_SLACK``),
+so a triangle that several leaves list is found where it is hit, and exact-t ties go to the
+lower primitive index as in the BVH traversal. The walk stops once the closest hit lies before
+the current leaf's exit by more than the slack. ``occluded`` returns at the first hit.
 """
 import math
 import time
@@ -53,10 +55,11 @@ from numba import njit
 
 from hwbvh.parallel import run_ranges
 from .structure import TriangleStructure, checked_triangles, padded_box
-from .config import (CHUNK_RAYS, KD_COST_INTERSECT, KD_COST_TRAVERSAL, KD_DEPTH_BASE,
+from .config import (CHUNK_RAYS, PACKET_RAYS, KD_COST_INTERSECT, KD_COST_TRAVERSAL, KD_DEPTH_BASE,
                      KD_DEPTH_LOG2, KD_EMPTY_FACTOR, KD_MAX_REFS_PER_TRI, KD_PAD_COORD,
                      KD_PAD_TRI, KD_PARALLEL_DEPTH, KD_PARALLEL_MIN_TRIS, KD_T_SLACK)
 from .grid import _slab
+from .packet import coherent
 from .triangle_unit import (TRI_E1, TRI_E2, TRI_NORMS, TRI_SCALE, TRI_V0, TRI_WORDS, mt_datapath,
                             ray_band_terms, store_answer, store_normals)
 
@@ -639,7 +642,7 @@ def _ray_ok(ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def trace_kd_ray(tris, nodes, nodes_f, refs, box, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one,
-                 edge, st_node, st_near, st_far, anyhit):
+                 edge, st_node, st_near, st_far, anyhit, predictable):
     """One ray through the kd-tree: (prim, t, u, v), prim -1 for a miss."""
     best_t = tmax
     prim = -1
@@ -674,25 +677,43 @@ def trace_kd_ray(tris, nodes, nodes_f, refs, box, ox, oy, oz, dx, dy, dz, tmin, 
             oa = o[0] if ax == 0 else (o[1] if ax == 1 else o[2])
             da = d[0] if ax == 0 else (d[1] if ax == 1 else d[2])
             ia = inv[0] if ax == 0 else (inv[1] if ax == 1 else inv[2])
-            below_first = oa < s or (oa == s and da <= 0)
             first = w >> 2
-            near = first if below_first else first + 1
-            far = first + 1 if below_first else first
-            if da == 0:
-                node = near
-                continue
             tp = (s - oa) * ia
-            if tp > far_t or tp <= 0:
-                node = near
-            elif tp < near_t:
-                node = far
-            else:
-                st_node[top] = far
-                st_near[top] = tp
-                st_far[top] = far_t
-                top += 1
-                node = near
-                far_t = tp
+            if predictable:
+                # rays of one direction octant: the branches are predicted, and the next node
+                # loads before the test that chooses it is done
+                below_first = oa < s or (oa == s and da <= 0)
+                near = first if below_first else first + 1
+                far = first + 1 if below_first else first
+                if da == 0:
+                    node = near
+                    continue
+                if tp > far_t or tp <= 0:
+                    node = near
+                elif tp < near_t:
+                    node = far
+                else:
+                    st_node[top] = far
+                    st_near[top] = tp
+                    st_far[top] = far_t
+                    top += 1
+                    node = near
+                    far_t = tp
+                continue
+            # incoherent rays: each decision is a coin flip, and selects cost less than the
+            # mispredicted branches
+            below_first = (oa < s) | ((oa == s) & (da <= 0))
+            near = first + 1 - np.int64(below_first)
+            far = first + np.int64(below_first)
+            crosses = (tp <= far_t) & (tp > 0) & (da != 0)     # else the near child only
+            far_only = crosses & (tp < near_t)
+            both = crosses & (tp >= near_t)
+            st_node[top] = far                 # written always, kept only when both
+            st_near[top] = tp
+            st_far[top] = far_t
+            top += np.int64(both)
+            node = far if far_only else near
+            far_t = tp if both else far_t
             continue
         # a leaf: hits count up to its exit plus the slack
         limit = far_t + KD_T_SLACK * (abs(far_t) + scale)
@@ -731,12 +752,27 @@ def trace_kd_ray(tris, nodes, nodes_f, refs, box, ox, oy, oz, dx, dy, dz, tmin, 
 def _kd_range(lo, hi, tris, nodes, nodes_f, refs, box, O, D, tmin, tmax, eps2, one, edge, anyhit,
               st_node, st_near, st_far, out_prim, out_t, out_u, out_v):
     """Rays [lo, hi) in a plain function without reference counting, so LLVM optimises the
-    loop fully (as the BVH traversal's ``_trace_range``; ~15% on primary rays)."""
-    for i in range(lo, hi):
-        prim, t, bu, bv = trace_kd_ray(tris, nodes, nodes_f, refs, box, O[i, 0], O[i, 1], O[i, 2],
-                                       D[i, 0], D[i, 1], D[i, 2], tmin[i], tmax[i], eps2, one,
-                                       edge, st_node, st_near, st_far, anyhit)
-        store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v)
+    loop fully (as the BVH traversal's ``_trace_range``; ~15% on primary rays). Each group of
+    PACKET_RAYS consecutive rays whose directions share an octant (the BVH's packet test) takes
+    the branching step, any other group the branch-free one."""
+    a = lo
+    while a < hi:
+        b = min(hi, a + PACKET_RAYS)
+        if coherent(D, a, b):
+            for i in range(a, b):
+                prim, t, bu, bv = trace_kd_ray(tris, nodes, nodes_f, refs, box, O[i, 0], O[i, 1],
+                                               O[i, 2], D[i, 0], D[i, 1], D[i, 2], tmin[i],
+                                               tmax[i], eps2, one, edge, st_node, st_near,
+                                               st_far, anyhit, True)
+                store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v)
+        else:
+            for i in range(a, b):
+                prim, t, bu, bv = trace_kd_ray(tris, nodes, nodes_f, refs, box, O[i, 0], O[i, 1],
+                                               O[i, 2], D[i, 0], D[i, 1], D[i, 2], tmin[i],
+                                               tmax[i], eps2, one, edge, st_node, st_near,
+                                               st_far, anyhit, False)
+                store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v)
+        a = b
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
