@@ -78,12 +78,13 @@ def same_as_bvh(grid, bvh, o, d, tmin=0.0, tmax=np.inf):
 
 def packets_as_single_rays(grid, bvh, o, d, tmin=0.0, tmax=np.inf):
     """The batch through the packet path and ray by ray: the same answers bit for bit, and
-    the BVH's. Returns the packets the closest-hit query traced."""
+    (unless ``bvh`` is None) the BVH's. Returns the packets the closest-hit query traced."""
     grid.packets = False
     single = grid.intersect(o, d, tmin, tmax)
     blocked = grid.occluded(o, d, tmin, tmax)
     grid.packets = True
-    h = same_as_bvh(grid, bvh, o, d, tmin, tmax)
+    h = grid.intersect(o, d, tmin, tmax) if bvh is None else \
+        same_as_bvh(grid, bvh, o, d, tmin, tmax)
     traced = grid.last_packets
     np.testing.assert_array_equal(h.prim, single.prim)
     np.testing.assert_array_equal(h.t, single.t)
@@ -103,6 +104,18 @@ def agrees_with_embree(tris, vertices, faces, hits, o, d):
 
 def indexed(tris):
     return tris.reshape(-1, 3), np.arange(3 * len(tris), dtype=np.int32).reshape(-1, 3)
+
+
+def closest_f64(o, d, tris, tmin):
+    """(t, clear): the float64 brute force's least t above ``tmin`` (inf: none), counting hits
+    within the float32 unit's slack of an edge too, and whether that hit lies clearly inside
+    its triangle (a hit on an edge may go either way in float32)."""
+    best, clear = np.inf, False
+    for tri in tris:
+        _, t, u, v = ray_triangle_f64(o, d, tri)
+        if min(u, v, 1 - u - v) > -1e-5 and tmin < t < best:
+            best, clear = t, min(u, v, 1 - u - v) > 1e-3
+    return best, clear
 
 
 def hard_rays(grid, rng):
@@ -153,15 +166,10 @@ def test_hard_rays_match_the_bvh_embree_and_the_float64_brute_force():
     assert (h.prim >= 0).mean() > 0.5
     agrees_with_embree(tris, *indexed(tris), h, o, d)
     # float64 brute force: where its closest hit lies clearly inside a triangle, the same t
-    # (a closer hit on or within the unit's slack of an edge may go either way in float32)
     checked = 0
     for i in range(0, len(o), 7):
-        best, inside = np.inf, False
-        for tri in tris:
-            _, t, u, v = ray_triangle_f64(o[i], d[i], tri)
-            if min(u, v, 1 - u - v) > -1e-5 and 1e-6 < t < best:
-                best, inside = t, min(u, v, 1 - u - v) > 1e-3
-        if inside:
+        best, clear = closest_f64(o[i], d[i], tris, 1e-6)
+        if clear:
             assert abs(h.t[i] - best) <= 1e-5 * (1 + best), (i, h.t[i], best)
             checked += 1
     assert checked > 10
@@ -271,6 +279,20 @@ def test_packets_answer_as_single_rays_on_the_hard_cases():
         lo = rng.uniform(0.0, 1.0, len(o)).astype(np.float32)
         hi = (lo + rng.uniform(0.0, 1.5, len(o))).astype(np.float32)
         packets_as_single_rays(grid, bvh, o, d, lo, hi)
+        # and reaching back behind the origin (as single rays: the closest hit is the one with
+        # the least t, behind the origin too)
+        lo[rng.random(len(o)) < 0.3] = -np.inf
+        lo[rng.random(len(o)) < 0.2] = -2.0
+        packets_as_single_rays(grid, None, o, d, lo, hi)
+        if res is None:
+            # from a point inside, the least t of the float64 brute force
+            inside = np.tile(rng.uniform(0.3, 0.7, (1, 3)), (32, 1)).astype(np.float32)
+            h = grid.intersect(inside, d[-32:], -np.inf, np.inf)
+            found = [(i, *closest_f64(inside[i], d[-32 + i], tris, -np.inf))
+                     for i in range(0, 32, 3)]
+            for i, best, clear in found:
+                assert not clear or abs(h.t[i] - best) <= 1e-5 * (1 + abs(best)), (i, h.t[i], best)
+            assert sum(clear and best < 0 for _, best, clear in found) >= 3
         # groups whose directions share no sign on any axis go ray by ray
         o, d = raysets.incoherent(tris, 320, 4)
         assert packets_as_single_rays(grid, bvh, o, d) == 0
