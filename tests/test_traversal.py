@@ -447,3 +447,23 @@ def test_shared_vertices_index_the_same_triangles_bit_for_bit():
     assert F.dtype == np.int32 and V.dtype == np.float32
     assert len(V) == len(np.unique(soup.reshape(-1, 3).view(np.uint32), axis=0)) <= 40
     assert np.array_equal(V[F].view(np.uint32), soup.view(np.uint32))
+
+
+@pytest.mark.parametrize("accel", ["bvh", "grid", "kdtree"])
+def test_a_negative_tmin_is_refused_by_every_structure(accel):
+    """Intervals start at the origin or after it (Embree's rule too); the units' widened
+    comparisons assume it, so a negative t_min is an error, not a silent wrong answer."""
+    from traversal.grid import GridTracer
+    from traversal.kdtree import KdTreeTracer
+
+    tris = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
+    tracer = {"bvh": lambda: Tracer(hwbvh.build(tris)), "grid": lambda: GridTracer(tris),
+              "kdtree": lambda: KdTreeTracer(tris)}[accel]()
+    o = np.array([[0.2, 0.2, 0.0], [0.2, 0.2, 2.0]], np.float32)
+    d = np.array([[0, 0, 1], [0, 0, -1]], np.float32)
+    assert tracer.intersect(o, d, 0.0).prim.tolist() == [0, 0]
+    for tmin in (-1.0, np.array([0.0, -1e-30], np.float32)):
+        with pytest.raises(ValueError, match="tmin must not be negative"):
+            tracer.intersect(o, d, tmin)
+        with pytest.raises(ValueError, match="tmin must not be negative"):
+            tracer.occluded(o, d, tmin, 5.0)

@@ -35,11 +35,14 @@ def _interval(x, n, dtype):
     a = np.asarray(x, dtype=dtype)
     if a.shape == (n,):
         return np.require(a, requirements=("C", "W"))
-    return np.ascontiguousarray(np.broadcast_to(a, (n,)))   # a copy, so writable
+    # a copy, so writable (ascontiguousarray would return a one-ray broadcast as it is:
+    # read-only, and Numba compiles a separate copy of every kernel for read-only arrays)
+    return np.array(np.broadcast_to(a, (n,)))
 
 
 def _rays(origins, dirs, tmin, tmax, dtype):
-    """Kernel inputs: C-contiguous, writable arrays of ``dtype``. Writable even when the caller's
+    """Kernel inputs: C-contiguous, writable arrays of ``dtype``; ValueError on a bad shape or a
+    negative ``tmin``. Writable even when the caller's
     arrays are read-only views, since Numba compiles (and caches) a separate copy of every
     kernel for read-only arguments: that had doubled the first render's compile time."""
     o = np.require(np.asarray(origins, dtype=dtype), requirements=("C", "W"))
@@ -47,7 +50,11 @@ def _rays(origins, dirs, tmin, tmax, dtype):
     if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
         raise ValueError(f"origins and dirs must both be (n, 3), got {o.shape} and {d.shape}")
     n = len(o)
-    return o, d, _interval(tmin, n, dtype), _interval(tmax, n, dtype)
+    lo = _interval(tmin, n, dtype)
+    if (lo < 0).any():
+        raise ValueError("tmin must not be negative: a ray's interval starts at its origin or "
+                         "after it (as Embree's)")
+    return o, d, lo, _interval(tmax, n, dtype)
 
 
 class Tracer:
