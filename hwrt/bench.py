@@ -114,12 +114,13 @@ def human(what):
                     lines.append(f"{m['mesh']:<14}{k:<12}{s['rays']:>9}{s['ours_mrays']:>11.2f}"
                                  f"{s['embreex_mrays']:>9.2f}{s['ratio_vs_embreex']:>7.2f}{o3}")
             if r.get("accels"):
-                lines += ["", f"{'mesh':<14}{'accel':<8}{'build ms':>10}{'MiB':>8}{'refs/tri':>9}"
-                              f"{'set':>12}{'Mr/s':>8}{'vs bvh':>8}"]
+                lines += ["", f"{'mesh':<14}{'accel':<8}{'build ms':>10}{'x sweep':>8}{'MiB':>8}"
+                              f"{'refs/tri':>9}{'set':>12}{'Mr/s':>8}{'vs bvh':>8}"]
                 for m in r["meshes"]:
                     for a, st in m["accels"].items():
                         for k, s in st["sets"].items():
                             lines.append(f"{m['mesh']:<14}{a:<8}{st['build_seconds']*1e3:>10.1f}"
+                                         f"{st['build_vs_sweep_bvh']:>8.2f}"
                                          f"{st['memory_bytes']/2**20:>8.2f}"
                                          f"{st['references_per_triangle']:>9.2f}{k:>12}"
                                          f"{s['mrays']:>8.2f}{s['ratio_vs_bvh']:>8.2f}")
@@ -257,7 +258,8 @@ def bench_trace(args):
     ``args.accel`` (a list of names from ``raytracer.render.ACCELS``; empty or None: none)
     traces the same ray sets with each of those acceleration structures too, built by
     ``make_tracer`` after a warm-up: per structure its build seconds (median of ``repeat``
-    builds), memory bytes, references per triangle and, per ray set, Mrays/s and the speed
+    builds) and that time over the sweep BVH builder's (``build_vs_sweep_bvh``, timed the same
+    way), memory bytes, references per triangle and, per ray set, Mrays/s and the speed
     relative to our BVH (``ratio_vs_bvh`` > 1: faster than the BVH).
 
     Open3D is timed in a second phase, after every mesh's ours/embreex figures: its TBB worker
@@ -283,6 +285,9 @@ def bench_trace(args):
         tracer = Tracer(hwbvh.build(tris))
         emb = embree_scene(v32, f32)
         structures = {}
+        # the software builders' reference: the sweep BVH builder, timed the same way
+        sweep_s = _median_time(lambda: hwbvh.build(tris, builder="sweep"), args.repeat)[0] \
+            if accels else None
         for accel in accels:
             scene = SimpleNamespace(triangles=tris, vertices=v32, faces=f32)
             built = []
@@ -291,6 +296,7 @@ def bench_trace(args):
             st = built[-1][0]
             structures[accel] = (st, {"build_seconds": build_s,
                                       "build_spread_s": [min(spread_b), max(spread_b)],
+                                      "build_vs_sweep_bvh": build_s / sweep_s,
                                       **structure_figures(st, len(tris)), "sets": {}})
             del built[:-1]
         sets = {}
@@ -326,6 +332,7 @@ def bench_trace(args):
         row = {"mesh": name, "triangles": int(len(tris)), "sets": out}
         if accels:
             row["accels"] = {accel: r for accel, (_, r) in structures.items()}
+            row["sweep_bvh_build_seconds"] = sweep_s
         structures.clear()
         rows.append(row)
     _open3d_phase(later, args.repeat)

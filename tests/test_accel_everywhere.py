@@ -45,6 +45,8 @@ def test_bench_trace_traces_the_same_rays_with_each_structure(ball, capsys):
     assert set(m["accels"]) == set(ACCELS)
     for name, st in m["accels"].items():
         assert st["build_seconds"] > 0 and st["memory_bytes"] > 0
+        assert st["build_vs_sweep_bvh"] == pytest.approx(st["build_seconds"] /
+                                                         m["sweep_bvh_build_seconds"])
         assert st["references_per_triangle"] >= 1.0, name
         assert set(st["sets"]) == set(m["sets"])
         for kind, s in st["sets"].items():
