@@ -5,6 +5,7 @@ import numba
 import numpy as np
 import pytest
 
+from raytracer import stages
 from raytracer.render import make_tracer, render
 from scenes import compile_scene, load_scene
 from scenes.builtin import BUILTIN
@@ -47,7 +48,14 @@ def test_wavefront_grows_when_dielectrics_double_the_rays():
 
 
 def test_image_independent_of_thread_count():
-    sc = small("marbles", 40, 30, 2)
+    # large enough that every stage runs in several ranges: camera rays (4096 a range at least)
+    # and the camera wavefront's shadow light, accumulated block by block in parallel (64
+    # blocks of stages.BLOCK rays a range at least); two lights, so a pixel's sum has an order
+    d = load_scene("marbles", width=256, height=130, spp=2)
+    d["lights"] = d["lights"] + [{"type": "point", "position": [0.3, 2.0, 0.8],
+                                  "intensity": [1.5, 1.4, 1.2]}]
+    sc = compile_scene(d)
+    assert stages.n_blocks(sc.width * sc.height) >= 2 * 64
     tracer, _, _ = make_tracer(sc)
     before = numba.get_num_threads()
     try:
