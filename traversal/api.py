@@ -44,7 +44,7 @@ def _rays(origins, dirs, tmin, tmax, dtype):
     """Kernel inputs: C-contiguous, writable arrays of ``dtype``; ValueError on a bad shape or a
     negative ``tmin``. Writable even when the caller's
     arrays are read-only views, since Numba compiles (and caches) a separate copy of every
-    kernel for read-only arguments: that had doubled the first render's compile time."""
+    kernel for read-only arguments (twice the first render's compile time)."""
     o = np.require(np.asarray(origins, dtype=dtype), requirements=("C", "W"))
     d = np.require(np.asarray(dirs, dtype=dtype), requirements=("C", "W"))
     if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:

@@ -26,9 +26,9 @@ new events, merged in on the way, so that the build is O(N log N) where straddle
 (WH06's O(sqrt N) per node). The events of the nodes on the way down live in one buffer used
 as a stack: a node's children are written above its own events, the one processed first on top.
 
-The nodes down to ``KD_PARALLEL_DEPTH`` are built first; the subtrees below them are then built
-independently on ``hwbvh.parallel.run_ranges``' threads and joined in a fixed order, so the tree
-is the same on any thread count.
+From ``KD_PARALLEL_MIN_TRIS`` triangles on, the nodes down to ``KD_PARALLEL_DEPTH`` are built
+first; the subtrees below them are then built independently on ``hwbvh.parallel.run_ranges``'
+threads and joined in a fixed order, so the tree is the same on any thread count.
 
 Caps, stated in ``traversal.config``: depth ``KD_DEPTH_BASE + KD_DEPTH_LOG2 * log2(N)`` and
 ``KD_MAX_REFS_PER_TRI * N`` references in all; a split that would exceed either makes a leaf
@@ -571,11 +571,11 @@ def build_kdtree(tris, pads, box, depth_cap, ref_cap, costs=None, parallel_depth
     intersection, empty factor), default the configured ones. Returns (nodes (k, 2) int32,
     refs (r,) int32, depth).
 
-    The nodes down to ``parallel_depth`` (default ``KD_PARALLEL_DEPTH``; -1: none) are built
-    first; the subtrees below them are then built independently on the threads of
-    ``hwbvh.parallel.run_ranges``, each with a share of the references left under the cap in
-    proportion to its own, and joined in a fixed order: the tree does not depend on the
-    thread count."""
+    The nodes down to ``parallel_depth`` (-1: none; default ``KD_PARALLEL_DEPTH`` from
+    ``KD_PARALLEL_MIN_TRIS`` triangles on, else -1) are built first; the subtrees below them
+    are then built independently on the threads of ``hwbvh.parallel.run_ranges``, each with a
+    share of the references left under the cap in proportion to its own, and joined in a fixed
+    order: the tree does not depend on the thread count."""
     c_trav, c_isect, empty = (float(c) for c in costs or (KD_COST_TRAVERSAL, KD_COST_INTERSECT,
                                                             KD_EMPTY_FACTOR))
     if parallel_depth is None:
