@@ -80,36 +80,52 @@ def _executor():
 
 def run_ranges(kernel, n, *args, min_items=1):
     """kernel(lo, hi, *args) over [0, n) split into ranges of at least ``min_items`` items,
-    on numba.get_num_threads() threads (this one included). Re-raises a kernel's exception."""
+    on numba.get_num_threads() threads (this one included). Re-raises a kernel's exception.
+
+    It returns once every range has run and none is running. It does not wait for a pool
+    thread that has not yet taken a range: that thread finds none left and stops. On a busy
+    machine a pool thread may wait a time slice to be scheduled, and this thread does the
+    ranges meanwhile instead of waiting for it."""
     threads = numba.get_num_threads()
     parts = min(threads * RANGES_PER_THREAD, max(1, n // max(1, min_items)))
     if threads == 1 or parts <= 1:
         kernel(0, n, *args)
         return
     bounds = [n * k // parts for k in range(parts + 1)]
-    next_part = [0]
-    lock = threading.Lock()
+    cond = threading.Condition()
+    state = {"next": 0, "running": 0}
+    errors = []
 
     def worker():
         while True:
-            with lock:
-                k = next_part[0]
-                next_part[0] += 1
-            if k >= parts:
+            with cond:
+                k = state["next"]
+                if k >= parts:
+                    return
+                state["next"] = k + 1
+                state["running"] += 1
+            failed = None
+            try:
+                kernel(bounds[k], bounds[k + 1], *args)
+            except BaseException as e:     # re-raised by the calling thread
+                failed = e
+            with cond:
+                state["running"] -= 1
+                if failed is not None:
+                    errors.append(failed)
+                    state["next"] = parts          # no range starts after a failure
+                if state["running"] == 0:
+                    cond.notify_all()
+            if failed is not None:
                 return
-            kernel(bounds[k], bounds[k + 1], *args)
 
-    futures = [_executor().submit(worker) for _ in range(threads - 1)]
-    try:
-        worker()
-    except BaseException:
-        with lock:
-            next_part[0] = parts              # no range starts after a failure
-        raise
-    finally:
+    for _ in range(threads - 1):
+        _executor().submit(worker)
+    worker()
+    with cond:
         # every range in flight ends before this returns or raises: none may write into the
         # caller's arrays afterwards
-        errors = [f.exception() for f in futures]
-    for e in errors:
-        if e is not None:
-            raise e
+        while state["running"]:
+            cond.wait()
+    if errors:
+        raise errors[0]

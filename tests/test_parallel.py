@@ -40,3 +40,28 @@ def test_a_failing_range_stops_the_others_before_returning():
     after = written.copy()
     time.sleep(0.1)
     assert np.array_equal(written, after)       # no range wrote after run_ranges raised
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two threads")
+def test_a_pool_thread_not_yet_running_is_not_waited_for():
+    """On a busy machine a pool thread may not be scheduled for a while: the calling thread
+    does every range meanwhile and returns without waiting for it."""
+    from hwbvh.parallel import _executor
+
+    release = threading.Event()
+    blockers = [_executor().submit(release.wait, 5.0)
+                for _ in range(numba.config.NUMBA_NUM_THREADS - 1)]   # the pool is held up
+    try:
+        hits = np.zeros(1000, np.int64)
+
+        def kernel(lo, hi, out):
+            out[lo:hi] += 1
+        t = time.perf_counter()
+        run_ranges(kernel, len(hits), hits)
+        assert time.perf_counter() - t < 2.0 and (hits == 1).all()
+    finally:
+        release.set()
+        for b in blockers:
+            b.result()
+    time.sleep(0.05)                            # the late pool threads found nothing to do
+    assert (hits == 1).all()
