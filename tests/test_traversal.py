@@ -467,3 +467,20 @@ def test_a_negative_tmin_is_refused_by_every_structure(accel):
             tracer.intersect(o, d, tmin)
         with pytest.raises(ValueError, match="tmin must not be negative"):
             tracer.occluded(o, d, tmin, 5.0)
+
+
+@pytest.mark.parametrize("accel", ["bvh", "grid", "kdtree"])
+def test_an_interval_of_the_wrong_shape_is_named(accel):
+    from traversal.grid import GridTracer
+    from traversal.kdtree import KdTreeTracer
+
+    tris = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
+    tracer = {"bvh": lambda: Tracer(hwbvh.build(tris)), "grid": lambda: GridTracer(tris),
+              "kdtree": lambda: KdTreeTracer(tris)}[accel]()
+    o = np.array([[0.2, 0.2, 0.0], [0.2, 0.2, 2.0]], np.float32)
+    d = np.array([[0, 0, 1], [0, 0, -1]], np.float32)
+    assert tracer.occluded(o, d, np.zeros(1), 5.0).tolist() == [True, True]   # (1,) broadcasts
+    with pytest.raises(ValueError, match=r"^tmax must be a scalar or one value per ray \(2,\)"):
+        tracer.intersect(o, d, 0.0, np.ones(3))
+    with pytest.raises(ValueError, match=r"^tmin must be a scalar or one value per ray \(2,\)"):
+        tracer.occluded(o, d, np.zeros((2, 1)))

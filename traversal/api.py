@@ -30,14 +30,19 @@ class Hits:
     counters: np.ndarray = None
 
 
-def _interval(x, n, dtype):
-    """A per-ray bound as a writable contiguous (n,) array (a scalar is broadcast)."""
+def _interval(x, n, dtype, name):
+    """A per-ray bound ``name`` as a writable contiguous (n,) array (a scalar is broadcast);
+    ValueError naming it on another shape."""
     a = np.asarray(x, dtype=dtype)
     if a.shape == (n,):
         return np.require(a, requirements=("C", "W"))
-    # a copy, so writable (ascontiguousarray would return a one-ray broadcast as it is:
-    # read-only, and Numba compiles a separate copy of every kernel for read-only arrays)
-    return np.array(np.broadcast_to(a, (n,)))
+    try:
+        # a copy, so writable (ascontiguousarray would return a one-ray broadcast as it is:
+        # read-only, and Numba compiles a separate copy of every kernel for read-only arrays)
+        return np.array(np.broadcast_to(a, (n,)))
+    except ValueError:
+        raise ValueError(f"{name} must be a scalar or one value per ray ({n},), "
+                         f"got shape {a.shape}") from None
 
 
 def _rays(origins, dirs, tmin, tmax, dtype):
@@ -50,11 +55,11 @@ def _rays(origins, dirs, tmin, tmax, dtype):
     if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
         raise ValueError(f"origins and dirs must both be (n, 3), got {o.shape} and {d.shape}")
     n = len(o)
-    lo = _interval(tmin, n, dtype)
+    lo = _interval(tmin, n, dtype, "tmin")
     if (lo < 0).any():
         raise ValueError("tmin must not be negative: a ray's interval starts at its origin or "
                          "after it (as Embree's)")
-    return o, d, lo, _interval(tmax, n, dtype)
+    return o, d, lo, _interval(tmax, n, dtype, "tmax")
 
 
 class Tracer:
