@@ -484,3 +484,18 @@ def test_an_interval_of_the_wrong_shape_is_named(accel):
         tracer.intersect(o, d, 0.0, np.ones(3))
     with pytest.raises(ValueError, match=r"^tmin must be a scalar or one value per ray \(2,\)"):
         tracer.occluded(o, d, np.zeros((2, 1)))
+
+
+@pytest.mark.parametrize("accel", ["grid", "kdtree"])
+def test_structures_refuse_coordinates_the_bvh_refuses(accel):
+    """Beyond hwbvh's coordinate bound the float32 unit overflows (at 1e20 every ray missed):
+    the grid and the kd-tree refuse such meshes as the BVH's builder does."""
+    from hwbvh.config import MAX_COORDINATE
+    from traversal.grid import GridTracer
+    from traversal.kdtree import KdTreeTracer
+
+    make = {"grid": GridTracer, "kdtree": KdTreeTracer}[accel]
+    tris = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
+    with pytest.raises(ValueError, match="^triangles: coordinate magnitude 1e\\+20 exceeds"):
+        make(tris * np.float32(1e20))
+    make(tris * np.float32(MAX_COORDINATE / 2))
