@@ -621,8 +621,6 @@ def warm_up_grid():
     start = time.perf_counter()
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)
     grid = GridTracer(tri)
-    # two rays: a one-ray batch's broadcast interval is a read-only array, for which Numba
-    # compiles other copies of the kernels than the ones real batches use
     o = np.array([[0.25, 0.25, 1.0], [0.25, 0.25, -1.0]], np.float32)
     d = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]], np.float32)
     grid.intersect(o, d)
