@@ -449,7 +449,7 @@ def test_shared_vertices_index_the_same_triangles_bit_for_bit():
     assert np.array_equal(V[F].view(np.uint32), soup.view(np.uint32))
 
 
-@pytest.mark.parametrize("accel", ["bvh", "grid", "kdtree"])
+@pytest.mark.parametrize("accel", ["bvh", "grid", "kdtree", "embree"])
 def test_a_negative_tmin_is_refused_by_every_structure(accel):
     """Intervals start at the origin or after it (Embree's rule too); the units' widened
     comparisons assume it, so a negative t_min is an error, not a silent wrong answer."""
@@ -457,8 +457,11 @@ def test_a_negative_tmin_is_refused_by_every_structure(accel):
     from traversal.kdtree import KdTreeTracer
 
     tris = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
+    from traversal.embree_ref import EmbreeTracer
+
     tracer = {"bvh": lambda: Tracer(hwbvh.build(tris)), "grid": lambda: GridTracer(tris),
-              "kdtree": lambda: KdTreeTracer(tris)}[accel]()
+              "kdtree": lambda: KdTreeTracer(tris),
+              "embree": lambda: EmbreeTracer(tris.reshape(-1, 3), np.arange(3).reshape(1, 3))}[accel]()
     o = np.array([[0.2, 0.2, 0.0], [0.2, 0.2, 2.0]], np.float32)
     d = np.array([[0, 0, 1], [0, 0, -1]], np.float32)
     assert tracer.intersect(o, d, 0.0).prim.tolist() == [0, 0]
@@ -475,8 +478,11 @@ def test_an_interval_of_the_wrong_shape_is_named(accel):
     from traversal.kdtree import KdTreeTracer
 
     tris = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
+    from traversal.embree_ref import EmbreeTracer
+
     tracer = {"bvh": lambda: Tracer(hwbvh.build(tris)), "grid": lambda: GridTracer(tris),
-              "kdtree": lambda: KdTreeTracer(tris)}[accel]()
+              "kdtree": lambda: KdTreeTracer(tris),
+              "embree": lambda: EmbreeTracer(tris.reshape(-1, 3), np.arange(3).reshape(1, 3))}[accel]()
     o = np.array([[0.2, 0.2, 0.0], [0.2, 0.2, 2.0]], np.float32)
     d = np.array([[0, 0, 1], [0, 0, -1]], np.float32)
     assert tracer.occluded(o, d, np.zeros(1), 5.0).tolist() == [True, True]   # (1,) broadcasts

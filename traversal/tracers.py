@@ -6,6 +6,9 @@ Every tracer answers two batched queries (pbrt's ``Intersect`` / ``IntersectP``)
   ray (t, prim with -1 for a miss, barycentrics u, v; geometric normals when ``normals``);
 * ``occluded(origins, dirs, tmin=0.0, tmax=inf) -> (n,) bool``: any hit in [tmin, tmax].
 
+Intervals start at the origin or after it (``tmin >= 0``, as in Embree): a negative ``tmin``
+is a ValueError.
+
 ``traversal.Tracer`` (the appendix-A units on the raw hwbvh buffer) and
 ``traversal.embree_ref.EmbreeTracer`` implement it; the renderer sees nothing else. The wrappers
 below implement it too, so they stack in front of either back end:
@@ -81,6 +84,9 @@ def _shifted(origins, dirs, tmin, tmax):
     d = np.asarray(dirs, np.float64)
     n = len(o)
     lo = np.broadcast_to(np.asarray(tmin, np.float64), (n,))
+    if (lo < 0).any():
+        raise ValueError("tmin must not be negative: a ray's interval starts at its origin or "
+                         "after it (as Embree's)")
     hi = np.broadcast_to(np.asarray(tmax, np.float64), (n,))
     if lo.any():
         o = o + d * lo[:, None]
