@@ -269,8 +269,10 @@ def cmd_render(args):
     res = render(scene, tracer, seed=args.seed, progress=bar.update)
     render_s = time.perf_counter() - t0
     bar.close()
-    result = {"output": out, "scene": scene.name, "accel": args.accel, "builder": args.builder,
-              "traversal": args.traversal, "triangles": int(len(scene.triangles)), "width": scene.width, "height": scene.height,
+    bvh = args.accel == "bvh"              # another structure has its own build and traversal
+    result = {"output": out, "scene": scene.name, "accel": args.accel,
+              "builder": args.builder if bvh else None, "traversal": args.traversal if bvh else None,
+              "triangles": int(len(scene.triangles)), "width": scene.width, "height": scene.height,
               "spp": scene.spp, "max_depth": scene.max_depth,
               "build_seconds": build_s, "render_seconds": render_s,
               "time_to_image_seconds": build_s + render_s,
@@ -285,9 +287,10 @@ def cmd_render(args):
         result["time_to_image_simulated_seconds"] = {k: v + render_s for k, v in sim.items()}
     if checked is not None:
         result["verify"] = checked.summary()
-    meta = {"scene": scene.name, "accel": args.accel, "builder": args.builder,
-            "traversal": args.traversal, "build_seconds": build_s, "render_seconds": render_s, "spp": scene.spp,
-            "max_depth": scene.max_depth}
+    meta = {"scene": scene.name, "accel": args.accel, "build_seconds": build_s,
+            "render_seconds": render_s, "spp": scene.spp, "max_depth": scene.max_depth}
+    if bvh:
+        meta.update(builder=args.builder, traversal=args.traversal)
     meta.update({f"rays_{k}": v for k, v in res.stats["rays"].items()})
     files = [(out, exr_writer(out, res, meta, layers=not args.no_layers))]
     if png:

@@ -426,6 +426,8 @@ def test_cli_accel(tmp_path, capsys):
                  "--height", "12", "--spp", "1", "--json"]) in (0, None)
     r = json.loads(capsys.readouterr().out)
     assert r["accel"] == "grid" and r["memory_bytes"] > 0 and r["references_per_triangle"] > 0
+    # no BVH is built: no builder, traversal or simulated hardware build to report
+    assert r["builder"] is None and r["traversal"] is None and r["simulated_build_seconds"] is None
     assert out.exists()
     assert main(["verify", "cornell", "--accel", "grid", "--rays", "2000", "--json",
                  "--mismatches", str(tmp_path / "m.npz")]) in (0, None)
