@@ -118,10 +118,9 @@ def closest_f64(o, d, tris, tmin):
     return best, clear
 
 
-def hard_rays(grid, rng):
-    """Axis-parallel rays on the vertex lattice (through shared edges and vertices), rays whose
-    origins lie on cell planes, rays parallel to cell planes (in them and between them),
-    starting outside and inside the grid."""
+def lattice_rays():
+    """Axis-parallel rays on the vertex lattice of ``tessellated_cube`` (through shared edges
+    and vertices), starting outside and inside, and diagonals through lattice vertices."""
     lattice = np.linspace(0.0, 1.0, 9)
     O, D = [], []
     for axis in range(3):
@@ -135,25 +134,62 @@ def hard_rays(grid, rng):
                     d[axis] = sign
                     O.append(o)
                     D.append(d)
-    # diagonals through lattice vertices
     for x in lattice:
         for y in lattice:
             O.append([x - 0.5, y - 0.5, -0.5])
             D.append([1.0, 1.0, 1.0])
-    cs = (grid.gmax - grid.gmin) / np.asarray(grid.resolution)
-    planes = [grid.gmin[k] + cs[k] * np.arange(grid.resolution[k] + 1) for k in range(3)]
-    for _ in range(400):
+    return O, D
+
+
+def plane_rays(rng, axes, positions, n):
+    """``n`` rays whose origins lie on one of the planes (axis ``axes[i]`` at ``positions[i]``),
+    half of them parallel to it (in the plane), some axis-parallel along it."""
+    O, D = [], []
+    for _ in range(n):
         o = rng.uniform(-0.2, 1.2, 3)
-        k = rng.integers(3)
-        o[k] = rng.choice(planes[k])                          # origin on a cell plane
+        i = rng.integers(len(axes))
+        k = axes[i]
+        o[k] = positions[i]                                   # origin on the plane
         d = rng.normal(size=3)
         if rng.random() < 0.5:
-            d[k] = 0.0                                        # and parallel to it
+            d[k] = 0.0                                        # and in it
         if rng.random() < 0.3:
-            d[(k + 1) % 3] = 0.0                              # axis-parallel along a plane
+            d[(k + 1) % 3] = 0.0                              # axis-parallel along the plane
         O.append(o)
         D.append(d)
-    return np.asarray(O, np.float32), np.asarray(D, np.float32)
+    return O, D
+
+
+def hard_rays(grid, rng):
+    """``lattice_rays`` and rays whose origins lie on cell planes (``plane_rays``)."""
+    O, D = lattice_rays()
+    cs = (grid.gmax - grid.gmin) / np.asarray(grid.resolution)
+    axes = np.concatenate([np.full(grid.resolution[k] + 1, k) for k in range(3)])
+    positions = np.concatenate([grid.gmin[k] + cs[k] * np.arange(grid.resolution[k] + 1)
+                                for k in range(3)])
+    o, d = plane_rays(rng, axes, positions, 400)
+    return np.asarray(O + o, np.float32), np.asarray(D + d, np.float32)
+
+
+def mesh_case(mesh):
+    """(triangles, vertices, faces) of the "sphere" (indexed) or the "soup" test mesh."""
+    if mesh == "sphere":
+        vertices, faces = sphere()
+        return vertices[faces], vertices, faces
+    tris = soup(3000, 1)
+    return (tris, *indexed(tris))
+
+
+def brute_force_agrees(h, o, d, tris, step=7):
+    """Every ``step``-th ray: where the float64 brute force's closest hit lies clearly inside a
+    triangle, ``h`` has the same t. Returns the number of rays so checked."""
+    checked = 0
+    for i in range(0, len(o), step):
+        best, clear = closest_f64(o[i], d[i], tris, 1e-6)
+        if clear:
+            assert abs(h.t[i] - best) <= 1e-5 * (1 + best), (i, h.t[i], best)
+            checked += 1
+    return checked
 
 
 def test_hard_rays_match_the_bvh_embree_and_the_float64_brute_force():
@@ -166,13 +202,7 @@ def test_hard_rays_match_the_bvh_embree_and_the_float64_brute_force():
     assert (h.prim >= 0).mean() > 0.5
     agrees_with_embree(tris, *indexed(tris), h, o, d)
     # float64 brute force: where its closest hit lies clearly inside a triangle, the same t
-    checked = 0
-    for i in range(0, len(o), 7):
-        best, clear = closest_f64(o[i], d[i], tris, 1e-6)
-        if clear:
-            assert abs(h.t[i] - best) <= 1e-5 * (1 + best), (i, h.t[i], best)
-            checked += 1
-    assert checked > 10
+    assert brute_force_agrees(h, o, d, tris) > 10
     # intervals: random [tmin, tmax] on the same rays, with explicit resolutions (cell planes
     # on the lattice and off it)
     lo = rng.uniform(0.0, 1.0, len(o)).astype(np.float32)
@@ -183,12 +213,7 @@ def test_hard_rays_match_the_bvh_embree_and_the_float64_brute_force():
 
 @pytest.mark.parametrize("mesh", ["sphere", "soup"])
 def test_no_mismatch_against_embree(mesh):
-    if mesh == "sphere":
-        vertices, faces = sphere()
-        tris = vertices[faces]
-    else:
-        tris = soup(3000, 1)
-        vertices, faces = indexed(tris)
+    tris, vertices, faces = mesh_case(mesh)
     grid = GridTracer(tris)
     bvh = bvh_tracer(tris)
     for kind, (o, d) in (("primary", raysets.primary(tris, 6000)),
