@@ -41,7 +41,7 @@ from .config import (CHUNK_RAYS, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
                      GRID_MAX_REFS_PER_TRI, GRID_PACKET_MAILBOX, GRID_PACKET_WIDEN,
                      GRID_PAD_COORD, GRID_PAD_TRI, GRID_STOP_SLACK)
 from .packet import (ALIVE, BEST, BU, BV, DX, DY, DZ, MASK, NF, NI, NM, NW, OX, OY, OZ, P, PRIM,
-                     TMIN, _lane_setup, _triangle)
+                     TMIN, _triangle, load_lane)
 from .rawtree import _ray_ok
 from .triangle_unit import (TRI_WORDS, mt_valid_at, store_answer, store_normals)
 
@@ -257,7 +257,7 @@ def _clip(f, g, ig, lo, hi, t0, t1):
 @njit(cache=True, error_model="numpy", inline="always")
 def _packet_lanes(lo, Of, Df, tmin, tmax, gmin, gmax, F, I, M, W, zero, one):
     """Lane state of rays [lo, lo + P) (``Of``/``Df``: the origins and directions seen flat):
-    the packet kernel's (``packet._lane_setup``) and the walk's, the ray clipped to the grid's
+    the packet kernel's (``packet.load_lane``) and the walk's, the ray clipped to the grid's
     box in float64 (exact conversions of the float32 ray). A lane that the unit rejects or
     that misses the box is not live. Returns the live lanes.
 
@@ -273,15 +273,7 @@ def _packet_lanes(lo, Of, Df, tmin, tmax, gmin, gmax, F, I, M, W, zero, one):
     Bs = tmax[lo:lo + P]
     nlive = 0
     for k in range(P):
-        ox = Os[3 * k]; oy = Os[3 * k + 1]; oz = Os[3 * k + 2]
-        dx = Ds[3 * k]; dy = Ds[3 * k + 1]; dz = Ds[3 * k + 2]
-        a = As[k]
-        b = Bs[k]
-        # the unit's ray check (rawtree._ray_ok) without branches: x - x == 0 iff x is finite
-        ok = ((ox - ox) == 0) & ((oy - oy) == 0) & ((oz - oz) == 0) & ((dx - dx) == 0) \
-            & ((dy - dy) == 0) & ((dz - dz) == 0) & ((dx != 0) | (dy != 0) | (dz != 0)) \
-            & (a <= b)
-        _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one)
+        ok = load_lane(F, I, M, k, Os, Ds, As, Bs, zero, one)
         M[MASK + k] = 1                 # every live lane takes part in every triangle test
         fx, fy, fz = np.float64(F[OX + k]), np.float64(F[OY + k]), np.float64(F[OZ + k])
         gx, gy, gz = np.float64(F[DX + k]), np.float64(F[DY + k]), np.float64(F[DZ + k])

@@ -276,6 +276,15 @@ def root_events(tris, pads, box):
     return ev[:e]
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _split_cost(c_trav, scale, empty_factor, al, ar, nl, nr):
+    """SAH cost of a split with child areas ``al``, ``ar`` (``scale``: the intersection cost over
+    the parent's area) and ``nl``, ``nr`` triangles, with the empty-side factor when a side is
+    empty."""
+    factor = empty_factor if nl == 0 or nr == 0 else 1.0
+    return c_trav + scale * factor * (al * nl + ar * nr)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _best_split(ev, s, e, m, box, c_trav, c_isect, empty_factor, fbuf, ubuf):
     """The SAH's best plane over the sorted events ev[s:e] of a node with ``m`` triangles:
@@ -322,18 +331,15 @@ def _best_split(ev, s, e, m, box, c_trav, c_isect, empty_factor, fbuf, ubuf):
                 al = 2.0 * ((p - lo) * side_sum + side_prod)
                 ar = 2.0 * ((hi - p) * side_sum + side_prod)
                 # planar triangles on the left, then (if any) on the right
-                nl = n_left + n_planar
-                factor = empty_factor if nl == 0 or n_right == 0 else 1.0
-                cost = c_trav + scale * factor * (al * nl + ar * n_right)
+                cost = _split_cost(c_trav, scale, empty_factor, al, ar, n_left + n_planar, n_right)
                 if cost < best_cost:
                     best_cost = cost
                     best_axis = ax
                     best_code = group & _MASK_32
                     best_left = True
                 if n_planar > 0:
-                    nr = n_right + n_planar
-                    factor = empty_factor if n_left == 0 or nr == 0 else 1.0
-                    cost = c_trav + scale * factor * (al * n_left + ar * nr)
+                    cost = _split_cost(c_trav, scale, empty_factor, al, ar, n_left,
+                                       n_right + n_planar)
                     if cost < best_cost:
                         best_cost = cost
                         best_axis = ax

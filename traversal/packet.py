@@ -203,6 +203,23 @@ def _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one):
     F[BV + k] = zero
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def load_lane(F, I, M, k, Os, Ds, As, Bs, zero, one):
+    """Lane k's ray from the packet's views (origins and directions flat, bounds), checked as
+    the unit's ``rawtree._ray_ok`` but without branches (x - x == 0 exactly when x is finite),
+    so that the lane loop runs in SIMD; a dead lane is set up harmless (``_lane_setup``).
+    Returns whether the unit accepts the ray."""
+    ox = Os[3 * k]; oy = Os[3 * k + 1]; oz = Os[3 * k + 2]
+    dx = Ds[3 * k]; dy = Ds[3 * k + 1]; dz = Ds[3 * k + 2]
+    a = As[k]
+    b = Bs[k]
+    ok = ((ox - ox) == 0) & ((oy - oy) == 0) & ((oz - oz) == 0) & ((dx - dx) == 0) \
+        & ((dy - dy) == 0) & ((dz - dz) == 0) & ((dx != 0) | (dy != 0) | (dz != 0)) \
+        & (a <= b)
+    _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one)
+    return ok
+
+
 @njit(cache=True, error_model="numpy", _nrt=False)
 def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, lo, hi, anyhit,
                  stack, F, I, M, M64, out_prim, out_t, out_u, out_v, counters):
@@ -219,15 +236,7 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
     As = tmin_in[lo:lo + P]
     Bs = tmax_in[lo:lo + P]
     for k in range(P):
-        ox = Os[3 * k]; oy = Os[3 * k + 1]; oz = Os[3 * k + 2]
-        dx = Ds[3 * k]; dy = Ds[3 * k + 1]; dz = Ds[3 * k + 2]
-        a = As[k]
-        b = Bs[k]
-        # _ray_ok without branches: x - x == 0 exactly when x is finite
-        ok = ((ox - ox) == 0) & ((oy - oy) == 0) & ((oz - oz) == 0) & ((dx - dx) == 0) \
-            & ((dy - dy) == 0) & ((dz - dz) == 0) & ((dx != 0) | (dy != 0) | (dz != 0)) \
-            & (a <= b)
-        _lane_setup(F, I, M, k, ok, ox, oy, oz, dx, dy, dz, a, b, zero, one)
+        load_lane(F, I, M, k, Os, Ds, As, Bs, zero, one)
     w = M64[0]
     for q in range(1, NW):
         w |= M64[q]
