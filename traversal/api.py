@@ -62,6 +62,15 @@ def _rays(origins, dirs, tmin, tmax, dtype):
     return o, d, lo, _interval(tmax, n, dtype, "tmax")
 
 
+def _answers(n, anyhit, normals, dtype):
+    """Output arrays of a batch of ``n`` rays: prim (n,) int32; t, u, v ((n,), or empty for an
+    any-hit query, which needs the primitive only) and ng ((n, 3), or (0, 3) without
+    ``normals``) in ``dtype``."""
+    m = 0 if anyhit else n
+    return (np.empty(n, np.int32), np.empty(m, dtype), np.empty(m, dtype), np.empty(m, dtype),
+            np.empty((n if normals else 0, 3), dtype))
+
+
 class Tracer:
     """Ray queries on one BVH. precision: "float32" (the hardware units) or "float64";
     watertight=True swaps the Moller-Trumbore unit for the Woop et al. 2013 test.
@@ -110,13 +119,8 @@ class Tracer:
     def _run(self, origins, dirs, tmin, tmax, anyhit, counters, normals=False, as_run=False):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)
         n = len(o)
-        prim = np.empty(n, np.int32)
-        m = 0 if anyhit else n                 # occluded() needs the primitive only
-        t = np.empty(m, self.dtype)
-        u = np.empty(m, self.dtype)
-        v = np.empty(m, self.dtype)
+        prim, t, u, v, ng = _answers(n, anyhit, normals, self.dtype)
         cnt = np.zeros((n if counters else 0, 2), np.int64)
-        ng = np.empty((n if normals else 0, 3), self.dtype)
         nchunks = (n + CHUNK_RAYS - 1) // CHUNK_RAYS
         over = np.zeros(nchunks, np.int64)
         traced = np.zeros(nchunks, np.int64)

@@ -4,7 +4,7 @@ mesh's padded box, the float32 Moller-Trumbore unit's triangle rows, and the bat
 import numpy as np
 
 from hwbvh.config import MAX_COORDINATE
-from .api import Hits, _rays
+from .api import Hits, _answers, _rays
 from .config import EDGE_EPS_F32
 from .triangle_unit import band_eps2, preprocess
 
@@ -60,13 +60,7 @@ class TriangleStructure:
 
     def _run(self, origins, dirs, tmin, tmax, anyhit, normals):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, np.float32)
-        n = len(o)
-        prim = np.empty(n, np.int32)
-        m = 0 if anyhit else n                 # occluded() needs the primitive only
-        t = np.empty(m, np.float32)
-        u = np.empty(m, np.float32)
-        v = np.empty(m, np.float32)
-        ng = np.empty((n if normals else 0, 3), np.float32)
+        prim, t, u, v, ng = _answers(len(o), anyhit, normals, np.float32)
         self._trace(o, d, lo, hi, anyhit, prim, t, u, v, ng)
         return prim, t, u, v, (ng if normals else None)
 
