@@ -33,8 +33,8 @@ Each range writes only its own outputs, so results do not depend on how the rang
 out. The thread count follows ``numba.get_num_threads()``.
 """
 import os
+import queue
 import threading
-from concurrent.futures import ThreadPoolExecutor
 
 import numba
 
@@ -65,6 +65,29 @@ THREADING = pin_threading()
 
 RANGES_PER_THREAD = 8          # enough to rebalance around a slowed thread, few enough calls
 
+class _Pool:
+    """Sleeping daemon threads that run submitted callables in order of submission. Daemon
+    threads, so that a process that is ending (Ctrl-C, SIGTERM) does not wait for them: a
+    ``concurrent.futures`` pool is joined at exit, and a thread stuck behind the exception
+    that ended the main thread (a kernel compiling, say) would keep the process alive."""
+
+    def __init__(self, threads):
+        self._queue = queue.SimpleQueue()
+        for k in range(threads):
+            threading.Thread(target=self._serve, name=f"hwrt-stage-{k}", daemon=True).start()
+
+    def _serve(self):
+        while True:
+            job = self._queue.get()
+            try:
+                job()
+            except BaseException:          # a job reports its own failures (run_ranges does)
+                pass
+
+    def submit(self, job):
+        self._queue.put(job)
+
+
 _pool = None
 _pool_lock = threading.Lock()
 
@@ -73,8 +96,7 @@ def _executor():
     global _pool
     with _pool_lock:
         if _pool is None:
-            _pool = ThreadPoolExecutor(max_workers=max(1, numba.config.NUMBA_NUM_THREADS - 1),
-                                       thread_name_prefix="hwrt-stage")
+            _pool = _Pool(max(1, numba.config.NUMBA_NUM_THREADS - 1))
         return _pool
 
 

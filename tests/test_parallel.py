@@ -49,8 +49,13 @@ def test_a_pool_thread_not_yet_running_is_not_waited_for():
     from hwbvh.parallel import _executor
 
     release = threading.Event()
-    blockers = [_executor().submit(release.wait, 5.0)
-                for _ in range(numba.config.NUMBA_NUM_THREADS - 1)]   # the pool is held up
+    freed = threading.Semaphore(0)
+
+    def hold_up():
+        release.wait(5.0)
+        freed.release()
+    for _ in range(numba.config.NUMBA_NUM_THREADS - 1):            # the pool is held up
+        _executor().submit(hold_up)
     try:
         hits = np.zeros(1000, np.int64)
 
@@ -61,7 +66,7 @@ def test_a_pool_thread_not_yet_running_is_not_waited_for():
         assert time.perf_counter() - t < 2.0 and (hits == 1).all()
     finally:
         release.set()
-        for b in blockers:
-            b.result()
+        for _ in range(numba.config.NUMBA_NUM_THREADS - 1):
+            freed.acquire()
     time.sleep(0.05)                            # the late pool threads found nothing to do
     assert (hits == 1).all()
