@@ -233,6 +233,17 @@ def _buffers(n, n_lights, ray_dtype):
     return buf
 
 
+_scratch = threading.local()
+
+
+def _shade(b0, b1, *args):
+    """``stages.shade`` with the calling thread's scratch (``stages.shade_scratch``)."""
+    scratch = getattr(_scratch, "arrays", None)
+    if scratch is None:
+        scratch = _scratch.arrays = stages.shade_scratch()
+    stages.shade(b0, b1, *args, *scratch)
+
+
 def release_buffers():
     """Free the calling thread's kept wavefront buffers (see ``_buffers``)."""
     _kept.buffers = None
@@ -351,7 +362,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
             lap("pack")
             h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
             lap("intersect")
-            run_ranges(stages.shade, nb, nb, O, D, wgt, pix, n, h.prim, h.t, h.u, h.v, *sa, code,
+            run_ranges(_shade, nb, nb, O, D, wgt, pix, n, h.prim, h.t, h.u, h.v, *sa, code,
                        n_lights > 0, spawn, bounce == 0, eye, bounce == 0 and s == 0, aov_depth,
                        aov_normal, aov_prim, film, buf.contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix,
                        sh_cnt[:nb], sp_O, sp_D, sp_W, sp_pix, sp_cnt[:nb])

@@ -170,12 +170,31 @@ def _own(film, contrib, direct, q, i, c0, c1, c2):
         contrib[i, 2] = c2
 
 
+# Rows of the shading kernel's per-block scratch (structure of arrays, one column per ray of
+# the block). One 2D array rather than one per field: LLVM then proves the rows apart and
+# runs the passes over them in SIMD lanes.
+_ROWS = 30
+(_DX, _DY, _DZ, _PX, _PY, _PZ, _GX, _GY, _GZ, _FX, _FY, _FZ, _NX, _NY, _NZ, _W0, _W1, _W2, _MAG,
+ _OX, _OY, _OZ, _LX, _LY, _LZ, _TMAX, _COS, _E0, _E1, _E2) = range(0, _ROWS * BLOCK, BLOCK)
+
+
+def shade_scratch():
+    """The working arrays of one ``shade`` call (its last four arguments): the scratch ``S``
+    (``_ROWS`` rows of BLOCK), and per ray of a block, its material, whether it takes direct
+    light and whether the light is in front of it; the slots of the rays that spawn. A kernel that allocated
+    them itself would run at half the speed: Numba's reference counting then wraps its loops
+    and LLVM no longer keeps the scratch in its SIMD passes."""
+    return (np.empty(_ROWS * BLOCK), np.empty(BLOCK, np.int64), np.empty(BLOCK, np.bool_),
+            np.empty(BLOCK, np.bool_), np.empty(BLOCK, np.int64))
+
+
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
           face_n, shading_n, material, tri_mag, kd, kd_pi, ks, shininess, kr, ior,
           light_kind, light_pos, light_dir, light_val, ambient, background, cutoff,
           offset, do_shadow, do_spawn, camera, eye, first, aov_depth, aov_normal, aov_prim,
-          film, contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt, sp_O, sp_D, sp_W, sp_pix, sp_cnt):
+          film, contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt, sp_O, sp_D, sp_W, sp_pix, sp_cnt,
+          S, mat, lit, leaves, spawning):
     """Shade the rays of blocks b0..b1 (of nb, BLOCK rays each, n in all) from their closest
     hits (see the module text).
 
@@ -187,188 +206,280 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
     precision, t_max, the light brought if visible, pixel), ``sh_cnt[b, l]`` of them; its
     reflections at b * BLOCK and refractions at (n_blocks + b) * BLOCK onward (float64 origin,
     direction, weight, pixel), ``sp_cnt[b, 0/1]`` of them. ``first`` writes the first-hit
-    layers (``aov_*``); ``offset``: traversal.offset strategy index; ``kd_pi``: kd / pi."""
+    layers (``aov_*``); ``offset``: traversal.offset strategy index; ``kd_pi``: kd / pi.
+
+    A block is shaded in passes over a structure-of-arrays scratch ``S``, so that the
+    arithmetic runs in SIMD lanes: (1) the hit points and normals of every ray of the block,
+    its triangle's data gathered first (a miss computes values no later pass reads); (2) in
+    ray order, misses, first-hit layers, ambient light and which rays take direct light or
+    spawn; (3) per light, the shadow ray of every ray of the block, then, in ray order, the
+    records of the rays that take direct light and leave toward the light; (4) in ray order,
+    the secondary rays. Every value is the float64 formula of a ray-by-ray loop, so the passes
+    do not change a bit of the result."""
     n_lights = light_kind.shape[0]
     for b in range(b0, b1):
-        for l in range(n_lights):
-            sh_cnt[b, l] = 0
-        n_refl = 0
-        n_refr = 0
-        for i in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
-            if camera:
-                w0 = w1 = w2 = 1.0
-            else:
-                w0 = wgt[i, 0]
-                w1 = wgt[i, 1]
-                w2 = wgt[i, 2]
-            p = hit_prim[i]
-            if p < 0:
-                # -- a miss sees the background --
-                _own(film, contrib, camera, pix[i], i, w0 * background[0], w1 * background[1],
-                     w2 * background[2])
-                continue
+        lo = b * BLOCK
+        hi = min(n, lo + BLOCK)
+        nr = hi - lo
+        # -- pass 1, in ray order, every read of the queue and the triangles (scalar:
+        #    gathers): direction, hit point, weight, the unit geometric normal (per face), the
+        #    interpolated shading normal, the triangle's coordinate magnitude and material;
+        #    misses see the background; first-hit layers; ambient light; which rays take
+        #    direct light (not dielectrics) and which spawn --
+        n_spawning = 0
+        for j in range(nr):
+            i = lo + j
+            p = max(hit_prim[i], 0)
             dx = D[i, 0]
             dy = D[i, 1]
             dz = D[i, 2]
             t = np.float64(hit_t[i])
+            if camera:
+                S[_PX + j] = eye[0] + dx * t
+                S[_PY + j] = eye[1] + dy * t
+                S[_PZ + j] = eye[2] + dz * t
+                S[_W0 + j] = 1.0
+                S[_W1 + j] = 1.0
+                S[_W2 + j] = 1.0
+            else:
+                S[_PX + j] = O[i, 0] + dx * t
+                S[_PY + j] = O[i, 1] + dy * t
+                S[_PZ + j] = O[i, 2] + dz * t
+                S[_W0 + j] = wgt[i, 0]
+                S[_W1 + j] = wgt[i, 1]
+                S[_W2 + j] = wgt[i, 2]
+            S[_DX + j] = dx
+            S[_DY + j] = dy
+            S[_DZ + j] = dz
             u = np.float64(hit_u[i])
             v = np.float64(hit_v[i])
-            if camera:
-                Px = eye[0] + dx * t
-                Py = eye[1] + dy * t
-                Pz = eye[2] + dz * t
-            else:
-                Px = O[i, 0] + dx * t
-                Py = O[i, 1] + dy * t
-                Pz = O[i, 2] + dz * t
-            # -- normals: geometric (unit, per face) and interpolated shading normal --
-            ngx = face_n[p, 0]
-            ngy = face_n[p, 1]
-            ngz = face_n[p, 2]
             a = 1 - u - v
-            nsx = a * np.float64(shading_n[p, 0, 0]) + u * np.float64(shading_n[p, 1, 0]) + v * np.float64(shading_n[p, 2, 0])
-            nsy = a * np.float64(shading_n[p, 0, 1]) + u * np.float64(shading_n[p, 1, 1]) + v * np.float64(shading_n[p, 2, 1])
-            nsz = a * np.float64(shading_n[p, 0, 2]) + u * np.float64(shading_n[p, 1, 2]) + v * np.float64(shading_n[p, 2, 2])
-            nsx, nsy, nsz = _unit(nsx, nsy, nsz)
+            S[_GX + j] = face_n[p, 0]
+            S[_GY + j] = face_n[p, 1]
+            S[_GZ + j] = face_n[p, 2]
+            S[_NX + j] = a * np.float64(shading_n[p, 0, 0]) + u * np.float64(shading_n[p, 1, 0]) + v * np.float64(shading_n[p, 2, 0])
+            S[_NY + j] = a * np.float64(shading_n[p, 0, 1]) + u * np.float64(shading_n[p, 1, 1]) + v * np.float64(shading_n[p, 2, 1])
+            S[_NZ + j] = a * np.float64(shading_n[p, 0, 2]) + u * np.float64(shading_n[p, 1, 2]) + v * np.float64(shading_n[p, 2, 2])
+            S[_MAG + j] = tri_mag[p]
+            m = material[p]
+            mat[j] = m
+            lit[j] = False
+            w0 = S[_W0 + j]
+            w1 = S[_W1 + j]
+            w2 = S[_W2 + j]
+            if hit_prim[i] < 0:                     # a miss sees the background
+                _own(film, contrib, camera, pix[i], i, w0 * background[0], w1 * background[1],
+                     w2 * background[2])
+                continue
             if first:
                 q = pix[i]
                 aov_depth[q] = hit_t[i]
-                aov_normal[q, 0] = nsx
-                aov_normal[q, 1] = nsy
-                aov_normal[q, 2] = nsz
                 aov_prim[q] = p
-            m = material[p]
-            eta = ior[m]
-            dielectric = eta > 0
-            # -- two-sided surfaces: both normals turned toward the incoming ray --
+            _own(film, contrib, camera, pix[i], i, w0 * (kd[m, 0] * ambient[0]),
+                 w1 * (kd[m, 1] * ambient[1]), w2 * (kd[m, 2] * ambient[2]))
+            dielectric = ior[m] > 0
+            lit[j] = do_shadow and not dielectric       # dielectrics take no direct light
+            if do_spawn and (dielectric or max(kr[m, 0], kr[m, 1], kr[m, 2]) > 0):
+                spawning[n_spawning] = j
+                n_spawning += 1
+        # -- pass 2 (SIMD: it reads and writes the scratch only): the unit shading normal;
+        #    both normals turned toward the incoming ray --
+        for j in range(nr):
+            dx = S[_DX + j]
+            dy = S[_DY + j]
+            dz = S[_DZ + j]
+            nsx, nsy, nsz = _unit(S[_NX + j], S[_NY + j], S[_NZ + j])
+            S[_NX + j] = nsx
+            S[_NY + j] = nsy
+            S[_NZ + j] = nsz
+            ngx = S[_GX + j]
+            ngy = S[_GY + j]
+            ngz = S[_GZ + j]
             facing = -1.0 if ngx * dx + ngy * dy + ngz * dz > 0 else 1.0
             gx = ngx * facing
             gy = ngy * facing
             gz = ngz * facing
+            S[_GX + j] = gx
+            S[_GY + j] = gy
+            S[_GZ + j] = gz
             sd = nsx * gx + nsy * gy + nsz * gz
             sg = 1.0 if sd > 0 else (-1.0 if sd < 0 else 0.0)
             fx = nsx * sg
             fy = nsy * sg
             fz = nsz * sg
-            if not (np.isfinite(fx) and np.isfinite(fy) and np.isfinite(fz)) or \
-                    abs(fx) + abs(fy) + abs(fz) == 0:
-                fx, fy, fz = gx, gy, gz                 # shading normal unusable: geometric
-            # -- ambient --
-            kd0 = kd[m, 0]
-            kd1 = kd[m, 1]
-            kd2 = kd[m, 2]
-            _own(film, contrib, camera, pix[i], i, w0 * (kd0 * ambient[0]), w1 * (kd1 * ambient[1]),
-                 w2 * (kd2 * ambient[2]))
-            # -- direct light: one shadow ray per light (Lambert + normalised Blinn-Phong) --
-            if do_shadow and not dielectric:            # dielectrics take no direct light
+            usable = np.isfinite(fx) & np.isfinite(fy) & np.isfinite(fz) & \
+                (abs(fx) + abs(fy) + abs(fz) != 0)
+            S[_FX + j] = fx if usable else gx       # shading normal unusable: geometric
+            S[_FY + j] = fy if usable else gy
+            S[_FZ + j] = fz if usable else gz
+        if first:                                   # the first-hit shading normals
+            for j in range(nr):
+                if hit_prim[lo + j] >= 0:
+                    q = pix[lo + j]
+                    aov_normal[q, 0] = S[_NX + j]
+                    aov_normal[q, 1] = S[_NY + j]
+                    aov_normal[q, 2] = S[_NZ + j]
+        # -- pass 3, per light: the shadow ray of every ray (SIMD), then in ray order the
+        #    records of those that take the light (Lambert + normalised Blinn-Phong) --
+        for l in range(n_lights):
+            point = light_kind[l] == POINT
+            Lx = light_pos[l, 0]
+            Ly = light_pos[l, 1]
+            Lz = light_pos[l, 2]
+            v0 = light_val[l, 0]
+            v1 = light_val[l, 1]
+            v2 = light_val[l, 2]
+            Ldx = light_dir[l, 0]
+            Ldy = light_dir[l, 1]
+            Ldz = light_dir[l, 2]
+            for j in range(nr):
+                if point:
+                    tx = Lx - S[_PX + j]
+                    ty = Ly - S[_PY + j]
+                    tz = Lz - S[_PZ + j]
+                    dist = np.sqrt(tx * tx + ty * ty + tz * tz)
+                    inv = 1.0 / (dist if dist > 1e-300 else 1e-300)
+                    lx = tx * inv
+                    ly = ty * inv
+                    lz = tz * inv
+                    r2 = dist * dist
+                    inv2 = 1.0 / (r2 if r2 > 1e-300 else 1e-300)
+                    S[_E0 + j] = v0 * inv2
+                    S[_E1 + j] = v1 * inv2
+                    S[_E2 + j] = v2 * inv2
+                else:
+                    lx = Ldx
+                    ly = Ldy
+                    lz = Ldz
+                    S[_E0 + j] = v0
+                    S[_E1 + j] = v1
+                    S[_E2 + j] = v2
+                gx = S[_GX + j]
+                gy = S[_GY + j]
+                gz = S[_GZ + j]
+                ox, oy, oz = offset_from_unit(S[_PX + j], S[_PY + j], S[_PZ + j], gx, gy, gz,
+                                              lx, ly, lz, S[_MAG + j], offset)
+                if point:
+                    qx = Lx - ox
+                    qy = Ly - oy
+                    qz = Lz - oz
+                    S[_TMAX + j] = np.sqrt(qx * qx + qy * qy + qz * qz)
+                else:
+                    S[_TMAX + j] = np.inf
+                S[_OX + j] = ox
+                S[_OY + j] = oy
+                S[_OZ + j] = oz
+                S[_LX + j] = lx
+                S[_LY + j] = ly
+                S[_LZ + j] = lz
+                c = S[_FX + j] * lx + S[_FY + j] * ly + S[_FZ + j] * lz
+                S[_COS + j] = c
+                leaves[j] = (c > 0) & (gx * lx + gy * ly + gz * lz > 0)
+            s = (b * n_lights + l) * BLOCK
+            for j in range(nr):
+                if not (lit[j] and leaves[j]):
+                    continue
+                i = lo + j
+                m = mat[j]
+                spec = 0.0
                 kspec = ks[m]
-                shin = shininess[m]
-                norm_spec = (shin + 8) / (8 * np.pi)
-                for l in range(n_lights):
-                    if light_kind[l] == POINT:
-                        tx = light_pos[l, 0] - Px
-                        ty = light_pos[l, 1] - Py
-                        tz = light_pos[l, 2] - Pz
-                        dist = np.sqrt(tx * tx + ty * ty + tz * tz)
-                        inv = 1.0 / (dist if dist > 1e-300 else 1e-300)
-                        lx = tx * inv
-                        ly = ty * inv
-                        lz = tz * inv
-                        r2 = dist * dist
-                        inv2 = 1.0 / (r2 if r2 > 1e-300 else 1e-300)
-                        e0 = light_val[l, 0] * inv2
-                        e1 = light_val[l, 1] * inv2
-                        e2 = light_val[l, 2] * inv2
-                    else:
-                        lx = light_dir[l, 0]
-                        ly = light_dir[l, 1]
-                        lz = light_dir[l, 2]
-                        e0 = light_val[l, 0]
-                        e1 = light_val[l, 1]
-                        e2 = light_val[l, 2]
-                    c = fx * lx + fy * ly + fz * lz
-                    if not (c > 0 and gx * lx + gy * ly + gz * lz > 0):
-                        continue
-                    ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, lx, ly, lz, tri_mag[p], offset)
-                    if light_kind[l] == POINT:
-                        qx = light_pos[l, 0] - ox
-                        qy = light_pos[l, 1] - oy
-                        qz = light_pos[l, 2] - oz
-                        tmax = np.sqrt(qx * qx + qy * qy + qz * qz)
-                    else:
-                        tmax = np.inf
-                    spec = 0.0
-                    if kspec > 0:                       # pow is the dearest step: only if used
-                        hx, hy, hz = _unit(lx - dx, ly - dy, lz - dz)
-                        ch = fx * hx + fy * hy + fz * hz
-                        spec = kspec * norm_spec * max(ch, 0.0) ** shin
-                    k = (b * n_lights + l) * BLOCK + sh_cnt[b, l]
-                    sh_cnt[b, l] += 1
-                    sh_Ot[k, 0] = ox
-                    sh_Ot[k, 1] = oy
-                    sh_Ot[k, 2] = oz
-                    sh_Dt[k, 0] = lx
-                    sh_Dt[k, 1] = ly
-                    sh_Dt[k, 2] = lz
-                    sh_T[k] = tmax
-                    sh_C[k, 0] = w0 * (e0 * c * (kd_pi[m, 0] + spec))
-                    sh_C[k, 1] = w1 * (e1 * c * (kd_pi[m, 1] + spec))
-                    sh_C[k, 2] = w2 * (e2 * c * (kd_pi[m, 2] + spec))
-                    sh_pix[k] = pix[i]
-            if not do_spawn:
-                continue
-            # -- secondary rays: mirror reflection; dielectric reflection and refraction --
-            kr0 = kr[m, 0]
-            kr1 = kr[m, 1]
-            kr2 = kr[m, 2]
-            if max(kr0, kr1, kr2) > 0 and not dielectric:
-                k = 2 * (dx * fx + dy * fy + dz * fz)
-                rx = dx - k * fx
-                ry = dy - k * fy
-                rz = dz - k * fz
-                a0 = w0 * kr0
-                a1 = w1 * kr1
-                a2 = w2 * kr2
+                if kspec > 0:                           # pow is the dearest step: only if used
+                    shin = shininess[m]
+                    norm_spec = (shin + 8) / (8 * np.pi)
+                    hx, hy, hz = _unit(S[_LX + j] - S[_DX + j], S[_LY + j] - S[_DY + j],
+                                       S[_LZ + j] - S[_DZ + j])
+                    ch = S[_FX + j] * hx + S[_FY + j] * hy + S[_FZ + j] * hz
+                    spec = kspec * norm_spec * max(ch, 0.0) ** shin
+                c = S[_COS + j]
+                sh_Ot[s, 0] = S[_OX + j]
+                sh_Ot[s, 1] = S[_OY + j]
+                sh_Ot[s, 2] = S[_OZ + j]
+                sh_Dt[s, 0] = S[_LX + j]
+                sh_Dt[s, 1] = S[_LY + j]
+                sh_Dt[s, 2] = S[_LZ + j]
+                sh_T[s] = S[_TMAX + j]
+                sh_C[s, 0] = S[_W0 + j] * (S[_E0 + j] * c * (kd_pi[m, 0] + spec))
+                sh_C[s, 1] = S[_W1 + j] * (S[_E1 + j] * c * (kd_pi[m, 1] + spec))
+                sh_C[s, 2] = S[_W2 + j] * (S[_E2 + j] * c * (kd_pi[m, 2] + spec))
+                sh_pix[s] = pix[i]
+                s += 1
+            sh_cnt[b, l] = s - (b * n_lights + l) * BLOCK
+        # -- pass 4, in ray order: secondary rays (mirror reflection; dielectric reflection
+        #    and refraction) --
+        n_refl = 0
+        n_refr = 0
+        for k in range(n_spawning):
+            j = spawning[k]
+            i = lo + j
+            m = mat[j]
+            eta = ior[m]
+            dx = S[_DX + j]
+            dy = S[_DY + j]
+            dz = S[_DZ + j]
+            Px = S[_PX + j]
+            Py = S[_PY + j]
+            Pz = S[_PZ + j]
+            gx = S[_GX + j]
+            gy = S[_GY + j]
+            gz = S[_GZ + j]
+            w0 = S[_W0 + j]
+            w1 = S[_W1 + j]
+            w2 = S[_W2 + j]
+            mag = S[_MAG + j]
+            if eta <= 0:
+                fx = S[_FX + j]
+                fy = S[_FY + j]
+                fz = S[_FZ + j]
+                k2 = 2 * (dx * fx + dy * fy + dz * fz)
+                rx = dx - k2 * fx
+                ry = dy - k2 * fy
+                rz = dz - k2 * fz
+                a0 = w0 * kr[m, 0]
+                a1 = w1 * kr[m, 1]
+                a2 = w2 * kr[m, 2]
                 if max(a0, a1, a2) >= cutoff:           # contribution cut-off
-                    ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, tri_mag[p], offset)
+                    ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
                     _put_ray(sp_O, sp_D, sp_W, sp_pix, b * BLOCK + n_refl, ox, oy, oz, rx, ry, rz,
                              a0, a1, a2, pix[i])
                     n_refl += 1
-            elif dielectric:
-                # ns points out of the object
-                entering = dx * nsx + dy * nsy + dz * nsz < 0
-                sgn = 1.0 if entering else -1.0
-                nix = nsx * sgn
-                niy = nsy * sgn
-                niz = nsz * sgn
-                eta_i = 1.0 if entering else eta
-                eta_t = eta if entering else 1.0
-                cos_i = min(max(-(dx * nix + dy * niy + dz * niz), 0.0), 1.0)
-                F, cos_t, tir = fresnel_dielectric(cos_i, eta_i, eta_t)
-                k = 2 * (dx * nix + dy * niy + dz * niz)
-                rx = dx - k * nix
-                ry = dy - k * niy
-                rz = dz - k * niz
-                a0 = w0 * F
-                a1 = w1 * F
-                a2 = w2 * F
-                if max(a0, a1, a2) >= cutoff:
-                    ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, tri_mag[p], offset)
-                    _put_ray(sp_O, sp_D, sp_W, sp_pix, b * BLOCK + n_refl, ox, oy, oz, rx, ry, rz,
-                             a0, a1, a2, pix[i])
-                    n_refl += 1
-                if not tir:
-                    r = eta_i / eta_t                   # Snell's law
-                    kt = r * cos_i - cos_t
-                    tx, ty, tz = _unit(r * dx + kt * nix, r * dy + kt * niy, r * dz + kt * niz)
-                    b0 = w0 * (1 - F)
-                    b1 = w1 * (1 - F)
-                    b2 = w2 * (1 - F)
-                    if max(b0, b1, b2) >= cutoff:
-                        ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, tx, ty, tz, tri_mag[p], offset)
-                        _put_ray(sp_O, sp_D, sp_W, sp_pix, (nb + b) * BLOCK + n_refr, ox, oy, oz,
-                                 tx, ty, tz, b0, b1, b2, pix[i])
-                        n_refr += 1
+                continue
+            # ns points out of the object
+            nsx = S[_NX + j]
+            nsy = S[_NY + j]
+            nsz = S[_NZ + j]
+            entering = dx * nsx + dy * nsy + dz * nsz < 0
+            sgn = 1.0 if entering else -1.0
+            nix = nsx * sgn
+            niy = nsy * sgn
+            niz = nsz * sgn
+            eta_i = 1.0 if entering else eta
+            eta_t = eta if entering else 1.0
+            cos_i = min(max(-(dx * nix + dy * niy + dz * niz), 0.0), 1.0)
+            F, cos_t, tir = fresnel_dielectric(cos_i, eta_i, eta_t)
+            k2 = 2 * (dx * nix + dy * niy + dz * niz)
+            rx = dx - k2 * nix
+            ry = dy - k2 * niy
+            rz = dz - k2 * niz
+            a0 = w0 * F
+            a1 = w1 * F
+            a2 = w2 * F
+            if max(a0, a1, a2) >= cutoff:
+                ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
+                _put_ray(sp_O, sp_D, sp_W, sp_pix, b * BLOCK + n_refl, ox, oy, oz, rx, ry, rz,
+                         a0, a1, a2, pix[i])
+                n_refl += 1
+            if not tir:
+                r = eta_i / eta_t                       # Snell's law
+                kt = r * cos_i - cos_t
+                tx, ty, tz = _unit(r * dx + kt * nix, r * dy + kt * niy, r * dz + kt * niz)
+                c0 = w0 * (1 - F)
+                c1 = w1 * (1 - F)
+                c2 = w2 * (1 - F)
+                if max(c0, c1, c2) >= cutoff:
+                    ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, tx, ty, tz, mag, offset)
+                    _put_ray(sp_O, sp_D, sp_W, sp_pix, (nb + b) * BLOCK + n_refr, ox, oy, oz,
+                             tx, ty, tz, c0, c1, c2, pix[i])
+                    n_refr += 1
         sp_cnt[b, 0] = n_refl
         sp_cnt[b, 1] = n_refr
 
