@@ -214,6 +214,40 @@ def test_occluded_matches_intersect_and_embree():
     assert (occ != emb).sum() <= 2            # edge ties only (checked by verify tests)
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_embree_in_chunks_on_threads_answers_as_one_call(monkeypatch, threads):
+    """Embree traces on our threads in chunks: every answer is the one a single embreex call
+    gives, bit for bit, whatever the chunk size and thread count."""
+    import numba
+    from traversal import embree_ref
+    tris, V, F = closed_sphere()
+    emb = embree_scene(V, F)
+    rng = np.random.default_rng(8)
+    n = 5003                                  # not a multiple of the chunk size
+    o = rng.uniform(-1.5, 1.5, (n, 3)).astype(np.float32)
+    d = rng.normal(size=(n, 3)).astype(np.float32)
+    tmax = rng.uniform(0.05, 2.0, n).astype(np.float32)
+    whole = emb.run(o, d, output=1, dists=tmax.copy())
+    blocked = emb.run(o, d, dists=tmax.copy(), query="OCCLUDED") == 0
+    monkeypatch.setattr(embree_ref, "EMBREE_CHUNK_RAYS", 97)
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        t, prim, u, v, ng = embree_ref.embree_intersect(emb, o, d, tmax)
+        occ = embree_ref.embree_occluded(emb, o, d, tmax)
+    finally:
+        numba.set_num_threads(before)
+    hit = whole["primID"] >= 0
+    assert 0 < hit.sum() < n
+    assert np.array_equal(prim, whole["primID"])
+    assert np.array_equal(t[hit], whole["tfar"][hit]) and np.isinf(t[~hit]).all()
+    assert np.array_equal(u[hit], whole["u"][hit]) and np.array_equal(v[hit], whole["v"][hit])
+    assert np.array_equal(ng[hit], whole["Ng"][hit]) and not ng[~hit].any()
+    assert np.array_equal(occ, blocked)
+    assert embree_ref.embree_intersect(emb, o[:0], d[:0])[0].shape == (0,)
+    assert embree_ref.embree_occluded(emb, o[:0], d[:0], tmax[:0]).shape == (0,)
+
+
 @pytest.mark.parametrize("mesh", ["sphere", "soup", "sheet", "sphere-1e5", "sphere-1e-4"])
 @pytest.mark.parametrize("kind", ["primary", "random", "bounces", "shadow"])
 def test_zero_mismatches_against_embree(mesh, kind):
