@@ -3,10 +3,10 @@
 The hardware builder (16 bins, fixed split rules) and the full-sweep SAH builder give trees of
 different quality for the same scene. A renderer measures trees only if its render time moves
 with the traversal work the tree causes. For each scene this benchmark renders with both trees
-(alternating run by run, median of repeats) and counts, with the single-ray unit's counters,
-the nodes visited and triangles tested per ray over every query of the render, closest-hit and
-shadow alike. It reports the ratio sweep/hwbvh of render time, of trace-only time (the same
-rays traced again alone) and of (nodes + triangles) per ray.
+(alternating run by run; a ratio is the median of the rounds' ratios) and counts, with the
+single-ray unit's counters, the nodes visited and triangles tested per ray over every query of
+the render, closest-hit and shadow alike. It reports the ratio sweep/hwbvh of render time, of
+trace-only time (the same rays traced again alone) and of (nodes + triangles) per ray.
 """
 import statistics
 import time
@@ -24,6 +24,14 @@ def _scene(spec, args):
         if getattr(args, key, None) is not None:
             film[key] = getattr(args, key)
     return compile_scene(d)
+
+
+def _paired_ratio(seconds):
+    """The median over rounds of sweep / hwbvh, each round's two runs side by side: a drift in
+    the machine's speed between rounds (a shared virtual machine's speed moves by tens of
+    percent over seconds) cancels in each round's ratio, where it would not in a ratio of
+    medians."""
+    return statistics.median(s / h for s, h in zip(seconds["sweep"], seconds["hwbvh"]))
 
 
 def bench_trees(args):
@@ -56,20 +64,20 @@ def bench_trees(args):
                 recordings[b] = RecordingTracer(tracers[b])
                 render(scene, recordings[b])          # also the warm-up render of this mode
             renders, replays = {b: [] for b in BUILDERS}, {b: [] for b in BUILDERS}
-            for _ in range(args.repeat):              # both trees alternate, run by run
-                for b in BUILDERS:
+            for i in range(args.repeat):              # both trees alternate, run by run,
+                for b in BUILDERS[::1 - 2 * (i % 2)]:   # which goes first swapping each round
                     t = time.perf_counter()
                     render(scene, tracers[b])
                     renders[b].append(time.perf_counter() - t)
                     replays[b].append(recordings[b].replay_seconds())
             render_s = {b: statistics.median(renders[b]) for b in BUILDERS}
             trace_only = {b: statistics.median(replays[b]) for b in BUILDERS}
-            ratio = lambda x: x["sweep"] / x["hwbvh"]
+            render_ratio, trace_ratio = _paired_ratio(renders), _paired_ratio(replays)
             row[mode] = {"work": work, "work_ratio": work_ratio,
                          "render_seconds": render_s, "trace_only_seconds": trace_only,
-                         "render_ratio": ratio(render_s), "trace_ratio": ratio(trace_only),
-                         "render_vs_work": ratio(render_s) / work_ratio - 1,
-                         "trace_vs_work": ratio(trace_only) / work_ratio - 1}
+                         "render_ratio": render_ratio, "trace_ratio": trace_ratio,
+                         "render_vs_work": render_ratio / work_ratio - 1,
+                         "trace_vs_work": trace_ratio / work_ratio - 1}
         rows.append(row)
     return {"rows": rows, "repeat": args.repeat}
 
