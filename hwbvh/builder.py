@@ -71,7 +71,9 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
                   slot0, start, count, buf, rootbox, depth0, leaf_size, nbins, stats):
     """Build the subtree of records [start, start+count) held in buffer ``buf`` of the pair
     ``bb`` (2, N, 6) / ``bi`` (2, N). Nodes go to slots ``slot0, slot0+1, ...`` in pre-order.
-    ``stats`` (int64 (4,)) accumulates nodes, leaves, fallback splits, max depth."""
+    ``stats`` (int64 (4,)) accumulates nodes, leaves, fallback splits, max depth. Boxes are
+    copied element by element: a slice assignment compiles a shape check whose error message
+    alone takes seconds of a first run's compilation."""
     binbox = np.empty((3, nbins, 6), dtype=np.float32)
     bincnt = np.empty((3, nbins), dtype=np.int64)
     lbox = np.empty(6, dtype=np.float32)
@@ -94,10 +96,12 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
     cur_buf = buf
     depth = depth0
     curbox = np.empty(6, dtype=np.float32)
-    curbox[:] = rootbox
+    for c in range(6):
+        curbox[c] = rootbox[c]
     while True:
         # -- write the node record (its AABB now; child pointers fill the gap later) --
-        cbox[slot, :] = curbox
+        for c in range(6):
+            cbox[slot, c] = curbox[c]
         cstart[slot] = s
         ccount[slot] = n
         stats[0] += 1
@@ -121,7 +125,8 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
             n = st_count[sp]
             cur_buf = st_buf[sp]
             depth = st_depth[sp]
-            curbox[:] = st_box[sp]
+            for c in range(6):
+                curbox[c] = st_box[sp, c]
             continue
         # -- binning units + SAH calculator --
         src_b = bb[cur_buf]
@@ -148,7 +153,8 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
         st_count[sp] = nr
         st_buf[sp] = child_buf
         st_depth[sp] = depth + 1
-        st_box[sp, :] = rbox
+        for c in range(6):
+            st_box[sp, c] = rbox[c]
         sp += 1
         left_slot = nxt
         nxt += 1
@@ -157,7 +163,8 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
         n = nl
         cur_buf = child_buf
         depth += 1
-        curbox[:] = lbox
+        for c in range(6):
+            curbox[c] = lbox[c]
     return nxt - slot0
 
 

@@ -58,12 +58,15 @@ def assign_slots(cleft, cright, ccount, root, capacity, n_builders, block_nodes,
             max_slot = slot
         if cleft[i] >= 0:
             if sp + 2 > stack.shape[0]:         # never on a correct depth; grow, don't trust
+                # element by element: a slice assignment compiles a shape check whose error
+                # message alone takes seconds of a first run's compilation
                 bigger = np.empty(2 * stack.shape[0] + 2, dtype=np.int64)
-                bigger[:sp] = stack[:sp]
+                bigger_st = np.empty(2 * sstream.shape[0] + 2, dtype=np.int64)
+                for k in range(sp):
+                    bigger[k] = stack[k]
+                    bigger_st[k] = sstream[k]
                 stack = bigger
-                bigger = np.empty(2 * sstream.shape[0] + 2, dtype=np.int64)
-                bigger[:sp] = sstream[:sp]
-                sstream = bigger
+                sstream = bigger_st
             stack[sp] = cright[i]
             sstream[sp] = st
             stack[sp + 1] = cleft[i]

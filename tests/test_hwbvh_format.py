@@ -266,3 +266,18 @@ def test_sweep_beats_binned_on_a_smooth_mesh():
     hw = hwbvh.build(tris).meta["sah_cost"]
     sw = hwbvh.build(tris, builder="sweep", validate_tree=True).meta["sah_cost"]
     assert sw < hw
+
+
+def test_slot_assignment_grows_its_stack_past_a_wrong_depth():
+    """The layout's pre-order stack is sized from the tree's recorded depth; handed a depth
+    that is too small, it grows instead of writing past its end, and places the same slots."""
+    from hwbvh.layout import assign_slots
+    from scenes.meshes import random_soup
+    tree = hwbvh.build(random_soup(2000, seed=4)).tree
+    depth = int(tree.stats["max_depth"])
+    assert depth > 4
+    args = (tree.left, tree.right, tree.count, tree.root, 64, 2, 256)
+    right = assign_slots(*args, depth)
+    grown = assign_slots(*args, 0)
+    for a, b in zip(right, grown):
+        assert np.array_equal(a, b)

@@ -125,8 +125,8 @@ class Tracer:
         over = np.zeros(nchunks, np.int64)
         traced = np.zeros(nchunks, np.int64)
         run_ranges(trace_chunks, nchunks, self._u1, self._f1, self.index_bytes, self._tris1,
-                   self.raw, o, d, lo, hi, self.eps2, self.one, self.widen, self.edge, self.depth,
-                   anyhit, self.packets and (as_run or not counters) and self.raw is None, prim, t, u, v, ng,
+                   self.raw, o, d, o.reshape(-1), d.reshape(-1), lo, hi, self.eps2, self.one,
+                   self.widen, self.edge, self.depth, anyhit, self.packets and (as_run or not counters) and self.raw is None, prim, t, u, v, ng,
                    cnt, over, traced)
         over = int(over.sum())
         self.last_packets = int(traced.sum())

@@ -110,7 +110,7 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
+def _trace_range(u, f, ib, tris, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen, edge,
                  lo, hi, anyhit, packets, stack, stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v,
                  out_ng, counters):
     """Rays [lo, hi) in a plain (non-parfor) function, so LLVM optimises the loop fully.
@@ -124,7 +124,7 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
     while a < hi:
         b = min(hi, a + P)
         if packets and b - a == P and coherent(D, a, b):
-            over += trace_packet(u, f, ib, tris, O.reshape(-1), D.reshape(-1), tmin, tmax, eps2, one, widen, edge, a, b,
+            over += trace_packet(u, f, ib, tris, Of, Df, tmin, tmax, eps2, one, widen, edge, a, b,
                                  anyhit, stack, F, I, M, M64, out_prim, out_t, out_u, out_v,
                                  counters) * (b - a)
             npk += 1
@@ -146,11 +146,13 @@ def _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def trace_chunks(c0, c1, u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
+def trace_chunks(c0, c1, u, f, ib, tris, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen, edge,
                  depth, anyhit, packets, out_prim, out_t, out_u, out_v, out_ng, counters,
                  overflow, packets_traced):
     """Chunks c0..c1 of CHUNK_RAYS rays each (the last may be short), with one stack and one
-    packet scratch for the call; ``hwbvh.parallel.run_ranges`` hands the chunk ranges out to
+    packet scratch for the call; ``Of``/``Df`` are ``O``/``D`` seen flat (3n,), as the packet
+    kernel reads them (a reshape in compiled code would compile its error path: seconds of a
+    first run); ``hwbvh.parallel.run_ranges`` hands the chunk ranges out to
     its threads. ``out_t``, ``out_u``, ``out_v`` are (n,) or, when only ``out_prim`` is wanted,
     (0,); ``out_ng`` is (n, 3) for geometric normals or (0, 3); ``counters`` is (n, 2) int
     (nodes visited, triangles tested) or (0, 2). Per chunk, ``overflow`` gets the rays whose
@@ -163,7 +165,7 @@ def trace_chunks(c0, c1, u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen
     M = np.zeros(NM, dtype=np.uint8)
     M64 = M.view(np.uint64)
     for c in range(c0, c1):
-        o_, p_ = _trace_range(u, f, ib, tris, raw, O, D, tmin, tmax, eps2, one, widen, edge,
+        o_, p_ = _trace_range(u, f, ib, tris, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen, edge,
                               c * CHUNK_RAYS, min(n, (c + 1) * CHUNK_RAYS), anyhit, packets, stack,
                               stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v, out_ng, counters)
         overflow[c] = o_
