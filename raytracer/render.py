@@ -21,6 +21,9 @@ Only the passes a scene calls for exist: no shadow rays without lights, no refle
 without a reflective material, no refraction rays without a dielectric, and no bounce past the
 first when nothing reflects or refracts.
 """
+import os
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -68,24 +71,69 @@ def _tiny_scene():
         cutoff=1e-3, jitter=True)
 
 
+def _traversal_cached():
+    """Whether Numba's on-disk cache holds the traversal kernel (or this process has it)."""
+    from traversal.traverse import trace_chunks
+    if trace_chunks.signatures:
+        return True
+    try:
+        return bool(trace_chunks._cache._cache_file._load_index())
+    except Exception:              # a Numba without this cache layout: assume it is there
+        return True
+
+
+def _compile_traversal_beside():
+    """On a first run (the traversal kernel not in Numba's cache), a child process that compiles
+    it into the cache while this process compiles the builder and the shading stages: the
+    first render's compilation on two cores instead of one. None when the kernel is cached,
+    the cache cannot be written, or JIT compilation is off."""
+    import numba
+    if numba.config.DISABLE_JIT or _traversal_cached():
+        return None
+    from traversal.traverse import trace_chunks
+    try:
+        cache_dir = trace_chunks._cache._cache_path
+    except Exception:
+        return None
+    if not (os.path.isdir(cache_dir) and os.access(cache_dir, os.W_OK)):
+        return None
+    return subprocess.Popen([sys.executable, "-c",
+                             "from traversal.api import compile_kernels; compile_kernels()"],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+
+
 def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
     """Load (or, the first time ever, compile) the Numba kernels a render uses, on a tiny
     input, so that build and render timings measure work, not JIT start-up. Returns seconds.
     ``parallel_build`` also loads the data-parallel builder kernels that meshes above
-    SEQUENTIAL_MAX_PRIMS use (benchmarks want them; a first render of a small scene does not)."""
+    SEQUENTIAL_MAX_PRIMS use (benchmarks want them; a first render of a small scene does not).
+    The first time, the traversal kernel compiles in a child process meanwhile
+    (``_compile_traversal_beside``), and the shading stages compile on a render through
+    Embree, whose hits have the same types as ours."""
     t = time.perf_counter()
-    scene = _tiny_scene()
-    if builder != "embree" and parallel_build:
-        import hwbvh
-        rng = np.random.default_rng(0)
-        soup = rng.random((300, 1, 3)) + rng.normal(scale=0.02, size=(300, 3, 3))
-        hwbvh.build(soup.astype(np.float32), task_prims=16)
-    from types import SimpleNamespace
-    V = scene.triangles.reshape(-1, 3)
-    indexed = SimpleNamespace(**vars(scene), vertices=V,
-                              faces=np.arange(len(V), dtype=np.int32).reshape(-1, 3))
-    tracer, _, _ = make_tracer(indexed, builder, traversal)
-    render(indexed, tracer)
+    beside = _compile_traversal_beside() if builder != "embree" and traversal == "numba" \
+        else None
+    try:
+        scene = _tiny_scene()
+        if builder != "embree" and parallel_build:
+            import hwbvh
+            rng = np.random.default_rng(0)
+            soup = rng.random((300, 1, 3)) + rng.normal(scale=0.02, size=(300, 3, 3))
+            hwbvh.build(soup.astype(np.float32), task_prims=16)
+        from types import SimpleNamespace
+        V = scene.triangles.reshape(-1, 3)
+        indexed = SimpleNamespace(**vars(scene), vertices=V,
+                                  faces=np.arange(len(V), dtype=np.int32).reshape(-1, 3))
+        tracer, _, _ = make_tracer(indexed, builder, traversal)
+        if beside is not None:
+            render(indexed, make_tracer(indexed, "embree", "embree")[0])
+            beside.wait()
+        render(indexed, tracer)
+    finally:
+        if beside is not None and beside.poll() is None:
+            beside.kill()
+            beside.wait()
     return time.perf_counter() - t
 
 

@@ -60,3 +60,28 @@ def test_two_million_triangles_build_and_validate():
     bvh = hwbvh.build(tris)
     hwbvh.validate(bvh.nodes, bvh.indices, len(tris), 4, primitive_boxes(tris))
     assert bvh.meta["sah_cost"] > 0 and bvh.meta["triangles"] >= 1_990_000
+
+
+def test_first_render_on_an_empty_cache_fills_it_and_matches_a_warm_render(tmp_path):
+    """A first run (empty Numba cache) compiles the traversal in a child process while the
+    render compiles the rest; the child fills the cache, and the image is the one a warm run
+    renders."""
+    cache = tmp_path / "numba-cache"
+    cache.mkdir()
+    cold, warm = tmp_path / "cold.exr", tmp_path / "warm.exr"
+    args = [sys.executable, "-m", "hwrt.cli", "render", "cornell", "--width", "40", "--height", "30",
+            "--spp", "2"]
+    subprocess.run(args + ["-o", str(cold)], check=True, capture_output=True,
+                   env=dict(os.environ, NUMBA_CACHE_DIR=str(cache)))
+    assert any(p.name.startswith("traverse.trace_chunks") and p.suffix == ".nbi"
+               for p in cache.rglob("*")), "the traversal kernel was not cached"
+    subprocess.run(args + ["-o", str(warm)], check=True, capture_output=True)
+    from raytracer.output import read_exr
+    assert np.array_equal(read_exr(cold)[0], read_exr(warm)[0])
+
+
+def test_a_warm_process_starts_no_compiling_child():
+    from raytracer.render import _compile_traversal_beside
+    from traversal.api import compile_kernels
+    compile_kernels()
+    assert _compile_traversal_beside() is None

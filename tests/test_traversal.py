@@ -539,3 +539,21 @@ def test_structures_refuse_coordinates_the_bvh_refuses(accel):
     with pytest.raises(ValueError, match="^triangles: coordinate magnitude 1e\\+20 exceeds"):
         make(tris * np.float32(1e20))
     make(tris * np.float32(MAX_COORDINATE / 2))
+
+
+def test_compile_kernels_compiles_what_real_queries_run():
+    """The tree-less compilation (for a first run's second core) must produce the very
+    specialisation real queries call, or the render would compile it again."""
+    from traversal.api import compile_kernels
+    from traversal.traverse import trace_chunks
+    compile_kernels()
+    before = set(trace_chunks.signatures)
+    tris, V, F = closed_sphere()
+    tracer = Tracer(hwbvh.build(tris))
+    rng = np.random.default_rng(3)
+    o = rng.uniform(-1.5, 1.5, (500, 3)).astype(np.float32)
+    d = rng.normal(size=(500, 3)).astype(np.float32)
+    tracer.intersect(o, d, normals=False)
+    tracer.intersect(o, d)
+    tracer.occluded(o, d, tmax=np.full(500, 0.5, np.float32))
+    assert set(trace_chunks.signatures) == before

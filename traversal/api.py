@@ -4,6 +4,7 @@
 >>> hits = tracer.intersect(origins, dirs)      # Hits: t, prim (-1 miss), u, v, ng
 >>> blocked = tracer.occluded(origins, dirs, tmax=dist)
 """
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -150,3 +151,26 @@ class Tracer:
         when counters=True (``as_run`` as for :meth:`intersect`)."""
         prim, _, _, _, _, cnt = self._run(origins, dirs, tmin, tmax, True, counters, False, as_run)
         return (prim >= 0, cnt) if counters else prim >= 0
+
+
+def compile_kernels(precision="float32"):
+    """Compile the traversal kernel that ``Tracer`` queries run (or load it from Numba's
+    on-disk cache) without building a tree: a tracer on a one-leaf tree answers an empty batch,
+    which compiles the kernel for exactly the argument types of a real query. Lets another
+    process compile the traversal while a first render compiles the builder and the shading
+    (``raytracer.render.warm_up``). Returns seconds."""
+    from hwbvh.config import LEAF_FLAG
+    from hwbvh.format import NODE_DTYPE
+    from types import SimpleNamespace
+
+    t = time.perf_counter()
+    leaf = np.zeros(1, NODE_DTYPE)
+    leaf["bounds"][0] = (0, 0, 0, 1, 1, 0)
+    leaf["b"][0] = 1                                   # one primitive, at index position 0
+    leaf["flags"][0] = LEAF_FLAG
+    triangle = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)
+    tracer = Tracer(SimpleNamespace(nodes=leaf, indices=np.zeros(1, np.int64), triangles=triangle),
+                    precision=precision)
+    none = np.zeros((0, 3), tracer.dtype)
+    tracer.intersect(none, none, normals=False)
+    return time.perf_counter() - t
