@@ -86,9 +86,11 @@ def _compile_traversal_beside():
     """On a first run (the traversal kernel not in Numba's cache), a child process that compiles
     it into the cache while this process compiles the builder and the shading stages: the
     first render's compilation on two cores instead of one. None when the kernel is cached,
-    the cache cannot be written, or JIT compilation is off."""
+    the cache cannot be written, JIT compilation is off, there is one core, or no child
+    process can be started. The child runs on this process' import path and ends if this
+    process ends."""
     import numba
-    if numba.config.DISABLE_JIT or _traversal_cached():
+    if numba.config.DISABLE_JIT or len(os.sched_getaffinity(0)) < 2 or _traversal_cached():
         return None
     from traversal.traverse import trace_chunks
     try:
@@ -97,10 +99,31 @@ def _compile_traversal_beside():
         return None
     if not (os.path.isdir(cache_dir) and os.access(cache_dir, os.W_OK)):
         return None
-    return subprocess.Popen([sys.executable, "-c",
-                             "from traversal.api import compile_kernels; compile_kernels()"],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    try:
+        return subprocess.Popen([sys.executable, "-P", "-c",
+                                 "from raytracer.render import _compile_in_child; "
+                                 f"_compile_in_child({os.getpid()})"],
+                                env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+    except OSError:
+        return None
+
+
+def _compile_in_child(parent):
+    """The child of ``_compile_traversal_beside``: compile the traversal kernel, and exit at
+    once if the parent is gone (a terminated render leaves no compiler behind)."""
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(0.2)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+    from traversal.api import compile_kernels
+    compile_kernels()
+
+
+CHILD_COMPILE_TIMEOUT = 600     # seconds; a child that takes longer is stuck (the parent compiles)
 
 
 def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
@@ -128,7 +151,10 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
         tracer, _, _ = make_tracer(indexed, builder, traversal)
         if beside is not None:
             render(indexed, make_tracer(indexed, "embree", "embree")[0])
-            beside.wait()
+            try:
+                beside.wait(timeout=CHILD_COMPILE_TIMEOUT)
+            except subprocess.TimeoutExpired:
+                pass                                # killed below; the render compiles it
         render(indexed, tracer)
     finally:
         if beside is not None and beside.poll() is None:
@@ -354,6 +380,8 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
         raise ParameterError("offset", f"unknown strategy {offset!r} (choose from {', '.join(STRATEGY_CODES)})")
     if int(seed) < 0:
         raise ParameterError("seed", f"must be non-negative, got {seed}")
+    if len(scene.triangles) == 0:
+        raise ParameterError("scene", "has no triangles to render")
     W, H, spp = scene.width, scene.height, scene.spp
     npix = W * H
     passes = scene_passes(scene)

@@ -229,8 +229,8 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
         n_spawning = 0
         for j in range(nr):
             i = lo + j
-            p = max(hit_prim[i], 0)
-            dx = D[i, 0]
+            p = max(hit_prim[i], 0)                 # a miss reads triangle 0 (render() refuses
+            dx = D[i, 0]                            # a scene without triangles), unused
             dy = D[i, 1]
             dz = D[i, 2]
             t = np.float64(hit_t[i])
@@ -426,7 +426,7 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
             w1 = S[_W1 + j]
             w2 = S[_W2 + j]
             mag = S[_MAG + j]
-            if eta <= 0:
+            if not eta > 0:                             # not a dielectric (as pass 1 decides)
                 fx = S[_FX + j]
                 fy = S[_FY + j]
                 fz = S[_FZ + j]

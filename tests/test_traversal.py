@@ -542,18 +542,23 @@ def test_structures_refuse_coordinates_the_bvh_refuses(accel):
 
 
 def test_compile_kernels_compiles_what_real_queries_run():
-    """The tree-less compilation (for a first run's second core) must produce the very
-    specialisation real queries call, or the render would compile it again."""
-    from traversal.api import compile_kernels
-    from traversal.traverse import trace_chunks
-    compile_kernels()
-    before = set(trace_chunks.signatures)
-    tris, V, F = closed_sphere()
-    tracer = Tracer(hwbvh.build(tris))
-    rng = np.random.default_rng(3)
-    o = rng.uniform(-1.5, 1.5, (500, 3)).astype(np.float32)
-    d = rng.normal(size=(500, 3)).astype(np.float32)
-    tracer.intersect(o, d, normals=False)
-    tracer.intersect(o, d)
-    tracer.occluded(o, d, tmax=np.full(500, 0.5, np.float32))
-    assert set(trace_chunks.signatures) == before
+    """The tree-less compilation (a first run's second core) must give the very specialisation
+    real queries call, or a first render would compile the traversal twice. In a fresh
+    process, so that no earlier test has compiled it already."""
+    import subprocess
+    import sys
+    code = ("import numpy as np, hwbvh\n"
+            "from traversal import Tracer\n"
+            "from traversal.api import compile_kernels\n"
+            "from traversal.traverse import trace_chunks\n"
+            "from scenes.meshes import random_soup\n"
+            "compile_kernels()\n"
+            "before = set(trace_chunks.signatures)\n"
+            "tracer = Tracer(hwbvh.build(random_soup(500, seed=1)))\n"
+            "rng = np.random.default_rng(3)\n"
+            "o = rng.uniform(-1, 1, (300, 3)); d = rng.normal(size=(300, 3))\n"
+            "tracer.intersect(o, d, normals=False); tracer.intersect(o, d)\n"
+            "tracer.occluded(o, d, tmax=np.full(300, 0.5))\n"
+            "print(len(before), set(trace_chunks.signatures) == before)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert r.stdout.split() == ["1", "True"], r.stdout + r.stderr
