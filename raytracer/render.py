@@ -71,6 +71,13 @@ def _tiny_scene():
         cutoff=1e-3, jitter=True)
 
 
+def usable_cores():
+    """The cores this process may run on (its CPU affinity where the OS reports one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 def _traversal_cached():
     """Whether Numba's on-disk cache holds the traversal kernel (or this process has it)."""
     from traversal.traverse import trace_chunks
@@ -90,7 +97,7 @@ def _compile_traversal_beside():
     process can be started. The child runs on this process' import path and ends if this
     process ends."""
     import numba
-    if numba.config.DISABLE_JIT or len(os.sched_getaffinity(0)) < 2 or _traversal_cached():
+    if numba.config.DISABLE_JIT or usable_cores() < 2 or _traversal_cached():
         return None
     from traversal.traverse import trace_chunks
     try:

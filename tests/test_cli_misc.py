@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from raytracer.render import usable_cores
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -62,7 +64,7 @@ def test_two_million_triangles_build_and_validate():
     assert bvh.meta["sah_cost"] > 0 and bvh.meta["triangles"] >= 1_990_000
 
 
-@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="the child compiles on a second core")
+@pytest.mark.skipif(usable_cores() < 2, reason="the child compiles on a second core")
 def test_a_first_run_compiles_the_traversal_in_a_child_and_renders_the_warm_image(tmp_path):
     """On an empty Numba cache, a child process compiles the traversal into the cache (so the
     render compiles only the rest); a later process finds it there and starts no child; the
