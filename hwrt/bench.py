@@ -422,7 +422,7 @@ def bench_render(args):
     result = jsonable({"scenes": results, "repeat": args.repeat, "machine": machine()})
     if out_dir:
         files = [(os.path.join(out_dir, "render.json"), json.dumps(result, indent=1) + "\n"),
-                 (os.path.join(out_dir, "render.md"), _render_markdown(result))]
+                 (os.path.join(out_dir, "render.md"), _render_markdown(result, args))]
         write_files(files)
         result["files"] = [f for f, _ in files]
     return result
@@ -558,10 +558,13 @@ def _render_human(r):
     return "\n".join(lines)
 
 
-def _render_markdown(r):
+def _render_markdown(r, args=None):
     """The results as a docs page."""
+    from .report import command_of, made_by
     m = r["machine"]
-    lines = [f"Time to image, `hwrt bench render`: medians of {r['repeat']} warm runs per path, "
+    made = made_by(command_of(args))
+    lines = ["# hwrt bench render", ""] + ([made, ""] if made else []) + [
+             f"Time to image, `hwrt bench render`: medians of {r['repeat']} warm runs per path, "
              f"the paths alternating run by run. {m.get('cpu', '')}, {m.get('cores')} cores, "
              f"{m.get('numba_threads')} Numba threads.", ""]
     for s in r["scenes"]:

@@ -211,7 +211,9 @@ def cmd_explore(args):
 
     try:
         grid = parse_grid(args.grid) if args.grid else None
-        result = explore(args.meshes, grid, args.out_dir, scheduler=args.scheduler,
+        from .report import command_of
+        result = explore(args.meshes, grid, args.out_dir, command=command_of(args),
+                         scheduler=args.scheduler,
                          workers=args.workers, fresh=args.fresh)
     except ParameterError as e:      # a knob's value was given in --grid
         if e.parameter in KNOBS:
@@ -413,9 +415,8 @@ def cmd_bench(args):
 def _write_report(args, result, human):
     """OUT/<what>.md (the table and the command that made it) and OUT/<what>.json."""
     from hwbvh.files import json_text, write_files
-    import shlex
-    command = "hwrt " + " ".join(shlex.quote(a) for a in args.argv)
-    md = (f"# hwrt bench {args.what}\n\nMade by `{command}`.\n\n```text\n{human(result)}\n```\n")
+    from .report import command_of, made_by_block
+    md = (f"# hwrt bench {args.what}\n\n{made_by_block(command_of(args))}```text\n{human(result)}\n```\n")
     write_files([(os.path.join(args.out_dir, f"{args.what}.md"), md),
                  (os.path.join(args.out_dir, f"{args.what}.json"), json_text(result, indent=1) + "\n")])
 

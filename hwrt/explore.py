@@ -450,12 +450,14 @@ def _thesis_plots(by_cfg, meshes, grid):
     return files
 
 
-def markdown(result):
+def markdown(result, command=None):
     """A summary page: the run, the cost model, the best configurations and the presets' gaps."""
+    from .report import made_by
     varied = [k for k in KNOBS if len({c[k] for c in result["configs"]}) > 1] or list(KNOBS)
     lab = lambda c: label(c, varied)
     f = result["cost_model"]
-    lines = ["# Design-space exploration\n",
+    made = made_by(command)
+    lines = ["# Design-space exploration\n"] + ([made + "\n"] if made else []) + [
              f"{result['cells']} cells: {len(result['configs'])} configurations x {len(result['meshes'])} "
              f"meshes; {result['computed']} computed" + (
                  f" in {result['compute_seconds']:.1f} s ({result['cells_per_second']:.0f} cells/s) on "
@@ -504,12 +506,13 @@ def markdown(result):
 # the exploration
 # --------------------------------------------------------------------------------------
 def explore(meshes, grid=None, out_dir=None, *, scheduler=None, workers=None, use_dask=True,
-            fresh=False, progress=True):
+            fresh=False, progress=True, command=None):
     """Simulate every configuration of ``grid`` (``{knob: [values]}``, default ``DEFAULT_GRID``;
     unset knobs at HWBVH-C's value) on every mesh file, on Dask (``hwrt.cluster.dask_client``:
     ``scheduler`` or a local cluster of ``workers`` processes) or, with ``use_dask=False``, in
     this process. With ``out_dir``, finished cells are saved as they come (a rerun resumes) and
-    the CSV, JSON, summary and plots are written there. Everything is checked before any work."""
+    the CSV, JSON, summary and plots are written there (the summary names ``command``, the
+    command line that made it, when given). Everything is checked before any work."""
     from hwbvh.calibration import fit_cost_model
     from hwbvh.files import check_output_dir, json_text, write_files
     from .cluster import dask_client, describe, run_cells
@@ -579,7 +582,7 @@ def explore(meshes, grid=None, out_dir=None, *, scheduler=None, workers=None, us
     result["wall_seconds"] = time.perf_counter() - t0
     if out_dir is not None:
         files = [("explore.csv", _csv(rows)), ("explore.json", json_text(result, indent=0) + "\n"),
-                 ("explore.md", markdown(result))] + plots(rows, summary, specs, configs, grid)
+                 ("explore.md", markdown(result, command))] + plots(rows, summary, specs, configs, grid)
         files = [(os.path.join(out_dir, n), d) for n, d in files]
         write_files(files)
         result["files"] = [p for p, _ in files]

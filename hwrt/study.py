@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from hwbvh.files import json_text, write_files
+from .report import command_of, made_by_block
 from .bench import machine
 from .paths import default_mesh_dir, mesh_files
 
@@ -312,7 +313,7 @@ def bench_tti(args, *, use_dask=True, progress=True):
                        "bench tti", progress)
             where = timing.machine()
     rows, summary = _tti_rows(cells, specs, W, H, spp, depth, repeat, structures)
-    md = _tti_markdown(rows, summary, W, H, spp, depth)
+    md = "# hwrt bench tti\n\n" + made_by_block(command_of(args)) + _tti_markdown(rows, summary, W, H, spp, depth)
     plots = _tti_plot(rows, out_dir, TTI_PATHS + structures)
     return _write_outputs(out_dir, "tti", rows, md, plots,
                           {"setting": {"width": W, "height": H, "spp": spp, "max_depth": depth,
@@ -593,7 +594,7 @@ def bench_accuracy(args, *, use_dask=True, progress=True):
             where = timing.machine()
     rows = [cells.get(key_of(spec, k, v)) for spec, k, v in work]
     rows = [r for r in rows if r]
-    md = _accuracy_markdown(rows)
+    md = "# hwrt bench accuracy\n\n" + made_by_block(command_of(args)) + _accuracy_markdown(rows)
     plots = _accuracy_plots(rows, args.out_dir)
     return _write_outputs(args.out_dir, "accuracy", rows, md, plots,
                           {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE}},

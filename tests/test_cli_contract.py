@@ -542,6 +542,15 @@ def test_top_level_help_is_plain_text_and_version_comes_from_the_package(capsys)
     assert rc == 0 and out.strip() == f"hwrt {version('hwrt')}"
 
 
+def test_bench_render_page_names_the_command_that_made_it(tmp_path):
+    from hwrt.cli import main
+    out = tmp_path / "docs"
+    assert main(["bench", "render", "--repeat", "1", "--width", "16", "--height", "12",
+                 "--spp", "1", "--out-dir", str(out), "--json"]) == 0
+    md = (out / "render.md").read_text()
+    assert md.startswith("# hwrt bench render\n\nMade by `hwrt bench render --repeat 1 --width 16")
+
+
 def test_bench_report_written_to_out_dir(tmp_path):
     from hwrt.cli import main
     out = tmp_path / "docs"
