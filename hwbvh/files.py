@@ -159,8 +159,10 @@ def write_files(pairs):
             path = os.fspath(path)
             d = os.path.dirname(os.path.abspath(path))
             os.makedirs(d, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(path)[1], dir=d)
-            tmps.append((tmp, path))
+            with _signals_held():        # a signal between creating and recording the
+                fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(path)[1],
+                                           dir=d)
+                tmps.append((tmp, path))  # temporary file would leave it behind
             if callable(data):
                 os.close(fd)
                 data(tmp)

@@ -34,12 +34,24 @@ def exr_writer(path, result, metadata, layers=True):
         spec.attribute("compression", "zip")
         for k, v in metadata.items():
             spec.attribute(f"hwrt:{k}", str(v) if not isinstance(v, (int, float)) else v)
-        out = oiio.ImageOutput.create(tmp)
-        if out is None or not out.open(tmp, spec) or not out.write_image(pixels):
-            msg = oiio.geterror() if out is None else out.geterror()
-            raise OSError(f"OpenImageIO could not write {path}: {msg}")
-        out.close()
+        _write_image(tmp, path, spec, pixels)
     return write
+
+
+def _write_image(tmp, path, spec, pixels):
+    """``pixels`` to the file ``tmp`` (the temporary file of ``path``) through OpenImageIO. The
+    writer is closed before anything propagates, so that an interrupted write cannot finish
+    (and create the file again) after the caller has removed the temporary file."""
+    import OpenImageIO as oiio
+
+    out = oiio.ImageOutput.create(tmp)
+    if out is None:
+        raise OSError(f"OpenImageIO could not write {path}: {oiio.geterror()}")
+    try:
+        if not out.open(tmp, spec) or not out.write_image(pixels):
+            raise OSError(f"OpenImageIO could not write {path}: {out.geterror()}")
+    finally:
+        out.close()
 
 
 def tonemap(image):
@@ -62,10 +74,7 @@ def png_writer(path, image):
     H, W, _ = px.shape
 
     def write(tmp):
-        out = oiio.ImageOutput.create(tmp)
-        if out is None or not out.open(tmp, oiio.ImageSpec(W, H, 3, "uint8")) or not out.write_image(px):
-            raise OSError(f"OpenImageIO could not write {path}")
-        out.close()
+        _write_image(tmp, path, oiio.ImageSpec(W, H, 3, "uint8"), px)
     return write
 
 

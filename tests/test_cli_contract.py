@@ -409,6 +409,37 @@ def test_signal_during_a_write_removes_the_temporary_file(tmp_path, sig, code, w
     assert list(tmp_path.iterdir()) == []
 
 
+SIGNAL_AS_THE_TEMPORARY_FILE_IS_MADE = textwrap.dedent("""
+    import os, signal, sys, tempfile
+    import hwrt.cli as cli
+    from hwbvh.files import write_files
+
+    real_mkstemp = tempfile.mkstemp
+
+    def mkstemp(*args, **kwargs):           # the signal comes once the file exists
+        made = real_mkstemp(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return made
+
+    tempfile.mkstemp = mkstemp
+
+    def fake_build(args):
+        write_files([(args.out + ".exr", lambda tmp: None)])
+
+    cli.cmd_build = fake_build
+    sys.exit(cli.main(["build", "mesh.obj", "--out", sys.argv[1]]))
+""")
+
+
+def test_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path):
+    """A signal between creating a temporary file and recording it for clean-up is held
+    until the file is recorded, so the clean-up removes it."""
+    r = subprocess.run([sys.executable, "-c", SIGNAL_AS_THE_TEMPORARY_FILE_IS_MADE,
+                        str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 143, r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_sigterm_during_a_render_leaves_nothing(tmp_path):
     out = tmp_path / "x.exr"
     env = dict(os.environ, HWRT_PROGRESS="1")
