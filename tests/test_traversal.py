@@ -483,21 +483,27 @@ def test_shared_vertices_index_the_same_triangles_bit_for_bit():
     assert np.array_equal(V[F].view(np.uint32), soup.view(np.uint32))
 
 
-@pytest.mark.parametrize("accel", ["bvh", "grid", "kdtree", "embree"])
-def test_a_negative_tmin_is_refused_by_every_structure(accel):
-    """Intervals start at the origin or after it (Embree's rule too); the units' widened
-    comparisons assume it, so a negative t_min is an error, not a silent wrong answer."""
+def _one_triangle(accel):
+    """A tracer of ``accel`` on one triangle at z = 1, and two rays that hit it (from below and
+    from above)."""
+    from traversal.embree_ref import EmbreeTracer
     from traversal.grid import GridTracer
     from traversal.kdtree import KdTreeTracer
 
     tris = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
-    from traversal.embree_ref import EmbreeTracer
-
     tracer = {"bvh": lambda: Tracer(hwbvh.build(tris)), "grid": lambda: GridTracer(tris),
               "kdtree": lambda: KdTreeTracer(tris),
               "embree": lambda: EmbreeTracer(tris.reshape(-1, 3), np.arange(3).reshape(1, 3))}[accel]()
     o = np.array([[0.2, 0.2, 0.0], [0.2, 0.2, 2.0]], np.float32)
     d = np.array([[0, 0, 1], [0, 0, -1]], np.float32)
+    return tracer, o, d
+
+
+@pytest.mark.parametrize("accel", ["bvh", "grid", "kdtree", "embree"])
+def test_a_negative_tmin_is_refused_by_every_structure(accel):
+    """Intervals start at the origin or after it (Embree's rule too); the units' widened
+    comparisons assume it, so a negative t_min is an error, not a silent wrong answer."""
+    tracer, o, d = _one_triangle(accel)
     assert tracer.intersect(o, d, 0.0).prim.tolist() == [0, 0]
     for tmin in (-1.0, np.array([0.0, -1e-30], np.float32)):
         with pytest.raises(ValueError, match="tmin must not be negative"):
@@ -508,17 +514,7 @@ def test_a_negative_tmin_is_refused_by_every_structure(accel):
 
 @pytest.mark.parametrize("accel", ["bvh", "grid", "kdtree"])
 def test_an_interval_of_the_wrong_shape_is_named(accel):
-    from traversal.grid import GridTracer
-    from traversal.kdtree import KdTreeTracer
-
-    tris = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
-    from traversal.embree_ref import EmbreeTracer
-
-    tracer = {"bvh": lambda: Tracer(hwbvh.build(tris)), "grid": lambda: GridTracer(tris),
-              "kdtree": lambda: KdTreeTracer(tris),
-              "embree": lambda: EmbreeTracer(tris.reshape(-1, 3), np.arange(3).reshape(1, 3))}[accel]()
-    o = np.array([[0.2, 0.2, 0.0], [0.2, 0.2, 2.0]], np.float32)
-    d = np.array([[0, 0, 1], [0, 0, -1]], np.float32)
+    tracer, o, d = _one_triangle(accel)
     assert tracer.occluded(o, d, np.zeros(1), 5.0).tolist() == [True, True]   # (1,) broadcasts
     with pytest.raises(ValueError, match=r"^tmax must be a scalar or one value per ray \(2,\)"):
         tracer.intersect(o, d, 0.0, np.ones(3))

@@ -40,8 +40,8 @@ from .structure import TriangleStructure, checked_triangles, padded_box
 from .config import (CHUNK_RAYS, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
                      GRID_MAX_REFS_PER_TRI, GRID_PACKET_MAILBOX, GRID_PACKET_WIDEN,
                      GRID_PAD_COORD, GRID_PAD_TRI, GRID_STOP_SLACK)
-from .packet import (ALIVE, BEST, BU, BV, DX, DY, DZ, MASK, NF, NI, NM, NW, OX, OY, OZ, P, PRIM,
-                     TMIN, _triangle, load_lane)
+from .packet import (ALIVE, BEST, BU, BV, DX, DY, DZ, MASK, NF, NI, NM, OX, OY, OZ, P, PRIM,
+                     TMIN, _triangle, load_lane, row_bits)
 from .rawtree import _ray_ok
 from .triangle_unit import (TRI_WORDS, mt_valid_at, store_answer, store_normals)
 
@@ -386,10 +386,7 @@ def _slice_bounds(s, xn, xf, F, I, M, W, S, MORE, MORE64):
             W[W_VLO + k] = min(W[W_VLO + k], W[W_VLO + h + k])
             W[W_VHI + k] = max(W[W_VHI + k], W[W_VHI + h + k])
         h //= 2
-    more = MORE64[0]
-    for q in range(1, NW):
-        more |= MORE64[q]
-    return W[W_ULO], W[W_UHI], W[W_VLO], W[W_VHI], more != 0
+    return W[W_ULO], W[W_UHI], W[W_VLO], W[W_VHI], row_bits(MORE64, 0) != 0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -497,12 +494,8 @@ def trace_grid_range(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D
                                     if box[slot] != j:
                                         box[slot] = j
                                         _triangle(tris, j, F, I, M, 0, eps2, one, edge, anyhit)
-                        if anyhit:
-                            w = M64[0]
-                            for q in range(1, NW):
-                                w |= M64[q]
-                            if w == 0:                      # every lane has found a blocker
-                                break
+                        if anyhit and row_bits(M64, ALIVE) == 0:
+                            break                           # every lane has found a blocker
                     if not more:
                         break
                     s += 1

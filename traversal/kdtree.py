@@ -85,6 +85,7 @@ _SIGN_32 = np.uint64(0x80000000)
 _T_END = np.uint64(EVENT_END)
 _T_PLANAR = np.uint64(EVENT_PLANAR)
 _ZERO = np.uint64(0)
+_NO_KEY_ABOVE = np.uint64(0xFFFFFFFFFFFFFFFF)   # above every key: the axis field is at most 2
 _SMALL_SORT = 32       # sort in place by insertion up to this many items
 _TINY32 = float(np.finfo(np.float32).tiny)
 
@@ -360,28 +361,26 @@ def _split_events(ev, s, e, side, nev_l, ne_l, nev_r, ne_r, w_l, w_r):
         key = ev[k]
         sd = side[np.int64(key & _MASK_TRI)]
         if sd == 1:
-            while j_l < ne_l and nev_l[j_l] < key:
-                ev[w_l] = nev_l[j_l]
-                w_l += 1
-                j_l += 1
+            w_l, j_l = _merge_up_to(ev, w_l, nev_l, j_l, ne_l, key)
             ev[w_l] = key
             w_l += 1
         elif sd == 2:
-            while j_r < ne_r and nev_r[j_r] < key:
-                ev[w_r] = nev_r[j_r]
-                w_r += 1
-                j_r += 1
+            w_r, j_r = _merge_up_to(ev, w_r, nev_r, j_r, ne_r, key)
             ev[w_r] = key
             w_r += 1
-    while j_l < ne_l:
-        ev[w_l] = nev_l[j_l]
-        w_l += 1
-        j_l += 1
-    while j_r < ne_r:
-        ev[w_r] = nev_r[j_r]
-        w_r += 1
-        j_r += 1
+    w_l, j_l = _merge_up_to(ev, w_l, nev_l, j_l, ne_l, _NO_KEY_ABOVE)
+    w_r, j_r = _merge_up_to(ev, w_r, nev_r, j_r, ne_r, _NO_KEY_ABOVE)
     return w_l, w_r
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _merge_up_to(ev, w, nev, j, ne, key):
+    """Copy the new events nev[j:ne] below ``key`` to ev[w:]; returns the advanced (w, j)."""
+    while j < ne and nev[j] < key:
+        ev[w] = nev[j]
+        w += 1
+        j += 1
+    return w, j
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

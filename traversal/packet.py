@@ -65,11 +65,13 @@ def _planes(f, b, kx, ky, kz):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _mask_bits(M64):
-    """OR of the mask row's words: bit 0 / bit 1 of some byte set = some lane hits."""
-    w = M64[NW]
+def row_bits(M64, row):
+    """OR of the uint64 words of the lane row at byte offset ``row`` (``ALIVE``: non-zero while
+    some lane is traced; ``MASK``: bit 0 / bit 1 of some byte set = some lane hits)."""
+    first = row // 8
+    w = M64[first]
     for q in range(1, NW):
-        w |= M64[NW + q]
+        w |= M64[first + q]
     return w
 
 
@@ -84,7 +86,7 @@ def _children(f, bl, br, kx, ky, kz, F, M, M64, widen):
         hr = _slab(F, k, rnx, rny, rnz, rfx, rfy, rfz, widen)
         live = M[ALIVE + k] != 0
         M[MASK + k] = np.uint8(live & hl) | (np.uint8(live & hr) << 1)
-    return _mask_bits(M64)
+    return row_bits(M64, MASK)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -95,7 +97,7 @@ def _box(f, b, kx, ky, kz, F, M, M64, widen):
     for k in range(P):
         h = _slab(F, k, nx, ny, nz, fx, fy, fz, widen)
         M[MASK + k] = np.uint8((M[ALIVE + k] != 0) & h)
-    return _mask_bits(M64)
+    return row_bits(M64, MASK)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -237,10 +239,7 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
     Bs = tmax_in[lo:lo + P]
     for k in range(P):
         load_lane(F, I, M, k, Os, Ds, As, Bs, zero, one)
-    w = M64[0]
-    for q in range(1, NW):
-        w |= M64[q]
-    nlive = 1 if w != 0 else 0
+    nlive = 1 if row_bits(M64, ALIVE) != 0 else 0
     # the packet's octant, shared by its rays (``coherent``): the comparator on the sign of
     # 1/d, once for the packet
     negx = math.copysign(1.0, D[3 * lo]) < 0
@@ -268,12 +267,8 @@ def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge,
                     tested += np.int64(u[base + WORD_B])
                     for p in range(first, first + np.int64(u[base + WORD_B])):
                         _triangle(tris, read_index(ib, p), F, I, M, bit, eps2, one, edge, anyhit)
-                    if anyhit:
-                        w = M64[0]
-                        for q in range(1, NW):
-                            w |= M64[q]
-                        if w == 0:              # every lane has found a blocker
-                            break
+                    if anyhit and row_bits(M64, ALIVE) == 0:
+                        break                   # every lane has found a blocker
                 node = -1
             else:
                 l = np.int64(u[base + WORD_A])
