@@ -100,6 +100,9 @@ def _executor():
         return _pool
 
 
+_in_range = threading.local()           # .active: this thread is running a range
+
+
 def run_ranges(kernel, n, *args, min_items=1):
     """kernel(lo, hi, *args) over [0, n) split into ranges of at least ``min_items`` items,
     on numba.get_num_threads() threads (this one included). Re-raises a kernel's exception.
@@ -107,11 +110,15 @@ def run_ranges(kernel, n, *args, min_items=1):
     It returns once every range has run and none is running. It does not wait for a pool
     thread that has not yet taken a range: that thread finds none left and stops. On a busy
     machine a pool thread may wait a time slice to be scheduled, and this thread does the
-    ranges meanwhile instead of waiting for it."""
+    ranges meanwhile instead of waiting for it.
+
+    Called from inside a range (a range's work that itself asks for ranges, such as a ray
+    query inside a renderer's band of rows), it runs [0, n) on the calling thread: the outer
+    ranges already keep every thread busy, and a second level would only add meetings."""
     threads = numba.get_num_threads()
     parts = min(threads * RANGES_PER_THREAD, max(1, n // max(1, min_items)))
-    if threads == 1 or parts <= 1:
-        kernel(0, n, *args)
+    if threads == 1 or parts <= 1 or getattr(_in_range, "active", False):
+        kernel(0, n, *args)              # a range's own parallel work stays on its thread
         return
     bounds = [n * k // parts for k in range(parts + 1)]
     cond = threading.Condition()
@@ -127,10 +134,14 @@ def run_ranges(kernel, n, *args, min_items=1):
                 state["next"] = k + 1
                 state["running"] += 1
             failed = None
+            was = getattr(_in_range, "active", False)
+            _in_range.active = True
             try:
                 kernel(bounds[k], bounds[k + 1], *args)
             except BaseException as e:     # re-raised by the calling thread
                 failed = e
+            finally:
+                _in_range.active = was
             with cond:
                 state["running"] -= 1
                 if failed is not None:

@@ -265,7 +265,7 @@ def cmd_render(args):
         from traversal.tracers import VerifyingTracer
         tracer = checked = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
     from tqdm import tqdm
-    bar = tqdm(total=scene.spp, desc=f"render {scene.name}", unit="spp", file=sys.stderr,
+    bar = tqdm(total=scene.height, desc=f"render {scene.name}", unit="row", file=sys.stderr,
                disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
     t0 = time.perf_counter()
     res = render(scene, tracer, seed=args.seed, progress=bar.update)

@@ -31,9 +31,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hwbvh.errors import ParameterError
-from traversal.camera import look_at_basis, tile_order
+from traversal.camera import look_at_basis
+from traversal.config import PACKET_RAYS
 from traversal.offset import STRATEGY_CODES
 from . import stages
+from .config import BAND_PIXELS, BLOCK
 from hwbvh.parallel import run_ranges
 from .stages import fresnel_dielectric  # noqa: F401  (the shading model's Fresnel term)
 
@@ -238,12 +240,11 @@ def scene_passes(scene):
 
 
 class _Buffers:
-    """The wavefront's arrays, allocated once per render and grown (never shrunk) when a bounce
+    """One thread's wavefront arrays, allocated once and grown (never shrunk) when a bounce
     spawns more rays than they hold. ``cur``/``nxt``: the current and the next wavefront
     (O, D, wgt, pix, Ot, Dt; see ``raytracer.stages``), swapped after each bounce. The block
     regions (shadow rays ``sh``, their dense queue ``shq``, secondary rays ``sp``) are sized
-    for the current wavefront. ``film`` and ``jitter`` are the frame's radiance sums and one
-    pass's pixel offsets; ``order``: the tile order of the last frame size."""
+    for the current wavefront. ``jitter``: one band's pixel offsets of one sample pass."""
 
     def __init__(self, n, n_lights, ray_dtype):
         self.L = n_lights
@@ -252,23 +253,7 @@ class _Buffers:
         self.nxt = self._wavefront(n)
         self.cap = 0
         self.ensure_slots(n)
-        self.film = np.empty((0, 3))
-        self.jitter = np.empty(0)
-        self.order = np.empty(0, np.int64)
-        self.order_size = None
-
-    def frame(self, width, height):
-        """(film zeroed, jitter buffer, tile order) for a width x height frame."""
-        npix = width * height
-        if len(self.film) < npix:
-            self.film = np.empty((npix, 3))
-            self.jitter = np.empty(2 * npix)
-        if self.order_size != (width, height):
-            self.order = tile_order(width, height)   # camera rays in 4x4 tiles: coherent packets
-            self.order_size = (width, height)
-        film = self.film[:npix]
-        film.fill(0.0)
-        return film, self.jitter[:2 * npix], self.order
+        self.jitter = np.empty(2 * n)
 
     def _wavefront(self, cap):
         f = lambda: np.empty((cap, 3))
@@ -279,7 +264,7 @@ class _Buffers:
         if n <= self.cap:
             return
         nb = stages.n_blocks(max(n, int(self.cap * 1.5)))
-        S = nb * stages.BLOCK
+        S = nb * BLOCK
         L = self.L
         f, r = (lambda *shape: np.empty(shape)), (lambda *shape: np.empty(shape, self.rd))
         self.contrib = f(S, 3)
@@ -299,9 +284,9 @@ _kept = threading.local()
 
 
 def _buffers(n, n_lights, ray_dtype):
-    """This thread's wavefront buffers from its last render when they fit, else new ones.
-    Fresh buffers of a 640x480 frame are ~200 MB of pages the kernel must map and zero on first
-    touch: a quarter of the default scene's render time. ``release_buffers`` frees them."""
+    """This thread's wavefront buffers from its last band when they fit, else new ones: fresh
+    pages cost a first touch each, so a thread keeps its buffers from band to band and from
+    render to render. ``release_buffers`` frees them."""
     buf = getattr(_kept, "buffers", None)
     if buf is None or buf.L != n_lights or buf.rd != ray_dtype:
         buf = _kept.buffers = _Buffers(n, n_lights, ray_dtype)
@@ -311,7 +296,19 @@ def _buffers(n, n_lights, ray_dtype):
         if len(buf.cur[3]) < n:
             buf.cur, buf.nxt = buf.nxt, buf.cur
             buf.ensure_next(n)
+        if len(buf.jitter) < 2 * n:
+            buf.jitter = np.empty(2 * n)
     return buf
+
+
+def _film(npix):
+    """The calling thread's radiance sums for a frame of ``npix`` pixels (float64, (npix, 3)),
+    kept from its last render: a fresh 640x480 film is 7 MB of pages to map on first touch.
+    Its bands clear it (``stages.begin_band``)."""
+    film = getattr(_kept, "film", None)
+    if film is None or len(film) < npix:
+        film = _kept.film = np.empty((npix, 3))
+    return film[:npix]
 
 
 _scratch = threading.local()
@@ -326,8 +323,9 @@ def _shade(b0, b1, *args):
 
 
 def release_buffers():
-    """Free the calling thread's kept wavefront buffers (see ``_buffers``)."""
+    """Free the calling thread's kept wavefront buffers and film (see ``_buffers``)."""
     _kept.buffers = None
+    _kept.film = None
 
 
 def _scene_arrays(scene, lights):
@@ -361,28 +359,45 @@ def _scene_arrays(scene, lights):
             f64(scene.ambient), f64(scene.background), float(scene.cutoff))
 
 
-def _fill_uniform(lo, hi, state, out):
+def _band_jitter(state, npix, p0, p1, out):
+    """The pixel offsets of pixels p0..p1 in one sample pass: of the pass' stream
+    (``default_rng([seed, sample])``, whose first 2 * npix uniforms are x for every pixel,
+    then y), the uniforms at p0..p1 and npix + p0..npix + p1, drawn from a copy of the
+    stream advanced there (one 64-bit draw per double). Returns (x, y), views of ``out``."""
+    m = p1 - p0
     bits = np.random.PCG64()
-    bits.state = state
-    bits.advance(lo)                          # one 64-bit draw per double
-    np.random.Generator(bits).random(out=out[lo:hi])
+    gen = np.random.Generator(bits)
+    for k, start in enumerate((p0, npix + p0)):
+        bits.state = state
+        bits.advance(start)
+        gen.random(out=out[k * m:(k + 1) * m])
+    return out[:m], out[m:2 * m]
 
 
-def _jitter(seed, sample, npix, out):
-    """The pixel offsets of one sample pass: ``default_rng([seed, sample])``'s first 2 * npix
-    uniforms (x for every pixel, then y), drawn in parallel by advancing copies of the stream.
-    Returns (x, y), views of ``out``."""
-    state = np.random.default_rng([seed, sample]).bit_generator.state
-    run_ranges(_fill_uniform, 2 * npix, state, out, min_items=1 << 16)
-    return out[:npix], out[npix:]
+TILE = int(round(np.sqrt(PACKET_RAYS)))   # camera tiles of TILE x TILE pixels: one packet
+
+
+def band_rows(width, height):
+    """Rows per band (``config.BAND_PIXELS``), a multiple of the camera tiles' 4 rows."""
+    rows = max(1, round(BAND_PIXELS / max(width, 1) / TILE)) * TILE
+    return min(rows, -(-height // TILE) * TILE)
 
 
 def render(scene, tracer, seed=0, progress=None, offset="relative"):
     """Render a CompiledScene with ``tracer`` (anything with the ``intersect``/``occluded``
     interface of ``traversal.tracers``: our traversal, Embree, or a verifying, counting or
-    recording wrapper of either). ``progress``: a callable(n) per finished sample pass.
-    ``offset``: secondary-ray offset strategy (traversal.offset.STRATEGIES).
-    stats: rays per kind, the passes the scene needs, and seconds per stage."""
+    recording wrapper of either). ``progress``: a callable(rows) per finished band of image
+    rows. ``offset``: secondary-ray offset strategy (traversal.offset.STRATEGIES).
+
+    The frame is rendered in bands of rows (``config.BAND_PIXELS``), each through every sample
+    pass and bounce on one thread; a tracer that may be called from several threads at once
+    (``concurrent``) gets the bands on all threads, each query traced on its band's thread;
+    another (the wrappers) gets them one by one on this thread, each query on all threads.
+    The result is the same either way: every pixel belongs to one band, and a band's rays
+    and its film additions come in a fixed order.
+
+    stats: rays per kind, the passes the scene needs, and seconds per stage, summed over the
+    threads."""
     if offset not in STRATEGY_CODES:
         raise ParameterError("offset", f"unknown strategy {offset!r} (choose from {', '.join(STRATEGY_CODES)})")
     if int(seed) < 0:
@@ -392,27 +407,90 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     W, H, spp = scene.width, scene.height, scene.spp
     npix = W * H
     passes = scene_passes(scene)
-    aov_depth = np.full(npix, np.inf, np.float32)
-    aov_normal = np.zeros((npix, 3), np.float32)
-    aov_prim = np.full(npix, -1, np.int32)
-    rays = {"primary": 0, "shadow": 0, "reflection": 0, "refraction": 0}
-    secs = dict.fromkeys(("generate", "intersect", "shade", "pack", "occluded", "accumulate"), 0.0)
     n_lights = len(scene.lights) if passes["shadow"] else 0
-    sa = _scene_arrays(scene, scene.lights if n_lights else [])
-    # rays go to the tracer in its own precision (float32 for the hardware units), so it
-    # reads them as they are
-    buf = _buffers(npix, n_lights, np.dtype(getattr(tracer, "dtype", np.float32)))
     cam = scene.camera
     cu, cv, cw = look_at_basis(cam["eye"], cam["target"], cam["up"])
-    eye = np.asarray(cam["eye"], np.float64)
-    half = float(np.tan(np.radians(cam["fov"]) / 2))
-    film, jit_buf, order = buf.frame(W, H)
     gx = int(np.ceil(np.sqrt(spp)))
-    gy = int(np.ceil(spp / gx))
-    no_jitter = np.zeros(0)
-    code = STRATEGY_CODES[offset]
-    clock = time.perf_counter
+    frame = _Frame(
+        scene=scene, passes=passes, n_lights=n_lights, code=STRATEGY_CODES[offset],
+        sa=_scene_arrays(scene, scene.lights if n_lights else []),
+        # rays go to the tracer in its own precision (float32 for the hardware units), so it
+        # reads them as they are
+        ray_dtype=np.dtype(getattr(tracer, "dtype", np.float32)),
+        basis=(cu, cv, cw), eye=np.asarray(cam["eye"], np.float64),
+        half=float(np.tan(np.radians(cam["fov"]) / 2)), grid=(gx, int(np.ceil(spp / gx))),
+        rows=band_rows(W, H),
+        streams=[np.random.default_rng([seed, s]).bit_generator.state for s in range(spp)]
+        if scene.jitter else None,
+        film=_film(npix), image=np.empty((npix, 3), np.float32),
+        aov_depth=np.empty(npix, np.float32), aov_normal=np.empty((npix, 3), np.float32),
+        aov_prim=np.empty(npix, np.int32), tracer=tracer, progress=progress)
+    n_bands = -(-H // frame.rows)
+    band_stats = [None] * n_bands
 
+    def bands(b0, b1):
+        for b in range(b0, b1):
+            band_stats[b] = _render_band(frame, b)
+
+    if getattr(tracer, "concurrent", False):
+        run_ranges(bands, n_bands)
+    else:
+        bands(0, n_bands)
+    rays = {k: sum(r[k] for r, _ in band_stats) for k in RAY_KINDS}
+    secs = {k: sum(t[k] for _, t in band_stats) for k in STAGES}
+    stats = {"rays": rays, "passes": passes, "stage_seconds": secs}
+    return RenderResult(image=frame.image.reshape(H, W, 3), depth=frame.aov_depth.reshape(H, W),
+                        normal=frame.aov_normal.reshape(H, W, 3),
+                        prim=frame.aov_prim.reshape(H, W), stats=stats)
+
+
+RAY_KINDS = ("primary", "shadow", "reflection", "refraction")
+STAGES = ("generate", "intersect", "shade", "pack", "occluded", "accumulate")
+
+
+@dataclass
+class _Frame:
+    """What every band of one render reads, and the frame-wide outputs bands write (each
+    its own pixels)."""
+    scene: object
+    passes: dict
+    n_lights: int
+    code: int
+    sa: tuple
+    ray_dtype: np.dtype
+    basis: tuple
+    eye: np.ndarray
+    half: float
+    grid: tuple
+    rows: int
+    streams: list
+    film: np.ndarray
+    image: np.ndarray
+    aov_depth: np.ndarray
+    aov_normal: np.ndarray
+    aov_prim: np.ndarray
+    tracer: object
+    progress: object
+
+
+def _render_band(fr, band):
+    """Rows band * fr.rows onward of the frame, every sample pass and bounce, on this thread.
+    Returns (rays per kind, seconds per stage)."""
+    scene, tracer, sa = fr.scene, fr.tracer, fr.sa
+    W, H = scene.width, scene.height
+    y0 = band * fr.rows
+    y1 = min(H, y0 + fr.rows)
+    q0, q1 = y0 * W, y1 * W          # whole rows of tiles: slots q0..q1 of the tile order
+    npix = q1 - q0
+    n_lights, passes, code = fr.n_lights, fr.passes, fr.code
+    cu, cv, cw = fr.basis
+    gx, gy = fr.grid
+    film, eye = fr.film, fr.eye
+    buf = _buffers(npix, n_lights, fr.ray_dtype)
+    rays = dict.fromkeys(RAY_KINDS, 0)
+    secs = dict.fromkeys(STAGES, 0.0)
+    no_jitter = np.zeros(0)
+    clock = time.perf_counter
     last = [clock()]
 
     def lap(stage):
@@ -420,16 +498,16 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
         secs[stage] += now - last[0]
         last[0] = now
 
-    for s in range(spp):
-        lap("generate")
-        if scene.jitter:
-            jx, jy = _jitter(seed, s, npix, jit_buf)
+    stages.begin_band(q0, q1, film, fr.aov_depth, fr.aov_normal, fr.aov_prim)
+    for s in range(scene.spp):
+        if fr.streams is not None:
+            jx, jy = _band_jitter(fr.streams[s], W * H, q0, q1, buf.jitter)
         else:
             jx = jy = no_jitter
-        terms = stages.camera_terms(W, H, half, s % gx, s // gx, gx, gy)
+        terms = stages.camera_terms(W, H, fr.half, s % gx, s // gx, gx, gy)
         O, D, wgt, pix, Ot, Dt = buf.cur
-        run_ranges(stages.generate_camera_rays, npix, order, W, jx, jy, scene.jitter, terms, eye,
-                   cu, cv, cw, D, pix, Ot, Dt, min_items=4096)
+        stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, scene.jitter, terms, eye, cu, cv,
+                                    cw, D, pix, Ot, Dt)
         n = npix
         rays["primary"] += n
         lap("generate")
@@ -445,10 +523,10 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
             lap("pack")
             h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
             lap("intersect")
-            run_ranges(_shade, nb, nb, O, D, wgt, pix, n, h.prim, h.t, h.u, h.v, *sa, code,
-                       n_lights > 0, spawn, bounce == 0, eye, bounce == 0 and s == 0, aov_depth,
-                       aov_normal, aov_prim, film, buf.contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix,
-                       sh_cnt[:nb], sp_O, sp_D, sp_W, sp_pix, sp_cnt[:nb])
+            _shade(0, nb, nb, O, D, wgt, pix, n, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0,
+                   spawn, bounce == 0, eye, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
+                   fr.aov_prim, film, buf.contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt[:nb],
+                   sp_O, sp_D, sp_W, sp_pix, sp_cnt[:nb])
             lap("shade")
             no_runs = np.zeros(1, np.int64)
             sh_start = stages.run_starts(sh_cnt[:nb]) if n_lights else no_runs
@@ -458,19 +536,15 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
             buf.ensure_next(k)
             n_sh = nb * n_lights
             qO, qD, qT = buf.shq
-            run_ranges(stages.pack, n_sh + (2 * nb if spawn else 0), n_sh, sh_start, sh_cnt[:nb],
-                       sh_Ot, sh_Dt, sh_T, qO, qD, qT, sp_start, sp_cnt[:nb], sp_O, sp_D, sp_W,
-                       sp_pix, *buf.nxt, min_items=8)
+            stages.pack(0, n_sh + (2 * nb if spawn else 0), n_sh, sh_start, sh_cnt[:nb], sh_Ot,
+                        sh_Dt, sh_T, qO, qD, qT, sp_start, sp_cnt[:nb], sp_O, sp_D, sp_W, sp_pix,
+                        *buf.nxt)
             lap("pack")
             if n_lights:
                 blocked = np.ascontiguousarray(tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m]))
                 lap("occluded")
-                if bounce == 0:
-                    run_ranges(stages.accumulate_unblocked, nb, sh_start, sh_cnt[:nb], sh_C,
-                               sh_pix, blocked, film, True, min_items=64)
-                else:
-                    stages.accumulate_unblocked(0, nb, sh_start, sh_cnt[:nb], sh_C, sh_pix,
-                                                blocked, film, False)
+                stages.accumulate_unblocked(0, nb, sh_start, sh_cnt[:nb], sh_C, sh_pix, blocked,
+                                            film, bounce == 0)
                 rays["shadow"] += m
             if bounce > 0:                          # the camera wavefront added its own
                 stages.accumulate(film, pix, buf.contrib, n)
@@ -482,9 +556,8 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
             rays["refraction"] += k - refl
             buf.cur, buf.nxt = buf.nxt, buf.cur
             n = k
-        if progress:
-            progress(1)
-    image = (film / spp).astype(np.float32).reshape(H, W, 3)
-    stats = {"rays": rays, "passes": passes, "stage_seconds": secs}
-    return RenderResult(image=image, depth=aov_depth.reshape(H, W),
-                        normal=aov_normal.reshape(H, W, 3), prim=aov_prim.reshape(H, W), stats=stats)
+    stages.finish_band(q0, q1, film, scene.spp, fr.image)
+    lap("accumulate")
+    if fr.progress:
+        fr.progress(y1 - y0)
+    return rays, secs

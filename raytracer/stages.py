@@ -32,9 +32,9 @@ import numpy as np
 from numba import njit
 
 from traversal.offset import offset_from_unit
+from .config import BLOCK
 
 POINT, DIRECTIONAL = 0, 1               # light kinds in the kernels' light table
-BLOCK = 256                             # rays per shading block: ~1200 blocks at 640x480
 
 
 def n_blocks(n):
@@ -81,47 +81,72 @@ def camera_terms(width, height, half, cell_x, cell_y, grid_x, grid_y):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def generate_camera_rays(lo, hi, order, width, jit_x, jit_y, jitter, terms, eye, cu, cv, cw,
+def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, cu, cv, cw,
                          D, pix, Ot, Dt):
-    """Camera rays of one sample pass for queue slots lo..hi: slot q is pixel order[q]
-    (row-major index, below 2^31), placed by ``terms`` (``camera_terms``) with the pixel's
-    uniform offsets jit_x/jit_y (indexed by pixel) when ``jitter``. Camera basis (cu, cv, cw).
-    Writes D, pix and the tracer's copies Ot, Dt; ``shade`` takes the origin (the eye) and the
-    weight (1) of camera rays as given, so O and wgt are not written."""
+    """Camera rays of one sample pass for image rows y0..y1 (y0 a multiple of ``tile``), in
+    ``tile`` x ``tile`` pixel tiles (``traversal.camera.tile_order``, whose slots y0 * width
+    onward these are): slot k from 0. A pixel is placed by ``terms`` (``camera_terms``) with
+    its uniform offsets jit_x/jit_y (pixel p at p - y0 * width) when ``jitter``. Camera
+    basis (cu, cv, cw). Writes D, pix and the tracer's copies Ot, Dt; ``shade`` takes the
+    origin (the eye) and the weight (1) of camera rays as given, so O and wgt are not
+    written."""
     off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
     ex = np.float32(eye[0])
     ey = np.float32(eye[1])
     ez = np.float32(eye[2])
-    w = np.int32(width)
-    for q in range(lo, hi):
-        p = order[q]
-        y = np.int32(p) // w                    # 32-bit: a third of a 64-bit divide's latency
-        x = np.int32(p) - y * w
-        if jitter:
-            px = np.float64(x) + (off_x + jit_x[p]) * inv_gx
-            py = np.float64(y) + (off_y + jit_y[p]) * inv_gy
-        else:
-            px = np.float64(x) + 0.5
-            py = np.float64(y) + 0.5
-        sx = px * kx - bx
-        sy = by - py * ky
-        dx = sx * cu[0] + sy * cv[0] + cw[0]
-        dy = sx * cu[1] + sy * cv[1] + cw[1]
-        dz = sx * cu[2] + sy * cv[2] + cw[2]
-        inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-        dx *= inv
-        dy *= inv
-        dz *= inv
-        Ot[q, 0] = ex                       # O and wgt are implied (eye, 1) for camera rays
-        Ot[q, 1] = ey
-        Ot[q, 2] = ez
-        D[q, 0] = dx
-        D[q, 1] = dy
-        D[q, 2] = dz
-        Dt[q, 0] = dx
-        Dt[q, 1] = dy
-        Dt[q, 2] = dz
-        pix[q] = p
+    base = y0 * width
+    k = 0
+    for ty in range(y0, y1, tile):
+        for tx in range(0, width, tile):
+            for y in range(ty, min(ty + tile, y1)):
+                for x in range(tx, min(tx + tile, width)):
+                    p = y * width + x
+                    if jitter:
+                        px = np.float64(x) + (off_x + jit_x[p - base]) * inv_gx
+                        py = np.float64(y) + (off_y + jit_y[p - base]) * inv_gy
+                    else:
+                        px = np.float64(x) + 0.5
+                        py = np.float64(y) + 0.5
+                    sx = px * kx - bx
+                    sy = by - py * ky
+                    dx = sx * cu[0] + sy * cv[0] + cw[0]
+                    dy = sx * cu[1] + sy * cv[1] + cw[1]
+                    dz = sx * cu[2] + sy * cv[2] + cw[2]
+                    inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+                    dx *= inv
+                    dy *= inv
+                    dz *= inv
+                    Ot[k, 0] = ex                   # O and wgt are implied (eye, 1)
+                    Ot[k, 1] = ey
+                    Ot[k, 2] = ez
+                    D[k, 0] = dx
+                    D[k, 1] = dy
+                    D[k, 2] = dz
+                    Dt[k, 0] = dx
+                    Dt[k, 1] = dy
+                    Dt[k, 2] = dz
+                    pix[k] = p
+                    k += 1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def begin_band(q0, q1, film, aov_depth, aov_normal, aov_prim):
+    """Pixels q0..q1 before their band renders: no radiance, no first hit. On the band's
+    thread, so a fresh frame's pages are first touched where they are used, in parallel."""
+    for q in range(q0, q1):
+        for c in range(3):
+            film[q, c] = 0.0
+            aov_normal[q, c] = 0.0
+        aov_depth[q] = np.inf
+        aov_prim[q] = -1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def finish_band(q0, q1, film, spp, image):
+    """The image of pixels q0..q1: the mean of their ``spp`` samples, in float32."""
+    for q in range(q0, q1):
+        for c in range(3):
+            image[q, c] = np.float32(film[q, c] / spp)
 
 
 @njit(cache=True, error_model="numpy")

@@ -85,6 +85,7 @@ class Tracer:
 
     name = "numba"
     has_counters = True
+    concurrent = True                 # queries may come from several threads at once
 
     def __init__(self, bvh, triangles=None, precision="float32", edge_eps=None, watertight=False,
                  packets=True):

@@ -117,6 +117,7 @@ class EmbreeTracer:
 
     name = "embree"
     has_counters = False
+    concurrent = True                 # queries may come from several threads at once
     dtype = np.float32                # embreex takes float32 rays
 
     def __init__(self, vertices, faces, robust=True):

@@ -25,6 +25,8 @@ import time
 
 import numpy as np
 
+from hwbvh.parallel import run_ranges
+
 
 class VerifyingTracer:
     """Answers with ``inner`` and checks each answer against an Embree scene built from
@@ -165,12 +167,23 @@ class RecordingTracer:
 
     def replay_seconds(self, tracer=None):
         """Seconds to trace every recorded query again with ``tracer`` (default: the wrapped
-        one), in the recorded order."""
+        one), as a renderer would: a tracer that takes queries from several threads at once
+        (``concurrent``) gets them on all threads, each traced on the thread that takes it
+        (as the renderer's bands of rows trace theirs); another gets them one by one, in the
+        recorded order, each on all threads."""
         tracer = tracer or self.inner
+        queries = self.queries
+
+        def trace(q0, q1):
+            for kind, o, d, lo, hi, normals in queries[q0:q1]:
+                if kind == "intersect":
+                    tracer.intersect(o, d, lo, hi, normals=normals)
+                else:
+                    tracer.occluded(o, d, lo, hi)
+
         t = time.perf_counter()
-        for kind, o, d, lo, hi, normals in self.queries:
-            if kind == "intersect":
-                tracer.intersect(o, d, lo, hi, normals=normals)
-            else:
-                tracer.occluded(o, d, lo, hi)
+        if getattr(tracer, "concurrent", False):
+            run_ranges(trace, len(queries))
+        else:
+            trace(0, len(queries))
         return time.perf_counter() - t

@@ -1,0 +1,16 @@
+"""The renderer's knobs, each with its reason."""
+
+# Rays per shading block. A block writes its shadow and secondary rays densely into its own
+# region, so the block is the unit of the ray order that does not depend on the thread count;
+# 256 keeps the shading kernel's per-block scratch (30 rows of 256 doubles, 60 KB) in the L2
+# cache beside the rays it reads.
+BLOCK = 256
+
+# Pixels per band. A frame is rendered in bands of whole rows (a multiple of the 4-row camera
+# tiles), each band through every sample pass and bounce on one thread, the threads taking
+# bands as they finish: so a band's wavefronts (about 400 bytes a ray across the stages) stay
+# in the caches between stages, and the threads meet once per frame instead of at every stage,
+# which is what a busy machine punishes. Small enough that a frame has bands for both threads
+# to share out evenly; large enough that the ray queries of a band (a few per bounce) spend
+# their time tracing, not in their Python call.
+BAND_PIXELS = 16384
