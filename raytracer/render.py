@@ -242,9 +242,12 @@ def scene_passes(scene):
 class _Buffers:
     """One thread's wavefront arrays, allocated once and grown (never shrunk) when a bounce
     spawns more rays than they hold. ``cur``/``nxt``: the current and the next wavefront
-    (O, D, wgt, pix, Ot, Dt; see ``raytracer.stages``), swapped after each bounce. The block
-    regions (shadow rays ``sh``, their dense queue ``shq``, secondary rays ``sp``) are sized
-    for the current wavefront. ``jitter``: one band's pixel offsets of one sample pass."""
+    (O, D, wgt, pix, Ot, Dt; see ``raytracer.stages``), swapped after each bounce. Sized for
+    ``cap`` rays of the current wavefront: its contributions ``contrib``, the shadow queue
+    ``sh`` (per light a region of ``cap``: the tracer's origin, direction and t_max, the light
+    brought, the pixel; then the counts per light) and the refractions ``sp`` (origin,
+    direction, weight, pixel; then the counts of reflections and refractions). ``jitter``: one
+    band's pixel offsets of one sample pass."""
 
     def __init__(self, n, n_lights, ray_dtype):
         self.L = n_lights
@@ -263,16 +266,13 @@ class _Buffers:
     def ensure_slots(self, n):
         if n <= self.cap:
             return
-        nb = stages.n_blocks(max(n, int(self.cap * 1.5)))
-        S = nb * BLOCK
+        S = stages.n_blocks(max(n, int(self.cap * 1.5))) * BLOCK
         L = self.L
         f, r = (lambda *shape: np.empty(shape)), (lambda *shape: np.empty(shape, self.rd))
         self.contrib = f(S, 3)
         self.sh = [r(L * S, 3), r(L * S, 3), r(L * S), f(L * S, 3), np.empty(L * S, np.int64),
-                   np.zeros((nb, L), np.int64)]
-        self.shq = [r(L * S, 3), r(L * S, 3), r(L * S)]
-        self.sp = [f(2 * S, 3), f(2 * S, 3), f(2 * S, 3), np.empty(2 * S, np.int64),
-                   np.zeros((nb, 2), np.int64)]
+                   np.zeros(L, np.int64)]
+        self.sp = [f(S, 3), f(S, 3), f(S, 3), np.empty(S, np.int64), np.zeros(2, np.int64)]
         self.cap = S
 
     def ensure_next(self, n):
@@ -314,12 +314,12 @@ def _film(npix):
 _scratch = threading.local()
 
 
-def _shade(b0, b1, *args):
+def _shade(*args):
     """``stages.shade`` with the calling thread's scratch (``stages.shade_scratch``)."""
     scratch = getattr(_scratch, "arrays", None)
     if scratch is None:
         scratch = _scratch.arrays = stages.shade_scratch()
-    stages.shade(b0, b1, *args, *scratch)
+    stages.shade(*args, *scratch)
 
 
 def release_buffers():
@@ -514,48 +514,43 @@ def _render_band(fr, band):
         for bounce in range(passes["depth"]):
             if n == 0:
                 break
-            buf.ensure_slots(n)
-            nb = stages.n_blocks(n)
-            O, D, wgt, pix, Ot, Dt = buf.cur
-            sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt = buf.sh
-            sp_O, sp_D, sp_W, sp_pix, sp_cnt = buf.sp
             spawn = bounce + 1 < passes["depth"]
+            buf.ensure_slots(n)
+            if spawn:
+                buf.ensure_next(2 * n)              # reflections, then refractions
+            O, D, wgt, pix, Ot, Dt = buf.cur
+            qO, qD, qT, sh_C, sh_pix, sh_cnt = buf.sh
+            sp_O, sp_D, sp_W, sp_pix, sp_cnt = buf.sp
             lap("pack")
             h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
             lap("intersect")
-            _shade(0, nb, nb, O, D, wgt, pix, n, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0,
-                   spawn, bounce == 0, eye, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
-                   fr.aov_prim, film, buf.contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt[:nb],
-                   sp_O, sp_D, sp_W, sp_pix, sp_cnt[:nb])
+            _shade(n, O, D, wgt, pix, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
+                   bounce == 0, eye, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
+                   fr.aov_prim, film, buf.contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, buf.cap,
+                   *buf.nxt, sp_O, sp_D, sp_W, sp_pix, sp_cnt)
             lap("shade")
-            no_runs = np.zeros(1, np.int64)
-            sh_start = stages.run_starts(sh_cnt[:nb]) if n_lights else no_runs
-            sp_start = stages.run_starts(sp_cnt[:nb]) if spawn else no_runs
-            m = int(sh_start[-1])
-            k = int(sp_start[-1])
-            buf.ensure_next(k)
-            n_sh = nb * n_lights
-            qO, qD, qT = buf.shq
-            stages.pack(0, n_sh + (2 * nb if spawn else 0), n_sh, sh_start, sh_cnt[:nb], sh_Ot,
-                        sh_Dt, sh_T, qO, qD, qT, sp_start, sp_cnt[:nb], sp_O, sp_D, sp_W, sp_pix,
-                        *buf.nxt)
+            if n_lights > 1:
+                m = stages.join_light_queues(qO, qD, qT, sh_cnt, buf.cap)
+            else:
+                m = int(sh_cnt[0]) if n_lights else 0
+            if spawn:
+                refl, refr = int(sp_cnt[0]), int(sp_cnt[1])
+                stages.append_refractions(sp_O, sp_D, sp_W, sp_pix, refr, *buf.nxt, refl)
             lap("pack")
             if n_lights:
                 blocked = np.ascontiguousarray(tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m]))
                 lap("occluded")
-                stages.accumulate_unblocked(0, nb, sh_start, sh_cnt[:nb], sh_C, sh_pix, blocked,
-                                            film, bounce == 0)
+                stages.accumulate_unblocked(sh_cnt, buf.cap, sh_C, sh_pix, blocked, film)
                 rays["shadow"] += m
             if bounce > 0:                          # the camera wavefront added its own
                 stages.accumulate(film, pix, buf.contrib, n)
             lap("accumulate")
             if not spawn:
                 break
-            refl = int(sp_start[nb])
             rays["reflection"] += refl
-            rays["refraction"] += k - refl
+            rays["refraction"] += refr
             buf.cur, buf.nxt = buf.nxt, buf.cur
-            n = k
+            n = refl + refr
     stages.finish_band(q0, q1, film, scene.spp, fr.image)
     lap("accumulate")
     if fr.progress:

@@ -3,27 +3,26 @@
 A wavefront is a queue of rays in structure-of-arrays form: origins ``O`` and directions ``D``
 (n, 3) float64 for shading, the same rays in the tracer's precision (``Ot``, ``Dt``: float32 for
 the hardware units, so the tracer reads them without a conversion), path weights ``wgt``
-(n, 3) and film pixels ``pix`` (n,). Per bounce the renderer runs:
+(n, 3) and film pixels ``pix`` (n,). The renderer runs one band of image rows at a time on a
+thread (``raytracer.render``); per bounce of a band:
 
 1. ``generate_camera_rays``: the camera's rays for one sample pass, in 4x4 pixel tiles;
 2. the tracer's ``intersect`` on the queue (our traversal or Embree: the only stage outside
    this module);
 3. ``shade``: per ray, the background for a miss; for a hit, the first-hit layers, ambient
    light, one shadow ray per light with the light it brings if visible, and the secondary rays
-   (mirror reflection, dielectric reflection and refraction) with their weights. Rays are
-   shaded in blocks of ``BLOCK``; each block writes its shadow rays (per light) and its
-   secondary rays (per kind) densely into its own region, so no two threads write the same
-   place and the result does not depend on the thread count;
-4. ``pack``: the blocks' runs copied back to back into dense queues,
-   light by light and kind by kind (so a light's shadow rays and each kind of secondary ray
-   stay in tile order: coherent packets); a shadow ray's light and pixel stay in its block;
+   (mirror reflection, dielectric reflection and refraction) with their weights. Each output
+   goes densely, in ray order, to its queue: the shadow rays of each light straight into the
+   tracer's shadow queue and the reflections straight into the next wavefront, so a light's
+   shadow rays and each kind of secondary ray stay in tile order (coherent packets);
+4. ``join_light_queues`` (more than one light) and ``append_refractions``: the other lights'
+   shadow rays behind the first's, and the refractions behind the reflections;
 5. the tracer's ``occluded`` on the shadow queue;
 6. ``accumulate_unblocked`` / ``accumulate``: the light of the unblocked shadow rays and the
-   other contributions into the film, in a fixed order per pixel, so the image does not depend
-   on the thread count. In the camera wavefront every pixel belongs to one block, so blocks
-   accumulate in parallel; later wavefronts repeat pixels across blocks and accumulate in
-   queue order on one thread (they are a fraction of the rays, and at about 1 ns per add a
-   parallel reduction would not pay).
+   other contributions into the film, in queue order, a fixed order per pixel.
+
+A band's pixels are its own and its queues come in ray order, so the image does not depend on
+the thread count.
 
 All shading is float64 on float32 hits, formula by formula as tests/naive_whitted.py, so
 images agree with that reference to float rounding.
@@ -184,6 +183,17 @@ def _put_ray(O, D, W, pix, k, ox, oy, oz, dx, dy, dz, w0, w1, w2, p):
 
 
 @njit(cache=True, error_model="numpy")
+def _put_tracer_ray(Ot, Dt, k, ox, oy, oz, dx, dy, dz):
+    """A ray's copy in the tracer's precision (as ``append_refractions`` makes for the rest)."""
+    Ot[k, 0] = ox
+    Ot[k, 1] = oy
+    Ot[k, 2] = oz
+    Dt[k, 0] = dx
+    Dt[k, 1] = dy
+    Dt[k, 2] = dz
+
+
+@njit(cache=True, error_model="numpy")
 def _own(film, contrib, direct, q, i, c0, c1, c2):
     if direct:
         film[q, 0] += c0
@@ -214,24 +224,28 @@ def shade_scratch():
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
+def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
           face_n, shading_n, material, tri_mag, kd, kd_pi, ks, shininess, kr, ior,
           light_kind, light_pos, light_dir, light_val, ambient, background, cutoff,
           offset, do_shadow, do_spawn, camera, eye, first, aov_depth, aov_normal, aov_prim,
-          film, contrib, sh_Ot, sh_Dt, sh_T, sh_C, sh_pix, sh_cnt, sp_O, sp_D, sp_W, sp_pix, sp_cnt,
+          film, contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, stride, nO, nD, nW, npix, nOt, nDt,
+          sp_O, sp_D, sp_W, sp_pix, sp_cnt,
           S, mat, lit, leaves, spawning):
-    """Shade the rays of blocks b0..b1 (of nb, BLOCK rays each, n in all) from their closest
-    hits (see the module text).
+    """Shade the ``n`` rays of a queue from their closest hits (see the module text), in
+    blocks of BLOCK rays.
 
     ``camera``: the queue holds camera rays, whose origin is ``eye`` and weight 1 (O and wgt
     are not read); each pixel appears once in it, so ray i adds its own contribution
     (background or ambient) to ``film`` directly, where other queues write it to ``contrib[i]``
-    for ``accumulate``. Block b's shadow
-    rays toward light l at (b * L + l) * BLOCK onward (origin and direction in the tracer's
-    precision, t_max, the light brought if visible, pixel), ``sh_cnt[b, l]`` of them; its
-    reflections at b * BLOCK and refractions at (n_blocks + b) * BLOCK onward (float64 origin,
-    direction, weight, pixel), ``sp_cnt[b, 0/1]`` of them. ``first`` writes the first-hit
-    layers (``aov_*``); ``offset``: traversal.offset strategy index; ``kd_pi``: kd / pi.
+    for ``accumulate``. The shadow rays toward light l go densely to l * ``stride`` onward:
+    origin, direction and t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its
+    precision), the light brought if visible and the pixel in ``sh_C``, ``sh_pix``;
+    ``sh_cnt[l]`` of them. Reflections go densely to the next wavefront (``nO``, ``nD``, ``nW``,
+    ``npix`` and the tracer's copies ``nOt``, ``nDt``), ``sp_cnt[0]`` of them; refractions to
+    ``sp_O``, ``sp_D``, ``sp_W``, ``sp_pix``, ``sp_cnt[1]`` of them, for ``append_refractions``.
+    Every output is in ray order, so the queues do not depend on anything but the rays.
+    ``first`` writes the first-hit layers (``aov_*``); ``offset``: traversal.offset strategy
+    index; ``kd_pi``: kd / pi.
 
     A block is shaded in passes over a structure-of-arrays scratch ``S``, so that the
     arithmetic runs in SIMD lanes: (1) the hit points and normals of every ray of the block,
@@ -242,7 +256,11 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
     the secondary rays. Every value is the float64 formula of a ray-by-ray loop, so the passes
     do not change a bit of the result."""
     n_lights = light_kind.shape[0]
-    for b in range(b0, b1):
+    for l in range(n_lights):
+        sh_cnt[l] = 0
+    n_refl = 0
+    n_refr = 0
+    for b in range((n + BLOCK - 1) // BLOCK):
         lo = b * BLOCK
         hi = min(n, lo + BLOCK)
         nr = hi - lo
@@ -400,7 +418,7 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
                 c = S[_FX + j] * lx + S[_FY + j] * ly + S[_FZ + j] * lz
                 S[_COS + j] = c
                 leaves[j] = (c > 0) & (gx * lx + gy * ly + gz * lz > 0)
-            s = (b * n_lights + l) * BLOCK
+            s = l * stride + sh_cnt[l]
             for j in range(nr):
                 if not (lit[j] and leaves[j]):
                     continue
@@ -416,23 +434,21 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
                     ch = S[_FX + j] * hx + S[_FY + j] * hy + S[_FZ + j] * hz
                     spec = kspec * norm_spec * max(ch, 0.0) ** shin
                 c = S[_COS + j]
-                sh_Ot[s, 0] = S[_OX + j]
-                sh_Ot[s, 1] = S[_OY + j]
-                sh_Ot[s, 2] = S[_OZ + j]
-                sh_Dt[s, 0] = S[_LX + j]
-                sh_Dt[s, 1] = S[_LY + j]
-                sh_Dt[s, 2] = S[_LZ + j]
-                sh_T[s] = S[_TMAX + j]
+                qO[s, 0] = S[_OX + j]
+                qO[s, 1] = S[_OY + j]
+                qO[s, 2] = S[_OZ + j]
+                qD[s, 0] = S[_LX + j]
+                qD[s, 1] = S[_LY + j]
+                qD[s, 2] = S[_LZ + j]
+                qT[s] = S[_TMAX + j]
                 sh_C[s, 0] = S[_W0 + j] * (S[_E0 + j] * c * (kd_pi[m, 0] + spec))
                 sh_C[s, 1] = S[_W1 + j] * (S[_E1 + j] * c * (kd_pi[m, 1] + spec))
                 sh_C[s, 2] = S[_W2 + j] * (S[_E2 + j] * c * (kd_pi[m, 2] + spec))
                 sh_pix[s] = pix[i]
                 s += 1
-            sh_cnt[b, l] = s - (b * n_lights + l) * BLOCK
+            sh_cnt[l] = s - l * stride
         # -- pass 4, in ray order: secondary rays (mirror reflection; dielectric reflection
         #    and refraction) --
-        n_refl = 0
-        n_refr = 0
         for k in range(n_spawning):
             j = spawning[k]
             i = lo + j
@@ -464,8 +480,9 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
                 a2 = w2 * kr[m, 2]
                 if max(a0, a1, a2) >= cutoff:           # contribution cut-off
                     ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
-                    _put_ray(sp_O, sp_D, sp_W, sp_pix, b * BLOCK + n_refl, ox, oy, oz, rx, ry, rz,
-                             a0, a1, a2, pix[i])
+                    _put_ray(nO, nD, nW, npix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2,
+                             pix[i])
+                    _put_tracer_ray(nOt, nDt, n_refl, ox, oy, oz, rx, ry, rz)
                     n_refl += 1
                 continue
             # ns points out of the object
@@ -490,8 +507,8 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
             a2 = w2 * F
             if max(a0, a1, a2) >= cutoff:
                 ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
-                _put_ray(sp_O, sp_D, sp_W, sp_pix, b * BLOCK + n_refl, ox, oy, oz, rx, ry, rz,
-                         a0, a1, a2, pix[i])
+                _put_ray(nO, nD, nW, npix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2, pix[i])
+                _put_tracer_ray(nOt, nDt, n_refl, ox, oy, oz, rx, ry, rz)
                 n_refl += 1
             if not tir:
                 r = eta_i / eta_t                       # Snell's law
@@ -502,74 +519,42 @@ def shade(b0, b1, nb, O, D, wgt, pix, n, hit_prim, hit_t, hit_u, hit_v,
                 c2 = w2 * (1 - F)
                 if max(c0, c1, c2) >= cutoff:
                     ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, tx, ty, tz, mag, offset)
-                    _put_ray(sp_O, sp_D, sp_W, sp_pix, (nb + b) * BLOCK + n_refr, ox, oy, oz,
-                             tx, ty, tz, c0, c1, c2, pix[i])
+                    _put_ray(sp_O, sp_D, sp_W, sp_pix, n_refr, ox, oy, oz, tx, ty, tz, c0, c1, c2,
+                             pix[i])
                     n_refr += 1
-        sp_cnt[b, 0] = n_refl
-        sp_cnt[b, 1] = n_refr
-
-
-@njit(cache=True, error_model="numpy")
-def run_starts(cnt):
-    """Exclusive prefix sums of the runs of ``cnt`` (blocks x kinds) taken kind by kind, block
-    by block: start[kind * nb + b]; the last entry is the total."""
-    nb, nk = cnt.shape
-    start = np.empty(nb * nk + 1, np.int64)
-    s = 0
-    for kind in range(nk):
-        for b in range(nb):
-            start[kind * nb + b] = s
-            s += cnt[b, kind]
-    start[nb * nk] = s
-    return start
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _pack_shadow_run(r, start, sh_cnt, sh_Ot, sh_Dt, sh_T, qO, qD, qT):
-    nb, n_lights = sh_cnt.shape
-    l = r // nb
-    b = r - l * nb
-    src = (b * n_lights + l) * BLOCK
-    dst = start[r]
-    for k in range(sh_cnt[b, l]):
-        for c in range(3):
-            qO[dst + k, c] = sh_Ot[src + k, c]
-            qD[dst + k, c] = sh_Dt[src + k, c]
-        qT[dst + k] = sh_T[src + k]
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _pack_spawn_run(r, start, sp_cnt, sp_O, sp_D, sp_W, sp_pix, O, D, wgt, pix, Ot, Dt):
-    nb = sp_cnt.shape[0]
-    src = r * BLOCK
-    kind = r // nb
-    dst = start[r]
-    for k in range(sp_cnt[r - kind * nb, kind]):
-        for c in range(3):
-            O[dst + k, c] = sp_O[src + k, c]
-            D[dst + k, c] = sp_D[src + k, c]
-            wgt[dst + k, c] = sp_W[src + k, c]
-            Ot[dst + k, c] = sp_O[src + k, c]
-            Dt[dst + k, c] = sp_D[src + k, c]
-        pix[dst + k] = sp_pix[src + k]
+    sp_cnt[0] = n_refl
+    sp_cnt[1] = n_refr
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def pack(r0, r1, n_shadow_runs, sh_start, sh_cnt, sh_Ot, sh_Dt, sh_T, qO, qD, qT,
-         sp_start, sp_cnt, sp_O, sp_D, sp_W, sp_pix, O, D, wgt, pix, Ot, Dt):
-    """Runs r0..r1 of the blocks' queues to their places, back to back (``*_start`` from
-    ``run_starts``), in one pass so that the threads meet once. Runs below ``n_shadow_runs``
-    are shadow runs (run r: light r // nb of block r % nb) copied to the dense queue the tracer
-    reads (qO, qD, qT; a shadow ray's light and pixel stay in its block, where
-    ``accumulate_unblocked`` reads them); the rest are secondary-ray runs (reflections of each
-    block, then refractions) copied to the next wavefront, with the tracer's copies of origins
-    and directions."""
-    for r in range(r0, r1):
-        if r < n_shadow_runs:
-            _pack_shadow_run(r, sh_start, sh_cnt, sh_Ot, sh_Dt, sh_T, qO, qD, qT)
-        else:
-            _pack_spawn_run(r - n_shadow_runs, sp_start, sp_cnt, sp_O, sp_D, sp_W, sp_pix, O, D,
-                            wgt, pix, Ot, Dt)
+def join_light_queues(qO, qD, qT, sh_cnt, stride):
+    """Move the shadow rays of lights 1.. (at l * stride onward, ``sh_cnt[l]`` of them) down
+    behind those of light 0, so that the queue is one dense run, light by light. Returns its
+    length. Each destination lies before its source, so copying forward is safe."""
+    m = sh_cnt[0]
+    for l in range(1, sh_cnt.shape[0]):
+        src = l * stride
+        for k in range(sh_cnt[l]):
+            for c in range(3):
+                qO[m + k, c] = qO[src + k, c]
+                qD[m + k, c] = qD[src + k, c]
+            qT[m + k] = qT[src + k]
+        m += sh_cnt[l]
+    return m
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def append_refractions(sp_O, sp_D, sp_W, sp_pix, f, O, D, wgt, pix, Ot, Dt, r):
+    """The ``f`` refraction rays behind the ``r`` reflections already in the next wavefront,
+    with the tracer's copies of origins and directions."""
+    for k in range(f):
+        for c in range(3):
+            O[r + k, c] = sp_O[k, c]
+            D[r + k, c] = sp_D[k, c]
+            wgt[r + k, c] = sp_W[k, c]
+            Ot[r + k, c] = sp_O[k, c]
+            Dt[r + k, c] = sp_D[k, c]
+        pix[r + k] = sp_pix[k]
 
 
 @njit(cache=True, error_model="numpy")
@@ -582,31 +567,18 @@ def accumulate(film, pix, contrib, n):
         film[q, 2] += contrib[k, 2]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _add_unblocked_run(b, l, nb, n_lights, start, sh_cnt, sh_C, sh_pix, blocked, film):
-    src = (b * n_lights + l) * BLOCK
-    dst = start[l * nb + b]
-    for k in range(sh_cnt[b, l]):
-        if not blocked[dst + k]:
-            q = sh_pix[src + k]
-            film[q, 0] += sh_C[src + k, 0]
-            film[q, 1] += sh_C[src + k, 1]
-            film[q, 2] += sh_C[src + k, 2]
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
-def accumulate_unblocked(b0, b1, start, sh_cnt, sh_C, sh_pix, blocked, film, camera):
-    """film[pixel] += the light brought by each shadow ray of blocks b0..b1 that reached its
-    light (``blocked``: the dense queue's answers, ``start`` from ``run_starts``). The blocks
-    of the ``camera`` wavefront own distinct pixels, so ranges of them may run in parallel,
-    light by light within a block. A later wavefront's blocks share pixels: it runs as one
-    range in queue order (light by light, then block by block), a fixed order per pixel."""
-    nb, n_lights = sh_cnt.shape
-    if camera:
-        for b in range(b0, b1):
-            for l in range(n_lights):
-                _add_unblocked_run(b, l, nb, n_lights, start, sh_cnt, sh_C, sh_pix, blocked, film)
-    else:
-        for l in range(n_lights):
-            for b in range(b0, b1):
-                _add_unblocked_run(b, l, nb, n_lights, start, sh_cnt, sh_C, sh_pix, blocked, film)
+def accumulate_unblocked(sh_cnt, stride, sh_C, sh_pix, blocked, film):
+    """film[pixel] += the light brought by each shadow ray that reached its light, light by
+    light in queue order (``blocked``: the joined queue's answers; the rays of light l at
+    l * stride onward in ``sh_C``/``sh_pix``): a fixed order per pixel."""
+    start = 0
+    for l in range(sh_cnt.shape[0]):
+        src = l * stride
+        for k in range(sh_cnt[l]):
+            if not blocked[start + k]:
+                q = sh_pix[src + k]
+                film[q, 0] += sh_C[src + k, 0]
+                film[q, 1] += sh_C[src + k, 1]
+                film[q, 2] += sh_C[src + k, 2]
+        start += sh_cnt[l]
