@@ -103,9 +103,11 @@ def _executor():
 _in_range = threading.local()           # .active: this thread is running a range
 
 
-def run_ranges(kernel, n, *args, min_items=1):
-    """kernel(lo, hi, *args) over [0, n) split into ranges of at least ``min_items`` items,
-    on numba.get_num_threads() threads (this one included). Re-raises a kernel's exception.
+def run_ranges(kernel, n, *args, min_items=1, parts=None):
+    """kernel(lo, hi, *args) over [0, n) split into ranges of at least ``min_items`` items
+    (``parts`` ranges, at most, when given: one item each for items that are already coarse;
+    else a few per thread), on numba.get_num_threads() threads (this one included). Re-raises
+    a kernel's exception.
 
     It returns once every range has run and none is running. It does not wait for a pool
     thread that has not yet taken a range: that thread finds none left and stops. On a busy
@@ -116,7 +118,7 @@ def run_ranges(kernel, n, *args, min_items=1):
     query inside a renderer's band of rows), it runs [0, n) on the calling thread: the outer
     ranges already keep every thread busy, and a second level would only add meetings."""
     threads = numba.get_num_threads()
-    parts = min(threads * RANGES_PER_THREAD, max(1, n // max(1, min_items)))
+    parts = min(parts or threads * RANGES_PER_THREAD, max(1, n // max(1, min_items)))
     if threads == 1 or parts <= 1 or getattr(_in_range, "active", False):
         kernel(0, n, *args)              # a range's own parallel work stays on its thread
         return

@@ -304,7 +304,8 @@ def _buffers(n, n_lights, ray_dtype):
 def _film(npix):
     """The calling thread's radiance sums for a frame of ``npix`` pixels (float64, (npix, 3)),
     kept from its last render: a fresh 640x480 film is 7 MB of pages to map on first touch.
-    Its bands clear it (``stages.begin_band``)."""
+    Not cleared: the first sample pass' camera rays store each pixel's first sum
+    (``stages.shade`` with ``first``)."""
     film = getattr(_kept, "film", None)
     if film is None or len(film) < npix:
         film = _kept.film = np.empty((npix, 3))
@@ -433,7 +434,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
             band_stats[b] = _render_band(frame, b)
 
     if getattr(tracer, "concurrent", False):
-        run_ranges(bands, n_bands)
+        run_ranges(bands, n_bands, parts=n_bands)     # a band each: the last ends soonest
     else:
         bands(0, n_bands)
     rays = {k: sum(r[k] for r, _ in band_stats) for k in RAY_KINDS}
@@ -498,7 +499,6 @@ def _render_band(fr, band):
         secs[stage] += now - last[0]
         last[0] = now
 
-    stages.begin_band(q0, q1, film, fr.aov_depth, fr.aov_normal, fr.aov_prim)
     for s in range(scene.spp):
         if fr.streams is not None:
             jx, jy = _band_jitter(fr.streams[s], W * H, q0, q1, buf.jitter)

@@ -129,18 +129,6 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def begin_band(q0, q1, film, aov_depth, aov_normal, aov_prim):
-    """Pixels q0..q1 before their band renders: no radiance, no first hit. On the band's
-    thread, so a fresh frame's pages are first touched where they are used, in parallel."""
-    for q in range(q0, q1):
-        for c in range(3):
-            film[q, c] = 0.0
-            aov_normal[q, c] = 0.0
-        aov_depth[q] = np.inf
-        aov_prim[q] = -1
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def finish_band(q0, q1, film, spp, image):
     """The image of pixels q0..q1: the mean of their ``spp`` samples, in float32."""
     for q in range(q0, q1):
@@ -194,8 +182,12 @@ def _put_tracer_ray(Ot, Dt, k, ox, oy, oz, dx, dy, dz):
 
 
 @njit(cache=True, error_model="numpy")
-def _own(film, contrib, direct, q, i, c0, c1, c2):
-    if direct:
+def _own(film, contrib, direct, first, q, i, c0, c1, c2):
+    if first:                       # the pixel's first sum: 0 + c, whatever the film held
+        film[q, 0] = 0.0 + c0
+        film[q, 1] = 0.0 + c1
+        film[q, 2] = 0.0 + c2
+    elif direct:
         film[q, 0] += c0
         film[q, 1] += c1
         film[q, 2] += c2
@@ -244,8 +236,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     ``npix`` and the tracer's copies ``nOt``, ``nDt``), ``sp_cnt[0]`` of them; refractions to
     ``sp_O``, ``sp_D``, ``sp_W``, ``sp_pix``, ``sp_cnt[1]`` of them, for ``append_refractions``.
     Every output is in ray order, so the queues do not depend on anything but the rays.
-    ``first`` writes the first-hit layers (``aov_*``); ``offset``: traversal.offset strategy
-    index; ``kd_pi``: kd / pi.
+    ``first`` (the first sample pass' camera rays) writes every pixel's first-hit layers
+    (``aov_*``) and stores its first radiance sum, so neither needs clearing before;
+    ``offset``: traversal.offset strategy index; ``kd_pi``: kd / pi.
 
     A block is shaded in passes over a structure-of-arrays scratch ``S``, so that the
     arithmetic runs in SIMD lanes: (1) the hit points and normals of every ray of the block,
@@ -311,14 +304,18 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             w1 = S[_W1 + j]
             w2 = S[_W2 + j]
             if hit_prim[i] < 0:                     # a miss sees the background
-                _own(film, contrib, camera, pix[i], i, w0 * background[0], w1 * background[1],
-                     w2 * background[2])
+                if first:
+                    q = pix[i]
+                    aov_depth[q] = np.inf
+                    aov_prim[q] = -1
+                _own(film, contrib, camera, first, pix[i], i, w0 * background[0],
+                     w1 * background[1], w2 * background[2])
                 continue
             if first:
                 q = pix[i]
                 aov_depth[q] = hit_t[i]
                 aov_prim[q] = p
-            _own(film, contrib, camera, pix[i], i, w0 * (kd[m, 0] * ambient[0]),
+            _own(film, contrib, camera, first, pix[i], i, w0 * (kd[m, 0] * ambient[0]),
                  w1 * (kd[m, 1] * ambient[1]), w2 * (kd[m, 2] * ambient[2]))
             dielectric = ior[m] > 0
             lit[j] = do_shadow and not dielectric       # dielectrics take no direct light
@@ -357,11 +354,11 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             S[_FZ + j] = fz if usable else gz
         if first:                                   # the first-hit shading normals
             for j in range(nr):
-                if hit_prim[lo + j] >= 0:
-                    q = pix[lo + j]
-                    aov_normal[q, 0] = S[_NX + j]
-                    aov_normal[q, 1] = S[_NY + j]
-                    aov_normal[q, 2] = S[_NZ + j]
+                q = pix[lo + j]
+                hit = hit_prim[lo + j] >= 0
+                aov_normal[q, 0] = S[_NX + j] if hit else 0.0
+                aov_normal[q, 1] = S[_NY + j] if hit else 0.0
+                aov_normal[q, 2] = S[_NZ + j] if hit else 0.0
         # -- pass 3, per light: the shadow ray of every ray (SIMD), then in ray order the
         #    records of those that take the light (Lambert + normalised Blinn-Phong) --
         for l in range(n_lights):
