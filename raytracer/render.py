@@ -34,7 +34,7 @@ from hwbvh.errors import ParameterError
 from traversal.camera import look_at_basis
 from traversal.config import PACKET_RAYS
 from traversal.offset import STRATEGY_CODES
-from . import stages
+from . import pcg64, stages
 from .config import BAND_PIXELS, BLOCK
 from hwbvh.parallel import run_ranges
 from .stages import fresnel_dielectric  # noqa: F401  (the shading model's Fresnel term)
@@ -360,19 +360,16 @@ def _scene_arrays(scene, lights):
             f64(scene.ambient), f64(scene.background), float(scene.cutoff))
 
 
-def _band_jitter(state, npix, p0, p1, out):
+def _band_jitter(words, npix, p0, p1, out):
     """The pixel offsets of pixels p0..p1 in one sample pass: of the pass' stream
-    (``default_rng([seed, sample])``, whose first 2 * npix uniforms are x for every pixel,
-    then y), the uniforms at p0..p1 and npix + p0..npix + p1, drawn from a copy of the
-    stream advanced there (one 64-bit draw per double). Returns (x, y), views of ``out``."""
+    (``default_rng([seed, sample])``, ``words`` from ``pcg64.stream_words``), whose first
+    2 * npix uniforms are x for every pixel, then y, the uniforms at p0..p1 and
+    npix + p0..npix + p1. Returns (x, y), views of ``out``."""
     m = p1 - p0
-    bits = np.random.PCG64()
-    gen = np.random.Generator(bits)
-    for k, start in enumerate((p0, npix + p0)):
-        bits.state = state
-        bits.advance(start)
-        gen.random(out=out[k * m:(k + 1) * m])
-    return out[:m], out[m:2 * m]
+    x, y = out[:m], out[m:2 * m]
+    pcg64.uniforms(words, p0, x)
+    pcg64.uniforms(words, npix + p0, y)
+    return x, y
 
 
 TILE = int(round(np.sqrt(PACKET_RAYS)))   # camera tiles of TILE x TILE pixels: one packet
@@ -421,7 +418,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
         basis=(cu, cv, cw), eye=np.asarray(cam["eye"], np.float64),
         half=float(np.tan(np.radians(cam["fov"]) / 2)), grid=(gx, int(np.ceil(spp / gx))),
         rows=band_rows(W, H),
-        streams=[np.random.default_rng([seed, s]).bit_generator.state for s in range(spp)]
+        streams=[pcg64.stream_words(seed, s) for s in range(spp)]
         if scene.jitter else None,
         film=_film(npix), image=np.empty((npix, 3), np.float32),
         aov_depth=np.empty(npix, np.float32), aov_normal=np.empty((npix, 3), np.float32),

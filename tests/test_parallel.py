@@ -70,3 +70,20 @@ def test_a_pool_thread_not_yet_running_is_not_waited_for():
             freed.acquire()
     time.sleep(0.05)                            # the late pool threads found nothing to do
     assert (hits == 1).all()
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two threads")
+def test_ranges_asked_for_inside_a_range_run_on_its_thread():
+    seen = []
+
+    def inner(lo, hi, outer_thread):
+        seen.append((threading.get_ident() == outer_thread, lo, hi))
+
+    def outer(lo, hi):
+        for _ in range(lo, hi):
+            run_ranges(inner, 1000, threading.get_ident())
+    run_ranges(outer, 8, parts=8)
+    assert len(seen) == 8 and all(same and (lo, hi) == (0, 1000) for same, lo, hi in seen)
+    seen.clear()
+    run_ranges(inner, 1000, None)                   # outside a range: split across threads
+    assert len(seen) > 1

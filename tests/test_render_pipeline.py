@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from raytracer import stages
-from raytracer.render import make_tracer, render
+from raytracer import pcg64
+from raytracer.render import TILE, band_rows, make_tracer, render
 from scenes import compile_scene, load_scene
 from scenes.builtin import BUILTIN
 from traversal.embree_ref import EmbreeTracer
@@ -48,14 +49,15 @@ def test_wavefront_grows_when_dielectrics_double_the_rays():
 
 
 def test_image_independent_of_thread_count():
-    # large enough that every stage runs in several ranges: camera rays (4096 a range at least)
-    # and the camera wavefront's shadow light, accumulated block by block in parallel (64
-    # blocks of stages.BLOCK rays a range at least); two lights, so a pixel's sum has an order
+    # several bands of rows, the last of a height that is not a whole camera tile, with more
+    # than one block each; two lights, so a pixel's sum has an order
     d = load_scene("marbles", width=256, height=130, spp=2)
     d["lights"] = d["lights"] + [{"type": "point", "position": [0.3, 2.0, 0.8],
                                   "intensity": [1.5, 1.4, 1.2]}]
     sc = compile_scene(d)
-    assert stages.n_blocks(sc.width * sc.height) >= 2 * 64
+    rows = band_rows(sc.width, sc.height)
+    assert -(-sc.height // rows) >= 3 and sc.height % rows % TILE
+    assert stages.n_blocks(rows * sc.width) >= 2
     tracer, _, _ = make_tracer(sc)
     before = numba.get_num_threads()
     try:
@@ -219,3 +221,44 @@ def test_shadows_off_with_lights_and_no_diffuse_material():
     image, rays, *_ = naive_render(sc, tracer)
     assert res.stats["rays"]["shadow"] == 0 == rays["shadow"]
     np.testing.assert_allclose(res.image, image, rtol=1e-6, atol=1e-7)
+
+
+def test_bands_on_all_threads_or_one_by_one_give_the_same_render():
+    """A tracer that takes queries from several threads gets the bands on all of them; a
+    wrapper gets them one by one on the calling thread, each query on all threads."""
+    d = load_scene("cornell", width=96, height=70, spp=3)
+    d["lights"] = d["lights"] + [{"type": "directional", "direction": [0.2, -1.0, -0.3],
+                                  "irradiance": [0.4, 0.4, 0.5]}]
+    sc = compile_scene(d)
+    tracer, _, _ = make_tracer(sc)
+    assert tracer.concurrent and not getattr(RecordingTracer(tracer), "concurrent", False)
+    rec = RecordingTracer(tracer)
+    a = render(sc, tracer, seed=4)
+    b = render(sc, rec, seed=4)
+    assert np.array_equal(a.image, b.image) and np.array_equal(a.prim, b.prim)
+    assert np.array_equal(a.depth, b.depth) and np.array_equal(a.normal, b.normal)
+    assert a.stats["rays"] == b.stats["rays"]
+    assert rec.rays() == sum(b.stats["rays"].values())
+
+
+@pytest.mark.parametrize("width,height", [(640, 480), (7, 5), (1000, 3), (33, 130)])
+def test_bands_are_whole_tile_rows_that_cover_the_frame(width, height):
+    rows = band_rows(width, height)
+    assert rows % TILE == 0 and rows >= TILE
+    assert rows < height + TILE                     # no band taller than the frame needs
+
+
+@pytest.mark.parametrize("seed,sample", [(0, 0), (3, 1), (2 ** 40, 9)])
+def test_pixel_offsets_are_numpys_stream_bit_for_bit(seed, sample):
+    ref = np.random.default_rng([seed, sample]).random(5000)
+    words = pcg64.stream_words(seed, sample)
+    for start, n in [(0, 5000), (1, 4999), (63, 700), (64, 1), (4990, 10), (17, 0)]:
+        out = np.empty(n)
+        pcg64.uniforms(words, start, out)
+        assert np.array_equal(out, ref[start:start + n]), (start, n)
+    bits = np.random.PCG64()
+    bits.state = np.random.default_rng([seed, sample]).bit_generator.state
+    bits.advance(3 * 10 ** 12)
+    far = np.empty(130)
+    pcg64.uniforms(words, 3 * 10 ** 12, far)
+    assert np.array_equal(far, np.random.Generator(bits).random(130))
