@@ -35,7 +35,7 @@ from traversal.camera import look_at_basis
 from traversal.config import PACKET_RAYS
 from traversal.offset import STRATEGY_CODES
 from . import pcg64, stages
-from .config import BAND_PIXELS, BLOCK
+from .config import BAND_PIXELS, BLOCK, MIN_BANDS
 from hwbvh.parallel import run_ranges
 from .stages import fresnel_dielectric  # noqa: F401  (the shading model's Fresnel term)
 
@@ -376,9 +376,12 @@ TILE = int(round(np.sqrt(PACKET_RAYS)))   # camera tiles of TILE x TILE pixels: 
 
 
 def band_rows(width, height):
-    """Rows per band (``config.BAND_PIXELS``), a multiple of the camera tiles' 4 rows."""
-    rows = max(1, round(BAND_PIXELS / max(width, 1) / TILE)) * TILE
-    return min(rows, -(-height // TILE) * TILE)
+    """Rows per band: about ``config.BAND_PIXELS`` pixels, at least ``config.MIN_BANDS`` bands
+    where the frame has the rows, a multiple of the camera tiles' rows. Depends on the frame
+    size only, so a render does not depend on the thread count."""
+    rows = round(BAND_PIXELS / max(width, 1) / TILE) * TILE
+    most = -(-height // (MIN_BANDS * TILE)) * TILE
+    return max(TILE, min(rows, most))
 
 
 def render(scene, tracer, seed=0, progress=None, offset="relative"):
