@@ -1,8 +1,10 @@
 """Whitted-style ray tracing (Whitted 1980; thesis 2.2.2) on the simulated hardware's trees.
 
-Rays travel as wavefronts through compiled stages (``raytracer.stages``): generate camera
-rays, intersect, shade (direct light with one shadow ray per light, spawn secondary rays),
-compact, occluded, accumulate. The tracer (our traversal of the hwbvh tree, or Embree) answers
+The frame is cut into bands of rows (``band_rows``); a band goes through every sample pass and
+bounce on one thread, its rays travelling as wavefronts through compiled stages
+(``raytracer.stages``): generate camera rays, intersect, shade (direct light with one shadow
+ray per light, spawn secondary rays), join, occluded, accumulate. The tracer (our traversal of
+the hwbvh tree, or Embree) answers
 the ``intersect`` and ``occluded`` queries; everything else is the same compiled code for
 both, so a comparison of the two measures their trees and traversals. Shading per hit:
 
@@ -446,7 +448,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
 
 
 RAY_KINDS = ("primary", "shadow", "reflection", "refraction")
-STAGES = ("generate", "intersect", "shade", "pack", "occluded", "accumulate")
+STAGES = ("generate", "intersect", "shade", "join", "occluded", "accumulate")
 
 
 @dataclass
@@ -521,7 +523,7 @@ def _render_band(fr, band):
             O, D, wgt, pix, Ot, Dt = buf.cur
             qO, qD, qT, sh_C, sh_pix, sh_cnt = buf.sh
             sp_O, sp_D, sp_W, sp_pix, sp_cnt = buf.sp
-            lap("pack")
+            lap("join")
             h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
             lap("intersect")
             _shade(n, O, D, wgt, pix, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
@@ -536,7 +538,7 @@ def _render_band(fr, band):
             if spawn:
                 refl, refr = int(sp_cnt[0]), int(sp_cnt[1])
                 stages.append_refractions(sp_O, sp_D, sp_W, sp_pix, refr, *buf.nxt, refl)
-            lap("pack")
+            lap("join")
             if n_lights:
                 blocked = np.ascontiguousarray(tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m]))
                 lap("occluded")
