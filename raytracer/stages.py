@@ -115,15 +115,10 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
                     dx *= inv
                     dy *= inv
                     dz *= inv
-                    Ot[k, 0] = ex                   # O and wgt are implied (eye, 1)
-                    Ot[k, 1] = ey
-                    Ot[k, 2] = ez
-                    D[k, 0] = dx
+                    _put_tracer_ray(Ot, Dt, k, ex, ey, ez, dx, dy, dz)
+                    D[k, 0] = dx                    # O and wgt are implied (eye, 1)
                     D[k, 1] = dy
                     D[k, 2] = dz
-                    Dt[k, 0] = dx
-                    Dt[k, 1] = dy
-                    Dt[k, 2] = dz
                     pix[k] = p
                     k += 1
 
