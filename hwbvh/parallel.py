@@ -1,8 +1,8 @@
 """How the compiled kernels share the machine: Numba's threading layer and its wait policy.
 
-Every ``prange`` loop runs on a pool of threads. A render is a few dozen short parallel regions
-(a traversal, a shading pass and a shadow query per bounce), and each region ends when its
-slowest thread ends. OpenMP's default wait policy keeps idle threads spinning between regions:
+Every ``prange`` loop runs on a pool of threads, and each parallel region ends when its slowest
+thread ends (a build is a few dozen regions). OpenMP's default wait policy keeps idle threads
+spinning between regions:
 alone on the machine that saves a wake-up, but beside another busy process the spinning
 threads take the cores the working threads need, and every region can wait a scheduler time
 slice. ``hwrt bench contention`` measures each set-up with a busy competitor on every core
@@ -18,13 +18,14 @@ The set-up is pinned here, before the first parallel region starts the pool:
 ``HWRT_THREADING`` selects one; an explicit ``NUMBA_THREADING_LAYER`` or ``OMP_WAIT_POLICY`` in
 the environment is left as the user set it.
 
-Kernels with many arguments run through :func:`run_ranges` instead of a ``prange`` driver:
-compiled with ``nogil=True`` and given a range of work items, they are called range by range
-from a small pool of threads:
+Kernels with many arguments, and work that is Python between kernels (a render's bands of
+rows), run through :func:`run_ranges` instead of a ``prange`` driver: compiled with
+``nogil=True`` and given a range of work items, they are called range by range from a small
+pool of threads:
 
 * compile time: a parallel driver is lowered into a gufunc whose wrapper grows with every
-  argument; for the renderer's shading stage (some fifty arguments) the driver alone took
-  5 s to compile, twice the kernel itself;
+  argument; for a kernel of some fifty arguments (the renderer's shading stage) the driver
+  alone took 5 s to compile, twice the kernel itself;
 * sharing the machine: idle pool threads sleep on a condition, never spin;
 * balance: ranges are handed out in order from a shared counter, a few per thread, so a thread
   slowed down by another process on its core simply takes fewer of them.
@@ -128,39 +129,47 @@ def run_ranges(kernel, n, *args, min_items=1, parts=None):
     errors = []
 
     def worker():
+        was = getattr(_in_range, "active", False)
         while True:
+            failed = None
             with cond:
                 k = state["next"]
                 if k >= parts:
                     return
                 state["next"] = k + 1
                 state["running"] += 1
-            failed = None
-            was = getattr(_in_range, "active", False)
-            _in_range.active = True
-            try:
+            try:                               # straight after the claim: what runs is counted
+                _in_range.active = True
                 kernel(bounds[k], bounds[k + 1], *args)
-            except BaseException as e:     # re-raised by the calling thread
+            except BaseException as e:         # re-raised by the calling thread
                 failed = e
             finally:
                 _in_range.active = was
-            with cond:
-                state["running"] -= 1
-                if failed is not None:
-                    errors.append(failed)
-                    state["next"] = parts          # no range starts after a failure
-                if state["running"] == 0:
-                    cond.notify_all()
+                with cond:
+                    state["running"] -= 1
+                    if failed is not None:
+                        errors.append(failed)
+                        state["next"] = parts      # no range starts after a failure
+                    if state["running"] == 0:
+                        cond.notify_all()
             if failed is not None:
                 return
 
     for _ in range(threads - 1):
         _executor().submit(worker)
-    worker()
-    with cond:
-        # every range in flight ends before this returns or raises: none may write into the
-        # caller's arrays afterwards
-        while state["running"]:
-            cond.wait()
+    try:
+        worker()
+        with cond:
+            while state["running"]:
+                cond.wait()
+    except BaseException:                  # an interrupt (Ctrl-C) here: no range starts, and
+        with cond:                         # every range in flight ends before this raises,
+            state["next"] = parts          # so none writes into the caller's arrays after
+            while state["running"]:
+                try:
+                    cond.wait()
+                except BaseException:      # a second interrupt: keep waiting
+                    pass
+        raise
     if errors:
         raise errors[0]

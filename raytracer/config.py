@@ -1,9 +1,8 @@
 """The renderer's knobs, each with its reason."""
 
-# Rays per shading block. A block writes its shadow and secondary rays densely into its own
-# region, so the block is the unit of the ray order that does not depend on the thread count;
-# 256 keeps the shading kernel's per-block scratch (30 rows of 256 doubles, 60 KB) in the L2
-# cache beside the rays it reads.
+# Rays per shading block: the shading kernel works a block at a time in passes over a
+# structure-of-arrays scratch, so that its arithmetic runs in SIMD lanes; 256 keeps that
+# scratch (30 rows of 256 doubles, 60 KB) in the L2 cache beside the rays it reads.
 BLOCK = 256
 
 # Pixels per band, and the fewest bands a frame is cut into. A frame is rendered in bands of

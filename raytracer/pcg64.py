@@ -77,6 +77,7 @@ def _jump(mh, ml, ch, cl, delta):
 
 
 _CHUNK = 8 * LANES                      # draws made before they become doubles
+_LAST_START = 1 << 62                   # far beyond any frame; start + LANES stays in int64
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -87,6 +88,8 @@ def uniforms(words, start, out):
     The lanes' states and their draws share one scratch array ``U`` (states high, states low,
     then ``_CHUNK`` draws): LLVM then sees that the rows do not overlap and steps the lanes
     in SIMD."""
+    if start < 0 or start > _LAST_START - len(out):
+        raise ValueError("pcg64.uniforms: start outside the stream's first 2**62 draws")
     mh = _MH
     ml = _ML
     ih = words[2]

@@ -33,8 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hwbvh.errors import ParameterError
-from traversal.camera import look_at_basis
-from traversal.config import PACKET_RAYS
+from traversal.camera import TILE, look_at_basis
 from traversal.offset import STRATEGY_CODES
 from . import pcg64, stages
 from .config import BAND_PIXELS, BLOCK, MIN_BANDS
@@ -283,13 +282,22 @@ class _Buffers:
 
 
 _kept = threading.local()
+_generation = [0]                 # bumped by release_buffers: older kept arrays are dropped
+
+
+def _kept_current():
+    """This thread's kept arrays, emptied if ``release_buffers`` ran since they were kept."""
+    if getattr(_kept, "generation", None) != _generation[0]:
+        _kept.buffers = _kept.film = None
+        _kept.generation = _generation[0]
+    return _kept
 
 
 def _buffers(n, n_lights, ray_dtype):
     """This thread's wavefront buffers from its last band when they fit, else new ones: fresh
     pages cost a first touch each, so a thread keeps its buffers from band to band and from
     render to render. ``release_buffers`` frees them."""
-    buf = getattr(_kept, "buffers", None)
+    buf = getattr(_kept_current(), "buffers", None)
     if buf is None or buf.L != n_lights or buf.rd != ray_dtype:
         buf = _kept.buffers = _Buffers(n, n_lights, ray_dtype)
     else:
@@ -308,7 +316,7 @@ def _film(npix):
     kept from its last render: a fresh 640x480 film is 7 MB of pages to map on first touch.
     Not cleared: the first sample pass' camera rays store each pixel's first sum
     (``stages.shade`` with ``first``)."""
-    film = getattr(_kept, "film", None)
+    film = getattr(_kept_current(), "film", None)
     if film is None or len(film) < npix:
         film = _kept.film = np.empty((npix, 3))
     return film[:npix]
@@ -326,9 +334,10 @@ def _shade(*args):
 
 
 def release_buffers():
-    """Free the calling thread's kept wavefront buffers and film (see ``_buffers``)."""
-    _kept.buffers = None
-    _kept.film = None
+    """Free the kept wavefront buffers and films (see ``_buffers``, ``_film``): the calling
+    thread's now, every other thread's when it next renders."""
+    _generation[0] += 1
+    _kept_current()
 
 
 def _scene_arrays(scene, lights):
@@ -374,15 +383,12 @@ def _band_jitter(words, npix, p0, p1, out):
     return x, y
 
 
-TILE = int(round(np.sqrt(PACKET_RAYS)))   # camera tiles of TILE x TILE pixels: one packet
-
-
 def band_rows(width, height):
     """Rows per band: about ``config.BAND_PIXELS`` pixels, at least ``config.MIN_BANDS`` bands
     where the frame has the rows, a multiple of the camera tiles' rows. Depends on the frame
     size only, so a render does not depend on the thread count."""
     rows = round(BAND_PIXELS / max(width, 1) / TILE) * TILE
-    most = -(-height // (MIN_BANDS * TILE)) * TILE
+    most = (height - 1) // (MIN_BANDS - 1) // TILE * TILE     # ceil(height / most) >= MIN_BANDS
     return max(TILE, min(rows, most))
 
 
@@ -390,7 +396,8 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     """Render a CompiledScene with ``tracer`` (anything with the ``intersect``/``occluded``
     interface of ``traversal.tracers``: our traversal, Embree, or a verifying, counting or
     recording wrapper of either). ``progress``: a callable(rows) per finished band of image
-    rows. ``offset``: secondary-ray offset strategy (traversal.offset.STRATEGIES).
+    rows, called from the threads that render bands, one call at a time. ``offset``:
+    secondary-ray offset strategy (traversal.offset.STRATEGIES).
 
     The frame is rendered in bands of rows (``config.BAND_PIXELS``), each through every sample
     pass and bounce on one thread; a tracer that may be called from several threads at once
@@ -427,7 +434,8 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
         if scene.jitter else None,
         film=_film(npix), image=np.empty((npix, 3), np.float32),
         aov_depth=np.empty(npix, np.float32), aov_normal=np.empty((npix, 3), np.float32),
-        aov_prim=np.empty(npix, np.int32), tracer=tracer, progress=progress)
+        aov_prim=np.empty(npix, np.int32), tracer=tracer,
+        progress=_one_at_a_time(progress) if progress else None)
     n_bands = -(-H // frame.rows)
     band_stats = [None] * n_bands
 
@@ -445,6 +453,15 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     return RenderResult(image=frame.image.reshape(H, W, 3), depth=frame.aov_depth.reshape(H, W),
                         normal=frame.aov_normal.reshape(H, W, 3),
                         prim=frame.aov_prim.reshape(H, W), stats=stats)
+
+
+def _one_at_a_time(callback):
+    lock = threading.Lock()
+
+    def call(*args):
+        with lock:
+            callback(*args)
+    return call
 
 
 RAY_KINDS = ("primary", "shadow", "reflection", "refraction")

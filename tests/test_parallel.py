@@ -87,3 +87,28 @@ def test_ranges_asked_for_inside_a_range_run_on_its_thread():
     seen.clear()
     run_ranges(inner, 1000, None)                   # outside a range: split across threads
     assert len(seen) > 1
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two threads")
+def test_an_interrupt_while_waiting_lets_running_ranges_end_first():
+    """Ctrl-C while the calling thread waits for a pool thread's range: the range ends before
+    the interrupt propagates, so nothing writes into the caller's arrays afterwards."""
+    import os
+    import signal
+    main = threading.get_ident()
+    written = np.zeros(2, np.int64)
+
+    def kernel(lo, hi, out):
+        time.sleep(0.05 if threading.get_ident() == main else 0.4)
+        out[lo:hi] = 1
+
+    timer = threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_ranges(kernel, 2, written, parts=2)
+        assert written.sum() == 2                   # the pool thread's range had ended
+        time.sleep(0.5)
+        assert written.sum() == 2
+    finally:
+        timer.cancel()

@@ -7,7 +7,9 @@ import pytest
 
 from raytracer import stages
 from raytracer import pcg64
+from raytracer.config import MIN_BANDS
 from raytracer.render import TILE, band_rows, make_tracer, render
+from traversal.camera import tile_order
 from scenes import compile_scene, load_scene
 from scenes.builtin import BUILTIN
 from traversal.embree_ref import EmbreeTracer
@@ -241,11 +243,30 @@ def test_bands_on_all_threads_or_one_by_one_give_the_same_render():
     assert rec.rays() == sum(b.stats["rays"].values())
 
 
-@pytest.mark.parametrize("width,height", [(640, 480), (7, 5), (1000, 3), (33, 130)])
+@pytest.mark.parametrize("width,height", [(640, 480), (7, 5), (1000, 3), (33, 130), (256, 36)])
 def test_bands_are_whole_tile_rows_that_cover_the_frame(width, height):
     rows = band_rows(width, height)
     assert rows % TILE == 0 and rows >= TILE
     assert rows < height + TILE                     # no band taller than the frame needs
+    if height >= MIN_BANDS * TILE:
+        assert -(-height // rows) >= MIN_BANDS
+
+
+def test_a_bands_camera_rays_are_its_slots_of_the_tile_order():
+    W, H = 37, 30
+    order = tile_order(W, H)
+    rows = 8
+    for y0 in range(0, H, rows):
+        y1 = min(H, y0 + rows)
+        n = (y1 - y0) * W
+        D = np.empty((n, 3))
+        Ot, Dt = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+        pix = np.empty(n, np.int64)
+        terms = stages.camera_terms(W, H, 0.5, 0, 0, 1, 1)
+        stages.generate_camera_rays(y0, y1, W, TILE, np.zeros(0), np.zeros(0), False, terms,
+                                    np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
+                                    np.array([0, 0, -1.0]), D, pix, Ot, Dt)
+        assert np.array_equal(pix, order[y0 * W:y1 * W])
 
 
 @pytest.mark.parametrize("seed,sample", [(0, 0), (3, 1), (2 ** 40, 9)])
@@ -262,3 +283,6 @@ def test_pixel_offsets_are_numpys_stream_bit_for_bit(seed, sample):
     far = np.empty(130)
     pcg64.uniforms(words, 3 * 10 ** 12, far)
     assert np.array_equal(far, np.random.Generator(bits).random(130))
+    for bad in (-1, 2 ** 63 - 1):
+        with pytest.raises(ValueError, match="start"):
+            pcg64.uniforms(words, bad, np.empty(3))

@@ -2,6 +2,10 @@
 import numpy as np
 from numba import njit
 
+from .config import PACKET_RAYS
+
+TILE = int(round(np.sqrt(PACKET_RAYS)))   # camera tiles of TILE x TILE pixels: one packet
+
 
 def look_at_basis(eye, target, up):
     eye = np.asarray(eye, np.float64)
@@ -35,7 +39,7 @@ def primary_rays(eye, target, up, fov_deg, width, height, jitter=None):
     return o, d
 
 
-def tile_order(width, height, tile=4):
+def tile_order(width, height, tile=TILE):
     """Pixel indices (row-major numbering) listed tile by tile: ``tile`` x ``tile`` squares, row
     by row inside a tile, tiles row by row; partial tiles at the right and bottom edges. A
     renderer issues its camera rays in this order so that 16 consecutive rays are a 4x4 block

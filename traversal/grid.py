@@ -540,7 +540,6 @@ class GridTracer(TriangleStructure):
     ``references`` and ``references_per_triangle``."""
 
     name = "grid"
-    concurrent = True                 # queries may come from several threads at once
 
     def __init__(self, triangles, resolution=None, packets=True):
         start = time.perf_counter()

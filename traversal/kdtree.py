@@ -810,7 +810,6 @@ class KdTreeTracer(TriangleStructure):
     and the caps ``max_depth`` and ``max_references``."""
 
     name = "kdtree"
-    concurrent = True                 # queries may come from several threads at once
 
     def __init__(self, triangles):
         start = time.perf_counter()

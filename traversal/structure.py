@@ -45,6 +45,7 @@ class TriangleStructure:
     a subclass calls ``_set_unit`` with its triangles and implements ``_trace``."""
 
     has_counters = False
+    concurrent = True                 # queries may come from several threads at once
     dtype = np.float32
 
     def _set_unit(self, tris):

@@ -9,9 +9,14 @@ Every tracer answers two batched queries (pbrt's ``Intersect`` / ``IntersectP``)
 Intervals start at the origin or after it (``tmin >= 0``, as in Embree): a negative ``tmin``
 is a ValueError.
 
+A tracer may also declare ``concurrent = True``: it answers queries from several threads at
+once, so the renderer traces each band of rows on its own thread (``raytracer.render``);
+without it, queries come one at a time, each spread over the threads.
+
 ``traversal.Tracer`` (the appendix-A units on the raw hwbvh buffer) and
-``traversal.embree_ref.EmbreeTracer`` implement it; the renderer sees nothing else. The wrappers
-below implement it too, so they stack in front of either back end:
+``traversal.embree_ref.EmbreeTracer`` implement it (concurrent both), as do the grid and the
+kd-tree; the renderer sees nothing else. The wrappers below implement it too (one query at a
+time: they keep running totals or a record), so they stack in front of any of them:
 
 * :class:`VerifyingTracer` checks every answer against Embree: closest hits by
   ``verify.classify`` and any-hit answers by ``verify.classify_occluded``, on exactly the rays
