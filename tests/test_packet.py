@@ -206,3 +206,29 @@ def test_packets_agree_at_extreme_triangle_and_direction_sizes(tri_scale, dir_sc
     assert (a.prim >= 0).all()
     assert np.array_equal(a.prim, Tracer(hwbvh.build(tris), precision="float64").intersect(o, d).prim)
     assert np.array_equal(pk.occluded(o, d), single.occluded(o, d))
+
+
+def test_last_packets_is_each_threads_own():
+    """A tracer takes queries from several threads at once (the renderer's bands): each thread
+    reads the packet count of its own last query."""
+    import threading
+    tris = grid_sheet(16, 16, wave=0.0)
+    pk, _ = pair(tris)
+    xs = np.linspace(-0.9, 0.9, 32)
+    X, Z = np.meshgrid(xs, xs)
+    o = np.stack([X.ravel(), np.ones(X.size), Z.ravel()], 1)
+    d = np.tile([0.0, -1.0, 0.0], (len(o), 1))
+    seen = {}
+
+    def run(n):
+        counts = set()
+        for _ in range(50):
+            pk.intersect(o[:n], d[:n])
+            counts.add(pk.last_packets)
+        seen[n] = counts
+    threads = [threading.Thread(target=run, args=(n,)) for n in (16 * 8, 16 * 40)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert seen == {16 * 8: {8}, 16 * 40: {40}}

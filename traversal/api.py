@@ -4,6 +4,7 @@
 >>> hits = tracer.intersect(origins, dirs)      # Hits: t, prim (-1 miss), u, v, ng
 >>> blocked = tracer.occluded(origins, dirs, tmax=dist)
 """
+import threading
 import time
 from dataclasses import dataclass
 
@@ -72,7 +73,21 @@ def _answers(n, anyhit, normals, dtype):
             np.empty((n if normals else 0, 3), dtype))
 
 
-class Tracer:
+class PacketCount:
+    """``last_packets``: the packets the calling thread's last query traced (the rest went ray
+    by ray). Per thread, since a ``concurrent`` tracer takes queries from several at once."""
+
+    def _count_packets(self, n):
+        if "_packets_by_thread" not in self.__dict__:
+            self._packets_by_thread = threading.local()
+        self._packets_by_thread.n = n
+
+    @property
+    def last_packets(self):
+        return getattr(self.__dict__.get("_packets_by_thread"), "n", 0)
+
+
+class Tracer(PacketCount):
     """Ray queries on one BVH. precision: "float32" (the hardware units) or "float64";
     watertight=True swaps the Moller-Trumbore unit for the Woop et al. 2013 test.
 
@@ -116,7 +131,7 @@ class Tracer:
             edge_eps = EDGE_EPS_F32 if f32 else EDGE_EPS_F64
         self.edge = self.dtype(edge_eps)
         self.packets = bool(packets)
-        self.last_packets = 0          # packets the last query traced (the rest went ray by ray)
+        self._count_packets(0)
 
     def _run(self, origins, dirs, tmin, tmax, anyhit, counters, normals=False, as_run=False):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)
@@ -131,7 +146,7 @@ class Tracer:
                    self.widen, self.edge, self.depth, anyhit, self.packets and (as_run or not counters) and self.raw is None, prim, t, u, v, ng,
                    cnt, over, traced)
         over = int(over.sum())
-        self.last_packets = int(traced.sum())
+        self._count_packets(int(traced.sum()))
         if over:
             raise RuntimeError(f"traversal stack overflow on {over} rays: the tree is deeper "
                                f"than its recorded depth {self.depth} (corrupted tree?)")

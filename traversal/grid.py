@@ -36,6 +36,7 @@ import numpy as np
 from numba import njit
 
 from hwbvh.parallel import run_ranges
+from .api import PacketCount
 from .structure import TriangleStructure, checked_triangles, padded_box
 from .config import (CHUNK_RAYS, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
                      GRID_MAX_REFS_PER_TRI, GRID_PACKET_MAILBOX, GRID_PACKET_WIDEN,
@@ -529,12 +530,12 @@ def grid_chunks(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D, tmi
     store_normals(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), tris, out_prim, out_ng, one)
 
 
-class GridTracer(TriangleStructure):
+class GridTracer(TriangleStructure, PacketCount):
     """Ray queries on a uniform grid over ``triangles`` ((n, 3, 3)), with the BVH traversal's
     float32 triangle unit. ``resolution``: cells per axis (an int for all three or three ints);
     default from the density heuristic. ``packets``: trace coherent groups of rays as packets
     (the same answers; the attribute may be changed later). ``last_packets``: the packets the
-    last query traced. Implements the tracer interface of
+    calling thread's last query traced. Implements the tracer interface of
     ``traversal.tracers``. After the build: ``resolution`` (3 ints), ``build_seconds``,
     ``memory_bytes`` (cell offsets, references and preprocessed triangles),
     ``references`` and ``references_per_triangle``."""
@@ -544,7 +545,7 @@ class GridTracer(TriangleStructure):
     def __init__(self, triangles, resolution=None, packets=True):
         start = time.perf_counter()
         self.packets = bool(packets)
-        self.last_packets = 0          # packets the last query traced (the rest went ray by ray)
+        self._count_packets(0)
         tris = checked_triangles(triangles)
         n = len(tris)
         # the grid's box: the mesh's, padded like a triangle's box, and never flat
@@ -591,7 +592,7 @@ class GridTracer(TriangleStructure):
         run_ranges(grid_chunks, chunks, self._tris1, self.offsets, self.refs, self.gmin,
                    self.gmax, self._cs, self._inv, self._res, o, d, tmin, tmax, self.eps2,
                    self.one, self.edge, anyhit, self.packets, prim, t, u, v, ng, traced)
-        self.last_packets = int(traced.sum())
+        self._count_packets(int(traced.sum()))
 
     def stats(self):
         """The structure's figures for reports."""
