@@ -67,13 +67,19 @@ def alloc_canonical(m):
 # Subtree builder: one task, sequential, depth-first (Fig. 3.3)
 # --------------------------------------------------------------------------------------
 @njit(cache=True)
+def _copy_box(dst, src):
+    """The six bounds of box ``src`` into ``dst``, element by element: a slice assignment
+    compiles a shape check whose error message alone takes seconds of a first run."""
+    for c in range(6):
+        dst[c] = src[c]
+
+
+@njit(cache=True)
 def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
                   slot0, start, count, buf, rootbox, depth0, leaf_size, nbins, stats):
     """Build the subtree of records [start, start+count) held in buffer ``buf`` of the pair
     ``bb`` (2, N, 6) / ``bi`` (2, N). Nodes go to slots ``slot0, slot0+1, ...`` in pre-order.
-    ``stats`` (int64 (4,)) accumulates nodes, leaves, fallback splits, max depth. Boxes are
-    copied element by element: a slice assignment compiles a shape check whose error message
-    alone takes seconds of a first run's compilation."""
+    ``stats`` (int64 (4,)) accumulates nodes, leaves, fallback splits, max depth."""
     binbox = np.empty((3, nbins, 6), dtype=np.float32)
     bincnt = np.empty((3, nbins), dtype=np.int64)
     lbox = np.empty(6, dtype=np.float32)
@@ -96,12 +102,10 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
     cur_buf = buf
     depth = depth0
     curbox = np.empty(6, dtype=np.float32)
-    for c in range(6):
-        curbox[c] = rootbox[c]
+    _copy_box(curbox, rootbox)
     while True:
         # -- write the node record (its AABB now; child pointers fill the gap later) --
-        for c in range(6):
-            cbox[slot, c] = curbox[c]
+        _copy_box(cbox[slot], curbox)
         cstart[slot] = s
         ccount[slot] = n
         stats[0] += 1
@@ -125,8 +129,7 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
             n = st_count[sp]
             cur_buf = st_buf[sp]
             depth = st_depth[sp]
-            for c in range(6):
-                curbox[c] = st_box[sp, c]
+            _copy_box(curbox, st_box[sp])
             continue
         # -- binning units + SAH calculator --
         src_b = bb[cur_buf]
@@ -153,8 +156,7 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
         st_count[sp] = nr
         st_buf[sp] = child_buf
         st_depth[sp] = depth + 1
-        for c in range(6):
-            st_box[sp, c] = rbox[c]
+        _copy_box(st_box[sp], rbox)
         sp += 1
         left_slot = nxt
         nxt += 1
@@ -163,8 +165,7 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
         n = nl
         cur_buf = child_buf
         depth += 1
-        for c in range(6):
-            curbox[c] = lbox[c]
+        _copy_box(curbox, lbox)
     return nxt - slot0
 
 

@@ -661,10 +661,10 @@ def _bench_files(out_dir, rows, summary, runs, frames, args, structures):
 
 
 def _bench_markdown(summary, frames, args, mach, structures):
-    from .report import command_of, made_by
-    made = made_by(command_of(args))
+    from .report import command_of, made_by_lines
     L = [f"# Animation benchmark: {frames} frames at {args.width}x{args.height}, {args.spp} spp",
-         ""] + ([made, ""] if made else []) + [f"Machine: {mach['cpu']}, {mach['cores']} cores, Numba {mach['numba']}.", "",
+         ""] + made_by_lines(command_of(args)) + [
+         f"Machine: {mach['cpu']}, {mach['cores']} cores, Numba {mach['numba']}.", "",
          "Animations: " + "; ".join(
              f"{r['animation']} ({', '.join(f'{k} {v}' for k, v in r['animation_info'].items())})"
              if r["animation_info"] else r["animation"] for r in summary) + ".", "",

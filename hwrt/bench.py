@@ -560,10 +560,9 @@ def _render_human(r):
 
 def _render_markdown(r, args=None):
     """The results as a docs page."""
-    from .report import command_of, made_by
+    from .report import command_of, made_by_lines
     m = r["machine"]
-    made = made_by(command_of(args))
-    lines = ["# hwrt bench render", ""] + ([made, ""] if made else []) + [
+    lines = ["# hwrt bench render", ""] + made_by_lines(command_of(args)) + [
              f"Time to image, `hwrt bench render`: medians of {r['repeat']} warm runs per path, "
              f"the paths alternating run by run. {m.get('cpu', '')}, {m.get('cores')} cores, "
              f"{m.get('numba_threads')} Numba threads.", ""]

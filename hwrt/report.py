@@ -14,6 +14,12 @@ def made_by(command):
     return f"Made by `{command}`." if command else ""
 
 
+def made_by_lines(command):
+    """``made_by`` as lines of a page joined by newlines (the line and a blank line), or []."""
+    line = made_by(command)
+    return [line, ""] if line else []
+
+
 def made_by_block(command):
     """``made_by`` as a paragraph (the line and a blank line), or ''."""
     line = made_by(command)

@@ -15,6 +15,14 @@ def pair(tris, **kw):
     return Tracer(bvh, **kw), Tracer(bvh, packets=False, **kw)
 
 
+def rays_down_on_the_sheet(extent, n):
+    """n x n rays straight down (-y) from y = 1 over [-extent, extent]^2 in x and z."""
+    xs = np.linspace(-extent, extent, n)
+    X, Z = np.meshgrid(xs, xs)
+    o = np.stack([X.ravel(), np.ones(X.size), Z.ravel()], 1)
+    return o, np.tile([0.0, -1.0, 0.0], (len(o), 1))
+
+
 def same_hits(a, b):
     for name in ("prim", "t", "u", "v", "ng"):
         x, y = getattr(a, name), getattr(b, name)
@@ -166,12 +174,8 @@ def test_coherence_test_is_the_direction_octant():
 
 
 def test_signed_zero_directions_mixed_in_a_group():
-    tris = grid_sheet(16, 16, wave=0.0)
-    pk, single = pair(tris)
-    xs = np.linspace(-1, 1, 33)
-    X, Z = np.meshgrid(xs, xs)
-    o = np.stack([X.ravel(), np.ones(X.size), Z.ravel()], 1)
-    d = np.tile([0.0, -1.0, 0.0], (len(o), 1))
+    pk, single = pair(grid_sheet(16, 16, wave=0.0))
+    o, d = rays_down_on_the_sheet(1.0, 33)
     d[::3, 0] = -0.0                               # +0 and -0 alternate within groups
     a = pk.intersect(o, d)
     same_hits(a, single.intersect(o, d))
@@ -212,12 +216,8 @@ def test_last_packets_is_each_threads_own():
     """A tracer takes queries from several threads at once (the renderer's bands): each thread
     reads the packet count of its own last query."""
     import threading
-    tris = grid_sheet(16, 16, wave=0.0)
-    pk, _ = pair(tris)
-    xs = np.linspace(-0.9, 0.9, 32)
-    X, Z = np.meshgrid(xs, xs)
-    o = np.stack([X.ravel(), np.ones(X.size), Z.ravel()], 1)
-    d = np.tile([0.0, -1.0, 0.0], (len(o), 1))
+    pk, _ = pair(grid_sheet(16, 16, wave=0.0))
+    o, d = rays_down_on_the_sheet(0.9, 32)
     seen = {}
 
     def run(n):
