@@ -12,6 +12,7 @@ import math
 import os
 import signal
 import tempfile
+import threading
 from contextlib import contextmanager
 
 import numpy as np
@@ -123,20 +124,55 @@ def check_output_dir(directory, names=(), inputs=()):
 # --------------------------------------------------------------------------------------
 # atomic writes
 # --------------------------------------------------------------------------------------
+_HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
 @contextmanager
 def _signals_held():
-    """Hold SIGINT/SIGTERM for the renames, so a set of files appears whole; a signal that
-    arrives meanwhile is delivered right after."""
-    sigs = {signal.SIGINT, signal.SIGTERM}
-    try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
-    except (AttributeError, ValueError, OSError):      # no pthread_sigmask on this platform
+    """Hold SIGINT/SIGTERM for a short step (creating and recording a temporary file, the
+    renames), so a set of files appears whole; a signal that arrives meanwhile is acted on
+    right after, by the handler that was in place.
+
+    The Python-level handlers are swapped, not the thread's signal mask: the kernel may deliver
+    a process signal to any thread (image and thread-pool libraries start their own), and
+    Python then runs the handler in the main thread at its next instruction, mask or not.
+    Only the main thread runs Python signal handlers, so other threads need no holding."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
+    arrived = []
+    previous = {}
     try:
+        for sig in _HELD_SIGNALS:
+            if signal.getsignal(sig) is not None:     # None: a handler set outside Python
+                # signal.signal runs pending handlers before it swaps, so an exception here
+                # leaves this signal's handler as it was
+                previous[sig] = signal.signal(sig, lambda signum, frame: arrived.append(signum))
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        interrupted = _restore_handlers(previous)
+        if interrupted is not None:
+            raise interrupted
+        for sig in dict.fromkeys(arrived):
+            handler = previous[sig]
+            if callable(handler):
+                handler(sig, None)
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), sig)        # the default action, now that it is back
+
+
+def _restore_handlers(previous):
+    """Put back every handler in ``previous``. A restored handler may run (and raise) as the
+    next one is put back; the restoring goes on, and the first such exception is returned."""
+    interrupted = None
+    for sig, handler in previous.items():
+        while True:
+            try:
+                signal.signal(sig, handler)
+                break
+            except BaseException as e:           # the pending signal is consumed; try again
+                interrupted = interrupted or e
+    return interrupted
 
 
 def _file_mode():
@@ -170,19 +206,13 @@ def write_files(pairs):
                 with os.fdopen(fd, "w" if isinstance(data, str) else "wb") as f:
                     f.write(data)
             os.chmod(tmp, _file_mode())
-    except BaseException:
+        with _signals_held():
+            for tmp, path in tmps:
+                os.replace(tmp, path)
+    finally:                             # a renamed temporary file no longer exists
         for tmp, _ in tmps:
             if os.path.exists(tmp):
                 os.unlink(tmp)
-        raise
-    with _signals_held():
-        try:
-            for tmp, path in tmps:
-                os.replace(tmp, path)
-        finally:
-            for tmp, _ in tmps:
-                if os.path.exists(tmp):
-                    os.unlink(tmp)
 
 
 def figure_png(fig, dpi=100):

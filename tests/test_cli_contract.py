@@ -224,6 +224,37 @@ def test_write_files_is_all_or_nothing(tmp_path):
     assert sorted(p.read_bytes() for p in tmp_path.iterdir()) == [b"a", b"b", b"c"]
 
 
+def test_an_interrupt_before_the_renames_leaves_nothing(tmp_path, monkeypatch):
+    """An interrupt after every file is written but before they are renamed into place
+    removes the temporary files."""
+    import hwbvh.files as files
+    held = files._signals_held
+    entered = []
+
+    def interrupted_at_the_renames():
+        entered.append(1)
+        if len(entered) == 3:                 # two files made; the third hold is the renames
+            raise KeyboardInterrupt
+        return held()
+    monkeypatch.setattr(files, "_signals_held", interrupted_at_the_renames)
+    with pytest.raises(KeyboardInterrupt):
+        files.write_files([(tmp_path / "a.bin", b"a"), (tmp_path / "b.txt", "b")])
+    assert len(entered) == 3 and list(tmp_path.iterdir()) == []
+
+
+def test_a_signal_during_a_hold_is_acted_on_after_it_by_the_handler_in_place():
+    from hwbvh.files import _signals_held
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    steps = []
+    with pytest.raises(KeyboardInterrupt):
+        with _signals_held():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.2)                   # Python acts on the signal here: it is held
+            steps.append("held")
+    assert steps == ["held"]
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+
+
 # ---------------------------------------------------------------------------------------
 # 4. strict JSON
 # ---------------------------------------------------------------------------------------
@@ -410,15 +441,21 @@ def test_signal_during_a_write_removes_the_temporary_file(tmp_path, sig, code, w
 
 
 SIGNAL_AS_THE_TEMPORARY_FILE_IS_MADE = textwrap.dedent("""
-    import os, signal, sys, tempfile
+    import os, signal, sys, tempfile, threading, time
     import hwrt.cli as cli
     from hwbvh.files import write_files
 
     real_mkstemp = tempfile.mkstemp
+    bystander = threading.Thread(target=threading.Event().wait, daemon=True)
+    bystander.start()
 
     def mkstemp(*args, **kwargs):           # the signal comes once the file exists
         made = real_mkstemp(*args, **kwargs)
-        os.kill(os.getpid(), signal.SIGTERM)
+        if sys.argv[2] == "process":
+            os.kill(os.getpid(), signal.SIGTERM)
+        else:                               # the kernel's choice when another thread takes it
+            signal.pthread_kill(bystander.ident, signal.SIGTERM)
+            time.sleep(0.5)                 # Python acts on it in this thread, in the sleep
         return made
 
     tempfile.mkstemp = mkstemp
@@ -431,11 +468,13 @@ SIGNAL_AS_THE_TEMPORARY_FILE_IS_MADE = textwrap.dedent("""
 """)
 
 
-def test_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path):
+@pytest.mark.parametrize("receiver", ["process", "another thread"])
+def test_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, receiver):
     """A signal between creating a temporary file and recording it for clean-up is held
-    until the file is recorded, so the clean-up removes it."""
+    until the file is recorded, so the clean-up removes it, whichever thread receives it."""
     r = subprocess.run([sys.executable, "-c", SIGNAL_AS_THE_TEMPORARY_FILE_IS_MADE,
-                        str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
+                        str(tmp_path / "x"), receiver.split()[0]],
+                       capture_output=True, text=True, timeout=120)
     assert r.returncode == 143, r.stderr
     assert list(tmp_path.iterdir()) == []
 
