@@ -3,10 +3,17 @@
 The hardware builder (16 bins, fixed split rules) and the full-sweep SAH builder give trees of
 different quality for the same scene. A renderer measures trees only if its render time moves
 with the traversal work the tree causes. For each scene this benchmark renders with both trees
-(alternating run by run; a ratio is the median of the rounds' ratios) and counts, with the
-single-ray unit's counters, the nodes visited and triangles tested per ray over every query of
-the render, closest-hit and shadow alike. It reports the ratio sweep/hwbvh of render time, of
-trace-only time (the same rays traced again alone) and of (nodes + triangles) per ray.
+(alternating run by run; a ratio is the median of the rounds' ratios) and counts the nodes
+visited and triangles tested per ray over every query of the render, closest-hit and shadow
+alike, as the path runs them (a ray traced in a packet counts every node and triangle its
+packet tests). It reports the ratio sweep/hwbvh of render time, of trace-only time (the same
+rays traced again alone) and of (nodes + triangles) per ray, with packets (as the renderer
+runs) and with the single-ray unit alone.
+
+Where the time goes: the render's queries, split by kind (closest hit, shadow) and by path
+(rays in packets, rays traced one by one), are traced again class by class with both trees.
+A unit of work costs several times more on a ray traced alone than on a packet's ray, so a
+render's time follows the work of the class that holds its time, not the sum of the work.
 """
 import statistics
 import time
@@ -73,6 +80,8 @@ def bench_trees(args):
             render_s = {b: statistics.median(renders[b]) for b in BUILDERS}
             trace_only = {b: statistics.median(replays[b]) for b in BUILDERS}
             render_ratio, trace_ratio = _paired_ratio(renders), _paired_ratio(replays)
+            if packets:
+                row["by_path"] = _by_path(tracers, recordings, args.repeat)
             row[mode] = {"work": work, "work_ratio": work_ratio,
                          "render_seconds": render_s, "trace_only_seconds": trace_only,
                          "render_ratio": render_ratio, "trace_ratio": trace_ratio,
@@ -80,6 +89,79 @@ def bench_trees(args):
                          "trace_vs_work": trace_ratio / work_ratio - 1}
         rows.append(row)
     return {"rows": rows, "repeat": args.repeat}
+
+
+KINDS = {"intersect": "closest", "occluded": "shadow"}
+PATHS = ("packets", "one by one")
+
+
+def _split_queries(queries):
+    """The recorded queries as {(kind, path): [query, ...]}: each query's packet rays and its
+    other rays as two queries (empty parts dropped)."""
+    from traversal.packet import packet_rays
+
+    classes = {}
+    for kind, o, d, lo, hi, normals in queries:
+        in_packets = packet_rays(d)
+        for path, rays in zip(PATHS, (in_packets, ~in_packets)):
+            if rays.any():
+                part = (kind, o[rays], d[rays], lo if lo.ndim == 0 else lo[rays],
+                        hi if hi.ndim == 0 else hi[rays], normals)
+                classes.setdefault((KINDS[kind], path), []).append(part)
+    return classes
+
+
+def _class_work(tracer, queries):
+    """(rays, nodes + triangles) of ``queries`` as the path runs them."""
+    rays = work = 0
+    for kind, o, d, lo, hi, normals in queries:
+        if kind == "intersect":
+            counters = tracer.intersect(o, d, lo, hi, normals=normals, counters=True,
+                                        as_run=True).counters
+        else:
+            counters = tracer.occluded(o, d, lo, hi, counters=True, as_run=True)[1]
+        rays += len(o)
+        work += int(counters.sum())
+    return rays, work
+
+
+def _by_path(tracers, recordings, repeat):
+    """Per (kind, path) class of the render's queries: rays, work per ray of each tree, the
+    work ratio, the trace-time ratio (both trees alternating, median of the rounds' ratios)
+    and the class's share of hwbvh's trace time."""
+    from traversal.tracers import RecordingTracer
+
+    split = {b: _split_queries(recordings[b].queries) for b in BUILDERS}
+    out = []
+    for key in sorted(set(split["hwbvh"]) & set(split["sweep"]),
+                      key=lambda k: (k[0], PATHS.index(k[1]))):
+        replays, work, rays = {}, {}, {}
+        try:
+            for b in BUILDERS:
+                # a ray left out of a packet stays out: its class is traced with packets off
+                tracers[b].packets = key[1] == "packets"
+                replays[b] = RecordingTracer(tracers[b])
+                replays[b].queries = split[b][key]
+                rays[b], units = _class_work(tracers[b], split[b][key])
+                work[b] = units / rays[b]
+            seconds = {b: [] for b in BUILDERS}
+            for i in range(repeat):
+                for b in BUILDERS[::1 - 2 * (i % 2)]:
+                    seconds[b].append(replays[b].replay_seconds())
+        finally:
+            for b in BUILDERS:
+                tracers[b].packets = True
+        hw_seconds = statistics.median(seconds["hwbvh"])
+        out.append({"kind": key[0], "path": key[1], "rays": rays["hwbvh"], "work_per_ray": work,
+                    "work_ratio": work["sweep"] / work["hwbvh"],
+                    "trace_seconds": {b: statistics.median(seconds[b]) for b in BUILDERS},
+                    "trace_ratio": _paired_ratio(seconds),
+                    "ns_per_unit": 1e9 * hw_seconds / (rays["hwbvh"] * work["hwbvh"])
+                    if work["hwbvh"] else None})
+    total = sum(c["trace_seconds"]["hwbvh"] for c in out)
+    for c in out:
+        c["time_share"] = c["trace_seconds"]["hwbvh"] / total if total > 0 else None
+    return out
 
 
 def human(r):
@@ -99,4 +181,23 @@ def human(r):
     lines.append("ratios are sweep / hwbvh; work = nodes visited + triangles tested per ray as the "
                  "path runs them (a packet's rays each count the packet's tests), over closest-hit "
                  "and shadow rays; trace = the render's rays traced again alone")
+    lines += ["", "where the trace time goes (the packet render's queries by kind and path, traced "
+              "again class by class):",
+              f"{'scene':<10}{'rays':<20}{'rays':>9}{'share of':>10}{'ns per':>8}{'work/ray hw':>12}"
+              f"{'sweep':>7}{'work':>7}{'trace':>7}{'trace vs':>9}",
+              f"{'':<10}{'':<20}{'':>9}{'hw trace':>10}{'unit hw':>8}{'':>12}{'':>7}{'ratio':>7}"
+              f"{'ratio':>7}{'work':>9}"]
+    for x in r["rows"]:
+        for k, c in enumerate(x.get("by_path", [])):
+            share = "-" if c["time_share"] is None else f"{100 * c['time_share']:.0f}%"
+            unit = "-" if c["ns_per_unit"] is None else f"{c['ns_per_unit']:.2f}"
+            lines.append(f"{x['scene'] if k == 0 else '':<10}{c['kind'] + ', ' + c['path']:<20}"
+                         f"{c['rays']:>9}{share:>10}{unit:>8}{c['work_per_ray']['hwbvh']:>12.1f}"
+                         f"{c['work_per_ray']['sweep']:>7.1f}{c['work_ratio']:>7.3f}"
+                         f"{c['trace_ratio']:>7.3f}"
+                         f"{100 * (c['trace_ratio'] / c['work_ratio'] - 1):>+8.1f}%")
+    lines.append("ns per unit = the class's trace time (all threads, wall) per node visit or "
+                 "triangle test; a class's rays traced one by one are traced with packets off; "
+                 "each class pays a fixed cost per query (tens of microseconds), which dominates "
+                 "a class of few rays")
     return "\n".join(lines)

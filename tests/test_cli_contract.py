@@ -628,4 +628,11 @@ def test_bench_report_written_to_out_dir(tmp_path):
                  "--spp", "1", "--out-dir", str(out), "--json"]) == 0
     md = (out / "trees.md").read_text()
     assert "hwrt bench trees cornell --repeat 1" in md and "single-ray" in md
-    assert json.loads((out / "trees.json").read_text())["rows"][0]["scene"] == "cornell"
+    assert "where the trace time goes" in md
+    row = json.loads((out / "trees.json").read_text())["rows"][0]
+    assert row["scene"] == "cornell"
+    # every ray of the packet render falls in exactly one class of the time split
+    assert {(c["kind"], c["path"]) for c in row["by_path"]} <= {
+        (k, p) for k in ("closest", "shadow") for p in ("packets", "one by one")}
+    assert sum(c["rays"] for c in row["by_path"]) == row["packets"]["work"]["hwbvh"]["rays"]
+    assert abs(sum(c["time_share"] for c in row["by_path"]) - 1) < 1e-9

@@ -7,7 +7,7 @@ import hwbvh
 from traversal.camera import frame_bounds, primary_rays, tile_order
 from scenes.meshes import grid_sheet, random_soup, uv_sphere
 from traversal import Tracer, raysets
-from traversal.packet import P, coherent
+from traversal.packet import P, coherent, packet_rays
 
 
 def pair(tris, **kw):
@@ -232,3 +232,22 @@ def test_last_packets_is_each_threads_own():
     for t in threads:
         t.join()
     assert seen == {16 * 8: {8}, 16 * 40: {40}}
+
+
+def test_packet_rays_is_the_traversals_rule():
+    """The report's rule for which rays go in packets counts the packets the traversal traced:
+    camera rays, a shuffled batch, signed zeros and a batch that ends in a partial group."""
+    tris = scene()
+    tracer = Tracer(hwbvh.build(tris), tris)
+    o, d = camera_rays(tris)
+    rng = np.random.default_rng(3)
+    mixed = d.copy()
+    mixed[rng.choice(len(d), 40, replace=False)] *= -1
+    zeros = d.copy()
+    zeros[::37, 0] = -0.0
+    traced = []
+    for dirs in (d, mixed, zeros, d[: 16 * 9 + 5], rng.permutation(d)):
+        tracer.intersect(o[: len(dirs)], dirs)
+        assert packet_rays(dirs).sum() == P * tracer.last_packets
+        traced.append(tracer.last_packets)
+    assert traced[0] > traced[1] > 0 and traced[0] > traced[2] > 0 and traced[3] == 9

@@ -157,6 +157,21 @@ def coherent(D, lo, hi):
     return True
 
 
+def packet_rays(dirs):
+    """Which rays of a batch ``dirs`` (n, 3) the traversal traces in packets (the rule of
+    ``traverse._trace_range``): those in full groups of P consecutive rays, aligned to the
+    batch's start, that pass ``coherent``. NumPy, for reports; the kernels decide for
+    themselves."""
+    dirs = np.asarray(dirs)
+    n = len(dirs)
+    full = n // P * P
+    octant = np.signbit(dirs[:full]) @ np.array([1, 2, 4])     # -0 counts as negative
+    groups = octant.reshape(-1, P)
+    in_packets = np.zeros(n, bool)
+    in_packets[:full] = np.repeat((groups == groups[:, :1]).all(axis=1), P)
+    return in_packets
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _left_first(f, bl, br, negx, negy, negz):
     """Front-to-back order for a packet whose rays share an octant: along the axis on which the
