@@ -303,12 +303,14 @@ def _preview(out_dir, frames, fps):
 
 
 def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_THRESHOLD,
-        verify=False, progress=None, seed=0, inspect=None, accel="bvh"):
+        verify=False, progress=None, seed=0, inspect=None, accel="bvh", on_start=None):
     """Render ``frames`` frames of ``anim`` (scenes.animation.Animation) under a tree update
     ``strategy`` (``accel`` other than "bvh": that structure, rebuilt every frame). With ``out_dir``: one EXR per frame (written atomically), the run state
     (animation.json, also what a rerun resumes from, at the first missing frame), a CSV and a
     GIF preview. Without it nothing is written (benchmarks). ``inspect(i, scene, bvh)`` sees
-    every frame's tree (None under embree). Returns the result dict."""
+    every frame's tree (None under embree). ``on_start(first)``: called once every input and
+    the output directory have been checked, with the first frame to render (later than 0 when
+    a rerun resumes); ``progress(i)`` after each frame. Returns the result dict."""
     t_start = time.perf_counter()
     updater = TreeUpdater(strategy, threshold, accel)
     frames = anim.frames if frames is None else frames
@@ -331,6 +333,8 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
             (out_dir is None or os.path.exists(os.path.join(out_dir, FRAME_NAME.format(start)))):
         start += 1
     rows = {k: v for k, v in rows.items() if k < start}
+    if on_start is not None:
+        on_start(start)
     startup_s = warm_up(strategy, accel)
     if 0 < start < frames:
         last = max(k for k, r in rows.items() if r["rebuilt"])
@@ -431,19 +435,21 @@ def cmd_animate(args):
     accel = getattr(args, "accel", "bvh")
     how = args.strategy if accel == "bvh" else accel
     out = args.output or os.path.join("renders", f"animate-{anim.name}-{how}")
-    bar = tqdm(total=frames, desc=f"animate {anim.name} ({how})", unit="frame",
-               file=sys.stderr, disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
-    done = {"n": 0}
+    bars = []
 
-    def tick(i):
-        if done["n"] == 0 and i > 0:
-            bar.update(i)                      # frames resumed from an earlier run
-        bar.update(1)
-        done["n"] += 1
+    def start(first):                          # every check passed: the work begins
+        bars.append(tqdm(total=frames, initial=first, desc=f"animate {anim.name} ({how})",
+                         unit="frame", file=sys.stderr,
+                         disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS")))
+
     threshold = ADAPTIVE_THRESHOLD if args.threshold is None else args.threshold
-    result = run(anim, args.strategy, frames, out, threshold=threshold, verify=args.verify,
-                 progress=tick, seed=args.seed, accel=accel)
-    bar.close()
+    try:
+        result = run(anim, args.strategy, frames, out, threshold=threshold, verify=args.verify,
+                     progress=lambda i: bars[0].update(1), seed=args.seed, accel=accel,
+                     on_start=start)
+    finally:
+        for bar in bars:
+            bar.close()
     return jsonable(result)
 
 

@@ -96,33 +96,35 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
     _quiet()
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     cluster = None
-    dask.config.set({"distributed.scheduler.allowed-failures": 8,
-                     "distributed.worker.daemon": False,
-                     "distributed.comm.timeouts.connect": f"{CONNECT_TIMEOUT_S}s"})
-    if address:
-        problem = _probe(address)
-        if problem:
-            raise ParameterError("scheduler", f"no Dask scheduler answers at {address!r} within "
-                                              f"{CONNECT_TIMEOUT_S} s ({problem})")
-        client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
-    else:
-        n = workers or os.cpu_count() or 1
-        threads = str(max(1, int(threads_per_cell)))
-        # the scheduler's HTTP port is left to the system: 8787 may be another cluster's
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.CRITICAL,
-                               scheduler_kwargs={"dashboard_address": ":0"},
-                               env={CELL_THREADS_ENV: threads, "OMP_NUM_THREADS": threads})
-        client = Client(cluster, set_as_default=False)
-    try:
-        if warm_up is not None:
-            client.register_plugin(WarmUp(warm_up))
-        yield client
-    finally:
-        _quiet()
-        client.close()
-        if cluster is not None:
-            cluster.close()
+    # settings for this cluster only: restored when it closes, so the caller's process keeps
+    # its own Dask configuration
+    with dask.config.set({"distributed.scheduler.allowed-failures": 8,
+                          "distributed.worker.daemon": False,
+                          "distributed.comm.timeouts.connect": f"{CONNECT_TIMEOUT_S}s"}):
+        if address:
+            problem = _probe(address)
+            if problem:
+                raise ParameterError("scheduler", f"no Dask scheduler answers at {address!r} within "
+                                                  f"{CONNECT_TIMEOUT_S} s ({problem})")
+            client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+        else:
+            n = workers or os.cpu_count() or 1
+            threads = str(max(1, int(threads_per_cell)))
+            # the scheduler's HTTP port is left to the system: 8787 may be another cluster's
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.CRITICAL,
+                                   scheduler_kwargs={"dashboard_address": ":0"},
+                                   env={CELL_THREADS_ENV: threads, "OMP_NUM_THREADS": threads})
+            client = Client(cluster, set_as_default=False)
+        try:
+            if warm_up is not None:
+                client.register_plugin(WarmUp(warm_up))
+            yield client
+        finally:
+            _quiet()
+            client.close()
+            if cluster is not None:
+                cluster.close()
 
 
 def describe(client):

@@ -17,3 +17,15 @@ def shared_mesh(name):
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+# Settings a user may have exported that change what a command prints or where it runs
+# (progress bars on stderr, a remote scheduler, re-raised internal errors): each test starts
+# without them and sets what it needs itself. HWRT_THREADING is read at import and stays.
+USER_SETTINGS = ("HWRT_PROGRESS", "HWRT_SCHEDULER", "HWRT_CELL_THREADS", "HWRT_DEBUG")
+
+
+@pytest.fixture(autouse=True)
+def _without_user_settings(monkeypatch):
+    for name in USER_SETTINGS:
+        monkeypatch.delenv(name, raising=False)

@@ -373,8 +373,8 @@ def test_build_json_reports_startup_apart_from_build(tetra):
     assert r.returncode == 0, r.stderr
     res = strict_json(r.stdout)
     assert res["triangles"] == 4
-    assert res["build_seconds"] < 0.05 < res["startup_seconds"] + 0.05
-    assert res["startup_seconds"] > res["build_seconds"]
+    # loading the kernels is startup, not build: the four-triangle build itself is far shorter
+    assert 0 <= res["build_seconds"] < res["startup_seconds"]
 
 
 # ---------------------------------------------------------------------------------------

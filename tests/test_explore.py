@@ -137,7 +137,8 @@ def test_cli_bad_input_one_line_exit_2_no_output(meshes, tmp_path, args, message
     assert r.returncode == 2, r.stderr
     assert r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
     assert not out.exists()
-    assert seconds < 20
+    from hwrt.cluster import CONNECT_TIMEOUT_S
+    assert seconds < CONNECT_TIMEOUT_S + 30           # fails fast: no wait for the work
 
 
 def test_cli_unwritable_out_dir(meshes, tmp_path):
@@ -208,7 +209,11 @@ def test_embedded_cluster_cells_get_the_threads_asked_for():
     run with ``threads_per_cell`` Numba threads, not the worker's default."""
     from hwrt.cluster import dask_client, run_cells
 
+    import dask
+    before = dask.config.get("distributed.comm.timeouts.connect")
     got = {}
     with dask_client(workers=1, threads_per_cell=1) as client:
         run_cells([("one", _cell_threads, ())], got.__setitem__, client=client, progress=False)
     assert got == {"one": 1}
+    # the cluster's own Dask settings end with it
+    assert dask.config.get("distributed.comm.timeouts.connect") == before

@@ -128,6 +128,7 @@ def walk(nodes, refs):
     return out
 
 
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two threads")
 def test_the_tree_does_not_depend_on_the_thread_count():
     # large enough for the subtrees below KD_PARALLEL_DEPTH to be built on the threads
     tris = np.concatenate([soup(KD_PARALLEL_MIN_TRIS + 2000, 8), tessellated_cube(20)])

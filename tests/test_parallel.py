@@ -92,23 +92,38 @@ def test_ranges_asked_for_inside_a_range_run_on_its_thread():
 @pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two threads")
 def test_an_interrupt_while_waiting_lets_running_ranges_end_first():
     """Ctrl-C while the calling thread waits for a pool thread's range: the range ends before
-    the interrupt propagates, so nothing writes into the caller's arrays afterwards."""
+    the interrupt propagates, so nothing writes into the caller's arrays afterwards. The steps
+    are ordered by events, not by sleeps, so a slow machine cannot reorder them."""
     import os
     import signal
     main = threading.get_ident()
     written = np.zeros(2, np.int64)
+    pool_started, sent = threading.Event(), threading.Event()
+    pool_range = []
 
     def kernel(lo, hi, out):
-        time.sleep(0.05 if threading.get_ident() == main else 0.4)
+        if threading.get_ident() == main:
+            assert pool_started.wait(30)            # the other range runs on the pool thread
+        else:
+            pool_range.append(lo)
+            pool_started.set()
+            assert sent.wait(30)                    # still running when the interrupt comes
+            time.sleep(0.1)
         out[lo:hi] = 1
 
-    timer = threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGINT))
-    timer.start()
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            run_ranges(kernel, 2, written, parts=2)
-        assert written.sum() == 2                   # the pool thread's range had ended
-        time.sleep(0.5)
-        assert written.sum() == 2
-    finally:
-        timer.cancel()
+    def interrupt():
+        pool_started.wait(30)
+        os.kill(os.getpid(), signal.SIGINT)
+        sent.set()
+
+    sender = threading.Thread(target=interrupt, daemon=True)
+    sender.start()
+    with pytest.raises(KeyboardInterrupt):
+        run_ranges(kernel, 2, written, parts=2)
+    # the pool thread's range had ended (this thread's own range may have been the one
+    # interrupted, so it may not have written)
+    assert written[pool_range[0]] == 1
+    after = written.copy()
+    sender.join(30)
+    time.sleep(0.2)
+    assert np.array_equal(written, after)

@@ -126,7 +126,8 @@ def test_unreachable_scheduler_fails_fast_and_keeps_the_cells(tmp_path, mesh_dir
                 "--scheduler", "tcp://127.0.0.1:9", *more)
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
         assert r.stderr.startswith("hwrt: error: --scheduler: no Dask scheduler answers")
-        assert time.perf_counter() - t0 < 30
+        from hwrt.cluster import CONNECT_TIMEOUT_S
+        assert time.perf_counter() - t0 < CONNECT_TIMEOUT_S + 30
 
     refused("accuracy", tmp_path / "a")
     assert not (tmp_path / "a").exists()
