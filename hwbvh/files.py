@@ -136,7 +136,9 @@ def _signals_held():
     The Python-level handlers are swapped, not the thread's signal mask: the kernel may deliver
     a process signal to any thread (image and thread-pool libraries start their own), and
     Python then runs the handler in the main thread at its next instruction, mask or not.
-    Only the main thread runs Python signal handlers, so other threads need no holding."""
+    Only the main thread runs Python signal handlers, so other threads need no holding. When
+    both signals arrive in one hold, the first one's handler runs; if it raises, the program is
+    already unwinding and the second is not replayed."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -144,10 +146,12 @@ def _signals_held():
     previous = {}
     try:
         for sig in _HELD_SIGNALS:
-            if signal.getsignal(sig) is not None:     # None: a handler set outside Python
-                # signal.signal runs pending handlers before it swaps, so an exception here
-                # leaves this signal's handler as it was
-                previous[sig] = signal.signal(sig, lambda signum, frame: arrived.append(signum))
+            handler = signal.getsignal(sig)
+            if handler is not None:                   # None: a handler set outside Python
+                # recorded before the swap: a pending handler that raises as the swap returns
+                # must not leave the recorder in place
+                previous[sig] = handler
+                signal.signal(sig, lambda signum, frame: arrived.append(signum))
         yield
     finally:
         interrupted = _restore_handlers(previous)

@@ -422,7 +422,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
 # --------------------------------------------------------------------------------------
 def cmd_animate(args):
     """``hwrt animate`` (library errors name parameters; the command line reports options)."""
-    from tqdm import tqdm
+    from .cli import progress_bar
 
     for key in ("width", "height", "spp", "max_depth", "frames", "triangles"):
         v = getattr(args, key, None)
@@ -438,9 +438,7 @@ def cmd_animate(args):
     bars = []
 
     def start(first):                          # every check passed: the work begins
-        bars.append(tqdm(total=frames, initial=first, desc=f"animate {anim.name} ({how})",
-                         unit="frame", file=sys.stderr,
-                         disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS")))
+        bars.append(progress_bar(frames, f"animate {anim.name} ({how})", "frame", initial=first))
 
     threshold = ADAPTIVE_THRESHOLD if args.threshold is None else args.threshold
     try:

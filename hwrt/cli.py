@@ -264,9 +264,7 @@ def cmd_render(args):
     if args.verify:
         from traversal.tracers import VerifyingTracer
         tracer = checked = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
-    from tqdm import tqdm
-    bar = tqdm(total=scene.height, desc=f"render {scene.name}", unit="row", file=sys.stderr,
-               disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
+    bar = progress_bar(scene.height, f"render {scene.name}", "row")
     t0 = time.perf_counter()
     res = render(scene, tracer, seed=args.seed, progress=bar.update)
     render_s = time.perf_counter() - t0
@@ -303,6 +301,13 @@ def cmd_render(args):
     _emit(args, result, lambda r: _kv(r, ["output", "png", "scene", "triangles", "build_seconds",
                                           "render_seconds", "time_to_image_seconds",
                                           "simulated_build_seconds", "rays", "verify"]))
+
+
+def progress_bar(total, desc, unit, initial=0):
+    """A progress bar on stderr: shown on a terminal, or anywhere with HWRT_PROGRESS set."""
+    from tqdm import tqdm
+    return tqdm(total=total, initial=initial, desc=desc, unit=unit, file=sys.stderr,
+                disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
 
 
 def cmd_animate(args):

@@ -11,9 +11,10 @@ rays traced again alone) and of (nodes + triangles) per ray, with packets (as th
 runs) and with the single-ray unit alone.
 
 Where the time goes: the render's queries, split by kind (closest hit, shadow) and by path
-(rays in packets, rays traced one by one), are traced again class by class with both trees.
-A unit of work costs several times more on a ray traced alone than on a packet's ray, so a
-render's time follows the work of the class that holds its time, not the sum of the work.
+(rays in packets, rays traced one by one), are traced again class by class with both trees,
+each class with its work ratio, its trace ratio, its share of the trace time and its time per
+unit of work. A unit of work does not cost the same on both paths, so a render's time follows
+the work of the classes that hold its time, not the sum of the work.
 """
 import statistics
 import time
@@ -136,6 +137,7 @@ def _by_path(tracers, recordings, repeat):
     for key in sorted(set(split["hwbvh"]) & set(split["sweep"]),
                       key=lambda k: (k[0], PATHS.index(k[1]))):
         replays, work, rays = {}, {}, {}
+        was = {b: tracers[b].packets for b in BUILDERS}
         try:
             for b in BUILDERS:
                 # a ray left out of a packet stays out: its class is traced with packets off
@@ -150,10 +152,10 @@ def _by_path(tracers, recordings, repeat):
                     seconds[b].append(replays[b].replay_seconds())
         finally:
             for b in BUILDERS:
-                tracers[b].packets = True
+                tracers[b].packets = was[b]
         hw_seconds = statistics.median(seconds["hwbvh"])
         out.append({"kind": key[0], "path": key[1], "rays": rays["hwbvh"], "work_per_ray": work,
-                    "work_ratio": work["sweep"] / work["hwbvh"],
+                    "work_ratio": work["sweep"] / work["hwbvh"] if work["hwbvh"] else None,
                     "trace_seconds": {b: statistics.median(seconds[b]) for b in BUILDERS},
                     "trace_ratio": _paired_ratio(seconds),
                     "ns_per_unit": 1e9 * hw_seconds / (rays["hwbvh"] * work["hwbvh"])
@@ -162,6 +164,10 @@ def _by_path(tracers, recordings, repeat):
     for c in out:
         c["time_share"] = c["trace_seconds"]["hwbvh"] / total if total > 0 else None
     return out
+
+
+def _ratio(x):
+    return "-" if x is None else f"{x:.3f}"
 
 
 def human(r):
@@ -191,13 +197,12 @@ def human(r):
         for k, c in enumerate(x.get("by_path", [])):
             share = "-" if c["time_share"] is None else f"{100 * c['time_share']:.0f}%"
             unit = "-" if c["ns_per_unit"] is None else f"{c['ns_per_unit']:.2f}"
+            gap = "-" if not c["work_ratio"] else f"{100 * (c['trace_ratio'] / c['work_ratio'] - 1):+.1f}%"
             lines.append(f"{x['scene'] if k == 0 else '':<10}{c['kind'] + ', ' + c['path']:<20}"
                          f"{c['rays']:>9}{share:>10}{unit:>8}{c['work_per_ray']['hwbvh']:>12.1f}"
-                         f"{c['work_per_ray']['sweep']:>7.1f}{c['work_ratio']:>7.3f}"
-                         f"{c['trace_ratio']:>7.3f}"
-                         f"{100 * (c['trace_ratio'] / c['work_ratio'] - 1):>+8.1f}%")
+                         f"{c['work_per_ray']['sweep']:>7.1f}{_ratio(c['work_ratio']):>7}"
+                         f"{c['trace_ratio']:>7.3f}{gap:>9}")
     lines.append("ns per unit = the class's trace time (all threads, wall) per node visit or "
                  "triangle test; a class's rays traced one by one are traced with packets off; "
-                 "each class pays a fixed cost per query (tens of microseconds), which dominates "
-                 "a class of few rays")
+                 "each class pays a fixed cost per query, which dominates a class of few rays")
     return "\n".join(lines)

@@ -22,10 +22,12 @@ def rng():
 # Settings a user may have exported that change what a command prints or where it runs
 # (progress bars on stderr, a remote scheduler, re-raised internal errors): each test starts
 # without them and sets what it needs itself. HWRT_THREADING is read at import and stays.
-USER_SETTINGS = ("HWRT_PROGRESS", "HWRT_SCHEDULER", "HWRT_CELL_THREADS", "HWRT_DEBUG")
+def _user_settings():
+    from hwrt.cluster import CELL_THREADS_ENV, SCHEDULER_ENV
+    return ("HWRT_PROGRESS", SCHEDULER_ENV, CELL_THREADS_ENV, "HWRT_DEBUG")
 
 
 @pytest.fixture(autouse=True)
 def _without_user_settings(monkeypatch):
-    for name in USER_SETTINGS:
+    for name in _user_settings():
         monkeypatch.delenv(name, raising=False)

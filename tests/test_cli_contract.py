@@ -255,6 +255,28 @@ def test_a_signal_during_a_hold_is_acted_on_after_it_by_the_handler_in_place():
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
 
 
+def test_a_handler_that_raises_as_a_hold_begins_leaves_the_handlers_as_they_were(monkeypatch):
+    """A pending signal's handler may run (and raise) just as a hold swaps in its recorder;
+    the hold still puts every handler back."""
+    import hwbvh.files as files
+    real = signal.signal
+    calls = []
+
+    def swap_then_raise(sig, handler):
+        old = real(sig, handler)
+        calls.append(sig)
+        if len(calls) == 1:                   # as if SIGTERM's handler ran right after the swap
+            raise KeyboardInterrupt
+        return old
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(files.signal, "signal", swap_then_raise)
+    with pytest.raises(KeyboardInterrupt):
+        with files._signals_held():
+            pass
+    monkeypatch.undo()
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+
+
 # ---------------------------------------------------------------------------------------
 # 4. strict JSON
 # ---------------------------------------------------------------------------------------

@@ -210,10 +210,11 @@ def test_embedded_cluster_cells_get_the_threads_asked_for():
     from hwrt.cluster import dask_client, run_cells
 
     import dask
-    before = dask.config.get("distributed.comm.timeouts.connect")
     got = {}
-    with dask_client(workers=1, threads_per_cell=1) as client:
-        run_cells([("one", _cell_threads, ())], got.__setitem__, client=client, progress=False)
+    with dask.config.set({"distributed.comm.timeouts.connect": "17s"}):
+        with dask_client(workers=1, threads_per_cell=1) as client:
+            run_cells([("one", _cell_threads, ())], got.__setitem__, client=client,
+                      progress=False)
+        # the cluster's own Dask settings end with it
+        assert dask.config.get("distributed.comm.timeouts.connect") == "17s"
     assert got == {"one": 1}
-    # the cluster's own Dask settings end with it
-    assert dask.config.get("distributed.comm.timeouts.connect") == before

@@ -251,3 +251,10 @@ def test_packet_rays_is_the_traversals_rule():
         assert packet_rays(dirs).sum() == P * tracer.last_packets
         traced.append(tracer.last_packets)
     assert traced[0] > traced[1] > 0 and traced[0] > traced[2] > 0 and traced[3] == 9
+    # and the very groups: each group of the mixed batch, traced alone, is a packet exactly
+    # where the rule says its rays are
+    rule = packet_rays(mixed)
+    for g in range(len(mixed) // P):
+        rays = slice(g * P, (g + 1) * P)
+        tracer.intersect(o[rays], mixed[rays])
+        assert tracer.last_packets == int(rule[g * P])

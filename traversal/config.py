@@ -57,8 +57,12 @@ BEHIND_TOL_REL = 2.0**-21
 # Rays per packet. The lane masks are read 8 lanes at a time through a uint64 view, so this is
 # a multiple of 8; 16 float32 lanes fill one AVX-512 register (two AVX2 registers).
 PACKET_RAYS = 16
-# Rays per parallel work item of a batch (each work item allocates one traversal stack).
+# Rays per parallel work item of a batch (each work item allocates one traversal stack). A
+# multiple of PACKET_RAYS, so that a batch's packets are its aligned groups of PACKET_RAYS rays
+# whichever chunk they fall in (``packet.packet_rays`` relies on it).
 CHUNK_RAYS = 64
+if CHUNK_RAYS % PACKET_RAYS:
+    raise ValueError("CHUNK_RAYS must be a multiple of PACKET_RAYS")
 
 # --- Uniform grid (grid) -------------------------------------------------------------------
 # Cells per triangle of the density heuristic (cells ~ GRID_DENSITY * N, cubic where the mesh's
