@@ -258,3 +258,23 @@ def test_packet_rays_is_the_traversals_rule():
         rays = slice(g * P, (g + 1) * P)
         tracer.intersect(o[rays], mixed[rays])
         assert tracer.last_packets == int(rule[g * P])
+
+
+def test_time_split_of_queries_whose_rays_miss_everything():
+    """``bench trees``' split by kind and path on rays that leave the scene at once: no work,
+    so no work ratio, and no division by zero; every ray lands in one class."""
+    from types import SimpleNamespace
+    from hwrt.trees import BUILDERS, _by_path
+
+    tris = scene()
+    o, d = camera_rays(tris)
+    away = np.ascontiguousarray(o - 100 * d)          # behind the camera, looking away
+    queries = [("intersect", away, -d, np.array(0.0, np.float32), np.array(np.inf, np.float32),
+                True),
+               ("occluded", away[:40], -d[:40], np.zeros(40, np.float32),
+                np.full(40, 5.0, np.float32), False)]
+    tracers = {b: Tracer(hwbvh.build(tris, builder=b), tris) for b in BUILDERS}
+    classes = _by_path(tracers, {b: SimpleNamespace(queries=queries) for b in BUILDERS}, 1)
+    assert sum(c["rays"] for c in classes) == len(away) + 40
+    assert all(c["work_ratio"] is None and c["ns_per_unit"] is None for c in classes)
+    assert all(t.packets for t in tracers.values())
