@@ -115,7 +115,7 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
                     dx *= inv
                     dy *= inv
                     dz *= inv
-                    _put_tracer_ray(Ot, Dt, k, ex, ey, ez, dx, dy, dz)
+                    _put_origin_dir(Ot, Dt, k, ex, ey, ez, dx, dy, dz)
                     D[k, 0] = dx                    # O and wgt are implied (eye, 1)
                     D[k, 1] = dy
                     D[k, 2] = dz
@@ -152,28 +152,24 @@ def _unit(x, y, z):
 
 
 @njit(cache=True, error_model="numpy")
-def _put_ray(O, D, W, pix, k, ox, oy, oz, dx, dy, dz, w0, w1, w2, p):
+def _put_origin_dir(O, D, k, ox, oy, oz, dx, dy, dz):
+    """Ray k's origin and direction, in the arrays' own precision (the wavefront's, or the
+    tracer's copy, as ``append_refractions`` makes for the rest)."""
     O[k, 0] = ox
     O[k, 1] = oy
     O[k, 2] = oz
     D[k, 0] = dx
     D[k, 1] = dy
     D[k, 2] = dz
+
+
+@njit(cache=True, error_model="numpy")
+def _put_ray(O, D, W, pix, k, ox, oy, oz, dx, dy, dz, w0, w1, w2, p):
+    _put_origin_dir(O, D, k, ox, oy, oz, dx, dy, dz)
     W[k, 0] = w0
     W[k, 1] = w1
     W[k, 2] = w2
     pix[k] = p
-
-
-@njit(cache=True, error_model="numpy")
-def _put_tracer_ray(Ot, Dt, k, ox, oy, oz, dx, dy, dz):
-    """A ray's copy in the tracer's precision (as ``append_refractions`` makes for the rest)."""
-    Ot[k, 0] = ox
-    Ot[k, 1] = oy
-    Ot[k, 2] = oz
-    Dt[k, 0] = dx
-    Dt[k, 1] = dy
-    Dt[k, 2] = dz
 
 
 @njit(cache=True, error_model="numpy")
@@ -474,7 +470,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                     ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
                     _put_ray(nO, nD, nW, npix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2,
                              pix[i])
-                    _put_tracer_ray(nOt, nDt, n_refl, ox, oy, oz, rx, ry, rz)
+                    _put_origin_dir(nOt, nDt, n_refl, ox, oy, oz, rx, ry, rz)
                     n_refl += 1
                 continue
             # ns points out of the object
@@ -500,7 +496,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             if max(a0, a1, a2) >= cutoff:
                 ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
                 _put_ray(nO, nD, nW, npix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2, pix[i])
-                _put_tracer_ray(nOt, nDt, n_refl, ox, oy, oz, rx, ry, rz)
+                _put_origin_dir(nOt, nDt, n_refl, ox, oy, oz, rx, ry, rz)
                 n_refl += 1
             if not tir:
                 r = eta_i / eta_t                       # Snell's law
