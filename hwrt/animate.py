@@ -422,7 +422,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
 # --------------------------------------------------------------------------------------
 def cmd_animate(args):
     """``hwrt animate`` (library errors name parameters; the command line reports options)."""
-    from .cli import progress_bar
+    from .progress import progress_bar
 
     for key in ("width", "height", "spp", "max_depth", "frames", "triangles"):
         v = getattr(args, key, None)

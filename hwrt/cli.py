@@ -13,6 +13,8 @@ from hwbvh import config
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.files import check_output_dir, check_outputs, json_text
 
+from .progress import progress_bar
+
 DESCRIPTION = ("hwrt simulates the hardware BVH builder of M. J. Doyle's thesis (HWBVH) bit for "
                "bit and renders scenes with a Whitted ray tracer on exactly the trees it builds, "
                "checking hits against Intel Embree.")
@@ -301,13 +303,6 @@ def cmd_render(args):
     _emit(args, result, lambda r: _kv(r, ["output", "png", "scene", "triangles", "build_seconds",
                                           "render_seconds", "time_to_image_seconds",
                                           "simulated_build_seconds", "rays", "verify"]))
-
-
-def progress_bar(total, desc, unit, initial=0):
-    """A progress bar on stderr: shown on a terminal, or anywhere with HWRT_PROGRESS set."""
-    from tqdm import tqdm
-    return tqdm(total=total, initial=initial, desc=desc, unit=unit, file=sys.stderr,
-                disable=not sys.stderr.isatty() and not os.environ.get("HWRT_PROGRESS"))
 
 
 def cmd_animate(args):

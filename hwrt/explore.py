@@ -452,12 +452,11 @@ def _thesis_plots(by_cfg, meshes, grid):
 
 def markdown(result, command=None):
     """A summary page: the run, the cost model, the best configurations and the presets' gaps."""
-    from .report import made_by
+    from .report import made_by_lines
     varied = [k for k in KNOBS if len({c[k] for c in result["configs"]}) > 1] or list(KNOBS)
     lab = lambda c: label(c, varied)
     f = result["cost_model"]
-    made = made_by(command)
-    lines = ["# Design-space exploration\n"] + ([made + "\n"] if made else []) + [
+    lines = ["# Design-space exploration\n"] + made_by_lines(command) + [
              f"{result['cells']} cells: {len(result['configs'])} configurations x {len(result['meshes'])} "
              f"meshes; {result['computed']} computed" + (
                  f" in {result['compute_seconds']:.1f} s ({result['cells_per_second']:.0f} cells/s) on "

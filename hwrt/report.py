@@ -22,5 +22,4 @@ def made_by_lines(command):
 
 def made_by_block(command):
     """``made_by`` as a paragraph (the line and a blank line), or ''."""
-    line = made_by(command)
-    return f"{line}\n\n" if line else ""
+    return "".join(line + "\n" for line in made_by_lines(command))

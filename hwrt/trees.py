@@ -114,42 +114,36 @@ def _split_queries(queries):
 
 def _class_work(tracer, queries):
     """(rays, nodes + triangles) of ``queries`` as the path runs them."""
-    rays = work = 0
-    for kind, o, d, lo, hi, normals in queries:
-        if kind == "intersect":
-            counters = tracer.intersect(o, d, lo, hi, normals=normals, counters=True,
-                                        as_run=True).counters
-        else:
-            counters = tracer.occluded(o, d, lo, hi, counters=True, as_run=True)[1]
-        rays += len(o)
-        work += int(counters.sum())
-    return rays, work
+    from traversal.tracers import CountingTracer, replay
+
+    counting = CountingTracer(tracer, as_run=True)
+    replay(counting, queries)
+    totals = counting.totals.values()
+    return sum(t["rays"] for t in totals), sum(t["nodes"] + t["triangles"] for t in totals)
 
 
 def _by_path(tracers, recordings, repeat):
     """Per (kind, path) class of the render's queries: rays, work per ray of each tree, the
     work ratio, the trace-time ratio (both trees alternating, median of the rounds' ratios)
     and the class's share of hwbvh's trace time."""
-    from traversal.tracers import RecordingTracer
+    from traversal.tracers import replay_seconds
 
     split = {b: _split_queries(recordings[b].queries) for b in BUILDERS}
     out = []
     for key in sorted(set(split["hwbvh"]) & set(split["sweep"]),
                       key=lambda k: (k[0], PATHS.index(k[1]))):
-        replays, work, rays = {}, {}, {}
+        work, rays = {}, {}
         was = {b: tracers[b].packets for b in BUILDERS}
         try:
             for b in BUILDERS:
                 # a ray left out of a packet stays out: its class is traced with packets off
                 tracers[b].packets = key[1] == "packets"
-                replays[b] = RecordingTracer(tracers[b])
-                replays[b].queries = split[b][key]
                 rays[b], units = _class_work(tracers[b], split[b][key])
                 work[b] = units / rays[b]
             seconds = {b: [] for b in BUILDERS}
             for i in range(repeat):
                 for b in BUILDERS[::1 - 2 * (i % 2)]:
-                    seconds[b].append(replays[b].replay_seconds())
+                    seconds[b].append(replay_seconds(tracers[b], split[b][key]))
         finally:
             for b in BUILDERS:
                 tracers[b].packets = was[b]

@@ -420,7 +420,9 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     n_lights = len(scene.lights) if passes["shadow"] else 0
     cam = scene.camera
     cu, cv, cw = look_at_basis(cam["eye"], cam["target"], cam["up"])
-    gx = int(np.ceil(np.sqrt(spp)))
+    gx = int(np.ceil(np.sqrt(spp)))            # sample passes on a gx x gy grid of strata
+    gy = int(np.ceil(spp / gx))
+    half = float(np.tan(np.radians(cam["fov"]) / 2))
     frame = _Frame(
         scene=scene, passes=passes, n_lights=n_lights, code=STRATEGY_CODES[offset],
         sa=_scene_arrays(scene, scene.lights if n_lights else []),
@@ -428,7 +430,8 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
         # reads them as they are
         ray_dtype=np.dtype(getattr(tracer, "dtype", np.float32)),
         basis=(cu, cv, cw), eye=np.asarray(cam["eye"], np.float64),
-        half=float(np.tan(np.radians(cam["fov"]) / 2)), grid=(gx, int(np.ceil(spp / gx))),
+        camera_terms=[stages.camera_terms(W, H, half, s % gx, s // gx, gx, gy)
+                      for s in range(spp)],              # each sample pass's stratum
         rows=band_rows(W, H),
         streams=[pcg64.stream_words(seed, s) for s in range(spp)]
         if scene.jitter else None,
@@ -480,8 +483,7 @@ class _Frame:
     ray_dtype: np.dtype
     basis: tuple
     eye: np.ndarray
-    half: float
-    grid: tuple
+    camera_terms: list
     rows: int
     streams: list
     film: np.ndarray
@@ -504,7 +506,6 @@ def _render_band(fr, band):
     npix = q1 - q0
     n_lights, passes, code = fr.n_lights, fr.passes, fr.code
     cu, cv, cw = fr.basis
-    gx, gy = fr.grid
     film, eye = fr.film, fr.eye
     buf = _buffers(npix, n_lights, fr.ray_dtype)
     rays = dict.fromkeys(RAY_KINDS, 0)
@@ -523,10 +524,9 @@ def _render_band(fr, band):
             jx, jy = _band_jitter(fr.streams[s], W * H, q0, q1, buf.jitter)
         else:
             jx = jy = no_jitter
-        terms = stages.camera_terms(W, H, fr.half, s % gx, s // gx, gx, gy)
         O, D, wgt, pix, Ot, Dt = buf.cur
-        stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, scene.jitter, terms, eye, cu, cv,
-                                    cw, D, pix, Ot, Dt)
+        stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, scene.jitter, fr.camera_terms[s],
+                                    eye, cu, cv, cw, D, pix, Ot, Dt)
         n = npix
         rays["primary"] += n
         lap("generate")
@@ -548,10 +548,7 @@ def _render_band(fr, band):
                    fr.aov_prim, film, buf.contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, buf.cap,
                    *buf.nxt, sp_O, sp_D, sp_W, sp_pix, sp_cnt)
             lap("shade")
-            if n_lights > 1:
-                m = stages.join_light_queues(qO, qD, qT, sh_cnt, buf.cap)
-            else:
-                m = int(sh_cnt[0]) if n_lights else 0
+            m = int(stages.join_light_queues(qO, qD, qT, sh_cnt, buf.cap)) if n_lights else 0
             if spawn:
                 refl, refr = int(sp_cnt[0]), int(sp_cnt[1])
                 stages.append_refractions(sp_O, sp_D, sp_W, sp_pix, refr, *buf.nxt, refl)

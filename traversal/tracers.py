@@ -172,23 +172,28 @@ class RecordingTracer:
 
     def replay_seconds(self, tracer=None):
         """Seconds to trace every recorded query again with ``tracer`` (default: the wrapped
-        one), as a renderer would: a tracer that takes queries from several threads at once
-        (``concurrent``) gets them on all threads, each traced on the thread that takes it
-        (as the renderer's bands of rows trace theirs); another gets them one by one, in the
-        recorded order, each on all threads."""
-        tracer = tracer or self.inner
-        queries = self.queries
+        one), as a renderer would (:func:`replay_seconds`)."""
+        return replay_seconds(tracer or self.inner, self.queries)
 
-        def trace(q0, q1):
-            for kind, o, d, lo, hi, normals in queries[q0:q1]:
-                if kind == "intersect":
-                    tracer.intersect(o, d, lo, hi, normals=normals)
-                else:
-                    tracer.occluded(o, d, lo, hi)
 
-        t = time.perf_counter()
-        if getattr(tracer, "concurrent", False):
-            run_ranges(trace, len(queries))
+def replay(tracer, queries):
+    """Ask ``tracer`` every query of ``queries`` (as :class:`RecordingTracer` keeps them), in
+    order, on this thread."""
+    for kind, o, d, lo, hi, normals in queries:
+        if kind == "intersect":
+            tracer.intersect(o, d, lo, hi, normals=normals)
         else:
-            trace(0, len(queries))
-        return time.perf_counter() - t
+            tracer.occluded(o, d, lo, hi)
+
+
+def replay_seconds(tracer, queries):
+    """Seconds to trace ``queries`` with ``tracer`` as a renderer would: a tracer that takes
+    queries from several threads at once (``concurrent``) gets them on all threads, each traced
+    on the thread that takes it (as the renderer's bands of rows trace theirs); another gets
+    them one by one, in order, each on all threads."""
+    t = time.perf_counter()
+    if getattr(tracer, "concurrent", False):
+        run_ranges(lambda q0, q1: replay(tracer, queries[q0:q1]), len(queries))
+    else:
+        replay(tracer, queries)
+    return time.perf_counter() - t
