@@ -558,3 +558,33 @@ def test_compile_kernels_compiles_what_real_queries_run():
             "print(len(before), set(trace_chunks.signatures) == before)\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert r.stdout.split() == ["1", "True"], r.stdout + r.stderr
+
+
+def test_every_form_of_input_gives_the_same_answers_and_is_left_as_it_was():
+    """Rays as float32 arrays ready for the kernels are used as they are; float64, read-only,
+    Fortran-ordered and strided inputs are converted. All give the same answers, and the
+    caller's arrays are never written."""
+    tracer = Tracer(hwbvh.build(random_soup(500, seed=4)))
+    rng = np.random.default_rng(8)
+    o = rng.uniform(-1.5, 1.5, (300, 3)).astype(np.float32)
+    d = rng.normal(size=(300, 3)).astype(np.float32)
+    tmax = rng.uniform(0.5, 3.0, 300).astype(np.float32)
+    want = tracer.intersect(o, d, 0.0, tmax)
+    read_only = [a.copy() for a in (o, d, tmax)]
+    for a in read_only:
+        a.flags.writeable = False
+    wide = np.zeros((300, 6), np.float32)
+    wide[:, ::2] = o
+    forms = {"ready": (o.copy(), d.copy(), tmax.copy()),
+             "float64": (o.astype(np.float64), d.astype(np.float64), tmax.astype(np.float64)),
+             "read-only": tuple(read_only),
+             "fortran": (np.asfortranarray(o), np.asfortranarray(d), tmax.copy()),
+             "strided": (wide[:, ::2], d.copy(), tmax.copy())}
+    for name, (fo, fd, ft) in forms.items():
+        kept = [a.copy() for a in (fo, fd, ft)]
+        h = tracer.intersect(fo, fd, 0.0, ft)
+        assert np.array_equal(h.prim, want.prim) and np.array_equal(h.t, want.t), name
+        assert np.array_equal(tracer.occluded(fo, fd, 0.0, ft), want.prim >= 0), name
+        assert all(np.array_equal(a, k) for a, k in zip((fo, fd, ft), kept)), name
+    # a scalar t_min that rounds to -0 in float32 is no error (as the rays' own -0 is none)
+    assert np.array_equal(tracer.intersect(o, d, -1e-50, tmax).prim, want.prim)

@@ -32,15 +32,31 @@ class Hits:
     counters: np.ndarray = None
 
 
+def _ready(a, dtype):
+    """``a`` itself when it is already a kernel input (an ndarray of ``dtype``, C-contiguous and
+    writable), else None. A query's Python set-up is paid once per batch; the renderer asks a
+    few batches per band and bounce, so this check costs far less than ``np.require``."""
+    if type(a) is np.ndarray and a.dtype == dtype:
+        f = a.flags
+        if f.c_contiguous and f.writeable:
+            return a
+    return None
+
+
 def _interval(x, n, dtype, name):
     """A per-ray bound ``name`` as a writable contiguous (n,) array (a scalar is broadcast);
     ValueError naming it on another shape."""
+    a = _ready(x, dtype)
+    if a is not None and a.shape == (n,):
+        return a
     a = np.asarray(x, dtype=dtype)
+    if a.ndim == 0:
+        # a copy, so writable (a one-value broadcast view is read-only, and Numba compiles a
+        # separate copy of every kernel for read-only arrays)
+        return np.full(n, a, dtype)
     if a.shape == (n,):
         return np.require(a, requirements=("C", "W"))
     try:
-        # a copy, so writable (ascontiguousarray would return a one-ray broadcast as it is:
-        # read-only, and Numba compiles a separate copy of every kernel for read-only arrays)
         return np.array(np.broadcast_to(a, (n,)))
     except ValueError:
         raise ValueError(f"{name} must be a scalar or one value per ray ({n},), "
@@ -52,13 +68,18 @@ def _rays(origins, dirs, tmin, tmax, dtype):
     negative ``tmin``. Writable even when the caller's
     arrays are read-only views, since Numba compiles (and caches) a separate copy of every
     kernel for read-only arguments (twice the first render's compile time)."""
-    o = np.require(np.asarray(origins, dtype=dtype), requirements=("C", "W"))
-    d = np.require(np.asarray(dirs, dtype=dtype), requirements=("C", "W"))
+    o = _ready(origins, dtype)
+    if o is None:
+        o = np.require(np.asarray(origins, dtype=dtype), requirements=("C", "W"))
+    d = _ready(dirs, dtype)
+    if d is None:
+        d = np.require(np.asarray(dirs, dtype=dtype), requirements=("C", "W"))
     if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
         raise ValueError(f"origins and dirs must both be (n, 3), got {o.shape} and {d.shape}")
     n = len(o)
     lo = _interval(tmin, n, dtype, "tmin")
-    if (lo < 0).any():
+    # a scalar is checked as converted (a tiny negative may round to -0), not all n copies
+    if (np.asarray(tmin, dtype) < 0 if np.ndim(tmin) == 0 else (lo < 0).any()):
         raise ValueError("tmin must not be negative: a ray's interval starts at its origin or "
                          "after it (as Embree's)")
     return o, d, lo, _interval(tmax, n, dtype, "tmax")
