@@ -43,24 +43,47 @@ def _ready(a, dtype):
     return None
 
 
-def _interval(x, n, dtype, name):
+_fills = {}              # (dtype, bit pattern) -> the longest array of that value made so far
+
+
+def _filled(value, n):
+    """n copies of the 0-d array ``value``: a slice of one kept array per value, since the
+    renderer passes the same scalar bounds (0, inf, ...) with every query. Writable, not a
+    broadcast view: Numba compiles a separate copy of every kernel for read-only arrays. The
+    kernels only read a ray's bounds, so queries, threads included, can share it."""
+    key = (value.dtype.str, value.tobytes())
+    kept = _fills.get(key)
+    if kept is None or len(kept) < n:
+        kept = np.full(max(n, 2 * len(kept) if kept is not None else n), value, value.dtype)
+        if len(_fills) < 64:                   # a caller sweeping many values keeps a few
+            _fills[key] = kept
+    return kept[:n]
+
+
+def _interval(x, n, dtype, name, nonnegative=False):
     """A per-ray bound ``name`` as a writable contiguous (n,) array (a scalar is broadcast);
-    ValueError naming it on another shape."""
+    ValueError naming it on another shape, or with ``nonnegative`` on a value below 0 (as
+    converted: a tiny negative that rounds to -0 is none)."""
     a = _ready(x, dtype)
-    if a is not None and a.shape == (n,):
-        return a
-    a = np.asarray(x, dtype=dtype)
-    if a.ndim == 0:
-        # a copy, so writable (a one-value broadcast view is read-only, and Numba compiles a
-        # separate copy of every kernel for read-only arrays)
-        return np.full(n, a, dtype)
-    if a.shape == (n,):
-        return np.require(a, requirements=("C", "W"))
-    try:
-        return np.array(np.broadcast_to(a, (n,)))
-    except ValueError:
-        raise ValueError(f"{name} must be a scalar or one value per ray ({n},), "
-                         f"got shape {a.shape}") from None
+    if a is None or a.shape != (n,):
+        a = np.asarray(x, dtype=dtype)
+        if a.ndim == 0:
+            if nonnegative and n and a < 0:
+                raise ValueError(f"{name} must not be negative: a ray's interval starts at its "
+                                 "origin or after it (as Embree's)")
+            return _filled(a, n)
+        if a.shape == (n,):
+            a = np.require(a, requirements=("C", "W"))
+        else:
+            try:
+                a = np.array(np.broadcast_to(a, (n,)))
+            except ValueError:
+                raise ValueError(f"{name} must be a scalar or one value per ray ({n},), "
+                                 f"got shape {a.shape}") from None
+    if nonnegative and (a < 0).any():
+        raise ValueError(f"{name} must not be negative: a ray's interval starts at its origin "
+                         "or after it (as Embree's)")
+    return a
 
 
 def _rays(origins, dirs, tmin, tmax, dtype):
@@ -77,12 +100,8 @@ def _rays(origins, dirs, tmin, tmax, dtype):
     if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
         raise ValueError(f"origins and dirs must both be (n, 3), got {o.shape} and {d.shape}")
     n = len(o)
-    lo = _interval(tmin, n, dtype, "tmin")
-    # a scalar is checked as converted (a tiny negative may round to -0), not all n copies
-    if (np.asarray(tmin, dtype) < 0 if np.ndim(tmin) == 0 else (lo < 0).any()):
-        raise ValueError("tmin must not be negative: a ray's interval starts at its origin or "
-                         "after it (as Embree's)")
-    return o, d, lo, _interval(tmax, n, dtype, "tmax")
+    return o, d, _interval(tmin, n, dtype, "tmin", nonnegative=True), \
+        _interval(tmax, n, dtype, "tmax")
 
 
 def _answers(n, anyhit, normals, dtype):
@@ -98,14 +117,17 @@ class PacketCount:
     """``last_packets``: the packets the calling thread's last query traced (the rest went ray
     by ray). Per thread, since a ``concurrent`` tracer takes queries from several at once."""
 
-    def _count_packets(self, n):
+    def _count_packets(self, per_range):
+        """Keep the calling thread's last query's packets per range of work (an array, summed
+        only when asked for: most queries never are)."""
         if "_packets_by_thread" not in self.__dict__:
             self._packets_by_thread = threading.local()
-        self._packets_by_thread.n = n
+        self._packets_by_thread.per_range = per_range
 
     @property
     def last_packets(self):
-        return getattr(self.__dict__.get("_packets_by_thread"), "n", 0)
+        per_range = getattr(self.__dict__.get("_packets_by_thread"), "per_range", None)
+        return 0 if per_range is None else int(per_range.sum())
 
 
 class Tracer(PacketCount):
@@ -152,7 +174,7 @@ class Tracer(PacketCount):
             edge_eps = EDGE_EPS_F32 if f32 else EDGE_EPS_F64
         self.edge = self.dtype(edge_eps)
         self.packets = bool(packets)
-        self._count_packets(0)
+        self._count_packets(None)
 
     def _run(self, origins, dirs, tmin, tmax, anyhit, counters, normals=False, as_run=False):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)
@@ -166,10 +188,9 @@ class Tracer(PacketCount):
                    self.raw, o, d, o.reshape(-1), d.reshape(-1), lo, hi, self.eps2, self.one,
                    self.widen, self.edge, self.depth, anyhit, self.packets and (as_run or not counters) and self.raw is None, prim, t, u, v, ng,
                    cnt, over, traced)
-        over = int(over.sum())
-        self._count_packets(int(traced.sum()))
-        if over:
-            raise RuntimeError(f"traversal stack overflow on {over} rays: the tree is deeper "
+        self._count_packets(traced)
+        if over.any():
+            raise RuntimeError(f"traversal stack overflow on {over.sum()} rays: the tree is deeper "
                                f"than its recorded depth {self.depth} (corrupted tree?)")
         return prim, t, u, v, (ng if normals else None), (cnt if counters else None)
 

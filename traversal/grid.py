@@ -545,7 +545,7 @@ class GridTracer(TriangleStructure, PacketCount):
     def __init__(self, triangles, resolution=None, packets=True):
         start = time.perf_counter()
         self.packets = bool(packets)
-        self._count_packets(0)
+        self._count_packets(None)
         tris = checked_triangles(triangles)
         n = len(tris)
         # the grid's box: the mesh's, padded like a triangle's box, and never flat
@@ -592,7 +592,7 @@ class GridTracer(TriangleStructure, PacketCount):
         run_ranges(grid_chunks, chunks, self._tris1, self.offsets, self.refs, self.gmin,
                    self.gmax, self._cs, self._inv, self._res, o, d, tmin, tmax, self.eps2,
                    self.one, self.edge, anyhit, self.packets, prim, t, u, v, ng, traced)
-        self._count_packets(int(traced.sum()))
+        self._count_packets(traced)
 
     def stats(self):
         """The structure's figures for reports."""
