@@ -35,6 +35,7 @@ import numpy as np
 from hwbvh.errors import ParameterError
 from traversal.camera import TILE, look_at_basis
 from traversal.offset import STRATEGY_CODES
+from traversal.tracers import run_as_tracer_allows
 from . import pcg64, stages
 from .config import BAND_PIXELS, BLOCK, MIN_BANDS
 from hwbvh.parallel import run_ranges
@@ -288,7 +289,7 @@ _generation = [0]                 # bumped by release_buffers: older kept arrays
 def _kept_current():
     """This thread's kept arrays, emptied if ``release_buffers`` ran since they were kept."""
     if getattr(_kept, "generation", None) != _generation[0]:
-        _kept.buffers = _kept.film = None
+        _kept.buffers = _kept.film = _kept.scratch = None
         _kept.generation = _generation[0]
     return _kept
 
@@ -322,20 +323,18 @@ def _film(npix):
     return film[:npix]
 
 
-_scratch = threading.local()
-
-
 def _shade(*args):
-    """``stages.shade`` with the calling thread's scratch (``stages.shade_scratch``)."""
-    scratch = getattr(_scratch, "arrays", None)
+    """``stages.shade`` with the calling thread's kept scratch (``stages.shade_scratch``)."""
+    kept = _kept_current()
+    scratch = getattr(kept, "scratch", None)
     if scratch is None:
-        scratch = _scratch.arrays = stages.shade_scratch()
+        scratch = kept.scratch = stages.shade_scratch()
     stages.shade(*args, *scratch)
 
 
 def release_buffers():
-    """Free the kept wavefront buffers and films (see ``_buffers``, ``_film``): the calling
-    thread's now, every other thread's when it next renders."""
+    """Free the kept wavefront buffers, films and shading scratch (see ``_buffers``, ``_film``,
+    ``_shade``): the calling thread's now, every other thread's when it next renders."""
     _generation[0] += 1
     _kept_current()
 
@@ -446,10 +445,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
         for b in range(b0, b1):
             band_stats[b] = _render_band(frame, b)
 
-    if getattr(tracer, "concurrent", False):
-        run_ranges(bands, n_bands, parts=n_bands)     # a band each: the last ends soonest
-    else:
-        bands(0, n_bands)
+    run_as_tracer_allows(tracer, bands, n_bands, parts=n_bands)   # a band each: the last ends soonest
     rays = {k: sum(r[k] for r, _ in band_stats) for k in RAY_KINDS}
     secs = {k: sum(t[k] for _, t in band_stats) for k in STAGES}
     stats = {"rays": rays, "passes": passes, "stage_seconds": secs}

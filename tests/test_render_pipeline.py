@@ -286,3 +286,20 @@ def test_pixel_offsets_are_numpys_stream_bit_for_bit(seed, sample):
     for bad in (-1, 2 ** 63 - 1):
         with pytest.raises(ValueError, match="start"):
             pcg64.uniforms(words, bad, np.empty(3))
+
+
+def test_release_buffers_frees_the_shading_scratch_too():
+    """Everything a thread keeps between renders (wavefronts, film, shading scratch) goes
+    with ``release_buffers``; a wrapper tracer renders every band on this thread."""
+    from raytracer import render as renderer
+    from traversal.tracers import RecordingTracer
+    scene = small("cornell", 16, 12, 1)
+    tracer, _, _ = make_tracer(scene)
+    first = render(scene, RecordingTracer(tracer), seed=2)
+    kept = renderer._kept_current()
+    assert kept.scratch is not None and kept.buffers is not None and kept.film is not None
+    renderer.release_buffers()
+    kept = renderer._kept_current()
+    assert kept.scratch is None and kept.buffers is None and kept.film is None
+    again = render(scene, RecordingTracer(tracer), seed=2)
+    assert np.array_equal(again.image, first.image)

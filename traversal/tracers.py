@@ -176,6 +176,19 @@ class RecordingTracer:
         return replay_seconds(tracer or self.inner, self.queries)
 
 
+def run_as_tracer_allows(tracer, work, n, parts=None):
+    """``work(lo, hi)`` over items [0, n) whose work asks ``tracer`` queries: ranges of items
+    on all threads, each query traced on the thread that asks it, when the tracer takes
+    queries from several threads at once (``concurrent``; ``parts`` as for ``run_ranges``);
+    else every item in order on this thread, each query then spread over the threads. The
+    renderer's bands of rows and a replay of its queries both run this way, so render /
+    trace-only compares like with like."""
+    if getattr(tracer, "concurrent", False):
+        run_ranges(work, n, parts=parts)
+    else:
+        work(0, n)
+
+
 def replay(tracer, queries):
     """Ask ``tracer`` every query of ``queries`` (as :class:`RecordingTracer` keeps them), in
     order, on this thread."""
@@ -187,13 +200,8 @@ def replay(tracer, queries):
 
 
 def replay_seconds(tracer, queries):
-    """Seconds to trace ``queries`` with ``tracer`` as a renderer would: a tracer that takes
-    queries from several threads at once (``concurrent``) gets them on all threads, each traced
-    on the thread that takes it (as the renderer's bands of rows trace theirs); another gets
-    them one by one, in order, each on all threads."""
+    """Seconds to trace ``queries`` with ``tracer`` as a renderer would
+    (``run_as_tracer_allows``)."""
     t = time.perf_counter()
-    if getattr(tracer, "concurrent", False):
-        run_ranges(lambda q0, q1: replay(tracer, queries[q0:q1]), len(queries))
-    else:
-        replay(tracer, queries)
+    run_as_tracer_allows(tracer, lambda q0, q1: replay(tracer, queries[q0:q1]), len(queries))
     return time.perf_counter() - t
