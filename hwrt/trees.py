@@ -15,9 +15,16 @@ Where the time goes: the render's queries, split by kind (closest hit, shadow) a
 each class with its work ratio, its trace ratio, its share of the trace time and its time per
 unit of work. A unit of work does not cost the same on both paths, so a render's time follows
 the work of the classes that hold its time, not the sum of the work.
+
+What a unit costs: per class, each query of both trees is timed alone on one thread and the
+times are fitted by least squares as node visits x a + triangle tests x b + rays x c + d, so
+a node visit, a triangle test and a ray's fixed cost get a price each. Where a and b differ,
+a tree that saves nodes saves less time than one that saves as many triangles.
 """
 import statistics
 import time
+
+import numpy as np
 
 DEFAULT_SCENES = ("cornell", "marbles")
 BUILDERS = ("hwbvh", "sweep")
@@ -113,13 +120,70 @@ def _split_queries(queries):
 
 
 def _class_work(tracer, queries):
-    """(rays, nodes + triangles) of ``queries`` as the path runs them."""
+    """(rays, (nodes, triangles)) of ``queries`` as the path runs them."""
     from traversal.tracers import CountingTracer, replay
 
     counting = CountingTracer(tracer, as_run=True)
     replay(counting, queries)
     totals = counting.totals.values()
-    return sum(t["rays"] for t in totals), sum(t["nodes"] + t["triangles"] for t in totals)
+    return sum(t["rays"] for t in totals), (sum(t["nodes"] for t in totals),
+                                            sum(t["triangles"] for t in totals))
+
+
+FIT_MIN_QUERIES = 20             # a fit of four prices needs queries well beyond four
+
+
+def _one_thread():
+    """A context in which the calling thread's kernels run on it alone (``numba``'s thread
+    count is per calling thread)."""
+    import contextlib
+
+    import numba
+
+    @contextlib.contextmanager
+    def context():
+        was = numba.get_num_threads()
+        numba.set_num_threads(1)
+        try:
+            yield
+        finally:
+            numba.set_num_threads(was)
+    return context()
+
+
+def _cost_fit(tracers, queries, repeat):
+    """Least-squares prices of one class's work, from every query of both trees timed alone on
+    one thread (the fastest of ``repeat`` runs): seconds = nodes * a + triangles * b + rays * c
+    + d. Returns {"ns_per_node", "ns_per_triangle", "ns_per_ray", "us_per_query", "r2",
+    "queries"}, or None with fewer than FIT_MIN_QUERIES queries."""
+    from traversal.tracers import CountingTracer, replay
+
+    rows, seconds = [], []
+    with _one_thread():
+        for b in BUILDERS:
+            for q in queries[b]:
+                if len(q[1]) == 0:
+                    continue
+                counting = CountingTracer(tracers[b], as_run=True)
+                replay(counting, [q])
+                totals = counting.totals.values()
+                rows.append([sum(t["nodes"] for t in totals), sum(t["triangles"] for t in totals),
+                             len(q[1]), 1.0])
+                best = np.inf
+                for _ in range(max(1, repeat)):
+                    t = time.perf_counter()
+                    replay(tracers[b], [q])
+                    best = min(best, time.perf_counter() - t)
+                seconds.append(best)
+    if len(rows) < FIT_MIN_QUERIES:
+        return None
+    X, y = np.array(rows, float), np.array(seconds)
+    price, *_ = np.linalg.lstsq(X, y, rcond=None)
+    spread = float(((y - y.mean()) ** 2).sum())
+    r2 = 1 - float(((y - X @ price) ** 2).sum()) / spread if spread > 0 else None
+    return {"ns_per_node": 1e9 * price[0], "ns_per_triangle": 1e9 * price[1],
+            "ns_per_ray": 1e9 * price[2], "us_per_query": 1e6 * price[3], "r2": r2,
+            "queries": len(rows)}
 
 
 def _by_path(tracers, recordings, repeat):
@@ -135,15 +199,17 @@ def _by_path(tracers, recordings, repeat):
         work, rays = {}, {}
         was = {b: tracers[b].packets for b in BUILDERS}
         try:
+            nt = {}
             for b in BUILDERS:
                 # a ray left out of a packet stays out: its class is traced with packets off
                 tracers[b].packets = key[1] == "packets"
-                rays[b], units = _class_work(tracers[b], split[b][key])
-                work[b] = units / rays[b]
+                rays[b], nt[b] = _class_work(tracers[b], split[b][key])
+                work[b] = sum(nt[b]) / rays[b]
             seconds = {b: [] for b in BUILDERS}
             for i in range(repeat):
                 for b in BUILDERS[::1 - 2 * (i % 2)]:
                     seconds[b].append(replay_seconds(tracers[b], split[b][key]))
+            fit = _cost_fit(tracers, {b: split[b][key] for b in BUILDERS}, min(repeat, 5))
         finally:
             for b in BUILDERS:
                 tracers[b].packets = was[b]
@@ -153,7 +219,10 @@ def _by_path(tracers, recordings, repeat):
                     "trace_seconds": {b: statistics.median(seconds[b]) for b in BUILDERS},
                     "trace_ratio": _paired_ratio(seconds),
                     "ns_per_unit": 1e9 * hw_seconds / (rays["hwbvh"] * work["hwbvh"])
-                    if work["hwbvh"] else None})
+                    if work["hwbvh"] else None,
+                    "nodes_ratio": nt["sweep"][0] / nt["hwbvh"][0] if nt["hwbvh"][0] else None,
+                    "triangles_ratio": nt["sweep"][1] / nt["hwbvh"][1] if nt["hwbvh"][1] else None,
+                    "cost_fit": fit})
     total = sum(c["trace_seconds"]["hwbvh"] for c in out)
     for c in out:
         c["time_share"] = c["trace_seconds"]["hwbvh"] / total if total > 0 else None
@@ -199,4 +268,25 @@ def human(r):
     lines.append("ns per unit = the class's trace time (all threads, wall) per node visit or "
                  "triangle test; a class's rays traced one by one are traced with packets off; "
                  "each class pays a fixed cost per query, which dominates a class of few rays")
+    lines += ["", "what a unit costs (each query of both trees timed alone on one thread, fitted "
+              "as nodes x a + triangles x b + rays x c + d):",
+              f"{'scene':<10}{'rays':<20}{'queries':>8}{'a ns per':>9}{'b ns per':>9}"
+              f"{'c ns per':>9}{'d us per':>9}{'R2':>6}{'nodes':>7}{'triangles':>10}",
+              f"{'':<10}{'':<20}{'':>8}{'node':>9}{'triangle':>9}{'ray':>9}{'query':>9}{'':>6}"
+              f"{'ratio':>7}{'ratio':>10}"]
+    for x in r["rows"]:
+        for k, c in enumerate(x.get("by_path", [])):
+            f = c.get("cost_fit")
+            head = f"{x['scene'] if k == 0 else '':<10}{c['kind'] + ', ' + c['path']:<20}"
+            ratios = f"{_ratio(c['nodes_ratio']):>7}{_ratio(c['triangles_ratio']):>10}"
+            if f is None:
+                lines.append(f"{head}{'too few queries to fit':>50}{ratios}")
+                continue
+            r2 = "-" if f["r2"] is None else f"{f['r2']:.2f}"
+            lines.append(f"{head}{f['queries']:>8}{f['ns_per_node']:>9.2f}"
+                         f"{f['ns_per_triangle']:>9.2f}{f['ns_per_ray']:>9.2f}"
+                         f"{f['us_per_query']:>9.1f}{r2:>6}{ratios}")
+    lines.append("nodes and triangles count each ray's share as the path runs them (a packet's "
+                 "rays each count the packet's tests); ratios are sweep / hwbvh; a fit of few "
+                 "or alike queries (low R2) prices its terms loosely")
     return "\n".join(lines)

@@ -658,3 +658,5 @@ def test_bench_report_written_to_out_dir(tmp_path):
         (k, p) for k in ("closest", "shadow") for p in ("packets", "one by one")}
     assert sum(c["rays"] for c in row["by_path"]) == row["packets"]["work"]["hwbvh"]["rays"]
     assert abs(sum(c["time_share"] for c in row["by_path"]) - 1) < 1e-9
+    assert "what a unit costs" in md
+    assert all("cost_fit" in c and "nodes_ratio" in c for c in row["by_path"])

@@ -278,3 +278,28 @@ def test_time_split_of_queries_whose_rays_miss_everything():
     assert sum(c["rays"] for c in classes) == len(away) + 40
     assert all(c["work_ratio"] is None and c["ns_per_unit"] is None for c in classes)
     assert all(t.packets for t in tracers.values())
+
+
+def test_cost_fit_prices_each_term_from_queries_timed_alone():
+    """``bench trees``' fit: one row per non-empty query of both trees, four prices, on one
+    thread (the caller's thread count restored after), and no fit from too few queries."""
+    import numba
+    from hwrt.trees import BUILDERS, FIT_MIN_QUERIES, _cost_fit
+
+    tris = scene()
+    o, d = camera_rays(tris)
+    tracers = {b: Tracer(hwbvh.build(tris, builder=b), tris) for b in BUILDERS}
+    zero, inf = np.array(0.0, np.float32), np.array(np.inf, np.float32)
+    n = FIT_MIN_QUERIES // 2 + 1
+    step = len(o) // n // P * P
+    queries = [("intersect", o[k * step:(k + 1) * step], d[k * step:(k + 1) * step], zero, inf,
+                False) for k in range(n)]
+    queries.append(("intersect", o[:0], d[:0], zero, inf, False))      # empty: no row
+    was = numba.get_num_threads()
+    fit = _cost_fit(tracers, {b: queries for b in BUILDERS}, 1)
+    assert numba.get_num_threads() == was
+    assert fit["queries"] == 2 * n
+    assert all(np.isfinite(fit[k]) for k in ("ns_per_node", "ns_per_triangle", "ns_per_ray",
+                                              "us_per_query"))
+    assert fit["r2"] is None or fit["r2"] <= 1
+    assert _cost_fit(tracers, {b: queries[:3] for b in BUILDERS}, 1) is None
