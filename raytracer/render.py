@@ -401,7 +401,8 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     The frame is rendered in bands of rows (``config.BAND_PIXELS``), each through every sample
     pass and bounce on one thread; a tracer that may be called from several threads at once
     (``concurrent``) gets the bands on all threads, each query traced on its band's thread;
-    another (the wrappers) gets them one by one on this thread, each query on all threads.
+    another (a recording wrapper) gets them one by one on this thread, each query on all
+    threads (``traversal.tracers.run_as_tracer_allows``).
     The result is the same either way: every pixel belongs to one band, and a band's rays
     and its film additions come in a fixed order.
 

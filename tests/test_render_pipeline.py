@@ -243,6 +243,42 @@ def test_bands_on_all_threads_or_one_by_one_give_the_same_render():
     assert rec.rays() == sum(b.stats["rays"].values())
 
 
+class _OneAtATime:
+    """The tracer it wraps, but taking one query at a time (not ``concurrent``)."""
+    concurrent = False
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.has_counters = getattr(inner, "has_counters", False)
+        self.dtype = inner.dtype
+
+    def intersect(self, *args, **kw):
+        return self.inner.intersect(*args, **kw)
+
+    def occluded(self, *args, **kw):
+        return self.inner.occluded(*args, **kw)
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two threads to overlap")
+def test_counting_and_verifying_wrappers_take_bands_on_all_threads_and_sum_alike():
+    """A counting or verifying wrapper of a concurrent tracer is concurrent: bands run on all
+    threads and add to one set of totals, which come out as when the queries come one at a
+    time."""
+    sc = compile_scene(load_scene("marbles", width=96, height=72, spp=2))
+    tracer, _, _ = make_tracer(sc)
+    for wrap in (lambda t: CountingTracer(t, as_run=True),
+                 lambda t: VerifyingTracer(t, sc.triangles, sc.vertices, sc.faces)):
+        together, alone = wrap(tracer), wrap(_OneAtATime(tracer))
+        assert together.concurrent and not alone.concurrent
+        a = render(sc, together, seed=1)
+        b = render(sc, alone, seed=1)
+        assert np.array_equal(a.image, b.image)
+        sums = (lambda w: w.totals) if isinstance(together, CountingTracer) else \
+            (lambda w: w.counts)
+        assert sums(together) == sums(alone)
+        assert sum(sums(together)["closest"].values()) > 0
+
+
 @pytest.mark.parametrize("width,height", [(640, 480), (7, 5), (1000, 3), (33, 130), (256, 36)])
 def test_bands_are_whole_tile_rows_that_cover_the_frame(width, height):
     rows = band_rows(width, height)

@@ -15,8 +15,10 @@ without it, queries come one at a time, each spread over the threads.
 
 ``traversal.Tracer`` (the appendix-A units on the raw hwbvh buffer) and
 ``traversal.embree_ref.EmbreeTracer`` implement it (concurrent both), as do the grid and the
-kd-tree; the renderer sees nothing else. The wrappers below implement it too (one query at a
-time: they keep running totals or a record), so they stack in front of any of them:
+kd-tree; the renderer sees nothing else. The wrappers below implement it too, so they stack
+in front of any of them (the verifying and counting ones are as concurrent as the tracer they
+wrap, and add to their totals under a lock; the recording one takes one query at a time, so
+that its record keeps a render's order):
 
 * :class:`VerifyingTracer` checks every answer against Embree: closest hits by
   ``verify.classify`` and any-hit answers by ``verify.classify_occluded``, on exactly the rays
@@ -26,6 +28,7 @@ time: they keep running totals or a record), so they stack in front of any of th
 * :class:`RecordingTracer` keeps a copy of every query so that the same rays can be traced
   again alone (how much of a render is tracing).
 """
+import threading
 import time
 
 import numpy as np
@@ -33,7 +36,25 @@ import numpy as np
 from hwbvh.parallel import run_ranges
 
 
-class VerifyingTracer:
+class _Tally:
+    """Running totals that queries from several threads at once may add to: a wrapper of a
+    ``concurrent`` tracer is ``concurrent`` too, and its sums do not depend on the order in
+    which the threads add."""
+
+    def _start_tally(self):
+        self._tally_lock = threading.Lock()
+
+    @property
+    def concurrent(self):
+        return getattr(self.inner, "concurrent", False)
+
+    def _add_to(self, totals, amounts):
+        with self._tally_lock:
+            for k, v in amounts.items():
+                totals[k] += v
+
+
+class VerifyingTracer(_Tally):
     """Answers with ``inner`` and checks each answer against an Embree scene built from
     ``vertices``/``faces`` (indexed form of ``triangles``). ``counts`` holds, per query kind
     ("closest", "shadow"), the rays checked and how many agree, tie or mismatch."""
@@ -46,10 +67,10 @@ class VerifyingTracer:
         self.reference = embree_scene(vertices, faces)
         zero = {"rays": 0, "agree": 0, "tie": 0, "mismatch": 0}
         self.counts = {"closest": dict(zero), "shadow": dict(zero)}
+        self._start_tally()
 
     def _add(self, kind, counts):
-        for k in self.counts[kind]:
-            self.counts[kind][k] += counts[k]
+        self._add_to(self.counts[kind], {k: counts[k] for k in self.counts[kind]})
 
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
         from .embree_ref import embree_intersect
@@ -100,7 +121,7 @@ def _shifted(origins, dirs, tmin, tmax):
     return o, d, lo, hi - lo
 
 
-class CountingTracer:
+class CountingTracer(_Tally):
     """Counts traversal work: nodes visited and triangles tested per ray, for closest-hit and
     any-hit (shadow) queries apart. By default as the single-ray unit does them; with
     ``as_run`` as the queries actually run (rays traced as a packet each count every node and
@@ -112,12 +133,12 @@ class CountingTracer:
         self.inner = inner
         self.as_run = bool(as_run)
         self.totals = {kind: {"nodes": 0, "triangles": 0, "rays": 0} for kind in ("closest", "shadow")}
+        self._start_tally()
 
     def _add(self, kind, counters):
-        t = self.totals[kind]
-        t["nodes"] += int(counters[:, 0].sum())
-        t["triangles"] += int(counters[:, 1].sum())
-        t["rays"] += len(counters)
+        self._add_to(self.totals[kind], {"nodes": int(counters[:, 0].sum()),
+                                         "triangles": int(counters[:, 1].sum()),
+                                         "rays": len(counters)})
 
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
         h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals, counters=True,
@@ -147,7 +168,8 @@ class CountingTracer:
 
 class RecordingTracer:
     """Passes queries to ``inner`` and keeps a copy of each, so that :meth:`replay_seconds` can
-    time tracing exactly the same rays again, alone (no shading, no ray generation)."""
+    time tracing exactly the same rays again, alone (no shading, no ray generation). Not
+    ``concurrent``: the record keeps the queries in the order a render asks them."""
 
     def __init__(self, inner):
         self.inner = inner
