@@ -17,10 +17,12 @@ unit of work. A unit of work does not cost the same on both paths, so a render's
 the work of the classes that hold its time, not the sum of the work.
 
 What a unit costs: per class, each query of both trees is timed alone on one thread and the
-times are fitted by least squares as node visits x a + triangle tests x b + rays x c + d, so
-a node visit, a triangle test and a ray's fixed cost get a price each. Where a and b differ,
+times are fitted by non-negative least squares as node visits x a + triangle tests x b +
+rays x c + d, so a node visit, a triangle test and a ray's fixed cost get a price each. Where a and b differ,
 a tree that saves nodes saves less time than one that saves as many triangles.
 """
+import contextlib
+import itertools
 import statistics
 import time
 
@@ -133,30 +135,46 @@ def _class_work(tracer, queries):
 FIT_MIN_QUERIES = 20             # a fit of four prices needs queries well beyond four
 
 
+@contextlib.contextmanager
 def _one_thread():
-    """A context in which the calling thread's kernels run on it alone (``numba``'s thread
-    count is per calling thread)."""
-    import contextlib
-
+    """The calling thread's kernels run on it alone meanwhile (Numba's thread count is per
+    calling thread)."""
     import numba
 
-    @contextlib.contextmanager
-    def context():
-        was = numba.get_num_threads()
-        numba.set_num_threads(1)
-        try:
-            yield
-        finally:
-            numba.set_num_threads(was)
-    return context()
+    was = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(was)
+
+
+def nonnegative_least_squares(X, y):
+    """argmin |X p - y| over p >= 0, for a few columns: the least-squares fit on every subset
+    of the columns, the best of those whose prices are all non-negative (a price below zero
+    is a fit bending round terms that move together, not a cost)."""
+    best, best_res = np.zeros(X.shape[1]), float((y ** 2).sum())
+    for subset in itertools.product((False, True), repeat=X.shape[1]):
+        cols = np.flatnonzero(subset)
+        if len(cols) == 0:
+            continue
+        p, *_ = np.linalg.lstsq(X[:, cols], y, rcond=None)
+        if (p < 0).any():
+            continue
+        res = float(((X[:, cols] @ p - y) ** 2).sum())
+        if res < best_res:
+            best = np.zeros(X.shape[1])
+            best[cols] = p
+            best_res = res
+    return best
 
 
 def _cost_fit(tracers, queries, repeat):
-    """Least-squares prices of one class's work, from every query of both trees timed alone on
-    one thread (the fastest of ``repeat`` runs): seconds = nodes * a + triangles * b + rays * c
-    + d. Returns {"ns_per_node", "ns_per_triangle", "ns_per_ray", "us_per_query", "r2",
-    "queries"}, or None with fewer than FIT_MIN_QUERIES queries."""
-    from traversal.tracers import CountingTracer, replay
+    """Prices of one class's work, from every query of both trees timed alone on one thread
+    (the fastest of ``repeat`` runs): seconds = nodes * a + triangles * b + rays * c + d, fitted
+    by non-negative least squares. Returns {"ns_per_node", "ns_per_triangle", "ns_per_ray",
+    "us_per_query", "r2", "queries"}, or None with fewer than FIT_MIN_QUERIES queries."""
+    from traversal.tracers import replay
 
     rows, seconds = [], []
     with _one_thread():
@@ -164,11 +182,8 @@ def _cost_fit(tracers, queries, repeat):
             for q in queries[b]:
                 if len(q[1]) == 0:
                     continue
-                counting = CountingTracer(tracers[b], as_run=True)
-                replay(counting, [q])
-                totals = counting.totals.values()
-                rows.append([sum(t["nodes"] for t in totals), sum(t["triangles"] for t in totals),
-                             len(q[1]), 1.0])
+                rays, (nodes, triangles) = _class_work(tracers[b], [q])
+                rows.append([nodes, triangles, rays, 1.0])
                 best = np.inf
                 for _ in range(max(1, repeat)):
                     t = time.perf_counter()
@@ -178,7 +193,7 @@ def _cost_fit(tracers, queries, repeat):
     if len(rows) < FIT_MIN_QUERIES:
         return None
     X, y = np.array(rows, float), np.array(seconds)
-    price, *_ = np.linalg.lstsq(X, y, rcond=None)
+    price = nonnegative_least_squares(X, y)
     spread = float(((y - y.mean()) ** 2).sum())
     r2 = 1 - float(((y - X @ price) ** 2).sum()) / spread if spread > 0 else None
     return {"ns_per_node": 1e9 * price[0], "ns_per_triangle": 1e9 * price[1],
@@ -269,7 +284,7 @@ def human(r):
                  "triangle test; a class's rays traced one by one are traced with packets off; "
                  "each class pays a fixed cost per query, which dominates a class of few rays")
     lines += ["", "what a unit costs (each query of both trees timed alone on one thread, fitted "
-              "as nodes x a + triangles x b + rays x c + d):",
+              "as nodes x a + triangles x b + rays x c + d with no price below 0):",
               f"{'scene':<10}{'rays':<20}{'queries':>8}{'a ns per':>9}{'b ns per':>9}"
               f"{'c ns per':>9}{'d us per':>9}{'R2':>6}{'nodes':>7}{'triangles':>10}",
               f"{'':<10}{'':<20}{'':>8}{'node':>9}{'triangle':>9}{'ray':>9}{'query':>9}{'':>6}"
@@ -287,6 +302,7 @@ def human(r):
                          f"{f['ns_per_triangle']:>9.2f}{f['ns_per_ray']:>9.2f}"
                          f"{f['us_per_query']:>9.1f}{r2:>6}{ratios}")
     lines.append("nodes and triangles count each ray's share as the path runs them (a packet's "
-                 "rays each count the packet's tests); ratios are sweep / hwbvh; a fit of few "
-                 "or alike queries (low R2) prices its terms loosely")
+                 "rays each count the packet's tests); ratios are sweep / hwbvh; where terms move "
+                 "together (rays traced one by one: work in proportion to rays) the fit cannot "
+                 "part them, and a price of 0 means its term's cost went to the others")
     return "\n".join(lines)

@@ -35,6 +35,7 @@ import numpy as np
 from hwbvh.errors import ParameterError
 from traversal.camera import TILE, look_at_basis
 from traversal.offset import STRATEGY_CODES
+from traversal.api import release_kept_bounds
 from traversal.tracers import run_as_tracer_allows
 from . import pcg64, stages
 from .config import BAND_PIXELS, BLOCK, MIN_BANDS
@@ -334,9 +335,11 @@ def _shade(*args):
 
 def release_buffers():
     """Free the kept wavefront buffers, films and shading scratch (see ``_buffers``, ``_film``,
-    ``_shade``): the calling thread's now, every other thread's when it next renders."""
+    ``_shade``): the calling thread's now, every other thread's when it next renders; and the
+    tracer's kept ray bounds (``traversal.api.release_kept_bounds``)."""
     _generation[0] += 1
     _kept_current()
+    release_kept_bounds()
 
 
 def _scene_arrays(scene, lights):

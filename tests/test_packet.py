@@ -281,8 +281,9 @@ def test_time_split_of_queries_whose_rays_miss_everything():
 
 
 def test_cost_fit_prices_each_term_from_queries_timed_alone():
-    """``bench trees``' fit: one row per non-empty query of both trees, four prices, on one
-    thread (the caller's thread count restored after), and no fit from too few queries."""
+    """``bench trees``' fit: one row per non-empty query of both trees, four prices, none below
+    0, on one thread (the caller's thread count restored after, also when a query fails), and
+    no fit from too few queries."""
     import numba
     from hwrt.trees import BUILDERS, FIT_MIN_QUERIES, _cost_fit
 
@@ -299,7 +300,29 @@ def test_cost_fit_prices_each_term_from_queries_timed_alone():
     fit = _cost_fit(tracers, {b: queries for b in BUILDERS}, 1)
     assert numba.get_num_threads() == was
     assert fit["queries"] == 2 * n
-    assert all(np.isfinite(fit[k]) for k in ("ns_per_node", "ns_per_triangle", "ns_per_ray",
-                                              "us_per_query"))
-    assert fit["r2"] is None or fit["r2"] <= 1
+    prices = [fit[k] for k in ("ns_per_node", "ns_per_triangle", "ns_per_ray", "us_per_query")]
+    assert all(np.isfinite(p) and p >= 0 for p in prices) and sum(prices) > 0
     assert _cost_fit(tracers, {b: queries[:3] for b in BUILDERS}, 1) is None
+    bad = [("intersect", o[:16], d[:16], np.array(-1.0, np.float32), inf, False)] * n
+    with pytest.raises(ValueError, match="tmin must not be negative"):
+        _cost_fit(tracers, {b: bad for b in BUILDERS}, 1)
+    assert numba.get_num_threads() == was
+
+
+def test_nonnegative_least_squares_keeps_prices_at_or_above_zero():
+    """Where plain least squares bends a price below 0 to fit terms that move together, the
+    fit drops that term; where every price is positive, it is plain least squares."""
+    from hwrt.trees import nonnegative_least_squares
+
+    rng = np.random.default_rng(3)
+    X = np.column_stack([rng.uniform(1, 10, 40), rng.uniform(1, 10, 40), np.ones(40)])
+    y = X @ np.array([2.0, 0.5, 3.0])
+    assert np.allclose(nonnegative_least_squares(X, y), [2.0, 0.5, 3.0])
+    y2 = X[:, 0] * 2.0 - 0.8 + rng.normal(0, 0.01, 40)    # an intercept below 0
+    plain, *_ = np.linalg.lstsq(X, y2, rcond=None)
+    assert plain[2] < 0
+    p = nonnegative_least_squares(X, y2)
+    assert (p >= 0).all() and p[2] == 0
+    slope_only, *_ = np.linalg.lstsq(X[:, :1], y2, rcond=None)       # a feasible fit
+    assert (slope_only >= 0).all()
+    assert np.sum((X @ p - y2) ** 2) <= np.sum((X[:, :1] @ slope_only - y2) ** 2) + 1e-9

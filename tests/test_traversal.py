@@ -588,3 +588,46 @@ def test_every_form_of_input_gives_the_same_answers_and_is_left_as_it_was():
         assert all(np.array_equal(a, k) for a, k in zip((fo, fd, ft), kept)), name
     # a scalar t_min that rounds to -0 in float32 is no error (as the rays' own -0 is none)
     assert np.array_equal(tracer.intersect(o, d, -1e-50, tmax).prim, want.prim)
+
+
+def test_scalar_bounds_serve_batches_of_every_size():
+    """Scalar and 0-d bounds become kept arrays of each value (``api._filled``): batches that
+    grow, shrink, are empty or longer than what is kept all get exactly their own bounds, and
+    ``release_kept_bounds`` leaves answers as they were."""
+    from traversal.api import KEPT_BOUND_RAYS, release_kept_bounds
+
+    tracer = Tracer(hwbvh.build(random_soup(400, seed=6)))
+    rng = np.random.default_rng(2)
+    o = rng.uniform(-1.5, 1.5, (KEPT_BOUND_RAYS + 40, 3)).astype(np.float32)
+    d = rng.normal(size=(KEPT_BOUND_RAYS + 40, 3)).astype(np.float32)
+    for n in (100, 3000, 7, 0, KEPT_BOUND_RAYS + 40, 100):
+        for lo, hi in ((0.0, 1.5), (np.float32(0.25), np.array(2.0, np.float32)),
+                       (np.array(0.0), np.inf)):
+            h = tracer.intersect(o[:n], d[:n], lo, hi)
+            want = tracer.intersect(o[:n], d[:n], np.full(n, lo, np.float32),
+                                    np.full(n, hi, np.float32))
+            assert np.array_equal(h.prim, want.prim) and np.array_equal(h.t, want.t), (n, lo, hi)
+            assert np.array_equal(tracer.occluded(o[:n], d[:n], lo, hi), want.prim >= 0)
+            assert (h.t[h.prim >= 0] >= np.float32(lo)).all()
+        release_kept_bounds() if n == 7 else None
+
+
+def test_an_empty_range_of_chunks_writes_nothing():
+    """``trace_chunks`` over no chunk (an empty batch: the warm-up query is one) must not write
+    its per-range entries: the arrays have none. Empty views into a larger array catch a write
+    past them."""
+    from traversal.traverse import trace_chunks
+
+    tracer = Tracer(hwbvh.build(random_soup(50, seed=1)))
+    none3 = np.zeros((0, 3), np.float32)
+    none = np.zeros(0, np.float32)
+    sentinel = np.full(8, -7, np.int64)
+    overflow, traced = sentinel[2:2], sentinel[5:5]
+    trace_chunks(0, 0, tracer._u1, tracer._f1, tracer.index_bytes, tracer._tris1, tracer.raw,
+                 none3, none3, none3.reshape(-1), none3.reshape(-1), none, none, tracer.eps2,
+                 tracer.one, tracer.widen, tracer.edge, tracer.depth, False, True,
+                 np.zeros(0, np.int32), none, none, none, none3, np.zeros((0, 2), np.int64),
+                 overflow, traced)
+    assert (sentinel == -7).all()
+    h = tracer.intersect(none3, none3)
+    assert len(h.prim) == 0 and tracer.occluded(none3, none3).shape == (0,)

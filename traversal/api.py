@@ -43,21 +43,39 @@ def _ready(a, dtype):
     return None
 
 
-_fills = {}              # (dtype, bit pattern) -> the longest array of that value made so far
+_fills = {}              # (dtype, bit pattern) -> the longest array of that value kept so far
+KEPT_BOUND_RAYS = 1 << 18    # longer batches get a bound array of their own (a render's
+                             # queries are a band's rays, far fewer)
 
 
 def _filled(value, n):
     """n copies of the 0-d array ``value``: a slice of one kept array per value, since the
     renderer passes the same scalar bounds (0, inf, ...) with every query. Writable, not a
     broadcast view: Numba compiles a separate copy of every kernel for read-only arrays. The
-    kernels only read a ray's bounds, so queries, threads included, can share it."""
+    kernels only read a ray's bounds, so queries, threads included, can share it.
+    ``release_kept_bounds`` frees the kept arrays."""
+    if n > KEPT_BOUND_RAYS:
+        return np.full(n, value, value.dtype)
     key = (value.dtype.str, value.tobytes())
     kept = _fills.get(key)
     if kept is None or len(kept) < n:
-        kept = np.full(max(n, 2 * len(kept) if kept is not None else n), value, value.dtype)
+        kept = np.full(min(KEPT_BOUND_RAYS, max(n, 2 * len(kept) if kept is not None else n)),
+                       value, value.dtype)
         if len(_fills) < 64:                   # a caller sweeping many values keeps a few
             _fills[key] = kept
     return kept[:n]
+
+
+def release_kept_bounds():
+    """Free the bound arrays ``_filled`` keeps."""
+    _fills.clear()
+
+
+def negative_tmin_error(name):
+    """The error for a negative t_min bound ``name`` (the interval starts at the origin or
+    after it, as every tracer here and Embree assume)."""
+    return ValueError(f"{name} must not be negative: a ray's interval starts at its origin or "
+                      "after it (as Embree's)")
 
 
 def _interval(x, n, dtype, name, nonnegative=False):
@@ -69,8 +87,7 @@ def _interval(x, n, dtype, name, nonnegative=False):
         a = np.asarray(x, dtype=dtype)
         if a.ndim == 0:
             if nonnegative and n and a < 0:
-                raise ValueError(f"{name} must not be negative: a ray's interval starts at its "
-                                 "origin or after it (as Embree's)")
+                raise negative_tmin_error(name)
             return _filled(a, n)
         if a.shape == (n,):
             a = np.require(a, requirements=("C", "W"))
@@ -81,8 +98,7 @@ def _interval(x, n, dtype, name, nonnegative=False):
                 raise ValueError(f"{name} must be a scalar or one value per ray ({n},), "
                                  f"got shape {a.shape}") from None
     if nonnegative and (a < 0).any():
-        raise ValueError(f"{name} must not be negative: a ray's interval starts at its origin "
-                         "or after it (as Embree's)")
+        raise negative_tmin_error(name)
     return a
 
 

@@ -35,6 +35,8 @@ import numpy as np
 
 from hwbvh.parallel import run_ranges
 
+from .api import negative_tmin_error
+
 
 class _Tally:
     """Running totals that queries from several threads at once may add to: a wrapper of a
@@ -113,8 +115,7 @@ def _shifted(origins, dirs, tmin, tmax):
     n = len(o)
     lo = np.broadcast_to(np.asarray(tmin, np.float64), (n,))
     if (lo < 0).any():
-        raise ValueError("tmin must not be negative: a ray's interval starts at its origin or "
-                         "after it (as Embree's)")
+        raise negative_tmin_error("tmin")
     hi = np.broadcast_to(np.asarray(tmax, np.float64), (n,))
     if lo.any():
         o = o + d * lo[:, None]

@@ -160,9 +160,11 @@ def trace_chunks(c0, c1, u, f, ib, tris, raw, O, D, Of, Df, tmin, tmax, eps2, on
     other entries of c0..c1 are left as they are (the caller sums zeroed arrays).
 
     One ``_trace_range`` call per range, not per chunk: each call of that large function costs
-    about as much as tracing a packet of rays that miss the scene (measured: rays that miss the
-    root box traced in 64-ray calls took twice as long as in one call)."""
+    about as much as tracing a packet of rays that miss the scene (rays that miss the root box,
+    traced in 64-ray calls, took twice as long as in one call)."""
     n = O.shape[0]
+    if c1 <= c0:                  # no chunk: an empty batch has no entry c0 to write
+        return
     stack = np.empty(depth + 2, dtype=np.int64)
     stack_t = np.empty(depth + 2, dtype=O.dtype)
     F = np.empty(NF, dtype=O.dtype)

@@ -14,7 +14,9 @@ Each ray is classified:
 The tolerances ``T_TOL_REL``, ``BEHIND_TOL_REL`` and ``BARY_TOL`` live in ``traversal.config`` with their reasons.
 """
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from hwbvh.parallel import run_ranges
 
 from .config import BARY_TOL, BEHIND_TOL_REL, T_TOL_REL
 
@@ -48,11 +50,14 @@ def _margin(u, v):
     return min(u, min(v, 1.0 - u - v))
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def _reference(tris, O, D, tmin, tmax, tol_t, pa, pb, out):
-    """For each disputed ray: closest strict hit t; and for answers pa/pb whether they hold.
+# The re-tests run over ranges of rays (``hwbvh.parallel.run_ranges``), not in a parallel
+# loop: a verifying tracer re-tests from every band's thread at once, and Numba's workqueue
+# layer aborts when two threads enter its parallel loops together.
+@njit(cache=True, nogil=True, error_model="numpy")
+def _reference(lo, hi, tris, O, D, tmin, tmax, tol_t, pa, pb, out):
+    """For disputed rays lo..hi: closest strict hit t; and for answers pa/pb whether they hold.
     out[i] = (t_strict, ok_a, ok_b)."""
-    for i in prange(O.shape[0]):
+    for i in range(lo, hi):
         o = O[i]
         d = D[i]
         best = np.inf
@@ -99,7 +104,8 @@ def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
     if len(disputed):
         t64 = np.ascontiguousarray(tris, np.float64)
         out = np.empty((len(disputed), 3))
-        _reference(t64, np.ascontiguousarray(O[disputed]), np.ascontiguousarray(D[disputed]),
+        run_ranges(_reference, len(disputed), t64, np.ascontiguousarray(O[disputed]),
+                   np.ascontiguousarray(D[disputed]),
                    np.ascontiguousarray(tmin[disputed]), np.ascontiguousarray(tmax[disputed]),
                    np.ascontiguousarray(tol[disputed]),
                    np.ascontiguousarray(ours_prim[disputed], np.int64),
@@ -111,12 +117,13 @@ def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
     return counts, labels
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def _reference_any(tris, O, D, tmin, tmax, scale, out):
-    """For each disputed any-hit ray: out[i] = (a strict hit exists, a loose hit exists), where a
-    strict hit lies inside its triangle by more than BARY_TOL at t clearly inside (tmin, tmax),
-    and a loose hit within BARY_TOL of its triangle at t within the tolerance of [tmin, tmax]."""
-    for i in prange(O.shape[0]):
+@njit(cache=True, nogil=True, error_model="numpy")
+def _reference_any(lo, hi, tris, O, D, tmin, tmax, scale, out):
+    """For disputed any-hit rays lo..hi: out[i] = (a strict hit exists, a loose hit exists),
+    where a strict hit lies inside its triangle by more than BARY_TOL at t clearly inside
+    (tmin, tmax), and a loose hit within BARY_TOL of its triangle at t within the tolerance of
+    [tmin, tmax]."""
+    for i in range(lo, hi):
         o = O[i]
         d = D[i]
         strict = False
@@ -156,9 +163,9 @@ def classify_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
         Dd = np.ascontiguousarray(D[disputed])
         scale = np.abs(Od).max(axis=1) / np.linalg.norm(Dd, axis=1)
         out = np.empty((len(disputed), 2))
-        _reference_any(np.ascontiguousarray(tris, np.float64), Od, Dd,
-                       np.ascontiguousarray(tmin[disputed]), np.ascontiguousarray(tmax[disputed]),
-                       scale, out)
+        run_ranges(_reference_any, len(disputed), np.ascontiguousarray(tris, np.float64), Od, Dd,
+                   np.ascontiguousarray(tmin[disputed]), np.ascontiguousarray(tmax[disputed]),
+                   scale, out)
         strict, loose = out[:, 0] > 0, out[:, 1] > 0
         right = lambda blocked: np.where(blocked, loose, ~strict)
         ok = right(ours[disputed]) & right(ref[disputed])
