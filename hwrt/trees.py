@@ -169,14 +169,29 @@ def nonnegative_least_squares(X, y):
     return best
 
 
+def _prices(X, y):
+    """{"ns_per_node", "ns_per_triangle", "ns_per_ray", "us_per_query", "r2"} of the
+    non-negative least-squares fit y ~ X p (columns: nodes, triangles, rays, 1)."""
+    price = nonnegative_least_squares(X, y)
+    spread = float(((y - y.mean()) ** 2).sum())
+    r2 = 1 - float(((y - X @ price) ** 2).sum()) / spread if spread > 0 else None
+    return {"ns_per_node": 1e9 * price[0], "ns_per_triangle": 1e9 * price[1],
+            "ns_per_ray": 1e9 * price[2], "us_per_query": 1e6 * price[3], "r2": r2}, price
+
+
 def _cost_fit(tracers, queries, repeat):
     """Prices of one class's work, from every query of both trees timed alone on one thread
     (the fastest of ``repeat`` runs): seconds = nodes * a + triangles * b + rays * c + d, fitted
-    by non-negative least squares. Returns {"ns_per_node", "ns_per_triangle", "ns_per_ray",
-    "us_per_query", "r2", "queries"}, or None with fewer than FIT_MIN_QUERIES queries."""
+    by non-negative least squares over both trees' queries, and for each tree apart.
+
+    Returns the shared prices ({"ns_per_node", "ns_per_triangle", "ns_per_ray",
+    "us_per_query", "r2"}) with "queries"; "one_thread_ratio", the class's time sweep / hwbvh
+    as timed here; "priced_ratio", the ratio the shared prices give the two trees' work (what
+    the time ratio would be if a unit cost the same in both trees); and "by_tree", each tree's
+    own prices. None with fewer than FIT_MIN_QUERIES queries."""
     from traversal.tracers import replay
 
-    rows, seconds = [], []
+    rows, seconds, tree = [], [], []
     with _one_thread():
         for b in BUILDERS:
             for q in queries[b]:
@@ -190,15 +205,18 @@ def _cost_fit(tracers, queries, repeat):
                     replay(tracers[b], [q])
                     best = min(best, time.perf_counter() - t)
                 seconds.append(best)
+                tree.append(b)
     if len(rows) < FIT_MIN_QUERIES:
         return None
-    X, y = np.array(rows, float), np.array(seconds)
-    price = nonnegative_least_squares(X, y)
-    spread = float(((y - y.mean()) ** 2).sum())
-    r2 = 1 - float(((y - X @ price) ** 2).sum()) / spread if spread > 0 else None
-    return {"ns_per_node": 1e9 * price[0], "ns_per_triangle": 1e9 * price[1],
-            "ns_per_ray": 1e9 * price[2], "us_per_query": 1e6 * price[3], "r2": r2,
-            "queries": len(rows)}
+    X, y, tree = np.array(rows, float), np.array(seconds), np.array(tree)
+    fit, price = _prices(X, y)
+    mine = {b: tree == b for b in BUILDERS}
+    fit.update(queries=len(rows),
+               one_thread_ratio=float(y[mine["sweep"]].sum() / y[mine["hwbvh"]].sum()),
+               priced_ratio=float((X[mine["sweep"]] @ price).sum() /
+                                  (X[mine["hwbvh"]] @ price).sum()),
+               by_tree={b: _prices(X[mine[b]], y[mine[b]])[0] for b in BUILDERS})
+    return fit
 
 
 def _by_path(tracers, recordings, repeat):
@@ -286,9 +304,10 @@ def human(r):
     lines += ["", "what a unit costs (each query of both trees timed alone on one thread, fitted "
               "as nodes x a + triangles x b + rays x c + d with no price below 0):",
               f"{'scene':<10}{'rays':<20}{'queries':>8}{'a ns per':>9}{'b ns per':>9}"
-              f"{'c ns per':>9}{'d us per':>9}{'R2':>6}{'nodes':>7}{'triangles':>10}",
+              f"{'c ns per':>9}{'d us per':>9}{'R2':>6}{'nodes':>7}{'triangles':>10}"
+              f"{'priced':>7}{'1-thread':>9}",
               f"{'':<10}{'':<20}{'':>8}{'node':>9}{'triangle':>9}{'ray':>9}{'query':>9}{'':>6}"
-              f"{'ratio':>7}{'ratio':>10}"]
+              f"{'ratio':>7}{'ratio':>10}{'ratio':>7}{'ratio':>9}"]
     for x in r["rows"]:
         for k, c in enumerate(x.get("by_path", [])):
             f = c.get("cost_fit")
@@ -300,9 +319,12 @@ def human(r):
             r2 = "-" if f["r2"] is None else f"{f['r2']:.2f}"
             lines.append(f"{head}{f['queries']:>8}{f['ns_per_node']:>9.2f}"
                          f"{f['ns_per_triangle']:>9.2f}{f['ns_per_ray']:>9.2f}"
-                         f"{f['us_per_query']:>9.1f}{r2:>6}{ratios}")
+                         f"{f['us_per_query']:>9.1f}{r2:>6}{ratios}"
+                         f"{f['priced_ratio']:>7.3f}{f['one_thread_ratio']:>9.3f}")
     lines.append("nodes and triangles count each ray's share as the path runs them (a packet's "
-                 "rays each count the packet's tests); ratios are sweep / hwbvh; where terms move "
+                 "rays each count the packet's tests); ratios are sweep / hwbvh; priced = the "
+                 "time ratio the prices give the two trees' work, 1-thread = the time ratio as "
+                 "timed for the fit (the JSON has each tree's own prices); where terms move "
                  "together (rays traced one by one: work in proportion to rays) the fit cannot "
                  "part them, and a price of 0 means its term's cost went to the others")
     return "\n".join(lines)

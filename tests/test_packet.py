@@ -302,6 +302,11 @@ def test_cost_fit_prices_each_term_from_queries_timed_alone():
     assert fit["queries"] == 2 * n
     prices = [fit[k] for k in ("ns_per_node", "ns_per_triangle", "ns_per_ray", "us_per_query")]
     assert all(np.isfinite(p) and p >= 0 for p in prices) and sum(prices) > 0
+    assert fit["one_thread_ratio"] > 0 and fit["priced_ratio"] > 0
+    assert set(fit["by_tree"]) == set(BUILDERS)
+    # the same queries through both trees: the prices give the two trees' work as it is
+    same = _cost_fit({b: tracers["hwbvh"] for b in BUILDERS}, {b: queries for b in BUILDERS}, 1)
+    assert abs(same["priced_ratio"] - 1) < 1e-12
     assert _cost_fit(tracers, {b: queries[:3] for b in BUILDERS}, 1) is None
     bad = [("intersect", o[:16], d[:16], np.array(-1.0, np.float32), inf, False)] * n
     with pytest.raises(ValueError, match="tmin must not be negative"):
