@@ -305,8 +305,13 @@ def test_cost_fit_prices_each_term_from_queries_timed_alone():
     assert fit["one_thread_ratio"] > 0 and fit["priced_ratio"] > 0
     assert set(fit["by_tree"]) == set(BUILDERS)
     # the same queries through both trees: the prices give the two trees' work as it is
-    same = _cost_fit({b: tracers["hwbvh"] for b in BUILDERS}, {b: queries for b in BUILDERS}, 1)
+    one = {b: tracers["hwbvh"] for b in BUILDERS}
+    same = _cost_fit(one, {b: queries for b in BUILDERS}, 1)
     assert abs(same["priced_ratio"] - 1) < 1e-12
+    # "sweep" asked every query twice: its priced work is twice hwbvh's
+    twice = _cost_fit(one, {"hwbvh": queries, "sweep": queries + queries}, 1)
+    assert abs(twice["priced_ratio"] - 2) < 1e-9
+    assert twice["by_tree"]["sweep"]["queries"] == 2 * n and twice["by_tree"]["hwbvh"] is None
     assert _cost_fit(tracers, {b: queries[:3] for b in BUILDERS}, 1) is None
     bad = [("intersect", o[:16], d[:16], np.array(-1.0, np.float32), inf, False)] * n
     with pytest.raises(ValueError, match="tmin must not be negative"):
@@ -328,6 +333,11 @@ def test_nonnegative_least_squares_keeps_prices_at_or_above_zero():
     assert plain[2] < 0
     p = nonnegative_least_squares(X, y2)
     assert (p >= 0).all() and p[2] == 0
+    # a column of zeros and two equal columns: prices still at or above 0, the fit exact
+    Z = np.column_stack([X[:, 0], np.zeros(40), X[:, 0], X[:, 1]])
+    pz = nonnegative_least_squares(Z, X[:, 0] * 1.5 + X[:, 1] * 0.25)
+    assert (pz >= 0).all() and np.allclose(Z @ pz, X[:, 0] * 1.5 + X[:, 1] * 0.25)
+    assert (nonnegative_least_squares(Z, np.zeros(40)) == 0).all()
     slope_only, *_ = np.linalg.lstsq(X[:, :1], y2, rcond=None)       # a feasible fit
     assert (slope_only >= 0).all()
     assert np.sum((X @ p - y2) ** 2) <= np.sum((X[:, :1] @ slope_only - y2) ** 2) + 1e-9

@@ -594,7 +594,8 @@ def test_scalar_bounds_serve_batches_of_every_size():
     """Scalar and 0-d bounds become kept arrays of each value (``api._filled``): batches that
     grow, shrink, are empty or longer than what is kept all get exactly their own bounds, and
     ``release_kept_bounds`` leaves answers as they were."""
-    from traversal.api import KEPT_BOUND_RAYS, release_kept_bounds
+    from traversal.api import release_kept_bounds
+    from traversal.config import KEPT_BOUND_RAYS
 
     tracer = Tracer(hwbvh.build(random_soup(400, seed=6)))
     rng = np.random.default_rng(2)

@@ -13,7 +13,7 @@ import numpy as np
 from hwbvh.format import node_views, pack_indices, tree_stats
 from .aabb_unit import GAMMA3_F32, GAMMA3_F64
 from hwbvh.parallel import run_ranges
-from .config import CHUNK_RAYS
+from .config import CHUNK_RAYS, KEPT_BOUND_RAYS
 from .traverse import trace_chunks
 from .triangle_unit import band_eps2, preprocess
 from .config import EDGE_EPS_F32, EDGE_EPS_F64   # the valid check's slack, with its reason
@@ -44,8 +44,6 @@ def _ready(a, dtype):
 
 
 _fills = {}              # (dtype, bit pattern) -> the longest array of that value kept so far
-KEPT_BOUND_RAYS = 1 << 18    # longer batches get a bound array of their own (a render's
-                             # queries are a band's rays, far fewer)
 
 
 def _filled(value, n):

@@ -63,6 +63,11 @@ PACKET_RAYS = 16
 CHUNK_RAYS = 64
 if CHUNK_RAYS % PACKET_RAYS:
     raise ValueError("CHUNK_RAYS must be a multiple of PACKET_RAYS")
+# Scalar ray bounds (0, inf, ...) become one kept array per value, sliced for each batch, so
+# a query does not fill new ones (``api._filled``). Batches longer than this get their own:
+# a render's queries are a band's rays (16k camera rays, a few times that in shadow rays), so
+# the kept arrays stay at a megabyte or two each.
+KEPT_BOUND_RAYS = 1 << 18
 
 # --- Uniform grid (grid) -------------------------------------------------------------------
 # Cells per triangle of the density heuristic (cells ~ GRID_DENSITY * N, cubic where the mesh's
