@@ -271,6 +271,11 @@ def _by_path(tracers, recordings, repeat):
     return out
 
 
+def _header(*columns):
+    """A table's two heading lines from (top, bottom, format spec) per column."""
+    return ["".join(f"{c[i]:{c[2]}}" for c in columns) for i in (0, 1)]
+
+
 def _ratio(x):
     return "-" if x is None else f"{x:.3f}"
 
@@ -294,10 +299,10 @@ def human(r):
                  "and shadow rays; trace = the render's rays traced again alone")
     lines += ["", "where the trace time goes (the packet render's queries by kind and path, traced "
               "again class by class):",
-              f"{'scene':<10}{'rays':<20}{'rays':>9}{'share of':>10}{'ns per':>8}{'work/ray hw':>12}"
-              f"{'sweep':>7}{'work':>7}{'trace':>7}{'trace vs':>9}",
-              f"{'':<10}{'':<20}{'':>9}{'hw trace':>10}{'unit hw':>8}{'':>12}{'':>7}{'ratio':>7}"
-              f"{'ratio':>7}{'work':>9}"]
+              *_header(("scene", "", "<10"), ("rays", "", "<20"), ("rays", "", ">9"),
+                       ("share of", "hw trace", ">10"), ("ns per", "unit hw", ">8"),
+                       ("work/ray hw", "", ">12"), ("sweep", "", ">7"), ("work", "ratio", ">7"),
+                       ("trace", "ratio", ">7"), ("trace vs", "work", ">9"))]
     for x in r["rows"]:
         for k, c in enumerate(x.get("by_path", [])):
             share = "-" if c["time_share"] is None else f"{100 * c['time_share']:.0f}%"
@@ -312,11 +317,11 @@ def human(r):
                  "each class pays a fixed cost per query, which dominates a class of few rays")
     lines += ["", "what a unit costs (each query of both trees timed alone on one thread, fitted "
               "as nodes x a + triangles x b + rays x c + d with no price below 0):",
-              f"{'scene':<10}{'rays':<20}{'queries':>8}{'a ns per':>9}{'b ns per':>9}"
-              f"{'c ns per':>9}{'d us per':>9}{'R2':>6}{'nodes':>7}{'triangles':>10}"
-              f"{'priced':>7}{'1-thread':>9}",
-              f"{'':<10}{'':<20}{'':>8}{'node':>9}{'triangle':>9}{'ray':>9}{'query':>9}{'':>6}"
-              f"{'ratio':>7}{'ratio':>10}{'ratio':>7}{'ratio':>9}"]
+              *_header(("scene", "", "<10"), ("rays", "", "<20"), ("queries", "", ">8"),
+                       ("a ns per", "node", ">9"), ("b ns per", "triangle", ">9"),
+                       ("c ns per", "ray", ">9"), ("d us per", "query", ">9"), ("R2", "", ">6"),
+                       ("nodes", "ratio", ">7"), ("triangles", "ratio", ">10"),
+                       ("priced", "ratio", ">7"), ("1-thread", "ratio", ">9"))]
     for x in r["rows"]:
         for k, c in enumerate(x.get("by_path", [])):
             f = c.get("cost_fit")
