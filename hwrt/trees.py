@@ -43,6 +43,13 @@ def _scene(spec, args):
     return compile_scene(d)
 
 
+def _alternating(rounds):
+    """The trees, round by round, which goes first swapping each round: both trees alternate
+    run by run, so a drift in the machine's speed falls on both."""
+    for i in range(rounds):
+        yield from BUILDERS[::1 - 2 * (i % 2)]
+
+
 def _paired_ratio(seconds):
     """The median over rounds of sweep / hwbvh, each round's two runs side by side: a drift in
     the machine's speed between rounds (a shared virtual machine's speed moves by tens of
@@ -81,12 +88,11 @@ def bench_trees(args):
                 recordings[b] = RecordingTracer(tracers[b])
                 render(scene, recordings[b])          # also the warm-up render of this mode
             renders, replays = {b: [] for b in BUILDERS}, {b: [] for b in BUILDERS}
-            for i in range(args.repeat):              # both trees alternate, run by run,
-                for b in BUILDERS[::1 - 2 * (i % 2)]:   # which goes first swapping each round
-                    t = time.perf_counter()
-                    render(scene, tracers[b])
-                    renders[b].append(time.perf_counter() - t)
-                    replays[b].append(recordings[b].replay_seconds())
+            for b in _alternating(args.repeat):
+                t = time.perf_counter()
+                render(scene, tracers[b])
+                renders[b].append(time.perf_counter() - t)
+                replays[b].append(recordings[b].replay_seconds())
             render_s = {b: statistics.median(renders[b]) for b in BUILDERS}
             trace_only = {b: statistics.median(replays[b]) for b in BUILDERS}
             render_ratio, trace_ratio = _paired_ratio(renders), _paired_ratio(replays)
@@ -121,15 +127,17 @@ def _split_queries(queries):
     return classes
 
 
-def _class_work(tracer, queries):
-    """(rays, (nodes, triangles)) of ``queries`` as the path runs them."""
+def _query_work(tracer, queries):
+    """(nodes, triangles, rays) of each query of ``queries`` as the path runs them, (n, 3)."""
     from traversal.tracers import CountingTracer, replay
 
-    counting = CountingTracer(tracer, as_run=True)
-    replay(counting, queries)
-    totals = counting.totals.values()
-    return sum(t["rays"] for t in totals), (sum(t["nodes"] for t in totals),
-                                            sum(t["triangles"] for t in totals))
+    rows = np.zeros((len(queries), 3), np.int64)
+    for k, q in enumerate(queries):
+        counting = CountingTracer(tracer, as_run=True)
+        replay(counting, [q])
+        c = counting.counts("all")
+        rows[k] = c["nodes"], c["triangles"], c["rays"]
+    return rows
 
 
 FIT_MIN_QUERIES = 20             # a fit of four prices needs queries well beyond four
@@ -179,10 +187,11 @@ def _prices(X, y):
             "ns_per_ray": 1e9 * price[2], "us_per_query": 1e6 * price[3], "r2": r2}, price
 
 
-def _cost_fit(tracers, queries, repeat):
+def _cost_fit(tracers, queries, work, repeat):
     """Prices of one class's work, from every query of both trees timed alone on one thread
     (the fastest of ``repeat`` runs): seconds = nodes * a + triangles * b + rays * c + d, fitted
-    by non-negative least squares over both trees' queries, and for each tree apart.
+    by non-negative least squares over both trees' queries, and for each tree apart. ``work``:
+    each tree's ``_query_work`` of its ``queries``.
 
     Returns the shared prices ({"ns_per_node", "ns_per_triangle", "ns_per_ray",
     "us_per_query", "r2"}) with "queries"; "one_thread_ratio", the class's time sweep / hwbvh
@@ -192,12 +201,12 @@ def _cost_fit(tracers, queries, repeat):
     from traversal.tracers import replay
 
     # the trees' queries taken in turn, so that a drift in the machine's speed falls on both
-    turns = [(b, q) for pair in itertools.zip_longest(*(queries[b] for b in BUILDERS))
-             for b, q in zip(BUILDERS, pair) if q is not None and len(q[1])]
+    turns = [(b, *qw) for pair in itertools.zip_longest(*(zip(queries[b], work[b])
+                                                        for b in BUILDERS))
+             for b, qw in zip(BUILDERS, pair) if qw is not None and len(qw[0][1])]
     rows, seconds, tree = [], [], []
     with _one_thread():
-        for b, q in turns:
-            rays, (nodes, triangles) = _class_work(tracers[b], [q])
+        for b, q, (nodes, triangles, rays) in turns:
             rows.append([nodes, triangles, rays, 1.0])
             best = np.inf
             for _ in range(max(1, repeat)):
@@ -238,32 +247,34 @@ def _by_path(tracers, recordings, repeat):
     out = []
     for key in sorted(set(split["hwbvh"]) & set(split["sweep"]),
                       key=lambda k: (k[0], PATHS.index(k[1]))):
-        work, rays = {}, {}
+        queries = {b: split[b][key] for b in BUILDERS}
         was = {b: tracers[b].packets for b in BUILDERS}
         try:
-            nt = {}
+            per_query = {}
             for b in BUILDERS:
                 # a ray left out of a packet stays out: its class is traced with packets off
                 tracers[b].packets = key[1] == "packets"
-                rays[b], nt[b] = _class_work(tracers[b], split[b][key])
-                work[b] = sum(nt[b]) / rays[b]
+                per_query[b] = _query_work(tracers[b], queries[b])
             seconds = {b: [] for b in BUILDERS}
-            for i in range(repeat):
-                for b in BUILDERS[::1 - 2 * (i % 2)]:
-                    seconds[b].append(replay_seconds(tracers[b], split[b][key]))
-            fit = _cost_fit(tracers, {b: split[b][key] for b in BUILDERS}, min(repeat, 5))
+            for b in _alternating(repeat):
+                seconds[b].append(replay_seconds(tracers[b], queries[b]))
+            fit = _cost_fit(tracers, queries, per_query, min(repeat, 5))
         finally:
             for b in BUILDERS:
                 tracers[b].packets = was[b]
-        hw_seconds = statistics.median(seconds["hwbvh"])
+        nodes, triangles, rays = ({b: int(per_query[b][:, c].sum()) for b in BUILDERS}
+                                  for c in range(3))
+        work = {b: (nodes[b] + triangles[b]) / rays[b] for b in BUILDERS}
+        trace_seconds = {b: statistics.median(seconds[b]) for b in BUILDERS}
         out.append({"kind": key[0], "path": key[1], "rays": rays["hwbvh"], "work_per_ray": work,
                     "work_ratio": work["sweep"] / work["hwbvh"] if work["hwbvh"] else None,
-                    "trace_seconds": {b: statistics.median(seconds[b]) for b in BUILDERS},
+                    "trace_seconds": trace_seconds,
                     "trace_ratio": _paired_ratio(seconds),
-                    "ns_per_unit": 1e9 * hw_seconds / (rays["hwbvh"] * work["hwbvh"])
+                    "ns_per_unit": 1e9 * trace_seconds["hwbvh"] / (rays["hwbvh"] * work["hwbvh"])
                     if work["hwbvh"] else None,
-                    "nodes_ratio": nt["sweep"][0] / nt["hwbvh"][0] if nt["hwbvh"][0] else None,
-                    "triangles_ratio": nt["sweep"][1] / nt["hwbvh"][1] if nt["hwbvh"][1] else None,
+                    "nodes_ratio": nodes["sweep"] / nodes["hwbvh"] if nodes["hwbvh"] else None,
+                    "triangles_ratio": triangles["sweep"] / triangles["hwbvh"]
+                    if triangles["hwbvh"] else None,
                     "cost_fit": fit})
     total = sum(c["trace_seconds"]["hwbvh"] for c in out)
     for c in out:
@@ -271,9 +282,19 @@ def _by_path(tracers, recordings, repeat):
     return out
 
 
-def _header(*columns):
-    """A table's two heading lines from (top, bottom, format spec) per column."""
-    return ["".join(f"{c[i]:{c[2]}}" for c in columns) for i in (0, 1)]
+def _class_rows(r):
+    """(row head, class) for each class of each scene's time split; the scene named on its
+    first class only."""
+    for x in r["rows"]:
+        for k, c in enumerate(x.get("by_path", [])):
+            yield f"{x['scene'] if k == 0 else '':<10}{c['kind'] + ', ' + c['path']:<20}", c
+
+
+def _class_table(title, *columns):
+    """A blank line, ``title`` and the two heading lines of a table of classes (``_class_rows``)
+    whose columns after the scene and the class are (top, bottom, format spec)."""
+    columns = (("scene", "", "<10"), ("class", "", "<20")) + columns
+    return ["", title] + ["".join(f"{c[i]:{c[2]}}" for c in columns) for i in (0, 1)]
 
 
 def _ratio(x):
@@ -297,44 +318,41 @@ def human(r):
     lines.append("ratios are sweep / hwbvh; work = nodes visited + triangles tested per ray as the "
                  "path runs them (a packet's rays each count the packet's tests), over closest-hit "
                  "and shadow rays; trace = the render's rays traced again alone")
-    lines += ["", "where the trace time goes (the packet render's queries by kind and path, traced "
-              "again class by class):",
-              *_header(("scene", "", "<10"), ("rays", "", "<20"), ("rays", "", ">9"),
-                       ("share of", "hw trace", ">10"), ("ns per", "unit hw", ">8"),
-                       ("work/ray hw", "", ">12"), ("sweep", "", ">7"), ("work", "ratio", ">7"),
-                       ("trace", "ratio", ">7"), ("trace vs", "work", ">9"))]
-    for x in r["rows"]:
-        for k, c in enumerate(x.get("by_path", [])):
-            share = "-" if c["time_share"] is None else f"{100 * c['time_share']:.0f}%"
-            unit = "-" if c["ns_per_unit"] is None else f"{c['ns_per_unit']:.2f}"
-            gap = "-" if not c["work_ratio"] else f"{100 * (c['trace_ratio'] / c['work_ratio'] - 1):+.1f}%"
-            lines.append(f"{x['scene'] if k == 0 else '':<10}{c['kind'] + ', ' + c['path']:<20}"
-                         f"{c['rays']:>9}{share:>10}{unit:>8}{c['work_per_ray']['hwbvh']:>12.1f}"
-                         f"{c['work_per_ray']['sweep']:>7.1f}{_ratio(c['work_ratio']):>7}"
-                         f"{c['trace_ratio']:>7.3f}{gap:>9}")
+    lines += _class_table("where the trace time goes (the packet render's queries by kind and "
+                          "path, traced again class by class):",
+                          ("rays", "", ">9"), ("share of", "hw trace", ">10"),
+                          ("ns per", "unit hw", ">8"), ("work/ray hw", "", ">12"),
+                          ("sweep", "", ">7"), ("work", "ratio", ">7"), ("trace", "ratio", ">7"),
+                          ("trace vs", "work", ">9"))
+    for head, c in _class_rows(r):
+        share = "-" if c["time_share"] is None else f"{100 * c['time_share']:.0f}%"
+        unit = "-" if c["ns_per_unit"] is None else f"{c['ns_per_unit']:.2f}"
+        gap = "-" if not c["work_ratio"] else f"{100 * (c['trace_ratio'] / c['work_ratio'] - 1):+.1f}%"
+        lines.append(f"{head}{c['rays']:>9}{share:>10}{unit:>8}{c['work_per_ray']['hwbvh']:>12.1f}"
+                     f"{c['work_per_ray']['sweep']:>7.1f}{_ratio(c['work_ratio']):>7}"
+                     f"{c['trace_ratio']:>7.3f}{gap:>9}")
     lines.append("ns per unit = the class's trace time (all threads, wall) per node visit or "
                  "triangle test; a class's rays traced one by one are traced with packets off; "
                  "each class pays a fixed cost per query, which dominates a class of few rays")
-    lines += ["", "what a unit costs (each query of both trees timed alone on one thread, fitted "
-              "as nodes x a + triangles x b + rays x c + d with no price below 0):",
-              *_header(("scene", "", "<10"), ("rays", "", "<20"), ("queries", "", ">8"),
-                       ("a ns per", "node", ">9"), ("b ns per", "triangle", ">9"),
-                       ("c ns per", "ray", ">9"), ("d us per", "query", ">9"), ("R2", "", ">6"),
-                       ("nodes", "ratio", ">7"), ("triangles", "ratio", ">10"),
-                       ("priced", "ratio", ">7"), ("1-thread", "ratio", ">9"))]
-    for x in r["rows"]:
-        for k, c in enumerate(x.get("by_path", [])):
-            f = c.get("cost_fit")
-            head = f"{x['scene'] if k == 0 else '':<10}{c['kind'] + ', ' + c['path']:<20}"
-            ratios = f"{_ratio(c['nodes_ratio']):>7}{_ratio(c['triangles_ratio']):>10}"
-            if f is None:
-                lines.append(f"{head}{'too few queries to fit':>50}{ratios}")
-                continue
-            r2 = "-" if f["r2"] is None else f"{f['r2']:.2f}"
-            lines.append(f"{head}{f['queries']:>8}{f['ns_per_node']:>9.2f}"
-                         f"{f['ns_per_triangle']:>9.2f}{f['ns_per_ray']:>9.2f}"
-                         f"{f['us_per_query']:>9.1f}{r2:>6}{ratios}"
-                         f"{f['priced_ratio']:>7.3f}{f['one_thread_ratio']:>9.3f}")
+    lines += _class_table("what a unit costs (each query of both trees timed alone on one "
+                          "thread, fitted as nodes x a + triangles x b + rays x c + d with no "
+                          "price below 0):",
+                          ("queries", "", ">8"), ("a ns per", "node", ">9"),
+                          ("b ns per", "triangle", ">9"), ("c ns per", "ray", ">9"),
+                          ("d us per", "query", ">9"), ("R2", "", ">6"), ("nodes", "ratio", ">7"),
+                          ("triangles", "ratio", ">10"), ("priced", "ratio", ">7"),
+                          ("1-thread", "ratio", ">9"))
+    for head, c in _class_rows(r):
+        f = c.get("cost_fit")
+        ratios = f"{_ratio(c['nodes_ratio']):>7}{_ratio(c['triangles_ratio']):>10}"
+        if f is None:
+            lines.append(f"{head}{'too few queries to fit':>50}{ratios}")
+            continue
+        r2 = "-" if f["r2"] is None else f"{f['r2']:.2f}"
+        lines.append(f"{head}{f['queries']:>8}{f['ns_per_node']:>9.2f}"
+                     f"{f['ns_per_triangle']:>9.2f}{f['ns_per_ray']:>9.2f}"
+                     f"{f['us_per_query']:>9.1f}{r2:>6}{ratios}"
+                     f"{f['priced_ratio']:>7.3f}{f['one_thread_ratio']:>9.3f}")
     lines.append("nodes and triangles count each ray's share as the path runs them (a packet's "
                  "rays each count the packet's tests); ratios are sweep / hwbvh; priced = the "
                  "time ratio the prices give the two trees' work, 1-thread = the time ratio as "

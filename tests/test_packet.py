@@ -285,7 +285,11 @@ def test_cost_fit_prices_each_term_from_queries_timed_alone():
     0, on one thread (the caller's thread count restored after, also when a query fails), and
     no fit from too few queries."""
     import numba
-    from hwrt.trees import BUILDERS, FIT_MIN_QUERIES, _cost_fit
+    from hwrt.trees import BUILDERS, FIT_MIN_QUERIES, _cost_fit, _query_work
+
+    def fit_of(tracers, queries, work=None):
+        work = work or {b: _query_work(tracers[b], queries[b]) for b in BUILDERS}
+        return _cost_fit(tracers, queries, work, 1)
 
     tris = scene()
     o, d = camera_rays(tris)
@@ -297,7 +301,7 @@ def test_cost_fit_prices_each_term_from_queries_timed_alone():
                 False) for k in range(n)]
     queries.append(("intersect", o[:0], d[:0], zero, inf, False))      # empty: no row
     was = numba.get_num_threads()
-    fit = _cost_fit(tracers, {b: queries for b in BUILDERS}, 1)
+    fit = fit_of(tracers, {b: queries for b in BUILDERS})
     assert numba.get_num_threads() == was
     assert fit["queries"] == 2 * n
     prices = [fit[k] for k in ("ns_per_node", "ns_per_triangle", "ns_per_ray", "us_per_query")]
@@ -306,16 +310,17 @@ def test_cost_fit_prices_each_term_from_queries_timed_alone():
     assert set(fit["by_tree"]) == set(BUILDERS)
     # the same queries through both trees: the prices give the two trees' work as it is
     one = {b: tracers["hwbvh"] for b in BUILDERS}
-    same = _cost_fit(one, {b: queries for b in BUILDERS}, 1)
+    same = fit_of(one, {b: queries for b in BUILDERS})
     assert abs(same["priced_ratio"] - 1) < 1e-12
     # "sweep" asked every query twice: its priced work is twice hwbvh's
-    twice = _cost_fit(one, {"hwbvh": queries, "sweep": queries + queries}, 1)
+    twice = fit_of(one, {"hwbvh": queries, "sweep": queries + queries})
     assert abs(twice["priced_ratio"] - 2) < 1e-9
     assert twice["by_tree"]["sweep"]["queries"] == 2 * n and twice["by_tree"]["hwbvh"] is None
-    assert _cost_fit(tracers, {b: queries[:3] for b in BUILDERS}, 1) is None
+    assert fit_of(tracers, {b: queries[:3] for b in BUILDERS}) is None
     bad = [("intersect", o[:16], d[:16], np.array(-1.0, np.float32), inf, False)] * n
     with pytest.raises(ValueError, match="tmin must not be negative"):
-        _cost_fit(tracers, {b: bad for b in BUILDERS}, 1)
+        fit_of(tracers, {b: bad for b in BUILDERS},
+               {b: np.zeros((len(bad), 3), np.int64) for b in BUILDERS})   # fails when timed
     assert numba.get_num_threads() == was
 
 

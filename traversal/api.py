@@ -131,16 +131,17 @@ class PacketCount:
     """``last_packets``: the packets the calling thread's last query traced (the rest went ray
     by ray). Per thread, since a ``concurrent`` tracer takes queries from several at once."""
 
+    def _start_packet_count(self):
+        self._packets_by_thread = threading.local()
+
     def _count_packets(self, per_range):
         """Keep the calling thread's last query's packets per range of work (an array, summed
         only when asked for: most queries never are)."""
-        if "_packets_by_thread" not in self.__dict__:
-            self._packets_by_thread = threading.local()
         self._packets_by_thread.per_range = per_range
 
     @property
     def last_packets(self):
-        per_range = getattr(self.__dict__.get("_packets_by_thread"), "per_range", None)
+        per_range = getattr(self._packets_by_thread, "per_range", None)
         return 0 if per_range is None else int(per_range.sum())
 
 
@@ -188,7 +189,7 @@ class Tracer(PacketCount):
             edge_eps = EDGE_EPS_F32 if f32 else EDGE_EPS_F64
         self.edge = self.dtype(edge_eps)
         self.packets = bool(packets)
-        self._count_packets(None)
+        self._start_packet_count()
 
     def _run(self, origins, dirs, tmin, tmax, anyhit, counters, normals=False, as_run=False):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)

@@ -545,7 +545,7 @@ class GridTracer(TriangleStructure, PacketCount):
     def __init__(self, triangles, resolution=None, packets=True):
         start = time.perf_counter()
         self.packets = bool(packets)
-        self._count_packets(None)
+        self._start_packet_count()
         tris = checked_triangles(triangles)
         n = len(tris)
         # the grid's box: the mesh's, padded like a triangle's box, and never flat

@@ -157,14 +157,19 @@ class CountingTracer(_Tally):
     def dtype(self):
         return self.inner.dtype
 
+    def counts(self, kind="closest"):
+        """{"nodes", "triangles", "rays"} of ``kind`` ("closest", "shadow" or "all") queries
+        so far."""
+        kinds = ("closest", "shadow") if kind == "all" else (kind,)
+        return {k: sum(self.totals[q][k] for q in kinds) for k in ("nodes", "triangles", "rays")}
+
     def work(self, kind="closest"):
         """{"nodes_per_ray", "tris_per_ray", "rays"} of ``kind`` ("closest", "shadow" or
         "all") queries so far."""
-        kinds = ("closest", "shadow") if kind == "all" else (kind,)
-        n = sum(self.totals[k]["nodes"] for k in kinds)
-        t = sum(self.totals[k]["triangles"] for k in kinds)
-        r = sum(self.totals[k]["rays"] for k in kinds)
-        return {"nodes_per_ray": n / max(r, 1), "tris_per_ray": t / max(r, 1), "rays": r}
+        c = self.counts(kind)
+        r = c["rays"]
+        return {"nodes_per_ray": c["nodes"] / max(r, 1), "tris_per_ray": c["triangles"] / max(r, 1),
+                "rays": r}
 
 
 class RecordingTracer:
