@@ -260,6 +260,25 @@ def test_packet_rays_is_the_traversals_rule():
         assert tracer.last_packets == int(rule[g * P])
 
 
+def test_runs_of_packets_between_groups_traced_ray_by_ray():
+    """Runs of coherent groups (traced in one call each) broken by incoherent groups, and a
+    batch ending in a run, in an incoherent group or in a partial group: every ray gets the
+    single-ray answer and every coherent group is one packet."""
+    tris = scene()
+    pk, single = pair(tris)
+    o, d = camera_rays(tris)
+    n = 16 * P
+    o, d = o[:n], d[:n].copy()
+    for g in (0, 3, 4, 9, 15):                  # break these groups: one ray flipped
+        d[g * P + 5] *= -1
+    for end in (n, n - P, n - P + 7, n - 3 * P):
+        pk_hits = pk.intersect(o[:end], d[:end])
+        assert pk.last_packets == packet_rays(d[:end]).sum() // P > 0
+        same_hits(pk_hits, single.intersect(o[:end], d[:end]))
+        assert np.array_equal(pk.occluded(o[:end], d[:end], tmax=pk_hits.t * 0.5),
+                              single.occluded(o[:end], d[:end], tmax=pk_hits.t * 0.5))
+
+
 def test_time_split_of_queries_whose_rays_miss_everything():
     """``bench trees``' split by kind and path on rays that leave the scene at once: no work,
     so no work ratio, and no division by zero; every ray lands in one class."""

@@ -238,13 +238,30 @@ def load_lane(F, I, M, k, Os, Ds, As, Bs, zero, one):
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def trace_packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, lo, hi, anyhit,
-                 stack, F, I, M, M64, out_prim, out_t, out_u, out_v, counters):
-    """Rays [lo, hi) (exactly P, sharing a direction octant) as one packet; ``O``/``D`` are the
-    (n, 3) origins and directions seen flat (3n,). Scratch: ``F``
-    (NF,) of the working float type, ``I`` (NI,) int32, ``M`` (NM,) uint8 and ``M64`` its
-    uint64 view. Writes out_prim (and out_t/u/v when they are not empty). Returns 1 if the
-    stack would overflow (a corrupted tree), else 0."""
+def trace_packets(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, lo, hi, anyhit,
+                  stack, F, I, M, M64, out_prim, out_t, out_u, out_v, counters):
+    """Rays [lo, hi) (a multiple of P, each group of P sharing a direction octant) as packets,
+    one after the other; ``O``/``D`` are the (n, 3) origins and directions seen flat (3n,).
+    Scratch: ``F`` (NF,) of the working float type, ``I`` (NI,) int32, ``M`` (NM,) uint8 and
+    ``M64`` its uint64 view. Writes out_prim (and out_t/u/v when they are not empty). Returns
+    the rays whose stack would overflow (a corrupted tree), else 0.
+
+    One call per run of packets, not per packet: a call passes some 130 words of array
+    descriptors and re-checks that the scratch rows do not overlap the rays, which cost about
+    as much as setting up the packet's 16 lanes."""
+    over = 0
+    for a in range(lo, hi, P):
+        over += _packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, a,
+                        a + P, anyhit, stack, F, I, M, M64, out_prim, out_t, out_u, out_v,
+                        counters) * P
+    return over
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, lo, hi, anyhit,
+            stack, F, I, M, M64, out_prim, out_t, out_u, out_v, counters):
+    """Rays [lo, hi) (exactly P, sharing a direction octant) as one packet (see
+    ``trace_packets``). Returns 1 if the stack would overflow, else 0."""
     zero = one - one
     # a full packet: branch-free, so the loads, the checks and the dividers run in SIMD
     # (indices from 0 on views: with lo + k, LLVM cannot bound the addresses)

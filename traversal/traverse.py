@@ -18,7 +18,7 @@ from hwbvh.config import LEAF_FLAG
 from hwbvh.format import WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, WORDS_PER_NODE
 from .aabb_unit import aabb_hit_at, near_far_planes
 from .config import CHUNK_RAYS
-from .packet import NF, NI, NM, P, coherent, trace_packet
+from .packet import NF, NI, NM, P, coherent, trace_packets
 from .rawtree import read_index, _ray_ok
 from .triangle_unit import TRI_WORDS, mt_valid_at, store_answer, store_normals, wt_hit_ray
 
@@ -122,14 +122,18 @@ def _trace_range(u, f, ib, tris, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen
     npk = 0
     a = lo
     while a < hi:
-        b = min(hi, a + P)
-        if packets and b - a == P and coherent(D, a, b):
-            over += trace_packet(u, f, ib, tris, Of, Df, tmin, tmax, eps2, one, widen, edge, a, b,
-                                 anyhit, stack, F, I, M, M64, out_prim, out_t, out_u, out_v,
-                                 counters) * (b - a)
-            npk += 1
+        b = a                           # the run of coherent full groups from a
+        while packets and b + P <= hi and coherent(D, b, b + P):
+            b += P
+        if b > a:
+            over += trace_packets(u, f, ib, tris, Of, Df, tmin, tmax, eps2, one, widen, edge, a,
+                                  b, anyhit, stack, F, I, M, M64, out_prim, out_t, out_u, out_v,
+                                  counters)
+            npk += (b - a) // P
             a = b
-            continue
+            if a >= hi:
+                break
+        b = min(hi, a + P)              # then one group ray by ray
         for i in range(a, b):
             prim, t, bu, bv, nv, nt, of = trace_ray(
                 u, f, ib, tris, raw, O[i, 0], O[i, 1], O[i, 2], D[i, 0], D[i, 1], D[i, 2],
