@@ -138,7 +138,7 @@ def run_single_mt(rows, O, D, tmin, tmax, eps2, one, edge):
 
 @njit(error_model="numpy")
 def _lanes(O, D, tmin, tmax, c, F, I, M, one):
-    """Rays c*P.. into the packet's lanes, as trace_packet sets them up (all lanes live)."""
+    """Rays c*P.. into the packet's lanes, as the packet kernel sets them up (all lanes live)."""
     zero = one - one
     for k in range(P):
         i = min(c * P + k, O.shape[0] - 1)
@@ -212,7 +212,7 @@ def run_aabb_hit_at(boxes, O, D, tmin, tmax, widen, one):
 @njit(error_model="numpy")
 def run_packet_slab(boxes, O, D, tmin, tmax, widen, one):
     """Each ray in its packet lane against its own box, the planes picked from the signs of d as
-    trace_packet picks them: packet._slab directly, and packet._box's lane loop."""
+    the packet kernel picks them: packet._slab directly, and packet._box's lane loop."""
     n = O.shape[0]
     flat = boxes.ravel()
     F = np.empty(NF, O.dtype)

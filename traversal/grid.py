@@ -267,7 +267,7 @@ def _packet_lanes(lo, Of, Df, tmin, tmax, gmin, gmax, F, I, M, W, zero, one):
     box only within a rounding of its faces reaches no triangle's padded box)."""
     gm = max(max(abs(gmin[0]), abs(gmax[0])), max(max(abs(gmin[1]), abs(gmax[1])),
                                                   max(abs(gmin[2]), abs(gmax[2]))))
-    # views indexed from 0, as in packet.trace_packet, so that LLVM can bound the addresses
+    # views indexed from 0, as in packet._packet, so that LLVM can bound the addresses
     Os = Of[3 * lo:3 * lo + 3 * P]
     Ds = Df[3 * lo:3 * lo + 3 * P]
     As = tmin[lo:lo + P]
@@ -407,7 +407,7 @@ def _stride(res, a):
 @njit(cache=True, error_model="numpy", inline="always")
 def _packet_answers(lo, F, I, out_prim, out_t, out_u, out_v, zero, one):
     """The packet's answers into the batch's outputs, as ``store_answer`` writes a ray's."""
-    outp = out_prim[lo:lo + P]              # views indexed from 0, as in packet.trace_packet
+    outp = out_prim[lo:lo + P]              # views indexed from 0, as in packet._packet
     for k in range(P):
         outp[k] = I[PRIM + k]
     if out_t.shape[0] > 0:
@@ -443,7 +443,7 @@ def trace_grid_range(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D
     The packet code is inline here, called once per batch range, so a packet costs no call
     (the arrays passed to a call are copied field by field). Scratch: ``mailbox``
     (GRID_MAILBOX,) int64 for single rays; ``F``/``I``/``M``/``M64`` as in
-    ``packet.trace_packet``, ``W`` (NWF,) float64, ``S`` (NWS,) int64, ``MORE`` (P,) uint8 and
+    ``packet._packet``, ``W`` (NWF,) float64, ``S`` (NWS,) int64, ``MORE`` (P,) uint8 and
     ``MORE64`` its uint64 view, ``box`` (GRID_PACKET_MAILBOX,) int64 for packets."""
     zero = one - one
     n = O.shape[0]
