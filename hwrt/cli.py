@@ -30,6 +30,7 @@ VERIFY_KIND = "random"
 EXIT_BAD_INPUT = 2
 EXIT_SIGINT = 128 + signal.SIGINT
 EXIT_SIGTERM = 128 + signal.SIGTERM
+DEBUG_ENV = "HWRT_DEBUG"           # set: an internal error is re-raised with its traceback
 
 
 def _emit(args, result, human):
@@ -717,7 +718,7 @@ def main(argv=None):
         return EXIT_SIGINT
     except Exception as e:  # anything else is our fault, not the input's
         print(f"hwrt: internal error: {type(e).__name__}: {e}", file=sys.stderr)
-        if os.environ.get("HWRT_DEBUG"):
+        if os.environ.get(DEBUG_ENV):
             raise
         return 1
     finally:

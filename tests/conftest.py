@@ -23,8 +23,10 @@ def rng():
 # (progress bars on stderr, a remote scheduler, re-raised internal errors): each test starts
 # without them and sets what it needs itself. HWRT_THREADING is read at import and stays.
 def _user_settings():
+    from hwrt.cli import DEBUG_ENV
     from hwrt.cluster import CELL_THREADS_ENV, SCHEDULER_ENV
-    return ("HWRT_PROGRESS", SCHEDULER_ENV, CELL_THREADS_ENV, "HWRT_DEBUG")
+    from hwrt.progress import PROGRESS_ENV
+    return (PROGRESS_ENV, SCHEDULER_ENV, CELL_THREADS_ENV, DEBUG_ENV)
 
 
 @pytest.fixture(autouse=True)

@@ -9,6 +9,7 @@ import trimesh
 
 from hwrt.cli import main
 from raytracer.render import ACCELS
+from hwrt.progress import PROGRESS_ENV
 
 OTHERS = [a for a in ACCELS if a != "bvh"]
 
@@ -147,7 +148,7 @@ def test_animate_rebuilds_the_structure_every_frame(accel, tmp_path, capsys):
 def test_animate_strategies_other_than_rebuild_are_for_the_bvh(strategy, progress, tmp_path,
                                                                 capsys, monkeypatch):
     # with the progress bar asked for, no bar comes before the error: it starts with the work
-    monkeypatch.setenv("HWRT_PROGRESS", progress)
+    monkeypatch.setenv(PROGRESS_ENV, progress)
     rc, out, err = _cli(capsys, "animate", "cloth", "--accel", OTHERS[0], "--strategy", strategy,
                         "-o", tmp_path / "o")
     assert rc == 2 and out == "" and len(err.strip().splitlines()) == 1

@@ -16,6 +16,7 @@ import pytest
 
 from hwbvh.errors import InputError, ParameterError
 from hwrt.cli import main, make_parser
+from hwrt.progress import PROGRESS_ENV
 
 ROOT = Path(__file__).resolve().parents[1]
 TETRA_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
@@ -503,7 +504,7 @@ def test_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, receiver)
 
 def test_sigterm_during_a_render_leaves_nothing(tmp_path):
     out = tmp_path / "x.exr"
-    env = dict(os.environ, HWRT_PROGRESS="1")
+    env = dict(os.environ, **{PROGRESS_ENV: "1"})
     p = subprocess.Popen([sys.executable, "-m", "hwrt.cli", "render", "cornell", "-o", str(out),
                           "--width", "64", "--height", "48", "--spp", "4096", "--png"],
                          stderr=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
