@@ -30,7 +30,6 @@ images agree with that reference to float rounding.
 import numpy as np
 from numba import njit
 
-from traversal.camera import tile_rows
 from traversal.offset import offset_from_unit
 from .config import BLOCK
 
@@ -84,8 +83,8 @@ def camera_terms(width, height, half, cell_x, cell_y, grid_x, grid_y):
 def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, cu, cv, cw,
                          D, pix, Ot, Dt):
     """Camera rays of one sample pass for image rows y0..y1 (y0 a multiple of ``tile``), in
-    ``tile`` x ``tile`` pixel tiles (``traversal.camera.tile_rows``: the slots y0 * width
-    onward of ``tile_order``), slot k from 0. A pixel is placed by ``terms`` (``camera_terms``) with
+    ``tile`` x ``tile`` pixel tiles (``traversal.camera.tile_order``, whose slots y0 * width
+    onward these are): slot k from 0. A pixel is placed by ``terms`` (``camera_terms``) with
     its uniform offsets jit_x/jit_y (pixel p at p - y0 * width) when ``jitter``. Camera
     basis (cu, cv, cw). Writes D, pix and the tracer's copies Ot, Dt; ``shade`` takes the
     origin (the eye) and the weight (1) of camera rays as given, so O and wgt are not
@@ -95,30 +94,33 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
     ey = np.float32(eye[1])
     ez = np.float32(eye[2])
     base = y0 * width
-    tile_rows(y0, y1, width, tile, pix)
-    for k in range((y1 - y0) * width):
-        p = pix[k]
-        y = p // width
-        x = p - y * width
-        if jitter:
-            px = np.float64(x) + (off_x + jit_x[p - base]) * inv_gx
-            py = np.float64(y) + (off_y + jit_y[p - base]) * inv_gy
-        else:
-            px = np.float64(x) + 0.5
-            py = np.float64(y) + 0.5
-        sx = px * kx - bx
-        sy = by - py * ky
-        dx = sx * cu[0] + sy * cv[0] + cw[0]
-        dy = sx * cu[1] + sy * cv[1] + cw[1]
-        dz = sx * cu[2] + sy * cv[2] + cw[2]
-        inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-        dx *= inv
-        dy *= inv
-        dz *= inv
-        _put_origin_dir(Ot, Dt, k, ex, ey, ez, dx, dy, dz)
-        D[k, 0] = dx                    # O and wgt are implied (eye, 1)
-        D[k, 1] = dy
-        D[k, 2] = dz
+    k = 0
+    for ty in range(y0, y1, tile):
+        for tx in range(0, width, tile):
+            for y in range(ty, min(ty + tile, y1)):
+                for x in range(tx, min(tx + tile, width)):
+                    p = y * width + x
+                    if jitter:
+                        px = np.float64(x) + (off_x + jit_x[p - base]) * inv_gx
+                        py = np.float64(y) + (off_y + jit_y[p - base]) * inv_gy
+                    else:
+                        px = np.float64(x) + 0.5
+                        py = np.float64(y) + 0.5
+                    sx = px * kx - bx
+                    sy = by - py * ky
+                    dx = sx * cu[0] + sy * cv[0] + cw[0]
+                    dy = sx * cu[1] + sy * cv[1] + cw[1]
+                    dz = sx * cu[2] + sy * cv[2] + cw[2]
+                    inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+                    dx *= inv
+                    dy *= inv
+                    dz *= inv
+                    _put_origin_dir(Ot, Dt, k, ex, ey, ez, dx, dy, dz)
+                    D[k, 0] = dx                    # O and wgt are implied (eye, 1)
+                    D[k, 1] = dy
+                    D[k, 2] = dz
+                    pix[k] = p
+                    k += 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

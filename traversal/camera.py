@@ -45,18 +45,16 @@ def tile_order(width, height, tile=TILE):
     renderer issues its camera rays in this order so that 16 consecutive rays are a 4x4 block
     of neighbours, which the packet traversal needs (``traversal.packet``)."""
     out = np.empty(width * height, np.int64)
-    tile_rows(0, height, width, tile, out)
+    _tile_order(width, height, tile, out)
     return out
 
 
-@njit(cache=True, nogil=True)
-def tile_rows(y0, y1, width, tile, out):
-    """The tile order of image rows y0..y1 into out[:(y1 - y0) * width]: slots y0 * width
-    onward of ``tile_order`` when y0 is a multiple of ``tile`` (a renderer's band of rows)."""
+@njit(cache=True)
+def _tile_order(width, height, tile, out):
     k = 0
-    for ty in range(y0, y1, tile):
+    for ty in range(0, height, tile):
         for tx in range(0, width, tile):
-            for y in range(ty, min(ty + tile, y1)):
+            for y in range(ty, min(ty + tile, height)):
                 for x in range(tx, min(tx + tile, width)):
                     out[k] = y * width + x
                     k += 1
