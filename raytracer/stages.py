@@ -88,7 +88,10 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
     its uniform offsets jit_x/jit_y (pixel p at p - y0 * width) when ``jitter``. Camera
     basis (cu, cv, cw). Writes D, pix and the tracer's copies Ot, Dt; ``shade`` takes the
     origin (the eye) and the weight (1) of camera rays as given, so O and wgt are not
-    written."""
+    written.
+
+    The tile loops are written out here, not read from the tile order: placing pixels from a
+    list of indices made this stage 20-30% slower. A test keeps the two orders in step."""
     off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
     ex = np.float32(eye[0])
     ey = np.float32(eye[1])
