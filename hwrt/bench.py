@@ -238,8 +238,9 @@ def warm_up_accel(accel):
 
 def structure_figures(tracer, n_tris):
     """{memory_bytes, references_per_triangle} of the structure behind ``tracer``: what the
-    structure reports (``stats()``), or for our BVH its nodes, 24-bit index list and
-    preprocessed triangles (the same parts the grid counts: cells, references, triangles)."""
+    structure reports (``stats()``), or for our BVH its nodes, 24-bit index list,
+    preprocessed triangles and their row map (the same parts the grid counts: cells,
+    references, triangles)."""
     stats = getattr(tracer, "stats", None)
     if callable(stats):
         s = stats()
@@ -247,7 +248,8 @@ def structure_figures(tracer, n_tris):
     from hwbvh.config import INDEX_PAD
     from hwbvh.format import unpack_indices
     refs = int(np.count_nonzero(unpack_indices(tracer.index_bytes) != INDEX_PAD))
-    return {"memory_bytes": int(tracer.nodes.nbytes + tracer.index_bytes.nbytes + tracer.tris.nbytes),
+    return {"memory_bytes": int(tracer.nodes.nbytes + tracer.index_bytes.nbytes + tracer.tris.nbytes
+                                + tracer.row_of.nbytes),
             "references_per_triangle": refs / max(n_tris, 1)}
 
 

@@ -624,7 +624,8 @@ def test_an_empty_range_of_chunks_writes_nothing():
     none = np.zeros(0, np.float32)
     sentinel = np.full(8, -7, np.int64)
     overflow, traced = sentinel[2:2], sentinel[5:5]
-    trace_chunks(0, 0, tracer._u1, tracer._f1, tracer.index_bytes, tracer._tris1, tracer.raw,
+    trace_chunks(0, 0, tracer._u1, tracer._f1, tracer.index_bytes, tracer._tris1, tracer.row_of,
+                 tracer.raw,
                  none3, none3, none3.reshape(-1), none3.reshape(-1), none, none, tracer.eps2,
                  tracer.one, tracer.widen, tracer.edge, tracer.depth, False, True,
                  np.zeros(0, np.int32), none, none, none, none3, np.zeros((0, 2), np.int64),
@@ -632,3 +633,21 @@ def test_an_empty_range_of_chunks_writes_nothing():
     assert (sentinel == -7).all()
     h = tracer.intersect(none3, none3)
     assert len(h.prim) == 0 and tracer.occluded(none3, none3).shape == (0,)
+
+
+def test_prefetch_is_a_hint_that_never_faults():
+    """The traversal's prefetch compiles to a prefetch instruction, and an address far outside
+    the array (a leaf's row read as a node, say) is harmless."""
+    from numba import njit
+
+    from traversal.prefetch import prefetch
+
+    @njit
+    def touch(a, far):
+        prefetch(a, far)
+        prefetch(a, -far)
+        return a[0]
+
+    a = np.arange(4.0)
+    assert touch(a, 10 ** 12) == 0.0
+    assert "prefetch" in touch.inspect_asm(touch.signatures[0])

@@ -177,7 +177,7 @@ def run_packet_mt(rows, O, D, tmin, tmax, eps2, one, edge, anyhit):
             direct[i, 2] = r[3]
             for q in range(P):
                 M[MASK + q] = 1 if q == k else 0
-            _triangle(flat, i, F, I, M, 0, eps2, one, edge, anyhit)
+            _triangle(flat, i, i, F, I, M, 0, eps2, one, edge, anyhit)
             loop_ok[i] = I[PRIM + k] == i
             loop[i, 0] = F[BEST + k]
             loop[i, 1] = F[BU + k]

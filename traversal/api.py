@@ -174,8 +174,13 @@ class Tracer(PacketCount):
         self._u1 = self.u.reshape(-1)
         self._f1 = self.f.reshape(-1)
         self.index_bytes = np.frombuffer(pack_indices(bvh.indices), dtype=np.uint8)
-        self.tris = preprocess(tris, self.dtype)
+        # the triangle rows in index-list order, so that a leaf's rows lie side by side;
+        # row_of[j]: primitive j's row (for the normals of hits)
+        order = np.asarray(bvh.indices, np.int64)
+        self.tris = preprocess(np.asarray(tris)[order], self.dtype)
         self._tris1 = self.tris.reshape(-1)
+        self.row_of = np.empty(len(order), np.int32)
+        self.row_of[order] = np.arange(len(order))
         # the watertight test (accuracy study) needs the original vertices, not v0 + e1
         self.watertight = bool(watertight)
         self.raw = np.ascontiguousarray(np.asarray(tris, self.dtype).reshape(len(tris), 9)) \
@@ -200,7 +205,7 @@ class Tracer(PacketCount):
         over = np.zeros(nchunks, np.int64)
         traced = np.zeros(nchunks, np.int64)
         run_ranges(trace_chunks, nchunks, self._u1, self._f1, self.index_bytes, self._tris1,
-                   self.raw, o, d, o.reshape(-1), d.reshape(-1), lo, hi, self.eps2, self.one,
+                   self.row_of, self.raw, o, d, o.reshape(-1), d.reshape(-1), lo, hi, self.eps2, self.one,
                    self.widen, self.edge, self.depth, anyhit, self.packets and (as_run or not counters) and self.raw is None, prim, t, u, v, ng,
                    cnt, over, traced)
         self._count_packets(traced)

@@ -44,7 +44,8 @@ from .config import (CHUNK_RAYS, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
 from .packet import (ALIVE, BEST, BU, BV, DX, DY, DZ, MASK, NF, NI, NM, OX, OY, OZ, P, PRIM,
                      TMIN, _triangle, load_lane, row_bits)
 from .rawtree import _ray_ok
-from .triangle_unit import (TRI_WORDS, mt_valid_at, store_answer, store_normals)
+from .triangle_unit import (PRIMITIVE_ORDER, TRI_WORDS, mt_valid_at, store_answer,
+                            store_normals)
 
 
 def density_resolution(extent, n_tris, density=GRID_DENSITY, max_cells=GRID_MAX_CELLS):
@@ -494,7 +495,7 @@ def trace_grid_range(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D
                                     slot = j & (GRID_PACKET_MAILBOX - 1)
                                     if box[slot] != j:
                                         box[slot] = j
-                                        _triangle(tris, j, F, I, M, 0, eps2, one, edge, anyhit)
+                                        _triangle(tris, j, j, F, I, M, 0, eps2, one, edge, anyhit)
                         if anyhit and row_bits(M64, ALIVE) == 0:
                             break                           # every lane has found a blocker
                     if not more:
@@ -527,7 +528,8 @@ def grid_chunks(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D, tmi
     trace_grid_range(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D, tmin, tmax,
                      eps2, one, edge, anyhit, packets, mailbox, F, I, M, M64, W, S, MORE, MORE64,
                      box, out_prim, out_t, out_u, out_v, packets_traced)
-    store_normals(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), tris, out_prim, out_ng, one)
+    store_normals(c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), tris, PRIMITIVE_ORDER, out_prim,
+                  out_ng, one)
 
 
 class GridTracer(TriangleStructure, PacketCount):

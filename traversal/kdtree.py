@@ -60,8 +60,8 @@ from .config import (CHUNK_RAYS, PACKET_RAYS, KD_COST_INTERSECT, KD_COST_TRAVERS
                      KD_PAD_TRI, KD_PARALLEL_DEPTH, KD_PARALLEL_MIN_TRIS, KD_T_SLACK)
 from .grid import _slab
 from .packet import coherent
-from .triangle_unit import (TRI_E1, TRI_E2, TRI_NORMS, TRI_SCALE, TRI_V0, TRI_WORDS, mt_datapath,
-                            ray_band_terms, store_answer, store_normals)
+from .triangle_unit import (PRIMITIVE_ORDER, TRI_E1, TRI_E2, TRI_NORMS, TRI_SCALE, TRI_V0,
+                            TRI_WORDS, mt_datapath, ray_band_terms, store_answer, store_normals)
 
 LEAF = 3               # the axis field of a leaf node
 EVENT_END = 0          # event types, in their order at equal positions (WH06)
@@ -794,7 +794,7 @@ def kd_chunks(c0, c1, tris, nodes, nodes_f, refs, box, stack_size, O, D, tmin, t
     hi = min(n, c1 * CHUNK_RAYS)
     _kd_range(lo, hi, tris, nodes, nodes_f, refs, box, O, D, tmin, tmax, eps2, one, edge, anyhit,
               st_node, st_near, st_far, out_prim, out_t, out_u, out_v)
-    store_normals(lo, hi, tris, out_prim, out_ng, one)
+    store_normals(lo, hi, tris, PRIMITIVE_ORDER, out_prim, out_ng, one)
 
 
 class KdTreeTracer(TriangleStructure):

@@ -110,10 +110,11 @@ def _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale, lo, hi,
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _triangle(tris, j, F, I, M, bit, eps2, one, edge, anyhit):
-    """Triangle j against the live lanes with bit ``bit`` set in M[MASK]. Updates their closest
-    hits; for any-hit queries a lane that hits retires (M[ALIVE] = 0)."""
-    b = TRI_WORDS * j
+def _triangle(tris, row, j, F, I, M, bit, eps2, one, edge, anyhit):
+    """Triangle j (row ``row`` of ``tris``) against the live lanes with bit ``bit`` set in
+    M[MASK]. Updates their closest hits; for any-hit queries a lane that hits retires
+    (M[ALIVE] = 0)."""
+    b = TRI_WORDS * row
     v0x = tris[b + TRI_V0]; v0y = tris[b + TRI_V0 + 1]; v0z = tris[b + TRI_V0 + 2]
     e1x = tris[b + TRI_E1]; e1y = tris[b + TRI_E1 + 1]; e1z = tris[b + TRI_E1 + 2]
     e2x = tris[b + TRI_E2]; e2y = tris[b + TRI_E2 + 1]; e2z = tris[b + TRI_E2 + 2]
@@ -298,7 +299,8 @@ def _packet(u, f, ib, tris, O, D, tmin_in, tmax_in, eps2, one, widen, edge, lo, 
                     first = np.int64(u[base + WORD_A])
                     tested += np.int64(u[base + WORD_B])
                     for p in range(first, first + np.int64(u[base + WORD_B])):
-                        _triangle(tris, read_index(ib, p), F, I, M, bit, eps2, one, edge, anyhit)
+                        _triangle(tris, p, read_index(ib, p), F, I, M, bit, eps2, one, edge,
+                                  anyhit)
                     if anyhit and row_bits(M64, ALIVE) == 0:
                         break                   # every lane has found a blocker
                 node = -1

@@ -10,6 +10,12 @@ against the closest hit when popped. The stack is sized from the tree's depth, s
 overflow on a valid tree; if it would (a corrupted tree), the batch raises instead of
 answering wrongly. Exact-t ties between triangles go to the lower primitive index, so the
 answer does not depend on the visiting order.
+
+Triangles are read in index-list order (row p for list position p), so a leaf's triangles lie
+side by side. An incoherent ray waits on memory at every step (the nodes and triangles of a
+large mesh are far beyond the caches), so at an internal node the traversal asks for the
+children's children and the first triangle rows of leaf children to be fetched while it tests
+the two boxes: 1.3x the incoherent throughput on the 202k-triangle dragon.
 """
 import numpy as np
 from numba import njit
@@ -19,8 +25,21 @@ from hwbvh.format import WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, WORDS_PER_NODE
 from .aabb_unit import aabb_hit_at, near_far_planes
 from .config import CHUNK_RAYS
 from .packet import NF, NI, NM, P, coherent, trace_packets
+from .prefetch import prefetch
 from .rawtree import read_index, _ray_ok
 from .triangle_unit import TRI_WORDS, mt_valid_at, store_answer, store_normals, wt_hit_ray
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _prefetch_below(u, tris, rec):
+    """Ask for what a visit of the node at word ``rec`` reads next: the records of its
+    children if it is internal, its first triangle rows if it is a leaf. All three requests
+    go out whatever the node is (a prefetch never faults): choosing by the leaf flag
+    measured no faster."""
+    a = np.int64(u[rec + WORD_A])
+    prefetch(u, WORDS_PER_NODE * a)
+    prefetch(u, WORDS_PER_NODE * np.int64(u[rec + WORD_B]))
+    prefetch(tris, TRI_WORDS * a)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -28,7 +47,8 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
               widen, edge, stack, stack_t, anyhit):
     """One ray. ``u``/``f`` are the node buffer seen as flat uint32/float32 words (the raw bytes,
     WORDS_PER_NODE words per node), ``tris`` the flattened preprocessed triangles. Returns
-    (prim, t, bu, bv, nodes_visited, tris_tested, overflow). ``raw`` = None selects the
+    (prim, t, bu, bv, nodes_visited, tris_tested, overflow). ``tris``: one row per index-list
+    position (``Tracer.tris``). ``raw`` = None selects the
     Moller-Trumbore unit; an (n, 9) vertex array selects the Woop et al. watertight test on it
     (accuracy study). The choice is made at compile time (Numba prunes the ``raw is None``
     branch), so the hardware path carries no code of the other test."""
@@ -62,7 +82,7 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
                 if raw is not None:
                     ok, t, tu, tv = wt_hit_ray(raw, j, ox, oy, oz, dx, dy, dz, one, tmin, best_t)
                 else:
-                    ok, t, tu, tv = mt_valid_at(tris, TRI_WORDS * j, ox, oy, oz, dx, dy, dz, dd, tmin,
+                    ok, t, tu, tv = mt_valid_at(tris, TRI_WORDS * p, ox, oy, oz, dx, dy, dz, dd, tmin,
                                                 best_t, eps2, one, edge)
                 # accept a nearer hit, or an exact-t tie with a lower primitive index; as
                 # selects, not branches (the outcome is unpredictable for random rays)
@@ -78,6 +98,8 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
             # -- internal: both children through the AABB unit --
             l = np.int64(u[base + WORD_A])
             r = np.int64(u[base + WORD_B])
+            _prefetch_below(u, tris, WORDS_PER_NODE * l)
+            _prefetch_below(u, tris, WORDS_PER_NODE * r)
             hl, tl = aabb_hit_at(f, WORDS_PER_NODE * l + WORD_BOX, ox, oy, oz, ix, iy, iz, kx, ky, kz,
                                  tmin, best_t, widen)
             hr, tr = aabb_hit_at(f, WORDS_PER_NODE * r + WORD_BOX, ox, oy, oz, ix, iy, iz, kx, ky, kz,
@@ -110,9 +132,9 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
-def _trace_range(u, f, ib, tris, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen, edge,
-                 lo, hi, anyhit, packets, stack, stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v,
-                 out_ng, counters):
+def _trace_range(u, f, ib, tris, row_of, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen,
+                 edge, lo, hi, anyhit, packets, stack, stack_t, F, I, M, M64, out_prim, out_t,
+                 out_u, out_v, out_ng, counters):
     """Rays [lo, hi) in a plain (non-parfor) function, so LLVM optimises the loop fully.
     With ``packets``, each full group of P consecutive rays that share a direction octant goes
     through the packet kernel (same answers, SIMD box and triangle tests); other groups go
@@ -145,19 +167,20 @@ def _trace_range(u, f, ib, tris, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen
                 counters[i, 0] = nv
                 counters[i, 1] = nt
         a = b
-    store_normals(lo, hi, tris, out_prim, out_ng, one)
+    store_normals(lo, hi, tris, row_of, out_prim, out_ng, one)
     return over, npk
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def trace_chunks(c0, c1, u, f, ib, tris, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen, edge,
-                 depth, anyhit, packets, out_prim, out_t, out_u, out_v, out_ng, counters,
-                 overflow, packets_traced):
+def trace_chunks(c0, c1, u, f, ib, tris, row_of, raw, O, D, Of, Df, tmin, tmax, eps2, one,
+                 widen, edge, depth, anyhit, packets, out_prim, out_t, out_u, out_v, out_ng,
+                 counters, overflow, packets_traced):
     """Chunks c0..c1 of CHUNK_RAYS rays each (the last may be short), traced as one range with
     one stack and one packet scratch; ``Of``/``Df`` are ``O``/``D`` seen flat (3n,), as the
     packet kernel reads them (a reshape in compiled code would compile its error path: seconds
     of a first run); ``hwbvh.parallel.run_ranges`` hands the chunk ranges out to its threads.
-    ``out_t``, ``out_u``, ``out_v`` are (n,) or, when only ``out_prim`` is wanted, (0,);
+    ``tris``: the triangle rows in index-list order, ``row_of``: each primitive's row (for
+    ``out_ng``). ``out_t``, ``out_u``, ``out_v`` are (n,) or, when only ``out_prim`` is wanted, (0,);
     ``out_ng`` is (n, 3) for geometric normals or (0, 3); ``counters`` is (n, 2) int (nodes
     visited, triangles tested) or (0, 2). ``overflow[c0]`` gets the range's rays whose stack
     would have overflowed (0 on a valid tree) and ``packets_traced[c0]`` its packets; the
@@ -175,7 +198,7 @@ def trace_chunks(c0, c1, u, f, ib, tris, raw, O, D, Of, Df, tmin, tmax, eps2, on
     I = np.empty(NI, dtype=np.int32)
     M = np.zeros(NM, dtype=np.uint8)
     M64 = M.view(np.uint64)
-    o_, p_ = _trace_range(u, f, ib, tris, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen, edge,
+    o_, p_ = _trace_range(u, f, ib, tris, row_of, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen, edge,
                           c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), anyhit, packets, stack,
                           stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v, out_ng, counters)
     overflow[c0] = o_

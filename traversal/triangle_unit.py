@@ -38,6 +38,9 @@ TRI_NORMS = 9         # |e1|^2 |e2|^2 c_T^2, the scale of the parallel band (in 
 TRI_SCALE = 10        # c_T, the power of two that brings det to that scale
 TRI_WORDS = 11
 
+# ``store_normals``' row map for rows kept in primitive order (an empty map: row j is primitive j)
+PRIMITIVE_ORDER = np.zeros(0, np.int64)
+
 
 def _half_exponent(x):
     """h with x * 4^-h in [0.5, 2) (x > 0 finite; 0 for 0 and non-finite x), from float64 x."""
@@ -183,18 +186,20 @@ def store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v):
 
 
 @njit(cache=True, error_model="numpy")
-def store_normals(lo, hi, tris, out_prim, out_ng, one):
+def store_normals(lo, hi, tris, row_of, out_prim, out_ng, one):
     """Unnormalised geometric normals e1 x e2 of the hit triangles of rays lo..hi (0 for a
-    miss), from the preprocessed rows; nothing when ``out_ng`` is empty."""
+    miss), from the preprocessed rows: primitive j's at row ``row_of[j]``, or at row j when
+    ``row_of`` is empty; nothing when ``out_ng`` is empty."""
     if out_ng.shape[0] == 0:
         return
+    mapped = row_of.shape[0] > 0
     for i in range(lo, hi):
         gx = one - one
         gy = gx
         gz = gx
         prim = out_prim[i]
         if prim >= 0:
-            b = TRI_WORDS * np.int64(prim)
+            b = TRI_WORDS * (np.int64(row_of[prim]) if mapped else np.int64(prim))
             e1 = b + TRI_E1
             e2 = b + TRI_E2
             gx = tris[e1 + 1] * tris[e2 + 2] - tris[e1 + 2] * tris[e2 + 1]
