@@ -239,8 +239,8 @@ def warm_up_accel(accel):
 def structure_figures(tracer, n_tris):
     """{memory_bytes, references_per_triangle} of the structure behind ``tracer``: what the
     structure reports (``stats()``), or for our BVH its nodes, 24-bit index list,
-    preprocessed triangles and their row map (the same parts the grid counts: cells,
-    references, triangles)."""
+    preprocessed triangles and their row map (what the grid counts is its cells, references
+    and triangles)."""
     stats = getattr(tracer, "stats", None)
     if callable(stats):
         s = stats()

@@ -380,7 +380,8 @@ def _tti_markdown(rows, summary, W, H, spp, depth):
     lines = [f"Time to image (build + render), Whitted {W}x{H}, {spp} spp, depth {depth}.\n",
              "Medians of the repeated runs; the render spread is min-max over them.\n",
              "Memory: the structure's nodes or cells, its triangle references and preprocessed "
-             "triangles (our traversal only); refs/tri: references per triangle.\n",
+             "triangles (with the BVH's map from primitive to triangle row; our traversal "
+             "only); refs/tri: references per triangle.\n",
              "| scene | path | build s | render s (spread) | total s | rays | SAH | memory MiB "
              "| refs/tri | verify |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]

@@ -8,8 +8,8 @@ import pytest
 import trimesh
 
 from hwrt.cli import main
-from raytracer.render import ACCELS
 from hwrt.progress import PROGRESS_ENV
+from raytracer.render import ACCELS
 
 OTHERS = [a for a in ACCELS if a != "bvh"]
 

@@ -636,11 +636,13 @@ def test_an_empty_range_of_chunks_writes_nothing():
 
 
 def test_prefetch_is_a_hint_that_never_faults():
-    """The traversal's prefetch compiles to a prefetch instruction, and an address far outside
-    the array (a leaf's row read as a node, say) is harmless."""
+    """The traversal's prefetch compiles to LLVM's prefetch, and an address far outside the
+    array (a leaf's row read as a node, say) is harmless; the traversal's own request for what
+    a node visit reads next is three of them."""
     from numba import njit
 
     from traversal.prefetch import prefetch
+    from traversal.traverse import _prefetch_below
 
     @njit
     def touch(a, far):
@@ -650,4 +652,21 @@ def test_prefetch_is_a_hint_that_never_faults():
 
     a = np.arange(4.0)
     assert touch(a, 10 ** 12) == 0.0
-    assert "prefetch" in touch.inspect_asm(touch.signatures[0])
+    assert touch.inspect_llvm(touch.signatures[0]).count("call void @llvm.prefetch") == 2
+
+    @njit
+    def below(u, tris, rec):
+        _prefetch_below(u, tris, rec)
+
+    tracer = Tracer(hwbvh.build(random_soup(50, seed=1)))
+    below(tracer._u1, tracer._tris1, 0)
+    assert below.inspect_llvm(below.signatures[0]).count("call void @llvm.prefetch") == 3
+
+
+def test_a_tree_whose_index_list_misses_a_triangle_is_refused():
+    tris = random_soup(50, seed=1)
+    bvh = hwbvh.build(tris)
+    bvh.indices = bvh.indices.copy()
+    bvh.indices[3] = bvh.indices[4]                 # one triangle twice, another never
+    with pytest.raises(ValueError, match="bvh.indices"):
+        Tracer(bvh)

@@ -177,10 +177,13 @@ class Tracer(PacketCount):
         # the triangle rows in index-list order, so that a leaf's rows lie side by side;
         # row_of[j]: primitive j's row (for the normals of hits)
         order = np.asarray(bvh.indices, np.int64)
+        self.row_of = np.full(len(tris), -1, np.int32)
+        if len(order) == len(tris) and len(order) and 0 <= order.min() and order.max() < len(tris):
+            self.row_of[order] = np.arange(len(order))
+        if len(order) != len(tris) or (self.row_of < 0).any():
+            raise ValueError(f"bvh.indices must list each of the {len(tris)} triangles once")
         self.tris = preprocess(np.asarray(tris)[order], self.dtype)
         self._tris1 = self.tris.reshape(-1)
-        self.row_of = np.empty(len(order), np.int32)
-        self.row_of[order] = np.arange(len(order))
         # the watertight test (accuracy study) needs the original vertices, not v0 + e1
         self.watertight = bool(watertight)
         self.raw = np.ascontiguousarray(np.asarray(tris, self.dtype).reshape(len(tris), 9)) \

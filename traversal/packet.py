@@ -10,9 +10,9 @@ P lanes in one branch-free loop, which LLVM's loop vectoriser turns into SIMD co
 AVX-512, as the CPU offers). Scalar Numba has no other route to SIMD.
 
 A packet visits the union of its lanes' nodes, so it pays only when the rays are coherent.
-``traverse.trace_chunks`` sends P consecutive rays through here when they share a direction octant
-(primary rays of a camera, shadow rays toward a light, a mirror's reflections); any other group
-goes ray by ray.
+``traverse._trace_range`` sends each run of consecutive groups of P rays that each share a
+direction octant (primary rays of a camera, shadow rays toward a light, a mirror's reflections)
+here in one call; any other group goes ray by ray.
 """
 import math
 

@@ -2,15 +2,15 @@
 which memory they will read next."""
 from llvmlite import ir
 from numba import types
-from numba.core import cgutils
 from numba.extending import intrinsic
 
 
 @intrinsic
 def prefetch(typingctx, arr, idx):
-    """Ask for the cache line of ``arr[idx]`` (1-D array) to be fetched; a hint only, never
-    a fault, whatever the index."""
-    if not isinstance(arr, types.Array) or not isinstance(idx, types.Integer):
+    """Ask for the cache line of ``arr[idx]`` (a 1-D C-contiguous array) to be fetched
+    (read, kept in every cache level); a hint only, never a fault, whatever the index."""
+    if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.layout == "C"
+            and isinstance(idx, types.Integer)):
         return None
 
     def codegen(context, builder, sig, args):
@@ -18,8 +18,8 @@ def prefetch(typingctx, arr, idx):
         ptr = builder.gep(ary.data, [args[1]])
         i8p = ir.IntType(8).as_pointer()
         i32 = ir.IntType(32)
-        fn = cgutils.get_or_insert_function(
-            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), "llvm.prefetch.p0")
+        fn = builder.module.declare_intrinsic(
+            "llvm.prefetch", [i8p], ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]))
         builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3),
                           ir.Constant(i32, 1)])
         return context.get_dummy_value()

@@ -46,10 +46,9 @@ def _prefetch_below(u, tris, rec):
 def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one,
               widen, edge, stack, stack_t, anyhit):
     """One ray. ``u``/``f`` are the node buffer seen as flat uint32/float32 words (the raw bytes,
-    WORDS_PER_NODE words per node), ``tris`` the flattened preprocessed triangles. Returns
-    (prim, t, bu, bv, nodes_visited, tris_tested, overflow). ``tris``: one row per index-list
-    position (``Tracer.tris``). ``raw`` = None selects the
-    Moller-Trumbore unit; an (n, 9) vertex array selects the Woop et al. watertight test on it
+    WORDS_PER_NODE words per node), ``tris`` the flattened preprocessed triangles, one row per
+    index-list position (``Tracer.tris``). Returns (prim, t, bu, bv, nodes_visited,
+    tris_tested, overflow). ``raw`` = None selects the Moller-Trumbore unit; an (n, 9) vertex array selects the Woop et al. watertight test on it
     (accuracy study). The choice is made at compile time (Numba prunes the ``raw is None``
     branch), so the hardware path carries no code of the other test."""
     best_t = tmax
@@ -137,8 +136,9 @@ def _trace_range(u, f, ib, tris, row_of, raw, O, D, Of, Df, tmin, tmax, eps2, on
                  out_u, out_v, out_ng, counters):
     """Rays [lo, hi) in a plain (non-parfor) function, so LLVM optimises the loop fully.
     With ``packets``, each full group of P consecutive rays that share a direction octant goes
-    through the packet kernel (same answers, SIMD box and triangle tests); other groups go
-    ray by ray. Returns (rays whose stack would have overflowed, packets traced)."""
+    through the packet kernel (same answers, SIMD box and triangle tests), a run of such groups
+    in one call (``packet.trace_packets``); other groups go ray by ray. Returns (rays whose
+    stack would have overflowed, packets traced)."""
     count = counters.shape[0] > 0
     over = 0
     npk = 0

@@ -39,7 +39,7 @@ TRI_SCALE = 10        # c_T, the power of two that brings det to that scale
 TRI_WORDS = 11
 
 # ``store_normals``' row map for rows kept in primitive order (an empty map: row j is primitive j)
-PRIMITIVE_ORDER = np.zeros(0, np.int64)
+PRIMITIVE_ORDER = np.zeros(0, np.int32)
 
 
 def _half_exponent(x):
@@ -161,7 +161,7 @@ def mt_datapath(v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale, ox, o
 @njit(cache=True, error_model="numpy", inline="always")
 def mt_valid_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge):
     """Triangle row ``tris[b:b + TRI_WORDS]`` of the flattened preprocessed array
-    (``b = TRI_WORDS * j``) against one ray through ``mt_datapath``. Returns (valid, t, u, v).
+    (``b = TRI_WORDS * row``) against one ray through ``mt_datapath``. Returns (valid, t, u, v).
     ``eps2`` = (k*eps)^2; ``edge`` >= 0 widens the barycentric checks
     (``traversal.config.EDGE_EPS_F32``). ``dd``, the caller's |d|^2, is not read: the band
     takes the scaled terms of ``ray_band_terms``, which depend on the ray only, so LLVM
