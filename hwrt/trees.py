@@ -18,8 +18,8 @@ the work of the classes that hold its time, not the sum of the work.
 
 What a unit costs: per class, each query of both trees is timed alone on one thread and the
 times are fitted by non-negative least squares as node visits x a + triangle tests x b +
-rays x c + d, so a node visit, a triangle test and a ray's fixed cost get a price each. Where a and b differ,
-a tree that saves nodes saves less time than one that saves as many triangles.
+rays x c + d, so a node visit, a triangle test and a ray's fixed cost get a price each. Where
+a and b differ, a tree that saves nodes saves less time than one that saves as many triangles.
 """
 import contextlib
 import itertools
@@ -327,7 +327,8 @@ def human(r):
     for head, c in _class_rows(r):
         share = "-" if c["time_share"] is None else f"{100 * c['time_share']:.0f}%"
         unit = "-" if c["ns_per_unit"] is None else f"{c['ns_per_unit']:.2f}"
-        gap = "-" if not c["work_ratio"] else f"{100 * (c['trace_ratio'] / c['work_ratio'] - 1):+.1f}%"
+        gap = ("-" if not c["work_ratio"]
+               else f"{100 * (c['trace_ratio'] / c['work_ratio'] - 1):+.1f}%")
         lines.append(f"{head}{c['rays']:>9}{share:>10}{unit:>8}{c['work_per_ray']['hwbvh']:>12.1f}"
                      f"{c['work_per_ray']['sweep']:>7.1f}{_ratio(c['work_ratio']):>7}"
                      f"{c['trace_ratio']:>7.3f}{gap:>9}")
@@ -356,8 +357,8 @@ def human(r):
     lines.append("nodes and triangles count each ray's share as the path runs them (a packet's "
                  "rays each count the packet's tests); ratios are sweep / hwbvh; priced = the "
                  "time ratio the prices give the two trees' work, 1-thread = the time ratio as "
-                 "timed for the fit (the JSON has each tree's own prices, loose: within one tree nodes "
-                 "and triangles grow together); where terms move "
-                 "together (rays traced one by one: work in proportion to rays) the fit cannot "
-                 "part them, and a price of 0 means its term's cost went to the others")
+                 "timed for the fit (the JSON has each tree's own prices, loose: within one tree "
+                 "nodes and triangles grow together); where terms move together (rays traced "
+                 "one by one: work in proportion to rays) the fit cannot part them, and a price "
+                 "of 0 means its term's cost went to the others")
     return "\n".join(lines)

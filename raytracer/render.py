@@ -449,7 +449,8 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
         for b in range(b0, b1):
             band_stats[b] = _render_band(frame, b)
 
-    run_as_tracer_allows(tracer, bands, n_bands, parts=n_bands)   # a band each: the last ends soonest
+    # a band each: the last band ends soonest
+    run_as_tracer_allows(tracer, bands, n_bands, parts=n_bands)
     rays = {k: sum(r[k] for r, _ in band_stats) for k in RAY_KINDS}
     secs = {k: sum(t[k] for _, t in band_stats) for k in STAGES}
     stats = {"rays": rays, "passes": passes, "stage_seconds": secs}

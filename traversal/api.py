@@ -177,11 +177,13 @@ class Tracer(PacketCount):
         # the triangle rows in index-list order, so that a leaf's rows lie side by side;
         # row_of[j]: primitive j's row (for the normals of hits)
         order = np.asarray(bvh.indices, np.int64)
-        self.row_of = np.full(len(tris), -1, np.int32)
-        if len(order) == len(tris) and len(order) and 0 <= order.min() and order.max() < len(tris):
-            self.row_of[order] = np.arange(len(order))
-        if len(order) != len(tris) or (self.row_of < 0).any():
-            raise ValueError(f"bvh.indices must list each of the {len(tris)} triangles once")
+        n = len(tris)
+        self.row_of = np.full(n, -1, np.int32)
+        in_range = len(order) == n and (n == 0 or (order.min() >= 0 and order.max() < n))
+        if in_range:
+            self.row_of[order] = np.arange(n)
+        if not in_range or (self.row_of < 0).any():           # a triangle missed or repeated
+            raise ValueError(f"bvh.indices must list each of the {n} triangles once")
         self.tris = preprocess(np.asarray(tris)[order], self.dtype)
         self._tris1 = self.tris.reshape(-1)
         # the watertight test (accuracy study) needs the original vertices, not v0 + e1
@@ -207,9 +209,10 @@ class Tracer(PacketCount):
         nchunks = (n + CHUNK_RAYS - 1) // CHUNK_RAYS
         over = np.zeros(nchunks, np.int64)
         traced = np.zeros(nchunks, np.int64)
+        packets = self.packets and (as_run or not counters) and self.raw is None
         run_ranges(trace_chunks, nchunks, self._u1, self._f1, self.index_bytes, self._tris1,
-                   self.row_of, self.raw, o, d, o.reshape(-1), d.reshape(-1), lo, hi, self.eps2, self.one,
-                   self.widen, self.edge, self.depth, anyhit, self.packets and (as_run or not counters) and self.raw is None, prim, t, u, v, ng,
+                   self.row_of, self.raw, o, d, o.reshape(-1), d.reshape(-1), lo, hi, self.eps2,
+                   self.one, self.widen, self.edge, self.depth, anyhit, packets, prim, t, u, v, ng,
                    cnt, over, traced)
         self._count_packets(traced)
         if over.any():

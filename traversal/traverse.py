@@ -48,7 +48,8 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
     """One ray. ``u``/``f`` are the node buffer seen as flat uint32/float32 words (the raw bytes,
     WORDS_PER_NODE words per node), ``tris`` the flattened preprocessed triangles, one row per
     index-list position (``Tracer.tris``). Returns (prim, t, bu, bv, nodes_visited,
-    tris_tested, overflow). ``raw`` = None selects the Moller-Trumbore unit; an (n, 9) vertex array selects the Woop et al. watertight test on it
+    tris_tested, overflow). ``raw`` = None selects the Moller-Trumbore unit; an (n, 9) vertex
+    array selects the Woop et al. watertight test on it
     (accuracy study). The choice is made at compile time (Numba prunes the ``raw is None``
     branch), so the hardware path carries no code of the other test."""
     best_t = tmax
@@ -180,7 +181,8 @@ def trace_chunks(c0, c1, u, f, ib, tris, row_of, raw, O, D, Of, Df, tmin, tmax, 
     packet kernel reads them (a reshape in compiled code would compile its error path: seconds
     of a first run); ``hwbvh.parallel.run_ranges`` hands the chunk ranges out to its threads.
     ``tris``: the triangle rows in index-list order, ``row_of``: each primitive's row (for
-    ``out_ng``). ``out_t``, ``out_u``, ``out_v`` are (n,) or, when only ``out_prim`` is wanted, (0,);
+    ``out_ng``). ``out_t``, ``out_u``, ``out_v`` are (n,) or, when only ``out_prim`` is wanted,
+    (0,);
     ``out_ng`` is (n, 3) for geometric normals or (0, 3); ``counters`` is (n, 2) int (nodes
     visited, triangles tested) or (0, 2). ``overflow[c0]`` gets the range's rays whose stack
     would have overflowed (0 on a valid tree) and ``packets_traced[c0]`` its packets; the
@@ -198,8 +200,9 @@ def trace_chunks(c0, c1, u, f, ib, tris, row_of, raw, O, D, Of, Df, tmin, tmax, 
     I = np.empty(NI, dtype=np.int32)
     M = np.zeros(NM, dtype=np.uint8)
     M64 = M.view(np.uint64)
-    o_, p_ = _trace_range(u, f, ib, tris, row_of, raw, O, D, Of, Df, tmin, tmax, eps2, one, widen, edge,
-                          c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), anyhit, packets, stack,
-                          stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v, out_ng, counters)
+    o_, p_ = _trace_range(u, f, ib, tris, row_of, raw, O, D, Of, Df, tmin, tmax, eps2, one,
+                          widen, edge, c0 * CHUNK_RAYS, min(n, c1 * CHUNK_RAYS), anyhit, packets,
+                          stack, stack_t, F, I, M, M64, out_prim, out_t, out_u, out_v, out_ng,
+                          counters)
     overflow[c0] = o_
     packets_traced[c0] = p_
