@@ -1,5 +1,7 @@
 """Packet traversal (traversal.packet): the same answers, bit for bit, as the single-ray path,
 on the rays that take it (coherent groups of 16), including the hard cases."""
+import re
+
 import numpy as np
 import pytest
 
@@ -189,6 +191,34 @@ def test_packet_stack_overflow_is_an_error():
     o, d = camera_rays(tris)
     with pytest.raises(RuntimeError, match="stack overflow"):
         pk.intersect(o, d)
+
+
+def _overflowing(tracer, o, d):
+    """The rays the batch (o, d) reports as overflowing the stack, from its error (0: none)."""
+    try:
+        tracer.intersect(o, d)
+    except RuntimeError as e:
+        return int(re.search(r"overflow on (\d+) rays", str(e)).group(1))
+    return 0
+
+
+def test_packet_stack_overflow_counts_every_ray_of_every_overflowing_group():
+    """Runs of packets, incoherent groups and a partial group mixed in one batch: the count the
+    error reports is the sum over the groups traced alone (a packet overflows as a whole, its
+    P rays; a ray traced by itself counts once)."""
+    tris = scene()
+    pk, _ = pair(tris)
+    pk.depth = 4
+    o, d = camera_rays(tris, 33, 29)               # 59 full groups and one of 13 rays
+    groups = [slice(a, min(a + P, len(o))) for a in range(0, len(o), P)]
+    d = d.copy()
+    packets = [i for i, g in enumerate(groups) if _overflowing(pk, o[g], d[g]) == P]
+    for i in packets[1::4]:                        # some overflowing groups made incoherent:
+        d[P * i + 5] *= -1                         # their rays go one by one
+    alone = [_overflowing(pk, o[g], d[g]) for g in groups]
+    assert any(0 < c < P for c in alone)           # groups whose single rays overflow in part
+    assert any(c == P for c in alone)              # and packets that overflow as a whole
+    assert _overflowing(pk, o, d) == sum(alone)
 
 
 @pytest.mark.parametrize("tri_scale,dir_scale", [(1e-12, 1e20), (1e12, 1e-25), (1e12, 1.0),
