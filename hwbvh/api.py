@@ -18,6 +18,7 @@ from .errors import InputError, ParameterError
 from .files import json_text, write_files
 from .format import NODE_DTYPE, pack_indices, tree_stats, unpack_indices, validate
 from .layout import lay_out
+from .parallel import check_threading
 from .primitives import as_triangles, load_triangles, primitive_boxes
 from .sweep import build_sweep
 
@@ -74,6 +75,7 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     if builder not in BUILDERS:
         raise ParameterError("builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
     check_params(leaf_size, bins)
+    check_threading()
     for name, v in (("capacity", capacity), ("subtree_builders", subtree_builders),
                     ("block_nodes", block_nodes)):
         if not isinstance(v, (int, np.integer)) or v < 1:

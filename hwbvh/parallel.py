@@ -16,7 +16,9 @@ The set-up is pinned here, before the first parallel region starts the pool:
 * ``omp-active``: OpenMP with its default spinning, for comparison only.
 
 ``HWRT_THREADING`` selects one; an explicit ``NUMBA_THREADING_LAYER`` or ``OMP_WAIT_POLICY`` in
-the environment is left as the user set it.
+the environment is left as the user set it. A name it does not know is an input error, raised by
+the first parallel work (``check_threading``) rather than by the import, so that the command
+line reports it as it reports any bad input; meanwhile the default set-up is pinned.
 
 Kernels with many arguments, and work that is Python between kernels (a render's bands of
 rows), run through :func:`run_ranges` instead of a ``prange`` driver: compiled with
@@ -39,6 +41,8 @@ import threading
 
 import numba
 
+from .errors import InputError
+
 THREADING_SETUPS = {
     "omp-passive": ("omp", "passive"),
     "workqueue": ("workqueue", None),
@@ -50,10 +54,11 @@ DEFAULT_THREADING = "omp-passive"
 def pin_threading(setup=None):
     """Choose the threading layer and wait policy (see the module text). Returns the set-up's
     name. Effective only before the first parallel region of the process."""
+    source = "setup" if setup else "HWRT_THREADING"
     setup = setup or os.environ.get("HWRT_THREADING") or DEFAULT_THREADING
     if setup not in THREADING_SETUPS:
-        raise ValueError(f"HWRT_THREADING: unknown set-up {setup!r} "
-                         f"(choose from {', '.join(THREADING_SETUPS)})")
+        raise InputError(source, f"unknown set-up {setup!r} "
+                                 f"(choose from {', '.join(THREADING_SETUPS)})")
     layer, policy = THREADING_SETUPS[setup]
     if "NUMBA_THREADING_LAYER" not in os.environ:
         numba.config.THREADING_LAYER = layer
@@ -62,7 +67,18 @@ def pin_threading(setup=None):
     return setup
 
 
-THREADING = pin_threading()
+try:
+    THREADING = pin_threading()
+    _THREADING_PROBLEM = None
+except InputError as problem:
+    THREADING = pin_threading(DEFAULT_THREADING)
+    _THREADING_PROBLEM = problem
+
+
+def check_threading():
+    """Raise the InputError of an unknown ``HWRT_THREADING`` (see the module text)."""
+    if _THREADING_PROBLEM is not None:
+        raise _THREADING_PROBLEM
 
 RANGES_PER_THREAD = 8          # enough to rebalance around a slowed thread, few enough calls
 
@@ -118,6 +134,7 @@ def run_ranges(kernel, n, *args, min_items=1, parts=None):
     Called from inside a range (a range's work that itself asks for ranges, such as a ray
     query inside a renderer's band of rows), it runs [0, n) on the calling thread: the outer
     ranges already keep every thread busy, and a second level would only add meetings."""
+    check_threading()
     threads = numba.get_num_threads()
     parts = min(parts or threads * RANGES_PER_THREAD, max(1, n // max(1, min_items)))
     if threads == 1 or parts <= 1 or getattr(_in_range, "active", False):

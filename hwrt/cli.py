@@ -12,6 +12,7 @@ import sys
 from hwbvh import config
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.files import check_output_dir, check_outputs, json_text
+from hwbvh.parallel import check_threading
 
 from .progress import progress_bar
 
@@ -703,6 +704,7 @@ def main(argv=None):
     except ValueError:                        # not the main thread: leave signals alone
         previous = None
     try:
+        check_threading()
         args.func(args)
     except InputError as e:
         message = str(e)

@@ -661,3 +661,20 @@ def test_bench_report_written_to_out_dir(tmp_path):
     assert abs(sum(c["time_share"] for c in row["by_path"]) - 1) < 1e-9
     assert "what a unit costs" in md
     assert all("cost_fit" in c and "nodes_ratio" in c for c in row["by_path"])
+
+
+def test_unknown_threading_setup_is_a_one_line_input_error(tmp_path):
+    """HWRT_THREADING is read when the packages load; a name it does not know is reported like
+    any bad input (one line naming it, exit 2, no output), by the CLI and by the library."""
+    env = dict(os.environ, HWRT_THREADING="bogus")
+    out = tmp_path / "x.exr"
+    r = run("render", "cornell", "--width", 8, "--height", 8, "--spp", 1, "-o", out, env=env)
+    assert r.returncode == 2, r.stderr
+    assert "HWRT_THREADING" in one_line_error(r.stderr) and "'bogus'" in r.stderr
+    assert not out.exists()
+    code = ("import numpy as np, hwbvh\n"
+            "try:\n    hwbvh.build(np.random.rand(8, 3, 3))\n"
+            "except hwbvh.InputError as e:\n    print(e)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                       timeout=600)
+    assert r.stdout.startswith("HWRT_THREADING: unknown set-up 'bogus'"), r.stdout + r.stderr
