@@ -29,7 +29,6 @@ import io
 import json
 import math
 import os
-import sys
 import time
 
 import numpy as np
@@ -481,8 +480,8 @@ def bench_animation(args):
     plots to ``--out-dir``."""
     from scenes.animation import ANIMATIONS
     from raytracer.render import ACCELS
-    from tqdm import tqdm
     from .bench import machine
+    from .progress import progress_over
 
     frames = args.frames or (BENCH_QUICK_FRAMES if args.quick else BENCH_FRAMES)
     tris = BENCH_QUICK_TRIANGLES if args.quick else None
@@ -492,7 +491,7 @@ def bench_animation(args):
     # a run is named by its strategy (the BVH's) or by the structure it rebuilds every frame
     cells = [(a, s, "bvh") for a in ANIMATIONS for s in STRATEGIES] + \
             [(a, st, st) for a in ANIMATIONS for st in structures]
-    for name, label, accel in tqdm(cells, desc="bench animation", file=sys.stderr, unit="run"):
+    for name, label, accel in progress_over(cells, "bench animation", "run"):
         anim = open_animation(name, width=args.width, height=args.height, spp=args.spp,
                               max_depth=args.max_depth,
                               triangles=tris if name in ("exploding", "cloth") else None)

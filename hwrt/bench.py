@@ -3,7 +3,6 @@ measured in the same process (SPEC 8)."""
 import os
 import platform
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import numpy as np
 
 from hwbvh.errors import InputError
 from .paths import default_mesh_dir, mesh_files
+from .progress import progress_over
 
 
 def machine():
@@ -72,13 +72,12 @@ def _median_time(fn, repeat):
 
 
 def bench_build(args):
-    from tqdm import tqdm
     from hwbvh.api import build
     from hwbvh.primitives import as_triangles
     from traversal.embree_ref import embree_scene
 
     rows = []
-    for name, load in tqdm(mesh_inputs(args), desc="bench build", file=sys.stderr, unit="mesh"):
+    for name, load in progress_over(mesh_inputs(args), "bench build", "mesh"):
         verts, faces = load()
         tris = as_triangles(verts[faces], source=name)
         v32 = verts.astype(np.float32)
@@ -159,7 +158,6 @@ def human(what):
 def bench_scale(args):
     """Build time from 10k to 2M generated triangles; the log-log slope is the exponent."""
     import resource
-    from tqdm import tqdm
     from hwbvh.api import build
     from hwbvh.format import validate
     from hwbvh.primitives import primitive_boxes
@@ -167,7 +165,7 @@ def bench_scale(args):
 
     sizes = [10_000, 30_000, 100_000, 300_000, 1_000_000, 2_000_000]
     rows = []
-    for n in tqdm(sizes, desc="bench scale", file=sys.stderr):
+    for n in progress_over(sizes, "bench scale", "size"):
         tris = bumpy_sphere(n)
         med, all_t = _median_time(lambda: build(tris), args.repeat)
         bvh = build(tris)
@@ -268,7 +266,6 @@ def bench_trace(args):
     threads keep spinning after a call and, timed in between, took CPU from the next
     measurement (up to a quarter of ours on two cores)."""
     from types import SimpleNamespace
-    from tqdm import tqdm
     import hwbvh
     from hwbvh.primitives import as_triangles
     from raytracer.render import make_tracer
@@ -280,7 +277,7 @@ def bench_trace(args):
     for accel in accels:
         warm_up_accel(accel)
     rows, later = [], []
-    for name, load in tqdm(mesh_inputs(args), desc="bench trace", file=sys.stderr, unit="mesh"):
+    for name, load in progress_over(mesh_inputs(args), "bench trace", "mesh"):
         verts, faces = load()
         tris = as_triangles(verts[faces], source=name)
         v32, f32 = verts.astype(np.float32), faces.astype(np.int32)
@@ -393,7 +390,6 @@ def bench_render(args):
     the light), so its rate is a lower bound. Image agreement: relative RMSE of our image
     against Mitsuba's (seed 1), over Mitsuba's seed 1 against seed 2."""
     import json
-    from tqdm import tqdm
     from hwbvh.files import check_output_dir, jsonable, write_files
     from raytracer.render import warm_up
     from scenes import compile_scene, is_scene, load_scene
@@ -410,7 +406,7 @@ def bench_render(args):
         warm_up(builder, traversal, parallel_build=True)
     variants = _peer_variants(specs)
     results = []
-    for spec, scene in tqdm(scenes, desc="bench render", file=sys.stderr, unit="scene"):
+    for spec, scene in progress_over(scenes, "bench render", "scene"):
         peer_info = None
         if not is_scene(spec):
             skipped = mp.unsupported(scene) if mp.installed() else \
@@ -647,7 +643,6 @@ def bench_model(args):
     design-space sweep (thesis 4.2: 3.6% on average)."""
     import tempfile
     import uuid
-    from tqdm import tqdm
     from hwbvh import calibration as cal
     from hwbvh.cycle_model import CONTROL_LATENCY, subtree_design_space
     from hwbvh.primitives import as_triangles
@@ -655,7 +650,7 @@ def bench_model(args):
     from .explore import warm_up
 
     meshes = []
-    for name, load in tqdm(mesh_inputs(args), desc="bench model: load", file=sys.stderr, unit="mesh"):
+    for name, load in progress_over(mesh_inputs(args), "bench model: load", "mesh"):
         verts, faces = load()
         meshes.append((name, as_triangles(verts[faces], source=name)))
     subs = cal.fit_subtrees([t for _, t in meshes])

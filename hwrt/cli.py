@@ -42,9 +42,23 @@ def _emit(args, result, human):
     sys.stdout.flush()
 
 
+def _shown(v):
+    """A value as the human-readable output shows it (``--json`` has it exact): six
+    significant digits, "n/a" for what does not apply (JSON null), lists and tables inline."""
+    if v is None:
+        return "n/a"
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {_shown(x)}" for k, x in v.items())
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_shown(x) for x in v)
+    return str(v)
+
+
 def _kv(result, keys):
     width = max((len(k) for k in keys if k in result), default=0)
-    return "\n".join(f"{k:>{width}}: {result[k]}" for k in keys if k in result)
+    return "\n".join(f"{k:>{width}}: {_shown(result[k])}" for k in keys if k in result)
 
 
 # --------------------------------------------------------------------------------------
@@ -159,6 +173,8 @@ def cmd_verify(args):
                             ("--accel", None if args.accel == "bvh" else args.accel)):
             if value is not None:
                 raise InputError(flag, "is for a verification run; --replay re-traces the file's rays")
+        if not os.path.isfile(args.replay):
+            raise InputError(args.replay, "no such file")
         label, tris, verts, faces = _scene_geometry(args.scene)
         return _emit(args, _replay(args.replay, tris, verts, faces),
                      lambda r: "\n".join(json_text(x) for x in r["replayed"]))

@@ -10,12 +10,13 @@ process, one after the other: the reference a cluster's results equal bit for bi
 """
 import logging
 import os
-import sys
 from contextlib import contextmanager
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from hwbvh.errors import ParameterError
+
+from .progress import progress_bar
 
 SCHEDULER_ENV = "HWRT_SCHEDULER"
 CONNECT_TIMEOUT_S = 5      # an unreachable scheduler fails this fast instead of hanging
@@ -156,12 +157,9 @@ def run_cells(cells, on_result, client=None, desc="cells", weight=None, progress
     workers: a timed cell then shares the machine with no other cell of the run, whatever the
     cluster's shape. Should every worker there be lost, the cell runs on another host rather
     than wait."""
-    from tqdm import tqdm
-
     weight = weight or (lambda key: 1)
     total = sum(weight(k) for k, _, _ in cells)
-    bar = tqdm(total=total, desc=desc, unit="cell", file=sys.stderr, disable=not progress,
-               smoothing=0.05)
+    bar = progress_bar(total, desc, "cell", show=progress, smoothing=0.05)
     try:
         if client is None:
             for key, fn, args in cells:

@@ -209,7 +209,13 @@ class _Ctx:
         if isinstance(v, bool) or not isinstance(v, (int, float)) or (integer and int(v) != v):
             self.fail(f"{path}.{key}", f"expected {'an integer' if integer else 'a number'}, got {v!r}")
         if not np.isfinite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
-            self.fail(f"{path}.{key}", f"{v!r} is out of range [{lo}, {hi}]")
+            if hi is None:
+                wanted = f"at least {lo}"
+            elif lo is None:
+                wanted = f"at most {hi}"
+            else:
+                wanted = f"in [{lo}, {hi}]"
+            self.fail(f"{path}.{key}", f"{v!r} is out of range (must be {wanted})")
         return int(v) if integer else float(v)
 
 

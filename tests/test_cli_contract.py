@@ -335,6 +335,8 @@ BAD_SCENE_EDITS = {
     "film-key": (lambda d: d["film"].update(samples=4), "film.samples"),
     "integrator-key": (lambda d: d.update(integrator={"maxdepth": 3}), "integrator.maxdepth.*'max_depth'"),
     "film-jitter-not-bool": (lambda d: d["film"].update(jitter="no"), "film.jitter"),
+    "negative-radius": (lambda d: d["shapes"][0].update(radius=-1),
+                        "shapes\\[0\\].radius': -1 is out of range \\(must be at least 1e-30\\)"),
 }
 
 
@@ -601,6 +603,16 @@ def test_replay_rejects_options_of_a_verification_run(capsys, tmp_path, tetra):
     assert rc == 2 and "--rays" in one_line_error(err)
 
 
+def test_replay_of_a_missing_or_foreign_file(capsys, tmp_path, tetra):
+    missing = tmp_path / "x.npz"
+    rc, _, err = call(capsys, "verify", tetra, "--replay", missing)
+    assert rc == 2 and one_line_error(err).endswith(f"{missing}: no such file")
+    foreign = tmp_path / "y.npz"
+    np.savez(foreign, something=np.zeros(3))
+    rc, _, err = call(capsys, "verify", tetra, "--replay", foreign)
+    assert rc == 2 and "not a mismatch file" in one_line_error(err)
+
+
 # ---------------------------------------------------------------------------------------
 # 12. --help and --version
 # ---------------------------------------------------------------------------------------
@@ -678,3 +690,12 @@ def test_unknown_threading_setup_is_a_one_line_input_error(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                        timeout=600)
     assert r.stdout.startswith("HWRT_THREADING: unknown set-up 'bogus'"), r.stdout + r.stderr
+
+
+def test_human_output_shows_what_does_not_apply_as_n_a(capsys, tetra):
+    rc, out, err = call(capsys, "build", tetra, "--builder", "embree")
+    assert rc == 0, err
+    assert "None" not in out and "nodes: n/a" in out
+    rc, out, err = call(capsys, "simulate", tetra)
+    assert rc == 0, err
+    assert "{" not in out and "'" not in out            # tables inline, not Python reprs

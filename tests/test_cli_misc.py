@@ -87,3 +87,25 @@ def test_a_first_run_compiles_the_traversal_in_a_child_and_renders_the_warm_imag
     subprocess.run(args + ["-o", str(warm)], check=True, capture_output=True)
     from raytracer.output import read_exr
     assert np.array_equal(read_exr(cold)[0], read_exr(warm)[0])
+
+
+@pytest.mark.parametrize("asked", [False, True])
+def test_progress_bars_show_off_a_terminal_only_when_asked(asked, capsys, monkeypatch):
+    from hwrt.progress import PROGRESS_ENV, progress_bar, progress_over
+    if asked:
+        monkeypatch.setenv(PROGRESS_ENV, "1")
+    assert list(progress_over([1, 2, 3], "items", "item")) == [1, 2, 3]
+    with progress_bar(3, "bar", "step") as bar:
+        bar.update(3)
+    with progress_bar(3, "never", "step", show=False) as bar:
+        bar.update(3)
+    err = capsys.readouterr().err
+    assert ("items" in err and "bar" in err) == asked and (err == "") != asked
+    assert "never" not in err
+
+
+def test_every_progress_bar_goes_through_hwrt_progress():
+    """So that HWRT_PROGRESS governs them all (the README's promise)."""
+    users = [p.relative_to(ROOT) for d in ("hwbvh", "traversal", "raytracer", "scenes", "hwrt")
+             for p in (ROOT / d).glob("*.py") if "tqdm" in p.read_text()]
+    assert users == [Path("hwrt/progress.py")]
