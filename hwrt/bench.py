@@ -480,6 +480,9 @@ def _render_scene(spec, scene, variants, peer_info, repeat):
                      "render_spread": [min(r["render"]), max(r["render"])],
                      "trace_only_seconds": trace_s,
                      "render_over_trace_only": render_s / trace_s if trace_s > 0 else None,
+                     # each round's render over the same round's trace-only run, min and max
+                     "render_over_trace_only_spread": _spread(np.divide(r["render"], r["trace"]))
+                     if min(r["trace"]) > 0 else None,
                      "rays": rays, "mrays_per_second": total_rays / render_s / 1e6})
     out = {"scene": scene.name, "source": spec, "triangles": int(len(scene.triangles)),
            "width": scene.width, "height": scene.height, "spp": scene.spp,
@@ -513,19 +516,30 @@ def _render_scene(spec, scene, variants, peer_info, repeat):
     return out
 
 
+def _spread(values):
+    return [float(min(values)), float(max(values))]
+
+
+def _ratio_text(row):
+    """render / trace-only of a row, with the spread of the rounds' own ratios."""
+    rt, sp = row["render_over_trace_only"], row.get("render_over_trace_only_spread")
+    if rt is None:
+        return "-"
+    return f"{rt:.2f} ({sp[0]:.2f}-{sp[1]:.2f})" if sp else f"{rt:.2f}"
+
+
 def _render_human(r):
     lines = []
     for s in r["scenes"]:
         lines.append(f"{s['scene']}: {s['triangles']} triangles, {s['width']}x{s['height']}, "
                      f"{s['spp']} spp, depth {s['max_depth']}; medians of {r['repeat']}")
         lines.append(f"{'path':<22}{'build s':>9}{'render s':>10}{'total s':>9}{'Mrays/s':>9}"
-                     f"{'trace s':>9}{'render/trace':>13}")
+                     f"{'trace s':>9}  render/trace (rounds)")
         for m in s["rows"]:
-            rt = m["render_over_trace_only"]
             lines.append(f"{m['builder'] + '+' + m['traversal']:<22}{m['build_seconds']:>9.3f}"
                          f"{m['render_seconds']:>10.3f}{m['total_seconds']:>9.3f}"
                          f"{m['mrays_per_second']:>9.2f}{m['trace_only_seconds']:>9.3f}"
-                         f"{(f'{rt:.2f}' if rt is not None else '-'):>13}")
+                         f"  {_ratio_text(m)}")
         lines.append(f"ratio (ours / embree): {s['ratio']:.2f}")
         peer = s.get("mitsuba")
         if peer is None:
@@ -563,19 +577,20 @@ def _render_markdown(r, args=None):
     lines = ["# hwrt bench render", ""] + made_by_lines(command_of(args)) + [
              f"Time to image, `hwrt bench render`: medians of {r['repeat']} warm runs per path, "
              f"the paths alternating run by run. {m.get('cpu', '')}, {m.get('cores')} cores, "
-             f"{m.get('numba_threads')} Numba threads.", ""]
+             f"{m.get('numba_threads')} Numba threads. Render / trace-only: the medians' ratio, "
+             f"and in brackets the lowest and highest of the rounds' own ratios (each round "
+             f"renders, then traces the same rays alone).", ""]
     for s in r["scenes"]:
         lines += [f"### {s['scene']} ({s['triangles']} triangles, {s['width']}x{s['height']}, "
                   f"{s['spp']} spp, depth {s['max_depth']})", "",
-                  "| path | build s | render s | total s | Mrays/s | trace-only s | render / trace-only |",
+                  "| path | build s | render s | total s | Mrays/s | trace-only s | "
+                  "render / trace-only (rounds) |",
                   "|---|---:|---:|---:|---:|---:|---:|"]
         for row in s["rows"]:
-            rt = row["render_over_trace_only"]
             lines.append(f"| {row['builder']} build + {row['traversal']} traversal | "
                          f"{row['build_seconds']:.4f} | {row['render_seconds']:.3f} | "
                          f"{row['total_seconds']:.3f} | {row['mrays_per_second']:.2f} | "
-                         f"{row['trace_only_seconds']:.3f} | "
-                         f"{f'{rt:.2f}' if rt is not None else '-'} |")
+                         f"{row['trace_only_seconds']:.3f} | {_ratio_text(row)} |")
         lines += ["", f"Ours / Embree (total): {s['ratio']:.2f}.", ""]
         peer = s.get("mitsuba")
         if not peer:

@@ -130,7 +130,7 @@ def _bench_args(meshes, out_dir, **kw):
 def test_bench_render_honours_the_frame_flags(tmp_path):
     from hwrt.bench import bench_render, human
 
-    r = bench_render(_bench_args([], tmp_path / "out"))
+    r = bench_render(_bench_args([], tmp_path / "out", repeat=3))
     json.dumps(r, allow_nan=False)
     assert set(r) >= {"scenes", "repeat", "machine", "files"}
     (s,) = r["scenes"]
@@ -141,6 +141,8 @@ def test_bench_render_honours_the_frame_flags(tmp_path):
         assert m["rays"]["primary"] == 24 * 16 * 2
         assert m["render_seconds"] > 0 and m["trace_only_seconds"] > 0
         assert m["render_over_trace_only"] == pytest.approx(m["render_seconds"] / m["trace_only_seconds"])
+        lo, hi = m["render_over_trace_only_spread"]     # the rounds' own ratios
+        assert 0 < lo <= hi and lo <= m["render_spread"][1] / m["trace_only_seconds"]
     assert (tmp_path / "out" / "render.md").read_text().count("| hwbvh build") == 1
     assert json.loads((tmp_path / "out" / "render.json").read_text())["scenes"][0]["width"] == 24
     assert "ratio (ours / embree)" in human("render")(r)
