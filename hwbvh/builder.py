@@ -28,6 +28,7 @@ from numba import njit, prange, get_num_threads
 from . import config
 from .binning_unit import bin_range, bin_range_parallel
 from .errors import InputError, ParameterError
+from .parallel import check_threading
 from .partitioning_unit import (partition_range, partition_range_parallel, range_bounds,
                                 range_bounds_parallel)
 from .sah_calculator import best_split
@@ -204,6 +205,7 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
     software scheduling grain), which tests use to check exactness.
     """
     check_params(leaf_size, bins)
+    check_threading()
     boxes = np.ascontiguousarray(boxes, dtype=np.float32)
     n = len(boxes)
     if n == 0:

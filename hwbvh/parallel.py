@@ -41,7 +41,7 @@ import threading
 
 import numba
 
-from .errors import InputError
+from .errors import InputError, ParameterError
 
 THREADING_SETUPS = {
     "omp-passive": ("omp", "passive"),
@@ -54,11 +54,12 @@ DEFAULT_THREADING = "omp-passive"
 def pin_threading(setup=None):
     """Choose the threading layer and wait policy (see the module text). Returns the set-up's
     name. Effective only before the first parallel region of the process."""
+    error = ParameterError if setup else InputError         # an argument, or the environment
     source = "setup" if setup else "HWRT_THREADING"
     setup = setup or os.environ.get("HWRT_THREADING") or DEFAULT_THREADING
     if setup not in THREADING_SETUPS:
-        raise InputError(source, f"unknown set-up {setup!r} "
-                                 f"(choose from {', '.join(THREADING_SETUPS)})")
+        raise error(source, f"unknown set-up {setup!r} "
+                            f"(choose from {', '.join(THREADING_SETUPS)})")
     layer, policy = THREADING_SETUPS[setup]
     if "NUMBA_THREADING_LAYER" not in os.environ:
         numba.config.THREADING_LAYER = layer
@@ -72,13 +73,15 @@ try:
     _THREADING_PROBLEM = None
 except InputError as problem:
     THREADING = pin_threading(DEFAULT_THREADING)
-    _THREADING_PROBLEM = problem
+    _THREADING_PROBLEM = (problem.source, problem.problem)
 
 
 def check_threading():
-    """Raise the InputError of an unknown ``HWRT_THREADING`` (see the module text)."""
+    """Raise an InputError for an unknown ``HWRT_THREADING`` (see the module text): a new
+    one per call, so that no traceback of an earlier call stays attached to it. Every public
+    entry to parallel work calls this first."""
     if _THREADING_PROBLEM is not None:
-        raise _THREADING_PROBLEM
+        raise InputError(*_THREADING_PROBLEM)
 
 RANGES_PER_THREAD = 8          # enough to rebalance around a slowed thread, few enough calls
 

@@ -23,6 +23,7 @@ from numba import njit, prange
 from .errors import InputError
 from .config import LEAF_FLAG
 from .format import BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, node_views, tree_stats
+from .parallel import check_threading
 from .primitives import as_triangles
 
 
@@ -128,6 +129,7 @@ class Refitter:
     def refit_nodes(self, tris, out=None):
         """Rewrite the boxes of ``out`` (default: a copy of the tree's nodes) for ``tris``, an
         already checked (N, 3, 3) float32 array. Returns the node array."""
+        check_threading()
         nodes = self.nodes.copy() if out is None else out
         u, f = node_views(nodes)
         _refit_leaves(u, f, self.leaves, self.indices, tris)

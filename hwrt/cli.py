@@ -50,7 +50,8 @@ def _shown(v):
     if isinstance(v, float):
         return f"{v:.6g}"
     if isinstance(v, dict):
-        return ", ".join(f"{k} {_shown(x)}" for k, x in v.items())
+        return ", ".join(f"{k} ({_shown(x)})" if isinstance(x, dict) else f"{k} {_shown(x)}"
+                         for k, x in v.items())
     if isinstance(v, (list, tuple)):
         return ", ".join(_shown(x) for x in v)
     return str(v)
@@ -174,7 +175,8 @@ def cmd_verify(args):
             if value is not None:
                 raise InputError(flag, "is for a verification run; --replay re-traces the file's rays")
         if not os.path.isfile(args.replay):
-            raise InputError(args.replay, "no such file")
+            raise InputError(args.replay, "not a file" if os.path.exists(args.replay)
+                             else "no such file")
         label, tris, verts, faces = _scene_geometry(args.scene)
         return _emit(args, _replay(args.replay, tris, verts, faces),
                      lambda r: "\n".join(json_text(x) for x in r["replayed"]))

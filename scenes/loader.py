@@ -200,21 +200,24 @@ class _Ctx:
             self.fail(f"{path}.{key}", f"expected {n} finite numbers, got {v!r}")
         return a
 
-    def num(self, obj, key, path, default=None, lo=None, hi=None, integer=False):
+    def num(self, obj, key, path, default=None, lo=None, hi=None, integer=False, wanted=None):
+        """A number at obj[key], finite and within [lo, hi] (either may be None: no bound);
+        ``wanted`` words the range for the error (default: from the bounds)."""
         if key not in obj:
             if default is None:
                 self.fail(f"{path}.{key}", "missing")
             return default
         v = obj[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or (integer and int(v) != v):
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(f"{path}.{key}", f"expected {'an integer' if integer else 'a number'}, got {v!r}")
-        if not np.isfinite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
-            if hi is None:
-                wanted = f"at least {lo}"
-            elif lo is None:
-                wanted = f"at most {hi}"
-            else:
-                wanted = f"in [{lo}, {hi}]"
+        if not np.isfinite(v):
+            self.fail(f"{path}.{key}", f"expected a finite number, got {v!r}")
+        if integer and int(v) != v:
+            self.fail(f"{path}.{key}", f"expected an integer, got {v!r}")
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            if wanted is None:
+                wanted = f"at least {lo}" if hi is None else \
+                    (f"at most {hi}" if lo is None else f"in [{lo}, {hi}]")
             self.fail(f"{path}.{key}", f"{v!r} is out of range (must be {wanted})")
         return int(v) if integer else float(v)
 
@@ -292,7 +295,7 @@ def _shape(ctx, sh, i, scene_dir):
         normals = _flat_normals(tris)
     elif typ == "sphere":
         c = ctx.vec(sh, "center", path)
-        r = ctx.num(sh, "radius", path, lo=1e-30)
+        r = ctx.num(sh, "radius", path, lo=1e-30, wanted="positive")
         sub = sh.get("subdiv", [32, 64])
         if not (isinstance(sub, (list, tuple)) and len(sub) == 2 and all(isinstance(x, int) and x >= 3 for x in sub)):
             ctx.fail(f"{path}.subdiv", f"expected [n_lat, n_lon] integers >= 3, got {sub!r}")

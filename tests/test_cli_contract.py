@@ -336,7 +336,17 @@ BAD_SCENE_EDITS = {
     "integrator-key": (lambda d: d.update(integrator={"maxdepth": 3}), "integrator.maxdepth.*'max_depth'"),
     "film-jitter-not-bool": (lambda d: d["film"].update(jitter="no"), "film.jitter"),
     "negative-radius": (lambda d: d["shapes"][0].update(radius=-1),
-                        "shapes\\[0\\].radius': -1 is out of range \\(must be at least 1e-30\\)"),
+                        "shapes\\[0\\].radius': -1 is out of range \\(must be positive\\)"),
+    "infinite-radius": (lambda d: d["shapes"][0].update(radius=float("inf")),
+                        "shapes\\[0\\].radius': expected a finite number, got inf"),
+    "nan-fov": (lambda d: d["camera"].update(fov=float("nan")),
+                "camera.fov': expected a finite number, got nan"),
+    "nan-width": (lambda d: d["film"].update(width=float("nan")),
+                  "film.width': expected a finite number, got nan"),
+    "infinite-width": (lambda d: d["film"].update(width=float("inf")),
+                       "film.width': expected a finite number, got inf"),
+    "fractional-width": (lambda d: d["film"].update(width=32.5),
+                         "film.width': expected an integer, got 32.5"),
 }
 
 
@@ -677,19 +687,31 @@ def test_bench_report_written_to_out_dir(tmp_path):
 
 def test_unknown_threading_setup_is_a_one_line_input_error(tmp_path):
     """HWRT_THREADING is read when the packages load; a name it does not know is reported like
-    any bad input (one line naming it, exit 2, no output), by the CLI and by the library."""
+    any bad input: one line naming it, exit 2, no output."""
     env = dict(os.environ, HWRT_THREADING="bogus")
     out = tmp_path / "x.exr"
     r = run("render", "cornell", "--width", 8, "--height", 8, "--spp", 1, "-o", out, env=env)
     assert r.returncode == 2, r.stderr
     assert "HWRT_THREADING" in one_line_error(r.stderr) and "'bogus'" in r.stderr
     assert not out.exists()
-    code = ("import numpy as np, hwbvh\n"
-            "try:\n    hwbvh.build(np.random.rand(8, 3, 3))\n"
-            "except hwbvh.InputError as e:\n    print(e)\n")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
-                       timeout=600)
-    assert r.stdout.startswith("HWRT_THREADING: unknown set-up 'bogus'"), r.stdout + r.stderr
+
+
+def test_every_parallel_entry_of_the_library_reports_an_unknown_threading_setup(monkeypatch):
+    import hwbvh
+    from hwbvh import parallel
+    from hwbvh.cycle_model import simulate_mesh
+    from hwbvh.refit import refit
+    tris = np.random.default_rng(0).random((64, 3, 3))
+    bvh = hwbvh.build(tris)
+    monkeypatch.setattr(parallel, "_THREADING_PROBLEM", ("HWRT_THREADING", "unknown set-up 'x'"))
+    entries = [lambda: hwbvh.build(tris), lambda: simulate_mesh(tris), lambda: refit(bvh, tris),
+               lambda: parallel.run_ranges(lambda lo, hi: None, 10)]
+    raised = []
+    for entry in entries:
+        with pytest.raises(InputError, match="HWRT_THREADING: unknown set-up 'x'") as e:
+            entry()
+        raised.append(e.value)
+    assert len({id(e) for e in raised}) == len(raised)     # a new error each time
 
 
 def test_human_output_shows_what_does_not_apply_as_n_a(capsys, tetra):
@@ -699,3 +721,6 @@ def test_human_output_shows_what_does_not_apply_as_n_a(capsys, tetra):
     rc, out, err = call(capsys, "simulate", tetra)
     assert rc == 0, err
     assert "{" not in out and "'" not in out            # tables inline, not Python reprs
+    from hwrt.cli import _shown
+    assert _shown({"rays": 3, "closest": {"agree": 2, "t": 0.1234567}, "none": None}) == \
+        "rays 3, closest (agree 2, t 0.123457), none n/a"
