@@ -348,6 +348,8 @@ RENDER_PATHS = (("hwbvh", "numba"), ("embree", "embree"))
 def _render_setting(d, args):
     """The scene dict with --width/--height/--spp/--max-depth applied (unset keeps the scene's)."""
     d = dict(d)
+    if not isinstance(d.get("film", {}), dict) or not isinstance(d.get("integrator", {}), dict):
+        return d                                    # compile_scene names the bad key
     film = dict(d.get("film", {}))
     integ = dict(d.get("integrator", {"type": "whitted"}))
     for key, target in (("width", film), ("height", film), ("spp", film), ("max_depth", integ)):

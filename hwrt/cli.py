@@ -266,7 +266,7 @@ def cmd_render(args):
     integ = d.setdefault("integrator", {"type": "whitted"})
     for key, val, tgt in (("width", args.width, film), ("height", args.height, film),
                           ("spp", args.spp, film), ("max_depth", args.max_depth, integ)):
-        if val is not None:
+        if val is not None and isinstance(tgt, dict):    # else compile_scene names the key
             tgt[key] = val
     out = args.output or os.path.join("renders", f"{d.get('name', 'scene')}.exr")
     if not out.lower().endswith(".exr"):
@@ -442,7 +442,19 @@ def _write_report(args, result, human):
 
 
 # --------------------------------------------------------------------------------------
-def _int_at_least(lo):
+# The largest integer an option takes: counts and sizes reach the kernels as 32-bit or 64-bit
+# integers, and none is meaningful beyond this.
+MAX_OPTION_INT = (1 << 31) - 1
+# Tighter limits where a larger value would only exhaust memory or the machine: rays per query
+# set (2^26 rays hold some 1.5 GB of rays and answers), frames of an animation, triangles of a
+# generated animation (a tree holds 2^24), timed repeats, local Dask workers (one process each).
+MAX_RAYS = 1 << 26
+MAX_FRAMES = 100_000
+MAX_REPEAT = 1000
+MAX_WORKERS = 256
+
+
+def _int_at_least(lo, hi=MAX_OPTION_INT):
     def parse(v):
         try:
             i = int(v)
@@ -450,12 +462,22 @@ def _int_at_least(lo):
             raise argparse.ArgumentTypeError(f"expected an integer, got {v!r}") from None
         if i < lo:
             raise argparse.ArgumentTypeError(f"must be at least {lo}, got {i}")
+        if i > hi:
+            raise argparse.ArgumentTypeError(f"must be at most {hi}, got {i}")
         return i
     return parse
 
 
 _positive = _int_at_least(1)
 _non_negative = _int_at_least(0)
+
+
+def _fps(v):
+    from scenes.animation import MAX_FPS, MIN_FPS
+    x = _positive_float(v)
+    if not MIN_FPS <= x <= MAX_FPS:
+        raise argparse.ArgumentTypeError(f"must lie in [{MIN_FPS}, {MAX_FPS}], got {v}")
+    return x
 
 
 def _positive_float(v):
@@ -562,7 +584,7 @@ def make_parser():
     x.add_argument("--scheduler", metavar="ADDRESS",
                    help="a running Dask scheduler, tcp://HOST:PORT (default: $HWRT_SCHEDULER, "
                         "else a local cluster of one worker per core)")
-    x.add_argument("--workers", type=_positive, help="workers of the local cluster "
+    x.add_argument("--workers", type=_int_at_least(1, MAX_WORKERS), help="workers of the local cluster "
                                                      "(default: one per core)")
     x.add_argument("--out-dir", default="renders/explore", help="where the files and the "
                                                                 "resumable cells go")
@@ -599,7 +621,7 @@ def make_parser():
 
     v = sub.add_parser("verify", help="trace rays with our units and with Embree; classify each")
     v.add_argument("scene", help="built-in scene name, scene file, or mesh file")
-    v.add_argument("--rays", type=_positive,
+    v.add_argument("--rays", type=_int_at_least(1, MAX_RAYS),
                    help=f"rays to trace; exactly these many (default: {VERIFY_RAYS})")
     v.add_argument("--kind", choices=["primary", "random", "bounces", "shadow"],
                    help=f"the ray set (default: {VERIFY_KIND})")
@@ -621,8 +643,8 @@ def make_parser():
                                     "same directory resumes at the first missing frame.")
     an.add_argument("scene", help="built-in animation (exploding, cloth, marbles, flythrough), "
                                   "scene file, or frame pattern of mesh files ('f_%%04d.ply' or a glob)")
-    an.add_argument("--frames", type=_positive, help="frames to render (default: the animation's)")
-    an.add_argument("--fps", type=_positive_float,
+    an.add_argument("--frames", type=_int_at_least(1, MAX_FRAMES), help="frames to render (default: the animation's)")
+    an.add_argument("--fps", type=_fps,
                     help="frames per second of animation time (default: the animation's, else 30)")
     an.add_argument("--strategy", default="rebuild",
                     help="tree update per frame: rebuild, refit, adaptive or embree (refit, "
@@ -641,7 +663,7 @@ def make_parser():
                     help="longest reflection/refraction path (default: the animation's)")
     an.add_argument("--mesh", help="exploding: the mesh that breaks (default: the bunny of the mesh "
                                    "directory, else a generated sphere)")
-    an.add_argument("--triangles", type=_positive,
+    an.add_argument("--triangles", type=_int_at_least(1, config.MAX_PRIMITIVES),
                     help="exploding (generated sphere) and cloth: about this many triangles")
     an.add_argument("--physics", help="marbles: pybullet, analytic or auto (default: auto)")
     an.add_argument("--verify", action="store_true",
@@ -662,9 +684,9 @@ def make_parser():
                     help="mesh files; bench render also takes scenes (default: every mesh in "
                          "--mesh-dir; bench render: cornell)")
     be.add_argument("--mesh-dir", help=_bench_help("mesh_dir", "directory of meshes"))
-    be.add_argument("--repeat", type=_positive,
+    be.add_argument("--repeat", type=_int_at_least(1, MAX_REPEAT),
                     help=_bench_help("repeat", "timed runs; figures are their medians"))
-    be.add_argument("--rays", type=_positive, help=_bench_help("rays", "rays per set"))
+    be.add_argument("--rays", type=_int_at_least(1, MAX_RAYS), help=_bench_help("rays", "rays per set"))
     be.add_argument("--quick", action="store_true",
                     help=_bench_help("quick", "a few small cells (minutes)"))
     be.add_argument("--fresh", action="store_true",
@@ -685,7 +707,7 @@ def make_parser():
                          "paths, which are always timed (default: every one); animation: the "
                          "structures rebuilt every frame beside the BVH's strategies (default: "
                          "every one)")
-    be.add_argument("--frames", type=_positive,
+    be.add_argument("--frames", type=_int_at_least(1, MAX_FRAMES),
                     help="frames per animation (read by animation; default 60, with --quick 12)")
     be.add_argument("--json", action="store_true", help="print one JSON object")
     be.set_defaults(func=cmd_bench)

@@ -38,7 +38,7 @@ def _scene(spec, args):
     d = load_scene(spec)
     film = d.setdefault("film", {})
     for key in ("width", "height", "spp"):
-        if getattr(args, key, None) is not None:
+        if getattr(args, key, None) is not None and isinstance(film, dict):
             film[key] = getattr(args, key)
     return compile_scene(d)
 

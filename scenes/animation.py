@@ -49,6 +49,11 @@ from .builtin import BUILTIN
 from .loader import compile_scene, load_scene, mesh_scene
 
 DEFAULT_FPS = 30.0
+# Frame rates an animation may have: an animation without a frame count lasts four seconds,
+# which at these bounds is 1 to 4000 frames (beyond them: no frame, or frame times too fine
+# for the motions' clocks).
+MIN_FPS = 0.25
+MAX_FPS = 1000.0
 KEYFRAME_KEYS = ("time", "translate", "rotate", "scale")
 CAMERA_KEY_KEYS = ("time", "eye", "target", "up", "fov")
 ANIMATION_KEYS = ("frames", "fps", "camera")
@@ -78,13 +83,21 @@ def _check_keys(source, obj, allowed, path):
             _fail(source, f"{path}.{k}", f"unknown key (allowed: {', '.join(allowed)})")
 
 
-def _number(source, v, path, lo=None, positive=False):
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+def _number(source, v, path, lo=None, positive=False, hi=None):
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        _fail(source, path, f"expected a finite number, got {v!r}")
+    try:
+        finite = math.isfinite(v)
+    except OverflowError:                            # an int beyond the float range
+        finite = False
+    if not finite:
         _fail(source, path, f"expected a finite number, got {v!r}")
     if positive and not v > 0:
         _fail(source, path, f"must be positive, got {v!r}")
     if lo is not None and v < lo:
         _fail(source, path, f"must be at least {lo}, got {v!r}")
+    if hi is not None and v > hi:
+        _fail(source, path, f"must be at most {hi}, got {v!r}")
     return float(v)
 
 
@@ -436,7 +449,7 @@ def from_scene_dict(d, source=None, fps=None):
     if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
         _fail(source, "animation.frames", f"expected a positive integer, got {frames!r}")
     f = fps if fps is not None else _number(source, anim.get("fps", DEFAULT_FPS), "animation.fps",
-                                            positive=True)
+                                            lo=MIN_FPS, hi=MAX_FPS)
     if frames is None:
         frames = max_frames if max_frames is not None else int(round(4 * f))
     return Animation(str(d.get("name", "scene")), base, parts, frames, f, camera,
@@ -886,7 +899,7 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
     else:
         d = load_scene(spec)
     d = dict(d)
-    if film:
+    if film and isinstance(d.get("film", {}), dict) and isinstance(d.get("integrator", {}), dict):
         d["film"] = dict(d.get("film", {}), **{k: v for k, v in film.items() if k != "max_depth"})
         if "max_depth" in film:
             d["integrator"] = dict(d.get("integrator", {"type": "whitted"}), max_depth=film["max_depth"])

@@ -7,11 +7,13 @@ scene files raise :class:`InputError` naming the file, the key and the problem.
 """
 import difflib
 import json
+import math
 import os
 from dataclasses import dataclass
 
 import numpy as np
 
+from hwbvh.config import MAX_PRIMITIVES
 from hwbvh.errors import InputError
 from hwbvh.primitives import MESH_EXTENSIONS, as_triangles, load_mesh_arrays
 from .builtin import BUILTIN
@@ -42,6 +44,11 @@ SHAPE_KEYS = {"quad": ("corners",), "box": ("min", "max", "rotate_y"),
               "triangles": ("data",), "mesh": ("filename", "smooth", "transform")}
 TRANSFORM_KEYS = ("scale", "rotate_y", "translate")
 
+# The largest film: a render keeps about 100 bytes per pixel (the film in float64, the image
+# and its depth, normal and primitive layers, a sample pass' jitter), so 2^25 pixels (8192 x
+# 4096) take some 3.4 GB; more would exhaust an ordinary machine's memory mid-render.
+MAX_FILM_PIXELS = 1 << 25
+
 
 def is_scene(spec):
     return spec in BUILTIN or str(spec).lower().endswith(SCENE_EXTENSIONS)
@@ -59,10 +66,12 @@ def load_scene(spec, **overrides):
     low = spec.lower()
     if low.endswith(".json"):
         try:
-            with open(spec) as f:
+            with open(spec, encoding="utf-8") as f:
                 d = json.load(f)
         except json.JSONDecodeError as e:
             raise InputError(spec, f"not valid JSON ({e.msg} at line {e.lineno})") from None
+        except (OSError, UnicodeDecodeError, RecursionError, ValueError) as e:
+            raise InputError(spec, f"cannot read the scene ({_reason(e)})") from None
     elif low.endswith(".toml"):
         import tomllib
         try:
@@ -70,6 +79,8 @@ def load_scene(spec, **overrides):
                 d = tomllib.load(f)
         except tomllib.TOMLDecodeError as e:
             raise InputError(spec, f"not valid TOML ({e})") from None
+        except (OSError, UnicodeDecodeError, RecursionError, ValueError) as e:
+            raise InputError(spec, f"cannot read the scene ({_reason(e)})") from None
     elif low.endswith(MESH_EXTENSIONS):
         return mesh_scene(spec)
     else:
@@ -77,9 +88,30 @@ def load_scene(spec, **overrides):
                          "/".join(MESH_EXTENSIONS) + ")")
     if not isinstance(d, dict):
         raise InputError(spec, "a scene file must hold an object at the top level")
+    _refuse_internal_keys(spec, d)
     d["_source"] = spec
     d.setdefault("name", os.path.splitext(os.path.basename(spec))[0])
     return d
+
+
+def _reason(e):
+    if isinstance(e, RecursionError):
+        return "nested too deeply"
+    if isinstance(e, UnicodeDecodeError):
+        return "not UTF-8 text"
+    return getattr(e, "strerror", None) or str(e).split(":")[0]
+
+
+def _refuse_internal_keys(spec, d):
+    """Keys with a leading underscore are this module's own (``_source``, a shape's
+    ``_world``): from a file they are unknown keys like any other."""
+    shapes = d.get("shapes")
+    found = [k for k in d if str(k).startswith("_")]
+    if isinstance(shapes, list):
+        found += [f"shapes[{i}].{k}" for i, sh in enumerate(shapes) if isinstance(sh, dict)
+                  for k in sh if str(k).startswith("_")]
+    if found:
+        raise InputError(spec, f"key '{found[0]}': unknown key")
 
 
 def mesh_scene(path):
@@ -210,7 +242,11 @@ class _Ctx:
         v = obj[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(f"{path}.{key}", f"expected {'an integer' if integer else 'a number'}, got {v!r}")
-        if not np.isfinite(v):
+        try:
+            finite = math.isfinite(v)
+        except OverflowError:                        # an int beyond the float range
+            self.fail(f"{path}.{key}", f"{v!r} is out of range")
+        if not finite:
             self.fail(f"{path}.{key}", f"expected a finite number, got {v!r}")
         if integer and int(v) != v:
             self.fail(f"{path}.{key}", f"expected an integer, got {v!r}")
@@ -297,15 +333,21 @@ def _shape(ctx, sh, i, scene_dir):
         c = ctx.vec(sh, "center", path)
         r = ctx.num(sh, "radius", path, lo=1e-30, wanted="positive")
         sub = sh.get("subdiv", [32, 64])
-        if not (isinstance(sub, (list, tuple)) and len(sub) == 2 and all(isinstance(x, int) and x >= 3 for x in sub)):
+        if not (isinstance(sub, (list, tuple)) and len(sub) == 2 and
+                all(isinstance(x, int) and not isinstance(x, bool) and x >= 3 for x in sub)):
             ctx.fail(f"{path}.subdiv", f"expected [n_lat, n_lon] integers >= 3, got {sub!r}")
+        if 2 * sub[0] * sub[1] > MAX_PRIMITIVES:
+            ctx.fail(f"{path}.subdiv", f"{sub!r} makes more than the 2^24 triangles a tree holds")
         V, F = uv_sphere(sub[0], sub[1])
         tris = V[F] * r + c
         normals = V[F]                                   # radial, outward
     elif typ == "sheet":
         res = sh.get("resolution", [64, 64])
-        if not (isinstance(res, (list, tuple)) and len(res) == 2 and all(isinstance(x, int) and x >= 1 for x in res)):
+        if not (isinstance(res, (list, tuple)) and len(res) == 2 and
+                all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for x in res)):
             ctx.fail(f"{path}.resolution", f"expected [nx, ny] positive integers, got {res!r}")
+        if 2 * res[0] * res[1] > MAX_PRIMITIVES:
+            ctx.fail(f"{path}.resolution", f"{res!r} makes more than the 2^24 triangles a tree holds")
         tris = grid_sheet(res[0], res[1], size=ctx.num(sh, "size", path, default=2.0, lo=0),
                           wave=ctx.num(sh, "wave", path, default=0.15)).astype(np.float64)
         tris[:, :, 1] += ctx.num(sh, "height", path, default=0.0)
@@ -397,7 +439,7 @@ def compile_scene(d, source=None):
     for i, sh in enumerate(shapes):
         tris, normals = _shape(ctx, sh, i, scene_dir)
         mname = sh.get("material")
-        if mname not in mats:
+        if not isinstance(mname, str) or mname not in mats:
             ctx.fail(f"shapes[{i}].material", f"unknown material {mname!r} (defined: {', '.join(names)})")
         all_t.append(tris)
         all_n.append(normals)
@@ -436,13 +478,17 @@ def compile_scene(d, source=None):
             lights.append({"type": "directional", "direction": dv / np.linalg.norm(dv),
                            "irradiance": _non_negative(ctx, ctx.vec(L, "irradiance", p), p, "irradiance")})
     V = tris.reshape(-1, 3)
+    width = ctx.num(film, "width", "film", default=640, lo=1, hi=1 << 15, integer=True)
+    height = ctx.num(film, "height", "film", default=480, lo=1, hi=1 << 15, integer=True)
+    if width * height > MAX_FILM_PIXELS:
+        ctx.fail("film.width", f"{width} x {height} is more than the {MAX_FILM_PIXELS} pixels "
+                               "a film may hold")
     return CompiledScene(
         name=str(d.get("name", "scene")), triangles=tris,
         normals=np.concatenate(all_n).astype(np.float32), material=np.concatenate(all_m),
         mat_names=names, kd=kd, ks=ks, shininess=sh_, kr=kr, ior=ior, lights=lights,
         camera=camera,
-        width=ctx.num(film, "width", "film", default=640, lo=1, hi=1 << 15, integer=True),
-        height=ctx.num(film, "height", "film", default=480, lo=1, hi=1 << 15, integer=True),
+        width=width, height=height,
         spp=ctx.num(film, "spp", "film", default=1, lo=1, hi=4096, integer=True),
         max_depth=ctx.num(integ, "max_depth", "integrator", default=5, lo=1, hi=64, integer=True),
         ambient=_non_negative(ctx, ctx.vec(integ, "ambient", "integrator", default=[0.03] * 3),

@@ -347,6 +347,12 @@ BAD_SCENE_EDITS = {
                        "film.width': expected a finite number, got inf"),
     "fractional-width": (lambda d: d["film"].update(width=32.5),
                          "film.width': expected an integer, got 32.5"),
+    "huge-int": (lambda d: d["camera"].update(fov=10 ** 30), "camera.fov': 1000000000000000000000000000000 is out of range"),
+    "material-not-a-name": (lambda d: d["shapes"][0].update(material=[1, 2]), "shapes\\[0\\].material': unknown material"),
+    "internal-key": (lambda d: d["shapes"][0].update(_world=1), "shapes\\[0\\]._world': unknown key"),
+    "film-not-an-object": (lambda d: d.update(film="abc"), "key 'film': expected an object"),
+    "too-many-triangles": (lambda d: d["shapes"][0].update(subdiv=[100000, 100000]), "subdiv'.*2\\^24 triangles"),
+    "film-too-large": (lambda d: d.update(film={"width": 32768, "height": 32768}), "film.width'.*pixels a film may hold"),
 }
 
 
@@ -724,3 +730,32 @@ def test_human_output_shows_what_does_not_apply_as_n_a(capsys, tetra):
     from hwrt.cli import _shown
     assert _shown({"rays": 3, "closest": {"agree": 2, "t": 0.1234567}, "none": None}) == \
         "rays 3, closest (agree 2, t 0.123457), none n/a"
+
+
+@pytest.mark.parametrize("content,problem", [(b"\xff\xfe{}", "not UTF-8 text"),
+                                             (b"[" * 100000 + b"]" * 100000, "nested too deeply"),
+                                             (b'{"a": ' + b"1" * 5000 + b"}", "Exceeds the limit")])
+def test_unreadable_scene_files(tmp_path, capsys, content, problem):
+    p = tmp_path / "s.json"
+    p.write_bytes(content)
+    rc, out, err = call(capsys, "render", p, "-o", tmp_path / "o.exr")
+    assert rc == 2 and f"{p}: cannot read the scene ({problem}" in one_line_error(err)
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_overrides_of_a_film_that_is_not_an_object(tmp_path, capsys):
+    p = tmp_path / "s.json"
+    p.write_text(json.dumps(scene_dict(film="abc")))
+    rc, out, err = call(capsys, "render", p, "--width", 8, "-o", tmp_path / "o.exr")
+    assert rc == 2 and "key 'film': expected an object" in one_line_error(err)
+
+
+@pytest.mark.parametrize("argv,option", [
+    (["verify", "cornell", "--rays", 10 ** 9], "--rays"),
+    (["explore", "x.ply", "--workers", 1000], "--workers"),
+    (["build", "x.ply", "--capacity", 10 ** 30], "--capacity"),
+    (["animate", "exploding", "--fps", "1e-300"], "--fps"),
+    (["bench", "build", "--repeat", 10 ** 6], "--repeat")])
+def test_options_beyond_what_the_machine_can_hold_are_refused(capsys, argv, option):
+    rc, out, err = call(capsys, *argv)
+    assert rc == 2 and f"argument {option}: must" in one_line_error(err)
