@@ -43,10 +43,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
+from hwbvh.config import MAX_COORDINATE
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.primitives import as_triangles, load_mesh_arrays
 from .builtin import BUILTIN
-from .loader import compile_scene, load_scene, mesh_scene
+from .loader import FOV_RANGE, compile_scene, load_scene, mesh_scene, vector_ok
 
 DEFAULT_FPS = 30.0
 # Frame rates an animation may have: an animation without a frame count lasts four seconds,
@@ -108,8 +109,9 @@ def _vec3(source, v, path):
         a = np.asarray(v, np.float64)
     except (TypeError, ValueError):
         a = None
-    if a is None or a.shape != (3,) or not np.isfinite(a).all():
-        _fail(source, path, f"expected 3 finite numbers, got {v!r}")
+    if a is None or a.shape != (3,) or not np.isfinite(a).all() or not vector_ok(v, a):
+        _fail(source, path, f"expected 3 finite numbers of magnitude at most "
+                            f"{MAX_COORDINATE:g}, got {v!r}")
     return a
 
 
@@ -163,7 +165,7 @@ class Track:
         return {k: (1 - w) * v[j] + w * v[j + 1] for k, v in self.channels.items()}
 
 
-def parse_keys(source, keys, path, allowed, defaults, vec_keys, num_keys=()):
+def parse_keys(source, keys, path, allowed, defaults, vec_keys, num_keys=(), num_ranges=None):
     """A :class:`Track` from a list of key objects; checks keys, types and time order."""
     if not isinstance(keys, list) or not keys:
         _fail(source, path, "expected a non-empty list of keys")
@@ -186,7 +188,9 @@ def parse_keys(source, keys, path, allowed, defaults, vec_keys, num_keys=()):
             elif k in vec_keys:
                 chans[k].append(_vec3(source, key[k], f"{p}.{k}"))
             else:
-                chans[k].append(np.float64(_number(source, key[k], f"{p}.{k}", positive=k in num_keys)))
+                lo, hi = (num_ranges or {}).get(k, (None, None))
+                chans[k].append(np.float64(_number(source, key[k], f"{p}.{k}",
+                                                   positive=k in num_keys, lo=lo, hi=hi)))
     return Track(times, chans)
 
 
@@ -202,7 +206,8 @@ def rigid_track(source, keys, path):
 def camera_track(source, keys, path, base):
     return parse_keys(source, keys, path, CAMERA_KEY_KEYS,
                       {"eye": base["eye"], "target": base["target"], "up": base["up"],
-                       "fov": base["fov"]}, vec_keys=("eye", "target", "up"), num_keys=("fov",))
+                       "fov": base["fov"]}, vec_keys=("eye", "target", "up"), num_keys=("fov",),
+                       num_ranges={"fov": FOV_RANGE})
 
 
 # --------------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hwbvh.config import MAX_PRIMITIVES
+from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
 from hwbvh.errors import InputError
 from hwbvh.primitives import MESH_EXTENSIONS, as_triangles, load_mesh_arrays
 from .builtin import BUILTIN
@@ -43,6 +43,7 @@ SHAPE_KEYS = {"quad": ("corners",), "box": ("min", "max", "rotate_y"),
               "sheet": ("resolution", "size", "wave", "height"),
               "triangles": ("data",), "mesh": ("filename", "smooth", "transform")}
 TRANSFORM_KEYS = ("scale", "rotate_y", "translate")
+FOV_RANGE = (1e-3, 179.0)       # degrees: a pinhole camera sees less than a half-space
 
 # The largest film: a render keeps about 100 bytes per pixel (the film in float64, the image
 # and its depth, normal and primitive layers, a sample pass' jitter), so 2^25 pixels (8192 x
@@ -92,6 +93,15 @@ def load_scene(spec, **overrides):
     d["_source"] = spec
     d.setdefault("name", os.path.splitext(os.path.basename(spec))[0])
     return d
+
+
+def vector_ok(v, a):
+    """Whether the numbers ``a`` read from ``v`` are ordinary: no true/false among them (JSON's
+    booleans would read as 1 and 0) and none beyond the coordinates hwbvh accepts, so that no
+    product of them overflows on the way to the image."""
+    items = v if isinstance(v, (list, tuple)) else [v]
+    return not any(isinstance(x, bool) for x in items) and \
+        bool((np.abs(a) <= MAX_COORDINATE).all())
 
 
 def _reason(e):
@@ -228,8 +238,9 @@ class _Ctx:
             a = np.asarray(v, np.float64)
         except (TypeError, ValueError):
             self.fail(f"{path}.{key}", f"expected {n} numbers, got {v!r}")
-        if a.shape != (n,) or not np.isfinite(a).all():
-            self.fail(f"{path}.{key}", f"expected {n} finite numbers, got {v!r}")
+        if a.shape != (n,) or not np.isfinite(a).all() or not vector_ok(v, a):
+            self.fail(f"{path}.{key}", f"expected {n} finite numbers of magnitude at most "
+                                       f"{MAX_COORDINATE:g}, got {v!r}")
         return a
 
     def num(self, obj, key, path, default=None, lo=None, hi=None, integer=False, wanted=None):
@@ -373,6 +384,8 @@ def _shape(ctx, sh, i, scene_dir):
         normals = smooth_normals(verts, faces) if smooth else _flat_normals(tris)
         if tf:
             s = ctx.vec(tf, "scale", f"{path}.transform", default=[1, 1, 1])
+            if (s == 0).any():
+                ctx.fail(f"{path}.transform.scale", "a scale of 0 flattens the shape")
             a = np.radians(ctx.num(tf, "rotate_y", f"{path}.transform", default=0.0))
             R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
             t = ctx.vec(tf, "translate", f"{path}.transform", default=[0, 0, 0])
@@ -451,7 +464,7 @@ def compile_scene(d, source=None):
         ctx.fail("camera.type", f"unknown camera type {cam['type']!r} (the camera is 'perspective')")
     camera = {"eye": ctx.vec(cam, "eye", "camera"), "target": ctx.vec(cam, "target", "camera"),
               "up": ctx.vec(cam, "up", "camera", default=[0, 1, 0]),
-              "fov": ctx.num(cam, "fov", "camera", default=40.0, lo=1e-3, hi=179.0)}
+              "fov": ctx.num(cam, "fov", "camera", default=40.0, lo=FOV_RANGE[0], hi=FOV_RANGE[1])}
     if np.array_equal(camera["eye"], camera["target"]):
         ctx.fail("camera.target", "must differ from camera.eye")
     film = ctx.obj(d, "film", default={})

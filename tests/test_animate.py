@@ -216,6 +216,11 @@ def test_keyframes_interpolate_translate_rotate_scale(tmp_path):
     ({"animation": {"frames": 3, "speed": 2}}, "key 'animation.speed': unknown key"),
     ({"animation": {"camera": [{"time": 0, "eye": [0, 1, 3]}, {"time": 0, "eye": [1, 1, 3]}]}},
      "key 'animation.camera[1].time'"),
+    ({"animation": {"camera": [{"time": 0, "fov": 40}, {"time": 1, "fov": 1000}]}},
+     "key 'animation.camera[1].fov': must be at most 179.0"),
+    ({"animation": {"fps": 1e308}}, "key 'animation.fps': must be at most 1000.0"),
+    ({"keyframes": [{"time": 0}, {"time": 1, "translate": [1e308, 0, 0]}]},
+     "key 'shapes[0].keyframes[1].translate': expected 3 finite numbers of magnitude at most"),
 ])
 def test_bad_scene_files_exit_2_naming_file_and_key(tmp_path, capsys, shape_or_anim, message):
     anim = shape_or_anim.pop("animation", None)

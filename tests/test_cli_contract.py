@@ -352,6 +352,9 @@ BAD_SCENE_EDITS = {
     "internal-key": (lambda d: d["shapes"][0].update(_world=1), "shapes\\[0\\]._world': unknown key"),
     "film-not-an-object": (lambda d: d.update(film="abc"), "key 'film': expected an object"),
     "too-many-triangles": (lambda d: d["shapes"][0].update(subdiv=[100000, 100000]), "subdiv'.*2\\^24 triangles"),
+    "huge-coordinate": (lambda d: d["camera"].update(eye=[0, 0, 1e308]), "camera.eye': expected 3 finite numbers of magnitude at most 1e\\+15"),
+    "huge-intensity": (lambda d: d["lights"][0].update(intensity=[1e308, 1, 1]), "lights\\[0\\].intensity': expected 3"),
+    "booleans-as-numbers": (lambda d: d["camera"].update(up=[False, True, False]), "camera.up': expected 3"),
     "film-too-large": (lambda d: d.update(film={"width": 32768, "height": 32768}), "film.width'.*pixels a film may hold"),
 }
 
@@ -378,6 +381,16 @@ def test_unknown_mesh_transform_key(tmp_path, tetra):
     p = tmp_path / "t.json"
     p.write_text(json.dumps(d))
     with pytest.raises(InputError, match="shapes\\[0\\].transform.rotate_x.*'rotate_y'"):
+        compile_scene(load_scene(p))
+
+
+def test_zero_mesh_scale_is_refused(tmp_path, tetra):
+    from scenes import compile_scene, load_scene
+    d = scene_dict(shapes=[{"type": "mesh", "filename": str(tetra), "material": "m",
+                            "transform": {"scale": [1, 0, 1]}}])
+    p = tmp_path / "t.json"
+    p.write_text(json.dumps(d))
+    with pytest.raises(InputError, match="shapes\\[0\\].transform.scale': a scale of 0"):
         compile_scene(load_scene(p))
 
 
