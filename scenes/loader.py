@@ -43,6 +43,10 @@ SHAPE_KEYS = {"quad": ("corners",), "box": ("min", "max", "rotate_y"),
               "sheet": ("resolution", "size", "wave", "height"),
               "triangles": ("data",), "mesh": ("filename", "smooth", "transform")}
 TRANSFORM_KEYS = ("scale", "rotate_y", "translate")
+# Light (intensities, irradiance, ambient, background): a point light's intensity grows with
+# the square of the scene's scale (up to 1e30 at hwbvh's largest coordinates), and shading
+# multiplies it by a few more factors in float64, which holds up to ~1e308.
+MAX_RADIANCE = 1e100
 FOV_RANGE = (1e-3, 179.0)       # degrees: a pinhole camera sees less than a half-space
 
 # The largest film: a render keeps about 100 bytes per pixel (the film in float64, the image
@@ -95,13 +99,13 @@ def load_scene(spec, **overrides):
     return d
 
 
-def vector_ok(v, a):
+def vector_ok(v, a, bound=MAX_COORDINATE):
     """Whether the numbers ``a`` read from ``v`` are ordinary: no true/false among them (JSON's
-    booleans would read as 1 and 0) and none beyond the coordinates hwbvh accepts, so that no
-    product of them overflows on the way to the image."""
+    booleans would read as 1 and 0) and none beyond ``bound`` (positions and directions: the
+    coordinates hwbvh accepts; light: MAX_RADIANCE), so that no product of them overflows on
+    the way to the image."""
     items = v if isinstance(v, (list, tuple)) else [v]
-    return not any(isinstance(x, bool) for x in items) and \
-        bool((np.abs(a) <= MAX_COORDINATE).all())
+    return not any(isinstance(x, bool) for x in items) and bool((np.abs(a) <= bound).all())
 
 
 def _reason(e):
@@ -226,7 +230,7 @@ class _Ctx:
             self.fail(f"{path}.{key}", f"expected true or false, got {v!r}")
         return v
 
-    def vec(self, obj, key, path, n=3, default=None):
+    def vec(self, obj, key, path, n=3, default=None, bound=MAX_COORDINATE):
         if key not in obj:
             if default is None:
                 self.fail(f"{path}.{key}", "missing")
@@ -238,9 +242,9 @@ class _Ctx:
             a = np.asarray(v, np.float64)
         except (TypeError, ValueError):
             self.fail(f"{path}.{key}", f"expected {n} numbers, got {v!r}")
-        if a.shape != (n,) or not np.isfinite(a).all() or not vector_ok(v, a):
+        if a.shape != (n,) or not np.isfinite(a).all() or not vector_ok(v, a, bound):
             self.fail(f"{path}.{key}", f"expected {n} finite numbers of magnitude at most "
-                                       f"{MAX_COORDINATE:g}, got {v!r}")
+                                       f"{bound:g}, got {v!r}")
         return a
 
     def num(self, obj, key, path, default=None, lo=None, hi=None, integer=False, wanted=None):
@@ -483,13 +487,13 @@ def compile_scene(d, source=None):
         ctx.keys(L, LIGHT_KEYS[L["type"]], p)
         if L["type"] == "point":
             lights.append({"type": "point", "position": ctx.vec(L, "position", p),
-                           "intensity": _non_negative(ctx, ctx.vec(L, "intensity", p), p, "intensity")})
+                           "intensity": _non_negative(ctx, ctx.vec(L, "intensity", p, bound=MAX_RADIANCE), p, "intensity")})
         else:
             dv = ctx.vec(L, "direction", p)
             if not np.linalg.norm(dv) > 0:
                 ctx.fail(f"{p}.direction", "must not be zero")
             lights.append({"type": "directional", "direction": dv / np.linalg.norm(dv),
-                           "irradiance": _non_negative(ctx, ctx.vec(L, "irradiance", p), p, "irradiance")})
+                           "irradiance": _non_negative(ctx, ctx.vec(L, "irradiance", p, bound=MAX_RADIANCE), p, "irradiance")})
     V = tris.reshape(-1, 3)
     width = ctx.num(film, "width", "film", default=640, lo=1, hi=1 << 15, integer=True)
     height = ctx.num(film, "height", "film", default=480, lo=1, hi=1 << 15, integer=True)
@@ -504,9 +508,9 @@ def compile_scene(d, source=None):
         width=width, height=height,
         spp=ctx.num(film, "spp", "film", default=1, lo=1, hi=4096, integer=True),
         max_depth=ctx.num(integ, "max_depth", "integrator", default=5, lo=1, hi=64, integer=True),
-        ambient=_non_negative(ctx, ctx.vec(integ, "ambient", "integrator", default=[0.03] * 3),
+        ambient=_non_negative(ctx, ctx.vec(integ, "ambient", "integrator", default=[0.03] * 3, bound=MAX_RADIANCE),
                               "integrator", "ambient"),
-        background=_non_negative(ctx, ctx.vec(d, "background", "scene", default=[0, 0, 0]),
+        background=_non_negative(ctx, ctx.vec(d, "background", "scene", default=[0, 0, 0], bound=MAX_RADIANCE),
                                  "scene", "background"),
         cutoff=ctx.num(integ, "cutoff", "integrator", default=1e-3, lo=0, hi=1),
         jitter=ctx.flag(film, "jitter", "film", True),
