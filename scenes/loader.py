@@ -415,6 +415,11 @@ def compile_scene(d, source=None):
     """Validate a scene dict and turn it into arrays (see :class:`CompiledScene`)."""
     source = source or d.get("_source", "<scene>")
     ctx = _Ctx(source)
+    moving = "animation" in d or any(isinstance(sh, dict) and "keyframes" in sh
+                                     for sh in (d.get("shapes") or []))
+    if moving:
+        ctx.fail("animation" if "animation" in d else "shapes",
+                 "the scene moves: render it with hwrt animate")
     ctx.keys(d, SCENE_KEYS, "")
     for key in ("camera", "shapes", "materials"):
         if key not in d:

@@ -772,3 +772,10 @@ def test_overrides_of_a_film_that_is_not_an_object(tmp_path, capsys):
 def test_options_beyond_what_the_machine_can_hold_are_refused(capsys, argv, option):
     rc, out, err = call(capsys, *argv)
     assert rc == 2 and f"argument {option}: must" in one_line_error(err)
+
+
+def test_rendering_a_moving_scene_points_to_animate(tmp_path, capsys):
+    p = tmp_path / "a.json"
+    p.write_text(json.dumps(scene_dict(animation={"frames": 2})))
+    rc, out, err = call(capsys, "render", p, "-o", tmp_path / "o.exr")
+    assert rc == 2 and "the scene moves: render it with hwrt animate" in one_line_error(err)
