@@ -584,8 +584,8 @@ def make_parser():
     x.add_argument("--scheduler", metavar="ADDRESS",
                    help="a running Dask scheduler, tcp://HOST:PORT (default: $HWRT_SCHEDULER, "
                         "else a local cluster of one worker per core)")
-    x.add_argument("--workers", type=_int_at_least(1, MAX_WORKERS), help="workers of the local cluster "
-                                                     "(default: one per core)")
+    x.add_argument("--workers", type=_int_at_least(1, MAX_WORKERS),
+                   help="workers of the local cluster (default: one per core)")
     x.add_argument("--out-dir", default="renders/explore", help="where the files and the "
                                                                 "resumable cells go")
     x.add_argument("--fresh", action="store_true", help="ignore finished cells")
@@ -643,7 +643,8 @@ def make_parser():
                                     "same directory resumes at the first missing frame.")
     an.add_argument("scene", help="built-in animation (exploding, cloth, marbles, flythrough), "
                                   "scene file, or frame pattern of mesh files ('f_%%04d.ply' or a glob)")
-    an.add_argument("--frames", type=_int_at_least(1, MAX_FRAMES), help="frames to render (default: the animation's)")
+    an.add_argument("--frames", type=_int_at_least(1, MAX_FRAMES),
+                    help="frames to render (default: the animation's)")
     an.add_argument("--fps", type=_fps,
                     help="frames per second of animation time (default: the animation's, else 30)")
     an.add_argument("--strategy", default="rebuild",
@@ -686,7 +687,8 @@ def make_parser():
     be.add_argument("--mesh-dir", help=_bench_help("mesh_dir", "directory of meshes"))
     be.add_argument("--repeat", type=_int_at_least(1, MAX_REPEAT),
                     help=_bench_help("repeat", "timed runs; figures are their medians"))
-    be.add_argument("--rays", type=_int_at_least(1, MAX_RAYS), help=_bench_help("rays", "rays per set"))
+    be.add_argument("--rays", type=_int_at_least(1, MAX_RAYS),
+                    help=_bench_help("rays", "rays per set"))
     be.add_argument("--quick", action="store_true",
                     help=_bench_help("quick", "a few small cells (minutes)"))
     be.add_argument("--fresh", action="store_true",

@@ -362,7 +362,8 @@ def _shape(ctx, sh, i, scene_dir):
                 all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for x in res)):
             ctx.fail(f"{path}.resolution", f"expected [nx, ny] positive integers, got {res!r}")
         if 2 * res[0] * res[1] > MAX_PRIMITIVES:
-            ctx.fail(f"{path}.resolution", f"{res!r} makes more than the 2^24 triangles a tree holds")
+            ctx.fail(f"{path}.resolution",
+                     f"{res!r} makes more than the 2^24 triangles a tree holds")
         tris = grid_sheet(res[0], res[1], size=ctx.num(sh, "size", path, default=2.0, lo=0),
                           wave=ctx.num(sh, "wave", path, default=0.15)).astype(np.float64)
         tris[:, :, 1] += ctx.num(sh, "height", path, default=0.0)
@@ -404,8 +405,10 @@ def _shape(ctx, sh, i, scene_dir):
     return tris, normals
 
 
-def _non_negative(ctx, v, path, key):
-    """Light and radiance values: a negative one would paint negative pixels."""
+def _light(ctx, obj, key, path, default=None):
+    """A light or radiance value (three numbers up to MAX_RADIANCE): a negative one would
+    paint negative pixels."""
+    v = ctx.vec(obj, key, path, default=default, bound=MAX_RADIANCE)
     if (v < 0).any():
         ctx.fail(f"{path}.{key}", f"must not be negative, got {v.tolist()}")
     return v
@@ -492,13 +495,13 @@ def compile_scene(d, source=None):
         ctx.keys(L, LIGHT_KEYS[L["type"]], p)
         if L["type"] == "point":
             lights.append({"type": "point", "position": ctx.vec(L, "position", p),
-                           "intensity": _non_negative(ctx, ctx.vec(L, "intensity", p, bound=MAX_RADIANCE), p, "intensity")})
+                           "intensity": _light(ctx, L, "intensity", p)})
         else:
             dv = ctx.vec(L, "direction", p)
             if not np.linalg.norm(dv) > 0:
                 ctx.fail(f"{p}.direction", "must not be zero")
             lights.append({"type": "directional", "direction": dv / np.linalg.norm(dv),
-                           "irradiance": _non_negative(ctx, ctx.vec(L, "irradiance", p, bound=MAX_RADIANCE), p, "irradiance")})
+                           "irradiance": _light(ctx, L, "irradiance", p)})
     V = tris.reshape(-1, 3)
     width = ctx.num(film, "width", "film", default=640, lo=1, hi=1 << 15, integer=True)
     height = ctx.num(film, "height", "film", default=480, lo=1, hi=1 << 15, integer=True)
@@ -513,10 +516,8 @@ def compile_scene(d, source=None):
         width=width, height=height,
         spp=ctx.num(film, "spp", "film", default=1, lo=1, hi=4096, integer=True),
         max_depth=ctx.num(integ, "max_depth", "integrator", default=5, lo=1, hi=64, integer=True),
-        ambient=_non_negative(ctx, ctx.vec(integ, "ambient", "integrator", default=[0.03] * 3, bound=MAX_RADIANCE),
-                              "integrator", "ambient"),
-        background=_non_negative(ctx, ctx.vec(d, "background", "scene", default=[0, 0, 0], bound=MAX_RADIANCE),
-                                 "scene", "background"),
+        ambient=_light(ctx, integ, "ambient", "integrator", default=[0.03] * 3),
+        background=_light(ctx, d, "background", "scene", default=[0, 0, 0]),
         cutoff=ctx.num(integ, "cutoff", "integrator", default=1e-3, lo=0, hi=1),
         jitter=ctx.flag(film, "jitter", "film", True),
         vertices=V, faces=np.arange(len(V), dtype=np.int32).reshape(-1, 3))
