@@ -432,12 +432,12 @@ def from_scene_dict(d, source=None, fps=None):
             max_frames = len(files) if max_frames is None else min(max_frames, len(files))
             one = dict(static, shapes=[{"type": "mesh", "filename": files[0],
                                         "material": sh.get("material"), "smooth": smooth}])
-            c = compile_scene(one, source=source)
+            c = compile_scene(one, source=source, first_shape=i)
             parts.append(Part(c.triangles, c.normals, int(c.material[0]), FrameSequence(files, smooth)))
         else:
             keys = sh.get("keyframes")
             plain = {k: v for k, v in sh.items() if k != "keyframes"}
-            c = compile_scene(dict(static, shapes=[plain]), source=source)
+            c = compile_scene(dict(static, shapes=[plain]), source=source, first_shape=i)
             if plain.get("type") == "mesh" and isinstance(plain.get("filename"), str):
                 fn = plain["filename"]
                 inputs.append(fn if os.path.isabs(fn) else os.path.join(scene_dir, fn))

@@ -414,8 +414,9 @@ def _light(ctx, obj, key, path, default=None):
     return v
 
 
-def compile_scene(d, source=None):
-    """Validate a scene dict and turn it into arrays (see :class:`CompiledScene`)."""
+def compile_scene(d, source=None, first_shape=0):
+    """Validate a scene dict and turn it into arrays (see :class:`CompiledScene`).
+    ``first_shape``: the index errors give the first shape (a part of a larger scene)."""
     source = source or d.get("_source", "<scene>")
     ctx = _Ctx(source)
     moving = "animation" in d or any(isinstance(sh, dict) and "keyframes" in sh
@@ -461,7 +462,7 @@ def compile_scene(d, source=None):
         ctx.fail("shapes", "expected a non-empty list")
     scene_dir = os.path.dirname(os.path.abspath(source)) if os.path.exists(str(source)) else os.getcwd()
     all_t, all_n, all_m = [], [], []
-    for i, sh in enumerate(shapes):
+    for i, sh in enumerate(shapes, first_shape):
         tris, normals = _shape(ctx, sh, i, scene_dir)
         mname = sh.get("material")
         if not isinstance(mname, str) or mname not in mats:

@@ -357,3 +357,9 @@ def test_bench_animation_writes_its_figures_and_summary(tmp_path, capsys):
         assert s["hw_rebuild_HWBVH-C_vs_refit"] > 0 and s["energy_per_frame_HWBVH-C_joules"] > 0
     for f in r["files"]:
         assert Path(f).parent == tmp_path and Path(f).stat().st_size > 0
+
+
+def test_errors_name_the_shape_by_its_place_in_the_file(tmp_path, capsys):
+    p = _scene_file(tmp_path, [BOX, dict(BOX, rotate_y="x")])
+    rc, out, err = _run_cli(capsys, "animate", p, "--frames", 2, "-o", tmp_path / "out")
+    assert rc == 2 and "key 'shapes[1].rotate_y'" in err, err
