@@ -472,6 +472,21 @@ _positive = _int_at_least(1)
 _non_negative = _int_at_least(0)
 
 
+def _film_side(v):
+    from scenes.loader import MAX_FILM_SIDE
+    return _int_at_least(1, MAX_FILM_SIDE)(v)
+
+
+def _spp(v):
+    from scenes.loader import MAX_SPP
+    return _int_at_least(1, MAX_SPP)(v)
+
+
+def _depth(v):
+    from scenes.loader import MAX_DEPTH
+    return _int_at_least(1, MAX_DEPTH)(v)
+
+
 def _fps(v):
     from scenes.animation import MAX_FPS, MIN_FPS
     x = _positive_float(v)
@@ -599,10 +614,10 @@ def make_parser():
                         ".toml), or mesh file (default: cornell)")
     r.add_argument("-o", "--output", metavar="FILE.exr",
                    help="EXR path (default: renders/<scene>.exr)")
-    r.add_argument("--width", type=_positive, help="image width (default: the scene's)")
-    r.add_argument("--height", type=_positive, help="image height (default: the scene's)")
-    r.add_argument("--spp", type=_positive, help="samples per pixel (default: the scene's)")
-    r.add_argument("--max-depth", type=_positive,
+    r.add_argument("--width", type=_film_side, help="image width (default: the scene's)")
+    r.add_argument("--height", type=_film_side, help="image height (default: the scene's)")
+    r.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
+    r.add_argument("--max-depth", type=_depth,
                    help="longest reflection/refraction path (default: the scene's)")
     r.add_argument("--builder", choices=["hwbvh", "sweep", "embree"], default="hwbvh",
                    help="the tree: hwbvh (the hardware's), sweep (full SAH) or embree")
@@ -657,10 +672,10 @@ def make_parser():
     an.add_argument("--threshold", type=_positive_float,
                     help="adaptive: rebuild when the SAH cost grows past this factor of the last "
                          f"rebuild's (default: {ADAPTIVE_THRESHOLD})")
-    an.add_argument("--width", type=_positive, help="image width (default: the animation's)")
-    an.add_argument("--height", type=_positive, help="image height (default: the animation's)")
-    an.add_argument("--spp", type=_positive, help="samples per pixel (default: the animation's)")
-    an.add_argument("--max-depth", type=_positive,
+    an.add_argument("--width", type=_film_side, help="image width (default: the animation's)")
+    an.add_argument("--height", type=_film_side, help="image height (default: the animation's)")
+    an.add_argument("--spp", type=_spp, help="samples per pixel (default: the animation's)")
+    an.add_argument("--max-depth", type=_depth,
                     help="longest reflection/refraction path (default: the animation's)")
     an.add_argument("--mesh", help="exploding: the mesh that breaks (default: the bunny of the mesh "
                                    "directory, else a generated sphere)")
@@ -697,10 +712,10 @@ def make_parser():
     be.add_argument("--scheduler", metavar="ADDRESS",
                     help=_bench_help("scheduler", "a running Dask scheduler, tcp://HOST:PORT, whose "
                                                   "workers run the cells one at a time on one host"))
-    be.add_argument("--width", type=_positive, help=_bench_help("width", "image width"))
-    be.add_argument("--height", type=_positive, help=_bench_help("height", "image height"))
-    be.add_argument("--spp", type=_positive, help=_bench_help("spp", "samples per pixel"))
-    be.add_argument("--max-depth", type=_positive,
+    be.add_argument("--width", type=_film_side, help=_bench_help("width", "image width"))
+    be.add_argument("--height", type=_film_side, help=_bench_help("height", "image height"))
+    be.add_argument("--spp", type=_spp, help=_bench_help("spp", "samples per pixel"))
+    be.add_argument("--max-depth", type=_depth,
                     help=_bench_help("max_depth", "longest reflection/refraction path"))
     be.add_argument("--accel", action="append", choices=ACCELS, metavar="NAME",
                     help=f"an acceleration structure ({', '.join(ACCELS)}); repeat the option "

@@ -53,6 +53,10 @@ FOV_RANGE = (1e-3, 179.0)       # degrees: a pinhole camera sees less than a hal
 # and its depth, normal and primitive layers, a sample pass' jitter), so 2^25 pixels (8192 x
 # 4096) take some 3.4 GB; more would exhaust an ordinary machine's memory mid-render.
 MAX_FILM_PIXELS = 1 << 25
+MAX_FILM_SIDE = 1 << 15         # pixels on a side
+MAX_SPP = 4096
+MAX_DEPTH = 64                  # bounces: between mirrors of reflectance 0.9 a path meets the
+                                # default contribution cut-off (1e-3) after about 65
 
 
 def is_scene(spec):
@@ -504,8 +508,8 @@ def compile_scene(d, source=None, first_shape=0):
             lights.append({"type": "directional", "direction": dv / np.linalg.norm(dv),
                            "irradiance": _light(ctx, L, "irradiance", p)})
     V = tris.reshape(-1, 3)
-    width = ctx.num(film, "width", "film", default=640, lo=1, hi=1 << 15, integer=True)
-    height = ctx.num(film, "height", "film", default=480, lo=1, hi=1 << 15, integer=True)
+    width = ctx.num(film, "width", "film", default=640, lo=1, hi=MAX_FILM_SIDE, integer=True)
+    height = ctx.num(film, "height", "film", default=480, lo=1, hi=MAX_FILM_SIDE, integer=True)
     if width * height > MAX_FILM_PIXELS:
         ctx.fail("film.width", f"{width} x {height} is more than the {MAX_FILM_PIXELS} pixels "
                                "a film may hold")
@@ -515,8 +519,8 @@ def compile_scene(d, source=None, first_shape=0):
         mat_names=names, kd=kd, ks=ks, shininess=sh_, kr=kr, ior=ior, lights=lights,
         camera=camera,
         width=width, height=height,
-        spp=ctx.num(film, "spp", "film", default=1, lo=1, hi=4096, integer=True),
-        max_depth=ctx.num(integ, "max_depth", "integrator", default=5, lo=1, hi=64, integer=True),
+        spp=ctx.num(film, "spp", "film", default=1, lo=1, hi=MAX_SPP, integer=True),
+        max_depth=ctx.num(integ, "max_depth", "integrator", default=5, lo=1, hi=MAX_DEPTH, integer=True),
         ambient=_light(ctx, integ, "ambient", "integrator", default=[0.03] * 3),
         background=_light(ctx, d, "background", "scene", default=[0, 0, 0]),
         cutoff=ctx.num(integ, "cutoff", "integrator", default=1e-3, lo=0, hi=1),

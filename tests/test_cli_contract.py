@@ -779,3 +779,9 @@ def test_rendering_a_moving_scene_points_to_animate(tmp_path, capsys):
     p.write_text(json.dumps(scene_dict(animation={"frames": 2})))
     rc, out, err = call(capsys, "render", p, "-o", tmp_path / "o.exr")
     assert rc == 2 and "the scene moves: render it with hwrt animate" in one_line_error(err)
+
+
+@pytest.mark.parametrize("option,value", [("--width", 99999), ("--spp", 5000), ("--max-depth", 65)])
+def test_frame_overrides_are_checked_as_options(capsys, tmp_path, option, value):
+    rc, out, err = call(capsys, "render", "cornell", option, value, "-o", tmp_path / "o.exr")
+    assert rc == 2 and f"argument {option}: must be at most" in one_line_error(err)
