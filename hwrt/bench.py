@@ -347,20 +347,12 @@ RENDER_PATHS = (("hwbvh", "numba"), ("embree", "embree"))
 
 def _render_setting(d, args):
     """The scene dict with --width/--height/--spp/--max-depth applied (unset keeps the scene's)."""
-    d = dict(d)
-    if not isinstance(d.get("film", {}), dict) or not isinstance(d.get("integrator", {}), dict):
-        return d                                    # compile_scene names the bad key
-    film = dict(d.get("film", {}))
-    integ = dict(d.get("integrator", {"type": "whitted"}))
-    for key, target in (("width", film), ("height", film), ("spp", film), ("max_depth", integ)):
-        val = getattr(args, key, None)
-        if val is None:
-            continue
-        if val < 1:
+    from scenes import with_frame
+    given = {key: getattr(args, key, None) for key in ("width", "height", "spp", "max_depth")}
+    for key, val in given.items():
+        if val is not None and val < 1:
             raise InputError(f"--{key.replace('_', '-')}", f"must be at least 1, got {val}")
-        target[key] = val
-    d["film"], d["integrator"] = film, integ
-    return d
+    return with_frame(d, **given)
 
 
 def _peer_variants(specs):

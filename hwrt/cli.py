@@ -249,7 +249,7 @@ def cmd_render(args):
     from raytracer.render import make_tracer, render, warm_up
     from hwbvh.files import write_files
     from raytracer.output import exr_writer, png_writer
-    from scenes import compile_scene, load_scene
+    from scenes import compile_scene, load_scene, with_frame
 
     t_start = time.perf_counter()
     if (args.builder == "embree") != (args.traversal == "embree"):
@@ -261,13 +261,7 @@ def cmd_render(args):
     if args.accel != "bvh" and (args.builder != "hwbvh" or args.traversal != "numba"):
         raise InputError("--accel", f"--accel {args.accel} builds and traverses its own structure: "
                          "it takes no --builder and no --traversal embree")
-    d = load_scene(args.scene)
-    film = d.setdefault("film", {})
-    integ = d.setdefault("integrator", {"type": "whitted"})
-    for key, val, tgt in (("width", args.width, film), ("height", args.height, film),
-                          ("spp", args.spp, film), ("max_depth", args.max_depth, integ)):
-        if val is not None and isinstance(tgt, dict):    # else compile_scene names the key
-            tgt[key] = val
+    d = with_frame(load_scene(args.scene), args.width, args.height, args.spp, args.max_depth)
     out = args.output or os.path.join("renders", f"{d.get('name', 'scene')}.exr")
     if not out.lower().endswith(".exr"):
         raise InputError("-o", f"{out} does not end in .exr (--png adds a PNG preview beside the EXR)")
@@ -472,19 +466,17 @@ _positive = _int_at_least(1)
 _non_negative = _int_at_least(0)
 
 
-def _film_side(v):
-    from scenes.loader import MAX_FILM_SIDE
-    return _int_at_least(1, MAX_FILM_SIDE)(v)
+def _scene_limit(name):
+    """An option that a scene limit bounds: 1 up to ``scenes.loader``'s ``name``."""
+    def parse(v):
+        from scenes import loader
+        return _int_at_least(1, getattr(loader, name))(v)
+    return parse
 
 
-def _spp(v):
-    from scenes.loader import MAX_SPP
-    return _int_at_least(1, MAX_SPP)(v)
-
-
-def _depth(v):
-    from scenes.loader import MAX_DEPTH
-    return _int_at_least(1, MAX_DEPTH)(v)
+_film_side = _scene_limit("MAX_FILM_SIDE")
+_spp = _scene_limit("MAX_SPP")
+_depth = _scene_limit("MAX_DEPTH")
 
 
 def _fps(v):

@@ -44,11 +44,9 @@ def child(scene_spec, repeat, width, height, spp):
     """One set-up (chosen by HWRT_THREADING before import): quiet, then busy. Prints JSON."""
     import numba
     from raytracer.render import make_tracer, render, warm_up
-    from scenes import compile_scene, load_scene
+    from scenes import compile_scene, load_scene, with_frame
 
-    d = load_scene(scene_spec)
-    d.setdefault("film", {}).update(width=width, height=height, spp=spp)
-    scene = compile_scene(d)
+    scene = compile_scene(with_frame(load_scene(scene_spec), width, height, spp))
     for path, traversal in (("hwbvh", "numba"), ("embree", "embree")):
         warm_up(path, traversal, parallel_build=True)
         render(scene, make_tracer(scene, path, traversal)[0])

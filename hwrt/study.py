@@ -155,13 +155,6 @@ def load_scene_spec(spec):
     return mesh_scene(source)
 
 
-def _setting(d, width, height, spp, depth):
-    d = dict(d)
-    d["film"] = dict(d.get("film", {}), width=width, height=height, spp=spp)
-    d["integrator"] = dict(d.get("integrator", {"type": "whitted"}), max_depth=depth)
-    return d
-
-
 def _median(xs):
     return statistics.median(xs), [min(xs), max(xs)]
 
@@ -252,12 +245,12 @@ def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat, accel="bvh"):
     builder is then the default): ``repeat`` timed builds and renders, then (our traversal)
     every ray of a small render checked against Embree. The record of the cell, without its key."""
     from raytracer.render import make_tracer, render
-    from scenes import compile_scene
+    from scenes import compile_scene, with_frame
     from traversal.tracers import VerifyingTracer
     from .bench import structure_figures
 
     name = spec[0]
-    scene = compile_scene(_setting(load_scene_spec(spec), W, H, spp, depth))
+    scene = compile_scene(with_frame(load_scene_spec(spec), W, H, spp, depth))
     builds, renders = [], []
     for _ in range(repeat):
         tracer, b, info = make_tracer(scene, builder, traversal, accel=accel)
@@ -268,7 +261,7 @@ def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat, accel="bvh"):
     figures = structure_figures(tracer, len(scene.triangles)) if traversal == "numba" else {}
     clean = None
     if traversal == "numba":        # --verify at a small size: every ray vs Embree
-        small = compile_scene(_setting(load_scene_spec(spec), 64, 48, 1, depth))
+        small = compile_scene(with_frame(load_scene_spec(spec), 64, 48, 1, depth))
         tr, _, _ = make_tracer(small, builder, traversal, accel=accel)
         checked = VerifyingTracer(tr, small.triangles, small.vertices, small.faces)
         render(small, checked)
@@ -506,9 +499,9 @@ def accuracy_reference(spec, W, H, spp):
     """The high-accuracy image the cells of a scene are compared with: the sweep tree,
     float64, long paths."""
     from raytracer.render import make_tracer, render
-    from scenes import compile_scene
+    from scenes import compile_scene, with_frame
 
-    rs = compile_scene(_setting(load_scene_spec(spec), W, H, spp, REFERENCE_DEPTH))
+    rs = compile_scene(with_frame(load_scene_spec(spec), W, H, spp, REFERENCE_DEPTH))
     tr, _, _ = make_tracer(rs, "sweep", "numba", precision="float64")
     return render(rs, tr, seed=0).image
 
@@ -518,7 +511,7 @@ def accuracy_cell(spec, knob, val, W, H, repeat, rays, reference):
     ray, the image error against ``reference``, the disagreement with Embree on ``rays``
     random rays and the holes of a closed sphere. The record of the cell, without its key."""
     from raytracer.render import make_tracer, render
-    from scenes import compile_scene, transform_scene
+    from scenes import compile_scene, transform_scene, with_frame
     from traversal import raysets
     from traversal.embree_ref import embree_intersect, embree_scene
     from traversal.tracers import CountingTracer
@@ -526,7 +519,7 @@ def accuracy_cell(spec, knob, val, W, H, repeat, rays, reference):
 
     setting, scale = _accuracy_setting(knob, val)
     d = load_scene_spec(spec)
-    scene = compile_scene(_setting(transform_scene(d, scale) if scale != 1.0 else d,
+    scene = compile_scene(with_frame(transform_scene(d, scale) if scale != 1.0 else d,
                                    W, H, setting["spp"], setting["max_depth"]))
     builds, renders = [], []
     for _ in range(repeat):

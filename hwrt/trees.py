@@ -33,14 +33,10 @@ BUILDERS = ("hwbvh", "sweep")
 
 
 def _scene(spec, args):
-    from scenes import compile_scene, load_scene
+    from scenes import compile_scene, load_scene, with_frame
 
-    d = load_scene(spec)
-    film = d.setdefault("film", {})
-    for key in ("width", "height", "spp"):
-        if getattr(args, key, None) is not None and isinstance(film, dict):
-            film[key] = getattr(args, key)
-    return compile_scene(d)
+    return compile_scene(with_frame(load_scene(spec), **{key: getattr(args, key, None)
+                                                         for key in ("width", "height", "spp")}))
 
 
 def _alternating(rounds):

@@ -2,7 +2,8 @@
 from .animation import ANIMATIONS, Animation, load_animation
 from .builtin import BUILTIN
 from .loader import (CompiledScene, compile_scene, is_scene, load_scene, load_scene_geometry,
-                     mesh_scene, transform_scene)
+                     mesh_scene, transform_scene, with_frame)
 
 __all__ = ["ANIMATIONS", "Animation", "load_animation", "BUILTIN", "CompiledScene", "compile_scene",
-           "is_scene", "load_scene", "load_scene_geometry", "mesh_scene", "transform_scene"]
+           "is_scene", "load_scene", "load_scene_geometry", "mesh_scene", "transform_scene",
+           "with_frame"]

@@ -47,7 +47,8 @@ from hwbvh.config import MAX_COORDINATE
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.primitives import as_triangles, load_mesh_arrays
 from .builtin import BUILTIN
-from .loader import FOV_RANGE, compile_scene, load_scene, mesh_scene, vector_ok
+from .loader import (FOV_RANGE, compile_scene, finite, load_scene, mesh_scene, vector_ok,
+                     with_frame)
 
 DEFAULT_FPS = 30.0
 # Frame rates an animation may have: an animation without a frame count lasts four seconds,
@@ -85,13 +86,7 @@ def _check_keys(source, obj, allowed, path):
 
 
 def _number(source, v, path, lo=None, positive=False, hi=None):
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        _fail(source, path, f"expected a finite number, got {v!r}")
-    try:
-        finite = math.isfinite(v)
-    except OverflowError:                            # an int beyond the float range
-        finite = False
-    if not finite:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not finite(v):
         _fail(source, path, f"expected a finite number, got {v!r}")
     if positive and not v > 0:
         _fail(source, path, f"must be positive, got {v!r}")
@@ -903,9 +898,5 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
                                f"{', '.join(ANIMATIONS)}; scenes: {', '.join(BUILTIN)})")
     else:
         d = load_scene(spec)
-    d = dict(d)
-    if film and isinstance(d.get("film", {}), dict) and isinstance(d.get("integrator", {}), dict):
-        d["film"] = dict(d.get("film", {}), **{k: v for k, v in film.items() if k != "max_depth"})
-        if "max_depth" in film:
-            d["integrator"] = dict(d.get("integrator", {"type": "whitted"}), max_depth=film["max_depth"])
+    d = with_frame(d, **film)
     return from_scene_dict(d, fps=fps)

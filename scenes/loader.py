@@ -112,6 +112,29 @@ def vector_ok(v, a, bound=MAX_COORDINATE):
     return not any(isinstance(x, bool) for x in items) and bool((np.abs(a) <= bound).all())
 
 
+def with_frame(d, width=None, height=None, spp=None, max_depth=None):
+    """A copy of scene dict ``d`` with the given film and depth settings (None keeps the
+    scene's). A film or integrator that is not an object is left for ``compile_scene`` to
+    report."""
+    d = dict(d)
+    film, integ = d.get("film", {}), d.get("integrator", {"type": "whitted"})
+    if not isinstance(film, dict) or not isinstance(integ, dict):
+        return d
+    given = {"width": width, "height": height, "spp": spp}
+    d["film"] = dict(film, **{k: v for k, v in given.items() if v is not None})
+    if max_depth is not None:
+        d["integrator"] = dict(integ, max_depth=max_depth)
+    return d
+
+
+def finite(v):
+    """Whether the number ``v`` is finite (an int beyond the float range is not)."""
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
 def _reason(e):
     if isinstance(e, RecursionError):
         return "nested too deeply"
@@ -261,11 +284,7 @@ class _Ctx:
         v = obj[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(f"{path}.{key}", f"expected {'an integer' if integer else 'a number'}, got {v!r}")
-        try:
-            finite = math.isfinite(v)
-        except OverflowError:                        # an int beyond the float range
-            self.fail(f"{path}.{key}", f"{v!r} is out of range")
-        if not finite:
+        if not finite(v):
             self.fail(f"{path}.{key}", f"expected a finite number, got {v!r}")
         if integer and int(v) != v:
             self.fail(f"{path}.{key}", f"expected an integer, got {v!r}")
