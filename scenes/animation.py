@@ -315,13 +315,16 @@ class Animation:
 
     def check(self, frames):
         """Check, before any output, that ``frames`` frames can be produced (a sequence has
-        them all, and none has NaN vertices)."""
+        them all, none has NaN vertices, and the camera can be placed at every frame)."""
         if self.max_frames is not None and frames > self.max_frames:
             raise InputError(self.source, f"{frames} frames asked for, but the sequence has "
                                           f"only {self.max_frames}")
         for p in self.parts:
             if isinstance(p.motion, FrameSequence):
                 p.motion.check(frames)
+        if self.camera is not None:
+            for i in range(frames):
+                self.camera(self.time(i))
 
     def geometry(self, i):
         """(triangles float32 (n, 3, 3), normals float32 (n, 3, 3), material int32 (n,))."""
@@ -384,13 +387,13 @@ class FrameSequence:
         return load_frame_mesh(self.files[i], self.smooth)
 
 
-def _camera_fn(track, base):
+def _camera_fn(track, base, source):
     def cam(t):
         k = track.at(t)
         c = dict(base)
         c.update(eye=k["eye"], target=k["target"], up=k["up"], fov=float(k["fov"]))
         if np.allclose(c["eye"], c["target"]):
-            raise InputError("animation.camera", f"eye equals target at time {t:g}")
+            _fail(source, "animation.camera", f"eye equals target at time {t:g}")
         return c
     return cam
 
@@ -444,7 +447,7 @@ def from_scene_dict(d, source=None, fps=None):
     camera = None
     if "camera" in anim:
         camera = _camera_fn(camera_track(source, anim["camera"], "animation.camera", base.camera),
-                            base.camera)
+                            base.camera, source)
     frames = anim.get("frames")
     if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
         _fail(source, "animation.frames", f"expected a positive integer, got {frames!r}")

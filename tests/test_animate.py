@@ -221,6 +221,10 @@ def test_keyframes_interpolate_translate_rotate_scale(tmp_path):
     ({"animation": {"fps": 1e308}}, "key 'animation.fps': must be at most 1000.0"),
     ({"keyframes": [{"time": 0}, {"time": 1, "translate": [1e308, 0, 0]}]},
      "key 'shapes[0].keyframes[1].translate': expected 3 finite numbers of magnitude at most"),
+    # eye on target at the second frame only: refused before the first frame is written
+    ({"animation": {"fps": 2, "camera": [{"time": 0}, {"time": 0.5, "eye": [0, 0, 0], "target": [0, 0, 0]},
+                                         {"time": 1, "eye": [0, 1, 4]}]}},
+     "key 'animation.camera': eye equals target at time 0.5"),
 ])
 def test_bad_scene_files_exit_2_naming_file_and_key(tmp_path, capsys, shape_or_anim, message):
     anim = shape_or_anim.pop("animation", None)
