@@ -155,13 +155,25 @@ def _refuse_internal_keys(spec, d):
         raise InputError(spec, f"key '{found[0]}': unknown key")
 
 
+def _mesh_arrays(path):
+    """(vertices, faces) of a mesh file, its coordinates checked (NaN, infinite or beyond
+    MAX_COORDINATE: an error naming the file and the first such triangle) before any
+    arithmetic on them, which would warn."""
+    verts, faces = load_mesh_arrays(path)
+    if not (np.abs(verts) <= MAX_COORDINATE).all():
+        as_triangles(verts[faces], source=path)
+    return verts, faces
+
+
 def mesh_scene(path):
     """A mesh alone: default camera framing it, a point light, a plain diffuse material."""
     from traversal.camera import frame_bounds
 
-    verts, faces = load_mesh_arrays(path)
+    verts, faces = _mesh_arrays(path)
     used = verts[np.unique(faces)]
     lo, hi = used.min(0), used.max(0)
+    if not (hi > lo).any():
+        raise InputError(path, "all vertices coincide; nothing to frame")
     eye, target, up = frame_bounds(lo, hi, 40.0)
     diag = float(np.linalg.norm(hi - lo)) or 1.0
     light = (lo + hi) / 2 + np.array([0.4, 1.0, 0.8]) * diag
@@ -396,6 +408,9 @@ def _shape(ctx, sh, i, scene_dir):
             tris = np.asarray(sh.get("data"), np.float64).reshape(-1, 3, 3)
         except (TypeError, ValueError):
             ctx.fail(f"{path}.data", "expected a list of triangles (3 points of 3 numbers)")
+        if not (np.abs(tris) <= MAX_COORDINATE).all():
+            ctx.fail(f"{path}.data", f"expected finite coordinates of magnitude at most "
+                                     f"{MAX_COORDINATE:g}")
         normals = _flat_normals(tris)
     else:  # mesh
         fn = sh.get("filename")
@@ -407,7 +422,7 @@ def _shape(ctx, sh, i, scene_dir):
         if not isinstance(tf, dict):
             ctx.fail(f"{path}.transform", "expected an object with scale/rotate_y/translate")
         ctx.keys(tf, TRANSFORM_KEYS, f"{path}.transform")
-        verts, faces = load_mesh_arrays(full)
+        verts, faces = _mesh_arrays(full)
         tris = verts[faces]
         normals = smooth_normals(verts, faces) if smooth else _flat_normals(tris)
         if tf:

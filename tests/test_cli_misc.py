@@ -1,4 +1,5 @@
-"""Smoke tests of the narrated example and the benchmarks' plumbing; slow scale runs."""
+"""Smoke tests of the narrated example and the benchmarks' plumbing; slow scale runs; a mesh
+file's input errors at the command line."""
 import json
 import os
 import subprocess
@@ -109,3 +110,46 @@ def test_every_progress_bar_goes_through_hwrt_progress():
     users = [p.relative_to(ROOT) for d in ("hwbvh", "traversal", "raytracer", "scenes", "hwrt")
              for p in (ROOT / d).glob("*.py") if "tqdm" in p.read_text()]
     assert users == [Path("hwrt/progress.py")]
+
+
+# --------------------------------------------------------------------------------------
+# a mesh file's input errors at the command line: one line naming the file, exit status 2,
+# no output (in a child process, so that a warning printed on the way shows on stderr)
+# --------------------------------------------------------------------------------------
+def _hwrt(*argv):
+    return subprocess.run([sys.executable, "-m", "hwrt.cli", *map(str, argv)], capture_output=True,
+                          text=True, timeout=600, env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+
+def _refused(r, output, message):
+    assert r.returncode == 2 and r.stdout == "" and r.stderr.splitlines() == [f"hwrt: error: {message}"]
+    assert not Path(output).exists()
+
+
+@pytest.mark.parametrize("vertex", ["v 0.5 2 -1", "v 0 0 0"])
+def test_a_mesh_whose_vertices_all_coincide_is_refused_naming_the_file(tmp_path, vertex):
+    p = tmp_path / "point.obj"
+    p.write_text(f"{vertex}\n" * 3 + "f 1 2 3\n")
+    out = tmp_path / "o.exr"
+    _refused(_hwrt("render", p, "-o", out, "--width", 8, "--height", 6), out,
+             f"{p}: all vertices coincide; nothing to frame")
+
+
+@pytest.mark.parametrize("how", ["mesh", "nan mesh", "mesh in a scene", "scene triangles"])
+def test_an_infinite_or_nan_vertex_is_one_line_on_stderr(tmp_path, how):
+    mesh = tmp_path / "bad.obj"
+    mesh.write_text(f"v 0 0 0\nv 1 0 0\nv {'nan' if 'nan' in how else 'inf'} 1 0\nf 1 2 3\n")
+    message = f"{mesh}: triangle 0 has a NaN or infinite coordinate"
+    if "scene" in how:
+        shape = {"type": "mesh", "filename": mesh.name} if how == "mesh in a scene" else \
+            {"type": "triangles", "data": [[[0, 0, 0], [1, 0, 0], [float("inf"), 1, 0]]]}
+        scene = {"camera": {"eye": [0, 1, 4], "target": [0, 0, 0]},
+                 "materials": {"m": {"type": "diffuse"}}, "shapes": [dict(shape, material="m")]}
+        spec = tmp_path / "s.json"
+        spec.write_text(json.dumps(scene))          # inf as JSON's Infinity, which Python reads
+        if how == "scene triangles":
+            message = f"{spec}: key 'shapes[0].data': expected finite coordinates of magnitude at most 1e+15"
+    else:
+        spec = mesh
+    out = tmp_path / "o.exr"
+    _refused(_hwrt("render", spec, "-o", out, "--width", 8, "--height", 6), out, message)
