@@ -46,6 +46,27 @@ def _check_obj_indices(path):
         raise InputError(path, f"line {line}: face index 0 (OBJ indices start at 1)")
 
 
+def _check_obj_face_range(path):
+    """Name the first face of an OBJ file that refers past the file's vertices (trimesh reports
+    it as a bare IndexError, 0-based). Run only after a failed load: a good file pays nothing."""
+    try:
+        with open(path, "rb") as f:
+            lines = [ln.split(b"#", 1)[0].split() for ln in f.read().split(b"\n")]
+    except OSError:
+        return
+    count = sum(1 for w in lines if w[:1] == [b"v"])
+    for k, words in enumerate(lines, 1):
+        for w in words[1:] if words[:1] == [b"f"] else ():
+            try:
+                n = int(w.split(b"/")[0])
+            except ValueError:
+                continue
+            if not -count <= n <= count:
+                back = " (counting back from the last)" if n < 0 else ""
+                raise InputError(path, f"line {k}: a face refers to vertex {n}{back}, but the "
+                                       f"file has {count} {'vertex' if count == 1 else 'vertices'}")
+
+
 def check_count(n, source):
     if n == 0:
         raise InputError(source, "mesh has no triangles")
@@ -96,6 +117,8 @@ def load_mesh_arrays(path):
     try:
         mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files
+        if isinstance(exc, IndexError) and path.lower().endswith(".obj"):
+            _check_obj_face_range(path)
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise InputError(path, f"cannot read mesh ({msg})") from None
     faces = getattr(mesh, "faces", None)

@@ -135,6 +135,19 @@ def test_a_mesh_whose_vertices_all_coincide_is_refused_naming_the_file(tmp_path,
              f"{p}: all vertices coincide; nothing to frame")
 
 
+@pytest.mark.parametrize("face, problem", [
+    ("f 1 2 7", "line 5: a face refers to vertex 7, but the file has 3 vertices"),
+    ("f 1/1 2/1 4/1", "line 5: a face refers to vertex 4, but the file has 3 vertices"),
+    ("f -1 -2 -4", "line 5: a face refers to vertex -4 (counting back from the last), but the "
+                   "file has 3 vertices"),
+])
+def test_an_obj_face_past_the_vertices_is_named_by_its_line_and_index(tmp_path, face, problem):
+    p = tmp_path / "bad.obj"
+    p.write_text(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\n{face}\n")
+    out = tmp_path / "o.exr"
+    _refused(_hwrt("render", p, "-o", out, "--width", 8, "--height", 6), out, f"{p}: {problem}")
+
+
 @pytest.mark.parametrize("how", ["mesh", "nan mesh", "mesh in a scene", "scene triangles"])
 def test_an_infinite_or_nan_vertex_is_one_line_on_stderr(tmp_path, how):
     mesh = tmp_path / "bad.obj"
