@@ -4,6 +4,7 @@ import os
 import platform
 import statistics
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -41,24 +42,30 @@ def machine():
 
 
 def mesh_inputs(args):
-    """[(name, loader)] from explicit paths, --mesh-dir, the default directory, or generated."""
+    """[(name, source, loader)] from explicit paths, --mesh-dir, the default directory, or
+    generated. A mesh file is named by its stem unless another input shares the stem (a/bunny.ply
+    and b/bunny.ply, bunny.ply and bunny.obj): then by its path (relative to the mesh
+    directory). ``source`` (the path) is what errors name."""
     from hwbvh.primitives import load_mesh_arrays
     from scenes.meshes import GENERATED
 
     paths = [Path(m) for m in args.meshes]
+    base = None
     if not paths:
         d = Path(args.mesh_dir) if args.mesh_dir else default_mesh_dir()
         if d is not None:
             if not d.is_dir():
                 raise InputError(d, "mesh directory does not exist")
-            paths = mesh_files(d)
+            paths, base = mesh_files(d), d
     if paths:
-        return [(p.stem, (lambda p=p: load_mesh_arrays(p))) for p in paths]
+        stems = Counter(p.stem for p in paths)
+        return [(p.stem if stems[p.stem] == 1 else str(p.relative_to(base) if base else p),
+                 str(p), (lambda p=p: load_mesh_arrays(p))) for p in paths]
 
     def indexed(fn):
         tris = fn()
         return tris.reshape(-1, 3).astype(np.float64), np.arange(3 * len(tris)).reshape(-1, 3)
-    return [(name, (lambda fn=fn: indexed(fn))) for name, fn in GENERATED.items()]
+    return [(name, name, (lambda fn=fn: indexed(fn))) for name, fn in GENERATED.items()]
 
 
 def _median_time(fn, repeat):
@@ -77,9 +84,9 @@ def bench_build(args):
     from traversal.embree_ref import embree_scene
 
     rows = []
-    for name, load in progress_over(mesh_inputs(args), "bench build", "mesh"):
+    for name, source, load in progress_over(mesh_inputs(args), "bench build", "mesh"):
         verts, faces = load()
-        tris = as_triangles(verts[faces], source=name)
+        tris = as_triangles(verts[faces], source=source)
         v32 = verts.astype(np.float32)
         f32 = faces.astype(np.int32)
         ours, ours_all = _median_time(lambda: build(tris), args.repeat)
@@ -277,9 +284,9 @@ def bench_trace(args):
     for accel in accels:
         warm_up_accel(accel)
     rows, later = [], []
-    for name, load in progress_over(mesh_inputs(args), "bench trace", "mesh"):
+    for name, source, load in progress_over(mesh_inputs(args), "bench trace", "mesh"):
         verts, faces = load()
-        tris = as_triangles(verts[faces], source=name)
+        tris = as_triangles(verts[faces], source=source)
         v32, f32 = verts.astype(np.float32), faces.astype(np.int32)
         tracer = Tracer(hwbvh.build(tris))
         emb = embree_scene(v32, f32)
@@ -659,9 +666,9 @@ def bench_model(args):
     from .explore import warm_up
 
     meshes = []
-    for name, load in progress_over(mesh_inputs(args), "bench model: load", "mesh"):
+    for name, source, load in progress_over(mesh_inputs(args), "bench model: load", "mesh"):
         verts, faces = load()
-        meshes.append((name, as_triangles(verts[faces], source=name)))
+        meshes.append((name, as_triangles(verts[faces], source=source)))
     subs = cal.fit_subtrees([t for _, t in meshes])
     target, (t_lo, t_hi) = cal.target_rate()
     fit = {"target_cycles_per_primitive": target, "target_range": [t_lo, t_hi],

@@ -166,3 +166,24 @@ def test_an_infinite_or_nan_vertex_is_one_line_on_stderr(tmp_path, how):
         spec = mesh
     out = tmp_path / "o.exr"
     _refused(_hwrt("render", spec, "-o", out, "--width", 8, "--height", 6), out, message)
+
+
+def test_bench_trace_tells_meshes_of_one_stem_apart_and_errors_name_the_file(tmp_path):
+    import trimesh
+    from scenes.meshes import sphere
+    paths = []
+    for d, n in (("a", 6), ("b", 8), ("a", 5)):
+        tris = sphere(n, 2 * n)
+        p = tmp_path / d / ("other.ply" if n == 5 else "s.ply")
+        p.parent.mkdir(exist_ok=True)
+        trimesh.Trimesh(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3),
+                        process=False).export(p)
+        paths.append(p)
+    r = _hwrt("bench", "trace", *paths, "--rays", 200, "--repeat", 1, "--json")
+    assert r.returncode == 0, r.stderr
+    assert [m["mesh"] for m in json.loads(r.stdout)["meshes"]] == [str(paths[0]), str(paths[1]), "other"]
+    bad = tmp_path / "nan.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n")
+    r = _hwrt("bench", "trace", bad, "--rays", 200, "--repeat", 1)
+    assert r.returncode == 2 and r.stderr.splitlines() == [
+        f"hwrt: error: {bad}: triangle 0 has a NaN or infinite coordinate"]
