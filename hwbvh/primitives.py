@@ -88,16 +88,20 @@ def as_triangles(tris, source="<array>"):
     if t.ndim != 3 or t.shape[1:] != (3, 3):
         raise InputError(source, f"triangles must have shape (n, 3, 3), got {t.shape}")
     check_count(t.shape[0], source)
-    t = np.ascontiguousarray(t, dtype=np.float32)
-    finite = np.isfinite(t)
-    if not finite.all():
-        bad = int(np.argmin(finite.reshape(len(t), -1).all(axis=1)))
-        raise InputError(source, f"triangle {bad} has a NaN or infinite coordinate")
-    big = float(np.abs(t).max())
-    if big > MAX_COORDINATE:
-        raise InputError(source, f"coordinate magnitude {big:.3g} exceeds {MAX_COORDINATE:.0e} "
-                                 "(float32 SAH costs would overflow)")
-    return t
+    if t.dtype.kind != "f":
+        t = t.astype(np.float64)    # integers (whose abs can wrap), booleans, objects
+    # checked in the input's own precision: the float32 cast would turn a coordinate beyond
+    # float32's range into inf, with numpy's overflow warning
+    ok = (np.abs(t) <= MAX_COORDINATE).reshape(len(t), -1).all(axis=1)   # NaN is not <=
+    if not ok.all():
+        bad = int(np.argmin(ok))
+        if not np.isfinite(t[bad]).all():
+            raise InputError(source, f"triangle {bad} has a NaN or infinite coordinate")
+        big = float(np.abs(t[bad]).max())
+        raise InputError(source, f"triangle {bad} has a coordinate too large: magnitude "
+                                 f"{big:.3g} exceeds {MAX_COORDINATE:.0e} (float32 SAH costs "
+                                 "would overflow)")
+    return np.ascontiguousarray(t, dtype=np.float32)
 
 
 def load_mesh_arrays(path):

@@ -168,6 +168,25 @@ def test_an_infinite_or_nan_vertex_is_one_line_on_stderr(tmp_path, how):
     _refused(_hwrt("render", spec, "-o", out, "--width", 8, "--height", 6), out, message)
 
 
+@pytest.mark.parametrize("how", ["mesh", "mesh in a scene"])
+def test_a_too_large_vertex_is_named_as_such_in_one_line(tmp_path, how):
+    """1e200 is finite in the file's float64 but not in float32: it is refused as too large
+    before the cast, which would print numpy's overflow warning and report it as infinite."""
+    mesh = tmp_path / "big.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 1e200 1 0\nf 1 2 3\n")
+    spec = mesh
+    if how == "mesh in a scene":
+        spec = tmp_path / "s.json"
+        spec.write_text(json.dumps({
+            "camera": {"eye": [0, 1, 4], "target": [0, 0, 0]},
+            "materials": {"m": {"type": "diffuse"}},
+            "shapes": [{"type": "mesh", "filename": mesh.name, "material": "m"}]}))
+    out = tmp_path / "o.exr"
+    _refused(_hwrt("render", spec, "-o", out, "--width", 8, "--height", 6), out,
+             f"{mesh}: triangle 0 has a coordinate too large: magnitude 1e+200 exceeds 1e+15 "
+             "(float32 SAH costs would overflow)")
+
+
 def test_bench_trace_tells_meshes_of_one_stem_apart_and_errors_name_the_file(tmp_path):
     import trimesh
     from scenes.meshes import sphere

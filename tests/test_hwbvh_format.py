@@ -3,6 +3,7 @@ import json
 import os
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -160,6 +161,17 @@ def test_empty_and_wrong_shape_and_huge():
         hwbvh.build(np.zeros((5, 3), np.float32))
     with pytest.raises(InputError, match="exceeds"):
         hwbvh.build(np.full((2, 3, 3), 1e20, np.float32))
+
+
+def test_a_coordinate_too_large_for_float32_is_refused_as_too_large_without_warning():
+    """Checked in the input's own precision: 1e39 (float64) would be inf after the cast."""
+    t = random_soup(5).astype(np.float64)
+    t[3, 2, 0] = 1e39
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InputError, match="^<array>: triangle 3 has a coordinate too large: "
+                                             "magnitude 1e\\+39 exceeds 1e\\+15"):
+            hwbvh.build(t)
 
 
 def test_more_than_2_24_primitives_is_refused_without_copying():
