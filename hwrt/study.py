@@ -31,8 +31,7 @@ import numpy as np
 
 from hwbvh.files import json_text, write_files
 from .report import command_of, made_by_block
-from .bench import machine
-from .paths import default_mesh_dir, mesh_files
+from .bench import machine, mesh_inputs
 
 TTI_PATHS = ("hwbvh-C", "hwbvh-HP", "hwbvh-sw", "sweep", "embree")
 TTI_TREES = (("hwbvh", "numba"), ("sweep", "numba"), ("embree", "embree"))   # (builder, traversal)
@@ -103,23 +102,20 @@ class Cells:
 def _scene_specs(args, quick):
     """[(name, kind, source)]: built-in scenes, then meshes, each described for
     :func:`load_scene_spec` (kind ``builtin``, ``mesh`` with an absolute path, or
-    ``generated`` with the name of a generated mesh)."""
+    ``generated`` with the name of a generated mesh). Meshes are found and named as the other
+    benchmarks find and name them (``bench.mesh_inputs``)."""
     from scenes.builtin import BUILTIN
     from scenes.meshes import GENERATED
 
     specs = [(n, "builtin", n) for n in (["cornell"] if quick else list(BUILTIN))]
-    paths = [Path(m) for m in getattr(args, "meshes", [])]
-    if not paths:
-        d = Path(args.mesh_dir) if args.mesh_dir else default_mesh_dir()
-        if d is not None and d.is_dir():
-            paths = mesh_files(d)
+    meshes = [(name, source) for name, source, _ in mesh_inputs(args)]
+    # no mesh file given or found: the generated meshes, whose source is their name (a file
+    # found in a mesh directory has a mesh extension, which no generated name has)
+    if not args.meshes and all(source in GENERATED for _, source in meshes):
+        return specs + [(n, "generated", n) for n, _ in meshes[:1 if quick else None]]
     if quick:
-        paths = sorted(paths, key=lambda p: p.stat().st_size)[:1]
-    if paths:
-        specs += [(p.stem, "mesh", os.path.abspath(p)) for p in paths]
-    else:
-        specs += [(n, "generated", n) for n in list(GENERATED)[:1 if quick else None]]
-    return specs
+        meshes = sorted(meshes, key=lambda m: os.path.getsize(m[1]))[:1]
+    return specs + [(name, "mesh", os.path.abspath(source)) for name, source in meshes]
 
 
 _generated = {"dir": None, "lock": threading.Lock()}

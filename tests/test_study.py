@@ -138,3 +138,19 @@ def test_unreachable_scheduler_fails_fast_and_keeps_the_cells(tmp_path, mesh_dir
     refused("tti", out, "--fresh")
     assert [p.name for p in out.iterdir()] == ["tti.jsonl"]
     assert (out / "tti.jsonl").read_text() == '{"key": "kept"}\n'
+
+
+def test_study_meshes_that_share_a_stem_are_told_apart_by_their_paths(tmp_path):
+    """Named as the other benchmarks name them (a/s.ply and b/s.ply, bunny.ply and bunny.obj
+    in one directory): two scenes called 's' would share their cells."""
+    from hwrt.study import _scene_specs
+    for d, f in (("a", "s.ply"), ("b", "s.ply"), ("a", "other.ply"), ("dir", "bunny.ply"),
+                 ("dir", "bunny.obj"), ("dir", "ball.ply")):
+        (tmp_path / d).mkdir(exist_ok=True)
+        (tmp_path / d / f).write_text("")
+    given = [tmp_path / "a" / "s.ply", tmp_path / "b" / "s.ply", tmp_path / "a" / "other.ply"]
+    meshes = _scene_specs(Namespace(meshes=[str(p) for p in given], mesh_dir=None), False)[-3:]
+    assert meshes == [(str(given[0]), "mesh", str(given[0])), (str(given[1]), "mesh", str(given[1])),
+                      ("other", "mesh", str(given[2]))]
+    in_dir = _scene_specs(Namespace(meshes=[], mesh_dir=str(tmp_path / "dir")), False)[-3:]
+    assert [name for name, _, _ in in_dir] == ["ball", "bunny.obj", "bunny.ply"]
