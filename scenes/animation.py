@@ -392,7 +392,7 @@ def _camera_fn(track, base, source):
         k = track.at(t)
         c = dict(base)
         c.update(eye=k["eye"], target=k["target"], up=k["up"], fov=float(k["fov"]))
-        if np.allclose(c["eye"], c["target"]):
+        if np.array_equal(c["eye"], c["target"]):   # the still scene's rule (scenes.loader)
             _fail(source, "animation.camera", f"eye equals target at time {t:g}")
         return c
     return cam

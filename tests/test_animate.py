@@ -235,6 +235,26 @@ def test_bad_scene_files_exit_2_naming_file_and_key(tmp_path, capsys, shape_or_a
     assert not out_dir.exists() or not any(out_dir.iterdir())
 
 
+def test_a_tiny_scene_whose_camera_moves_animates(tmp_path, capsys):
+    """The camera track is held to the still scene's rule (eye and target differ): a scene
+    1e-9 across, its eye 1e-9 from its target, is no error."""
+    p = tmp_path / "tiny.json"
+    p.write_text(json.dumps({
+        "camera": {"eye": [0, 0, 1e-9], "target": [0, 0, 0]},
+        "lights": [{"type": "directional", "direction": [0, 0, -1], "irradiance": [1, 1, 1]}],
+        "materials": {"white": {"type": "diffuse"}},
+        "shapes": [{"type": "triangles", "material": "white",
+                    "data": [[[-1e-9, -1e-9, 0], [1e-9, -1e-9, 0], [0, 1e-9, 0]]]}],
+        "animation": {"frames": 2, "fps": 1,
+                      "camera": [{"time": 0}, {"time": 1, "eye": [1e-9, 0, 1e-9]}]}}))
+    out_dir = tmp_path / "out"
+    rc, _, err = _run_cli(capsys, "animate", p, "--width", 8, "--height", 6, "-o", out_dir)
+    assert rc == 0, err
+    from raytracer.output import read_exr
+    for i in (0, 1):
+        assert read_exr(out_dir / f"frame_{i:04d}.exr")[0][..., 0].max() > 0  # the triangle is seen
+
+
 def test_frame_sequences_bad_inputs(tmp_path, capsys):
     frames = tmp_path / "frames"
     frames.mkdir()
