@@ -622,9 +622,10 @@ def _render_markdown(r, args=None):
     return "\n".join(lines) + "\n"
 
 
-def _model_rows(name, tris):
+def _model_rows(name, stem, tris):
     """One cell of ``bench model``: a mesh's whole-scene build on both presets, with the
-    text-only model (control latency 0) and the calibrated one."""
+    text-only model (control latency 0) and the calibrated one. ``name`` names the rows (a
+    path when stems collide); the thesis scene is looked up by the file's ``stem``."""
     from dataclasses import replace
     from hwbvh import calibration as cal
     from hwbvh.builder import build_canonical
@@ -632,7 +633,7 @@ def _model_rows(name, tris):
     from hwbvh.primitives import primitive_boxes
 
     tree = build_canonical(primitive_boxes(tris))
-    scene = cal.THESIS_SCENE_OF_MESH.get(name)
+    scene = cal.THESIS_SCENE_OF_MESH.get(stem)
     rows = []
     for preset, p in PRESETS.items():
         row = {"mesh": name, "triangles": int(len(tris)), "preset": preset}
@@ -668,8 +669,8 @@ def bench_model(args):
     meshes = []
     for name, source, load in progress_over(mesh_inputs(args), "bench model: load", "mesh"):
         verts, faces = load()
-        meshes.append((name, as_triangles(verts[faces], source=source)))
-    subs = cal.fit_subtrees([t for _, t in meshes])
+        meshes.append((name, Path(source).stem, as_triangles(verts[faces], source=source)))
+    subs = cal.fit_subtrees([t for _, _, t in meshes])
     target, (t_lo, t_hi) = cal.target_rate()
     fit = {"target_cycles_per_primitive": target, "target_range": [t_lo, t_hi],
            "subtrees": len(subs), "shipped": CONTROL_LATENCY}
@@ -679,7 +680,7 @@ def bench_model(args):
                    rate_text_only=cal.model_rate(subs, 0), rate_shipped=cal.model_rate(subs, CONTROL_LATENCY))
     # one cell per mesh, on Dask (a local cluster unless $HWRT_SCHEDULER names one)
     run = uuid.uuid4().hex[:8]
-    cells = [(f"model-{run}-{k}", _model_rows, (name, tris)) for k, (name, tris) in enumerate(meshes)]
+    cells = [(f"model-{run}-{k}", _model_rows, m) for k, m in enumerate(meshes)]
     done = {}
     if cells:
         with dask_client(getattr(args, "scheduler", None), warm_up=warm_up) as client:
@@ -687,7 +688,7 @@ def bench_model(args):
     rows = [row for key, _, _ in cells for row in done[key]]
     fill = {}
     if meshes:
-        name, tris = next(((n, t) for n, t in meshes if n == "bunny"), meshes[0])
+        name, _, tris = next((m for m in meshes if m[1] == "bunny"), meshes[0])
         with tempfile.TemporaryDirectory() as d:
             for key, ctl in (("text_only", 0), ("calibrated", CONTROL_LATENCY)):
                 fill[key] = subtree_design_space(tris, d, control_latency=ctl)["fill_share"]

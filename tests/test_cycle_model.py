@@ -182,3 +182,22 @@ def test_bench_model_fits_and_compares(tmp_path):
         assert x["calibrated_seconds"] > x["text_only_seconds"]
         assert x["thesis_scene"] == "Bunny" and x["calibrated_ratio"] > x["text_only_ratio"]
     assert res["fill_share"]["calibrated"]["mean"] < res["fill_share"]["text_only"]["mean"]
+
+
+def test_bench_model_compares_meshes_of_one_stem_with_their_thesis_scene(tmp_path):
+    """a/bunny.ply and b/bunny.ply are named by their paths, and both still meet the thesis'
+    Bunny, which is looked up by the file's stem; the fill share is measured on a bunny."""
+    import trimesh
+    tris = bumpy_sphere(2_000)
+    paths = [tmp_path / "c" / "ball.ply"] + [tmp_path / d / "bunny.ply" for d in ("a", "b")]
+    for p in paths:
+        p.parent.mkdir()
+        trimesh.Trimesh(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3),
+                        process=False).export(p)
+    r = subprocess.run([sys.executable, "-m", "hwrt.cli", "bench", "model", *map(str, paths), "--json"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert [(x["mesh"], x.get("thesis_scene")) for x in res["rows"]] == \
+        [("ball", None)] * 2 + [(str(p), "Bunny") for p in paths[1:] for _ in ("HWBVH-C", "HWBVH-HP")]
+    assert res["fill_share"]["mesh"] == str(paths[1])
