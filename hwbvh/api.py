@@ -164,8 +164,10 @@ def load(prefix, triangles=None):
     except (KeyError, TypeError, ValueError):
         raise InputError(prefix + ".json", "missing 'triangles' or 'parameters.max_leaf'") from None
     try:
-        raw = open(prefix + ".nodes", "rb").read()
-        idx = open(prefix + ".indices", "rb").read()
+        with open(prefix + ".nodes", "rb") as f:
+            raw = f.read()
+        with open(prefix + ".indices", "rb") as f:
+            idx = f.read()
     except OSError as e:
         raise InputError(e.filename, e.strerror or "cannot read") from None
     if len(raw) % NODE_DTYPE.itemsize:

@@ -88,11 +88,17 @@ def as_triangles(tris, source="<array>"):
     if t.ndim != 3 or t.shape[1:] != (3, 3):
         raise InputError(source, f"triangles must have shape (n, 3, 3), got {t.shape}")
     check_count(t.shape[0], source)
+    return np.ascontiguousarray(checked_coordinates(t, source), dtype=np.float32)
+
+
+def checked_coordinates(t, source):
+    """``t`` ((n, 3, 3) triangles) in a float type, refused (InputError naming ``source`` and
+    the first bad triangle) if a coordinate is NaN, infinite or beyond MAX_COORDINATE.
+    Checked in the input's own precision: the float32 cast would turn a coordinate beyond
+    float32's range into inf, with numpy's overflow warning."""
     if t.dtype.kind != "f":
         t = t.astype(np.float64)    # integers (whose abs can wrap), booleans, objects
-    # checked in the input's own precision: the float32 cast would turn a coordinate beyond
-    # float32's range into inf, with numpy's overflow warning
-    ok = (np.abs(t) <= MAX_COORDINATE).reshape(len(t), -1).all(axis=1)   # NaN is not <=
+    ok = (np.abs(t) <= MAX_COORDINATE).reshape(len(t), 9).all(axis=1)    # NaN is not <=
     if not ok.all():
         bad = int(np.argmin(ok))
         if not np.isfinite(t[bad]).all():
@@ -101,7 +107,7 @@ def as_triangles(tris, source="<array>"):
         raise InputError(source, f"triangle {bad} has a coordinate too large: magnitude "
                                  f"{big:.3g} exceeds {MAX_COORDINATE:.0e} (float32 SAH costs "
                                  "would overflow)")
-    return np.ascontiguousarray(t, dtype=np.float32)
+    return t
 
 
 def load_mesh_arrays(path):

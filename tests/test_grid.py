@@ -406,7 +406,7 @@ def test_resolution_and_input_checks():
             GridTracer(tris, resolution=bad)
     with pytest.raises(ValueError, match="resolution"):
         GridTracer(np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]] * 40, np.float32), resolution=64)
-    with pytest.raises(ValueError, match="non-finite"):
+    with pytest.raises(ValueError, match="NaN or infinite coordinate"):
         GridTracer(np.full((1, 3, 3), np.nan, np.float32))
     empty = GridTracer(np.zeros((0, 3, 3), np.float32))
     h = empty.intersect(np.zeros((2, 3)), np.array([[0, 0, 1.0], [1, 0, 0]]))

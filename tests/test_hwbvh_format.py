@@ -76,7 +76,8 @@ def test_save_load_roundtrip(tmp_path):
     back = hwbvh.load(tmp_path / "s", triangles=tris)
     assert back.nodes.tobytes() == bvh.nodes.tobytes()
     assert np.array_equal(back.indices, bvh.indices)
-    assert json.load(open(files[2]))["sah_cost"] == bvh.meta["sah_cost"]
+    with open(files[2]) as f:
+        assert json.load(f)["sah_cost"] == bvh.meta["sah_cost"]
 
 
 def corrupt(bvh, fn):

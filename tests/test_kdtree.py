@@ -181,7 +181,7 @@ def test_reference_cap_is_enforced():
 
 
 def test_input_checks_and_rays_the_unit_rejects():
-    with pytest.raises(ValueError, match="non-finite"):
+    with pytest.raises(ValueError, match="NaN or infinite coordinate"):
         KdTreeTracer(np.full((1, 3, 3), np.nan, np.float32))
     with pytest.raises(ValueError, match="triangles"):
         KdTreeTracer(np.zeros((4, 3), np.float32))

@@ -1,5 +1,7 @@
 """The appendix-A units and the raw-format traversal: hard cases, a float64 reference, and
 every hit checked against Embree on generated meshes."""
+import warnings
+
 import numpy as np
 import pytest
 from numba import njit
@@ -532,8 +534,16 @@ def test_structures_refuse_coordinates_the_bvh_refuses(accel):
 
     make = {"grid": GridTracer, "kdtree": KdTreeTracer}[accel]
     tris = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32)
-    with pytest.raises(ValueError, match="^triangles: coordinate magnitude 1e\\+20 exceeds"):
+    with pytest.raises(ValueError, match="^triangles: triangle 0 has a coordinate too large: "
+                                         "magnitude 1e\\+20 exceeds"):
         make(tris * np.float32(1e20))
+    # beyond float32's range: checked before the cast, so no overflow warning and no "NaN"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match="^triangles: triangle 0 has a coordinate too large"):
+            make(tris.astype(np.float64) * 1e39)
+    with pytest.raises(ValueError, match="^triangles: triangle 0 has a NaN or infinite"):
+        make(np.where(tris > 0, np.float32(np.inf), tris))
     make(tris * np.float32(MAX_COORDINATE / 2))
 
 

@@ -3,27 +3,22 @@ mesh's padded box, the float32 Moller-Trumbore unit's triangle rows, and the bat
 ``intersect``/``occluded`` of the tracer interface (``traversal.tracers``)."""
 import numpy as np
 
-from hwbvh.config import MAX_COORDINATE
+from hwbvh.primitives import checked_coordinates
 from .api import Hits, _answers, _rays
 from .config import EDGE_EPS_F32
 from .triangle_unit import band_eps2, preprocess
 
 
 def checked_triangles(triangles):
-    """(n, 3, 3) triangles as float32 coordinates held in float64; ValueError on a bad shape,
-    a non-finite coordinate or one beyond ``hwbvh.config.MAX_COORDINATE``."""
-    tris = np.ascontiguousarray(np.asarray(triangles, np.float32).astype(np.float64))
+    """(n, 3, 3) triangles (none is allowed) as float32 coordinates held in float64;
+    ValueError (InputError) on a bad shape, or on a NaN or infinite coordinate or one beyond
+    ``hwbvh.config.MAX_COORDINATE`` (the BVH builder's check, ``checked_coordinates``: far
+    beyond that bound the float32 unit's products overflow and every ray misses)."""
+    tris = np.asarray(triangles)
     if tris.ndim != 3 or tris.shape[1:] != (3, 3):
         raise ValueError(f"triangles must be (n, 3, 3), got {tris.shape}")
-    if not np.isfinite(tris).all():
-        raise ValueError("triangles: non-finite vertex coordinates")
-    big = np.abs(tris).max() if tris.size else 0.0
-    if big > MAX_COORDINATE:
-        # the BVH builder's bound; far beyond it the float32 unit's products overflow and
-        # every ray misses
-        raise ValueError(f"triangles: coordinate magnitude {big:.3g} exceeds "
-                         f"{MAX_COORDINATE:.0e}")
-    return tris
+    tris = checked_coordinates(tris, "triangles")
+    return np.ascontiguousarray(tris.astype(np.float32).astype(np.float64))
 
 
 def padded_box(tris, pad_tri, pad_coord):
