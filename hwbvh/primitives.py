@@ -91,23 +91,34 @@ def as_triangles(tris, source="<array>"):
     return np.ascontiguousarray(checked_coordinates(t, source), dtype=np.float32)
 
 
+def within_bound(a, bound=MAX_COORDINATE):
+    """Whether every number of array ``a`` is finite and of magnitude at most ``bound``, in
+    ``a``'s own precision (compared as float64: a float16 array would turn the bound itself
+    into inf) and without a temporary of ``a``'s size (NaN fails both comparisons)."""
+    a = np.asarray(a)
+    if a.dtype.kind != "f":
+        a = a.astype(np.float64)    # integers (whose abs can wrap), booleans, objects
+    return a.size == 0 or bool(a.max() <= np.float64(bound) and a.min() >= -np.float64(bound))
+
+
 def checked_coordinates(t, source):
     """``t`` ((n, 3, 3) triangles) in a float type, refused (InputError naming ``source`` and
     the first bad triangle) if a coordinate is NaN, infinite or beyond MAX_COORDINATE.
     Checked in the input's own precision: the float32 cast would turn a coordinate beyond
     float32's range into inf, with numpy's overflow warning."""
     if t.dtype.kind != "f":
-        t = t.astype(np.float64)    # integers (whose abs can wrap), booleans, objects
-    ok = (np.abs(t) <= MAX_COORDINATE).reshape(len(t), 9).all(axis=1)    # NaN is not <=
-    if not ok.all():
-        bad = int(np.argmin(ok))
-        if not np.isfinite(t[bad]).all():
-            raise InputError(source, f"triangle {bad} has a NaN or infinite coordinate")
-        big = float(np.abs(t[bad]).max())
-        raise InputError(source, f"triangle {bad} has a coordinate too large: magnitude "
-                                 f"{big:.3g} exceeds {MAX_COORDINATE:.0e} (float32 SAH costs "
-                                 "would overflow)")
-    return t
+        t = t.astype(np.float64)
+    if within_bound(t):
+        return t
+    t64 = t.astype(np.float64)
+    ok = (np.abs(t64) <= MAX_COORDINATE).reshape(len(t), 9).all(axis=1)    # NaN is not <=
+    bad = int(np.argmin(ok))
+    if not np.isfinite(t64[bad]).all():
+        raise InputError(source, f"triangle {bad} has a NaN or infinite coordinate")
+    big = float(np.abs(t64[bad]).max())
+    shown = f"{big:.3g}" if float(f"{big:.3g}") > MAX_COORDINATE else repr(big)
+    raise InputError(source, f"triangle {bad} has a coordinate too large: magnitude {shown} "
+                             f"exceeds {MAX_COORDINATE:.0e} (float32 SAH costs would overflow)")
 
 
 def load_mesh_arrays(path):

@@ -15,7 +15,8 @@ import numpy as np
 
 from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
 from hwbvh.errors import InputError
-from hwbvh.primitives import MESH_EXTENSIONS, as_triangles, load_mesh_arrays
+from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, checked_coordinates, load_mesh_arrays,
+                              within_bound)
 from .builtin import BUILTIN
 from .meshes import grid_sheet, uv_sphere
 
@@ -109,7 +110,7 @@ def vector_ok(v, a, bound=MAX_COORDINATE):
     coordinates hwbvh accepts; light: MAX_RADIANCE), so that no product of them overflows on
     the way to the image."""
     items = v if isinstance(v, (list, tuple)) else [v]
-    return not any(isinstance(x, bool) for x in items) and bool((np.abs(a) <= bound).all())
+    return not any(isinstance(x, bool) for x in items) and within_bound(a, bound)
 
 
 def with_frame(d, width=None, height=None, spp=None, max_depth=None):
@@ -156,12 +157,12 @@ def _refuse_internal_keys(spec, d):
 
 
 def _mesh_arrays(path):
-    """(vertices, faces) of a mesh file, its coordinates checked (NaN, infinite or beyond
-    MAX_COORDINATE: an error naming the file and the first such triangle) before any
-    arithmetic on them, which would warn."""
+    """(vertices, faces) of a mesh file, the coordinates its faces use checked (NaN, infinite
+    or beyond MAX_COORDINATE: an error naming the file and the first such triangle) before
+    any arithmetic on them, which would warn."""
     verts, faces = load_mesh_arrays(path)
-    if not (np.abs(verts) <= MAX_COORDINATE).all():
-        as_triangles(verts[faces], source=path)
+    if not within_bound(verts):
+        checked_coordinates(verts[faces], path)
     return verts, faces
 
 
@@ -173,7 +174,7 @@ def mesh_scene(path):
     used = verts[np.unique(faces)]
     lo, hi = used.min(0), used.max(0)
     if not (hi > lo).any():
-        raise InputError(path, "all vertices coincide; nothing to frame")
+        raise InputError(path, "its triangles' vertices all coincide; nothing to frame")
     eye, target, up = frame_bounds(lo, hi, 40.0)
     diag = float(np.linalg.norm(hi - lo)) or 1.0
     light = (lo + hi) / 2 + np.array([0.4, 1.0, 0.8]) * diag
@@ -408,7 +409,7 @@ def _shape(ctx, sh, i, scene_dir):
             tris = np.asarray(sh.get("data"), np.float64).reshape(-1, 3, 3)
         except (TypeError, ValueError):
             ctx.fail(f"{path}.data", "expected a list of triangles (3 points of 3 numbers)")
-        if not (np.abs(tris) <= MAX_COORDINATE).all():
+        if not within_bound(tris):
             ctx.fail(f"{path}.data", f"expected finite coordinates of magnitude at most "
                                      f"{MAX_COORDINATE:g}")
         normals = _flat_normals(tris)

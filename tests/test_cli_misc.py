@@ -132,7 +132,7 @@ def test_a_mesh_whose_vertices_all_coincide_is_refused_naming_the_file(tmp_path,
     p.write_text(f"{vertex}\n" * 3 + "f 1 2 3\n")
     out = tmp_path / "o.exr"
     _refused(_hwrt("render", p, "-o", out, "--width", 8, "--height", 6), out,
-             f"{p}: all vertices coincide; nothing to frame")
+             f"{p}: its triangles' vertices all coincide; nothing to frame")
 
 
 @pytest.mark.parametrize("face, problem", [

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import hwbvh
+from hwbvh.config import MAX_COORDINATE
 from hwbvh import NODE_DTYPE, InputError
 from hwbvh.format import pack_indices, unpack_indices
 from hwbvh.primitives import pack_records, primitive_boxes, unpack_records
@@ -173,6 +174,26 @@ def test_a_coordinate_too_large_for_float32_is_refused_as_too_large_without_warn
         with pytest.raises(InputError, match="^<array>: triangle 3 has a coordinate too large: "
                                              "magnitude 1e\\+39 exceeds 1e\\+15"):
             hwbvh.build(t)
+
+
+def test_coordinate_checks_in_float16_and_just_beyond_the_bound():
+    """float16 input: an inf is refused and valid input builds without a warning (compared in
+    float16, the bound 1e15 itself would read as inf); a coordinate a hair beyond the bound
+    is shown with the digits that tell it from the bound."""
+    t = random_soup(20).astype(np.float16)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert hwbvh.build(t).meta["triangles"] == 20
+        t[7, 1, 2] = np.inf
+        with pytest.raises(InputError, match="^<array>: triangle 7 has a NaN or infinite"):
+            hwbvh.build(t)
+    t = random_soup(5).astype(np.float64)
+    t[2, 0, 1] = -MAX_COORDINATE * (1 + 2.0 ** -50)
+    with pytest.raises(InputError, match=r"triangle 2 has a coordinate too large: magnitude "
+                                         r"1000000000000000\.\d+ exceeds 1e\+15"):
+        hwbvh.build(t)
+    t[2, 0, 1] = -MAX_COORDINATE                    # the bound itself is allowed
+    hwbvh.build(t)
 
 
 def test_more_than_2_24_primitives_is_refused_without_copying():

@@ -10,7 +10,7 @@ from .triangle_unit import band_eps2, preprocess
 
 
 def checked_triangles(triangles):
-    """(n, 3, 3) triangles (none is allowed) as float32 coordinates held in float64;
+    """(n, 3, 3) triangles (an empty array is allowed) as float32 coordinates held in float64;
     ValueError (InputError) on a bad shape, or on a NaN or infinite coordinate or one beyond
     ``hwbvh.config.MAX_COORDINATE`` (the BVH builder's check, ``checked_coordinates``: far
     beyond that bound the float32 unit's products overflow and every ray misses)."""
