@@ -255,6 +255,30 @@ def test_a_tiny_scene_whose_camera_moves_animates(tmp_path, capsys):
         assert read_exr(out_dir / f"frame_{i:04d}.exr")[0][..., 0].max() > 0  # the triangle is seen
 
 
+def test_an_eye_1e_200_from_its_target_animates_finite_frames(tmp_path, capsys):
+    """Eye and target that differ at all are a camera, however little (the basis is
+    normalised without underflow): finite frames, no warning."""
+    import warnings
+    p = tmp_path / "tiny.json"
+    p.write_text(json.dumps({
+        "camera": {"eye": [0, 0, 1e-200], "target": [0, 0, 0]},
+        "lights": [{"type": "directional", "direction": [0, 0, -1], "irradiance": [1, 1, 1]}],
+        "materials": {"white": {"type": "diffuse"}},
+        "shapes": [{"type": "triangles", "material": "white",
+                    "data": [[[-1, -1, -1], [1, -1, -1], [0, 1, -1]]]}],
+        "animation": {"frames": 2, "fps": 1,
+                      "camera": [{"time": 0}, {"time": 1, "eye": [1e-200, 0, 1e-200]}]}}))
+    out_dir = tmp_path / "out"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rc, _, err = _run_cli(capsys, "animate", p, "--width", 8, "--height", 6, "-o", out_dir)
+    assert rc == 0, err
+    from raytracer.output import read_exr
+    for i in (0, 1):
+        rgb = read_exr(out_dir / f"frame_{i:04d}.exr")[0][..., :3]
+        assert np.isfinite(rgb).all() and rgb.max() > 0
+
+
 def test_frame_sequences_bad_inputs(tmp_path, capsys):
     frames = tmp_path / "frames"
     frames.mkdir()

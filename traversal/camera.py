@@ -7,11 +7,23 @@ from .config import PACKET_RAYS
 TILE = int(round(np.sqrt(PACKET_RAYS)))   # camera tiles of TILE x TILE pixels: one packet
 
 
+def _power_of_two_scaled(x):
+    """``x`` times the power of two that brings its largest magnitude into [1, 2) (zero stays
+    zero). A power of two scales exactly, so a norm taken afterwards neither underflows (an
+    eye 1e-200 from its target: the squares are 1e-400) nor overflows, and ``x / norm(x)`` has
+    the same bits as without the scaling wherever that did not underflow."""
+    m = np.max(np.abs(x))
+    return x if m == 0 else np.ldexp(x, 1 - np.frexp(m)[1])
+
+
 def look_at_basis(eye, target, up):
+    """Orthonormal camera basis (right u, up v, forward w) of an eye looking at a target that
+    differs from it by any amount. An ``up`` parallel to the view direction (or zero) gives
+    no roll, so another up is chosen."""
     eye = np.asarray(eye, np.float64)
-    w = np.asarray(target, np.float64) - eye
+    w = _power_of_two_scaled(np.asarray(target, np.float64) - eye)
     w /= np.linalg.norm(w)
-    u = np.cross(w, np.asarray(up, np.float64))
+    u = np.cross(w, _power_of_two_scaled(np.asarray(up, np.float64)))
     if np.linalg.norm(u) < 1e-12:                      # looking along up: pick another up
         u = np.cross(w, [1.0, 0.0, 0.0] if abs(w[0]) < 0.9 else [0.0, 0.0, 1.0])
     u /= np.linalg.norm(u)
