@@ -45,7 +45,7 @@ from numba import njit
 
 from hwbvh.config import MAX_COORDINATE
 from hwbvh.errors import InputError, ParameterError
-from hwbvh.primitives import as_triangles, load_mesh_arrays
+from hwbvh.primitives import as_triangles, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
 from .loader import (FOV_RANGE, compile_scene, finite, load_scene, mesh_scene, vector_ok,
                      with_frame)
@@ -68,6 +68,10 @@ EXPLODE_SPEED = 1.2      # m/s outward, for a mesh 1 m tall: fragments land with
 CLOTH_SUBSTEPS = 4       # position-based dynamics steps per frame at 30 fps: stable for the sheet
 CLOTH_ITERATIONS = 6     # constraint sweeps per step: the sheet stretches < ~10 % while falling
 BULLET_HZ = 240          # Bullet's default step; marbles fall < 1/3 of their radius per step
+# A keyframed shape's box corners, placed in float64, may round below a vertex placed the
+# same way by a few ulps of the terms summed (~1e-16 each): times within this fraction of
+# those terms of the coordinate bound are decided vertex by vertex.
+CORNER_ROUNDING = 1e-12
 
 
 # --------------------------------------------------------------------------------------
@@ -112,11 +116,17 @@ def _vec3(source, v, path):
 
 def euler_matrix(deg):
     """Rotation matrix of Euler angles in degrees, applied about x, then y, then z."""
-    ax, ay, az = np.radians(np.asarray(deg, np.float64))
+    return euler_matrices(np.asarray(deg, np.float64)[None])[0]
+
+
+def euler_matrices(deg):
+    """(n, 3, 3) rotation matrices of n triples of Euler angles (n, 3) (see euler_matrix)."""
+    ax, ay, az = np.radians(np.asarray(deg, np.float64)).T
     cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
-    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    one, zero = np.ones_like(ax), np.zeros_like(ax)
+    Rx = np.stack([one, zero, zero, zero, cx, -sx, zero, sx, cx], -1).reshape(-1, 3, 3)
+    Ry = np.stack([cy, zero, sy, zero, one, zero, -sy, zero, cy], -1).reshape(-1, 3, 3)
+    Rz = np.stack([cz, -sz, zero, sz, cz, zero, zero, zero, one], -1).reshape(-1, 3, 3)
     return Rz @ Ry @ Rx
 
 
@@ -150,14 +160,25 @@ class Track:
         self.channels = {k: np.asarray(v, np.float64) for k, v in channels.items()}
 
     def at(self, t):
+        """The channels at time ``t``."""
+        return {k: v[0] for k, v in self.at_times([t]).items()}
+
+    def at_times(self, times):
+        """The channels at each of ``times`` (n,): arrays (n, ...), one row per time."""
+        times = np.asarray(times, np.float64)
         ts = self.times
-        if t <= ts[0]:
-            return {k: v[0] for k, v in self.channels.items()}
-        if t >= ts[-1]:
-            return {k: v[-1] for k, v in self.channels.items()}
-        j = int(np.searchsorted(ts, t, side="right")) - 1
-        w = (t - ts[j]) / (ts[j + 1] - ts[j])
-        return {k: (1 - w) * v[j] + w * v[j + 1] for k, v in self.channels.items()}
+        if len(ts) == 1:
+            return {k: np.repeat(v[:1], len(times), axis=0) for k, v in self.channels.items()}
+        j = np.clip(np.searchsorted(ts, times, side="right") - 1, 0, len(ts) - 2)
+        w = (times - ts[j]) / (ts[j + 1] - ts[j])
+        out = {}
+        for k, v in self.channels.items():
+            shape = (-1,) + (1,) * (v.ndim - 1)
+            wk, before, after = w.reshape(shape), (times <= ts[0]).reshape(shape), \
+                (times >= ts[-1]).reshape(shape)
+            # before the first key and after the last the value holds still
+            out[k] = np.where(before, v[0], np.where(after, v[-1], (1 - wk) * v[j] + wk * v[j + 1]))
+        return out
 
 
 def parse_keys(source, keys, path, allowed, defaults, vec_keys, num_keys=(), num_ranges=None):
@@ -315,13 +336,16 @@ class Animation:
 
     def check(self, frames):
         """Check, before any output, that ``frames`` frames can be produced (a sequence has
-        them all, none has NaN vertices, and the camera can be placed at every frame)."""
+        them all, none has NaN vertices, no keyframed shape moves beyond the coordinate bound,
+        and the camera can be placed at every frame)."""
         if self.max_frames is not None and frames > self.max_frames:
             raise InputError(self.source, f"{frames} frames asked for, but the sequence has "
                                           f"only {self.max_frames}")
         for p in self.parts:
             if isinstance(p.motion, FrameSequence):
                 p.motion.check(frames)
+            elif isinstance(p.motion, RigidMotion):
+                p.motion.check(np.arange(frames) / self.fps, self.source)
         if self.camera is not None:
             for i in range(frames):
                 self.camera(self.time(i))
@@ -352,19 +376,49 @@ class Animation:
 
 
 class RigidMotion:
-    """A shape moved by a keyframed rigid transform."""
+    """A shape moved by a keyframed rigid transform; ``key`` names the keyframes in errors."""
 
-    def __init__(self, tris, normals, track):
+    def __init__(self, tris, normals, track, key="keyframes"):
         self.tris = np.asarray(tris, np.float64)
         self.normals = np.asarray(normals, np.float64)
         self.track = track
+        self.key = key
+
+    def check(self, times, source):
+        """Refuse (InputError naming ``source``, the keyframes and the time) a transform that
+        carries a vertex beyond MAX_COORDINATE at any of ``times``, before any frame is made.
+        The transformed corners of the shape's box bound it at every time in one vectorised
+        pass; only the times where they come near the bound (a rotated box's corners reach
+        farther than its shape) are decided vertex by vertex, as ``__call__`` places them."""
+        k = self.track.at_times(times)
+        lo, hi = self.tris.reshape(-1, 3).min(axis=0), self.tris.reshape(-1, 3).max(axis=0)
+        corners = np.array(np.meshgrid(*zip(lo, hi), indexing="ij")).reshape(3, 8).T
+        A = euler_matrices(k["rotate"]) * k["scale"][:, None, :]          # R diag(scale)
+        placed = np.einsum("fij,cj->fci", A, corners) + k["translate"][:, None, :]
+        # float64 rounding of the corners against the vertices: a few ulps of the terms summed
+        terms = np.abs(A) @ np.abs(corners).max(axis=0) + np.abs(k["translate"])
+        reach = np.abs(placed).max(axis=(1, 2)) + CORNER_ROUNDING * terms.max(axis=1)
+        if within_bound(reach):
+            return
+        near = np.flatnonzero(~(reach <= MAX_COORDINATE))
+        # a shape holding still (before the first key, after the last) is placed once
+        held = np.concatenate([k["rotate"], k["scale"], k["translate"]], axis=1)[near]
+        for f in near[np.sort(np.unique(held, axis=0, return_index=True)[1])]:
+            v = self._placed(self.track.at(times[f]))
+            if not within_bound(v):
+                big = float(np.abs(v).max())
+                shown = f"{big:.3g}" if float(f"{big:.3g}") > MAX_COORDINATE else repr(big)
+                _fail(source, self.key, f"at time {times[f]:g} the shape reaches a coordinate of "
+                                        f"magnitude {shown}, beyond {MAX_COORDINATE:.0e}")
+
+    def _placed(self, k):
+        """The triangles under the channel values ``k`` of one time."""
+        return (self.tris * k["scale"]) @ euler_matrix(k["rotate"]).T + k["translate"]
 
     def __call__(self, i, t):
         k = self.track.at(t)
-        R = euler_matrix(k["rotate"])
-        s = k["scale"]
-        tris = (self.tris * s) @ R.T + k["translate"]
-        n = (self.normals / s) @ R.T
+        tris = self._placed(k)
+        n = (self.normals / k["scale"]) @ euler_matrix(k["rotate"]).T
         n /= np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-30)
         return tris, n
 
@@ -441,7 +495,8 @@ def from_scene_dict(d, source=None, fps=None):
                 inputs.append(fn if os.path.isabs(fn) else os.path.join(scene_dir, fn))
             motion = None
             if keys is not None:
-                motion = RigidMotion(c.triangles, c.normals, rigid_track(source, keys, f"{path}.keyframes"))
+                motion = RigidMotion(c.triangles, c.normals, rigid_track(source, keys, f"{path}.keyframes"),
+                                     f"{path}.keyframes")
             parts.append(Part(c.triangles, c.normals, int(c.material[0]), motion))
         base = base or c
     camera = None

@@ -235,6 +235,51 @@ def test_bad_scene_files_exit_2_naming_file_and_key(tmp_path, capsys, shape_or_a
     assert not out_dir.exists() or not any(out_dir.iterdir())
 
 
+UNIT_TRIANGLE = {"type": "triangles", "material": "white", "data": [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]]}
+
+
+def test_keyframes_beyond_the_coordinate_bound_are_refused_before_any_frame(tmp_path, capsys):
+    """A translate of 1e15 (itself in bounds) carries the unit triangle's far vertex to
+    1e15 + 1 at time 2, the third frame: refused before frame 0 is written."""
+    keys = [{"time": 0}, {"time": 2, "translate": [1e15, 0, 0]}]
+    p = _scene_file(tmp_path, [dict(UNIT_TRIANGLE, keyframes=keys)], {"frames": 3, "fps": 1})
+    out_dir = tmp_path / "out"
+    rc, out, err = _run_cli(capsys, "animate", p, "-o", out_dir)
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert str(p) in err and "key 'shapes[0].keyframes'" in err and "at time 2 " in err
+    assert "1000000000000001.0" in err                 # the magnitude shown with its digits
+    assert not out_dir.exists() or not any(out_dir.iterdir())
+
+
+@pytest.mark.parametrize("rotate, ok", [(45, True), (-30, False)])
+def test_keyframe_bound_check_decides_rotated_shapes_by_their_vertices(tmp_path, rotate, ok):
+    """The triangle (1e15, 0, 0), (0, 1e15, 0), (0, 0, 0) turning 45 degrees about z keeps
+    every vertex in bounds though its box's corner (1e15, 1e15, 0) swings out to 1.41e15: no
+    error. Turning -30 degrees while growing to 1.2 times its size, its vertex (1e15, 0, 0)
+    leaves the bounds at the first frame after time 0."""
+    tri = dict(UNIT_TRIANGLE, data=[[[1e15, 0, 0], [0, 1e15, 0], [0, 0, 0]]])
+    last = {"time": 1, "rotate": [0, 0, rotate]} if ok else {"time": 1, "rotate": [0, 0, rotate], "scale": 1.2}
+    p = _scene_file(tmp_path, [dict(tri, keyframes=[{"time": 0}, last])], {"frames": 2000, "fps": 1000})
+    anim = load_animation(p)
+    if ok:
+        anim.check(2000)
+        assert np.abs(anim.scene(500).triangles.astype(np.float64)).max() <= 1e15
+    else:
+        with pytest.raises(hwbvh.InputError, match=r"key 'shapes\[0\].keyframes': at time 0\.001 the"):
+            anim.check(2000)
+
+
+def test_vectorised_track_gives_each_times_value_bit_for_bit(rng):
+    from scenes.animation import Track
+    tr = Track(np.sort(rng.uniform(0, 3, 5)), {"v": rng.normal(size=(5, 3)), "s": rng.uniform(1, 2, 5)})
+    times = np.concatenate([np.linspace(-1, 4, 2001), tr.times])
+    many = tr.at_times(times)
+    for i, t in enumerate(times):
+        one = tr.at(t)
+        assert all(one[k].tobytes() == many[k][i].tobytes() for k in one)
+    assert np.array_equal(many["v"][0], tr.channels["v"][0]) and np.array_equal(many["v"][-6], tr.channels["v"][-1])
+
+
 def test_a_tiny_scene_whose_camera_moves_animates(tmp_path, capsys):
     """The camera track is held to the still scene's rule (eye and target differ): a scene
     1e-9 across, its eye 1e-9 from its target, is no error."""
