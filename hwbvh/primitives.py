@@ -4,6 +4,7 @@ A primitive record is a float32 AABB ``(minx, miny, minz, maxx, maxy, maxz)`` an
 primitive index. ``load_triangles`` reads any mesh trimesh reads; ``as_triangles`` validates
 raw ``(n, 3, 3)`` arrays. Both raise :class:`InputError` naming the source and the problem.
 """
+import io
 import os
 import re
 
@@ -29,42 +30,151 @@ def _ply_face_count(path):
     return int(m.group(1)) if m else None
 
 
-# a 0 (or -0) among the indices of an OBJ face line ("f 1 2 0", "f 1/0/1 ..."); OBJ counts
-# from 1 (negative counts back from the end), so 0 is an error that trimesh reads silently
-_OBJ_ZERO_INDEX = re.compile(rb"(?m)^[ \t]*f[ \t][^\n#]*?(?<=[ \t/])-?0+(?=[ \t/\r#]|$)")
+# OBJ files as trimesh reads them. A line ending in a backslash continues on the next. Vertices,
+# texture coordinates and normals are the lines starting "v ", "vt ", "vn " (trimesh numbers
+# only those). A face index counts from 1; a negative one counts back from the elements of its
+# kind before the face's line, but trimesh counts it back from the file's last, so a file with
+# one is handed to trimesh with its negative indices made positive. 0 is no index, yet trimesh
+# reads it silently (as the first vertex).
+_OBJ_KINDS = (("vertex", "vertices"), ("texture coordinate", "texture coordinates"),
+              ("normal", "normals"))
+
+# a face line with an index that starts with "-" or "0" (negative, zero or zero-padded), found
+# at C speed so that only files with one (or with a continued line) are read line by line.
+# Later lines are found by their "\n" (the first line is matched on its own): (?m)^ is 3x slower.
+_OBJ_ODD_INDEX = rb"[ \t]*f(?:[ \t/]+[1-9][0-9]*)*+[ \t/]+[-0]"
+_OBJ_ODD_INDEX_FIRST_LINE = re.compile(_OBJ_ODD_INDEX)
+_OBJ_ODD_INDEX_LATER_LINE = re.compile(rb"\n" + _OBJ_ODD_INDEX)
+_OBJ_CONTINUATION = re.compile(rb"\\\r?\n")
 
 
-def _check_obj_indices(path):
+def _obj_lines(raw_lines):
+    """(number, line) for each line of an OBJ file given as its raw lines (bytes), as trimesh
+    reads it: without its line end, a line ending in a backslash joined to the next and numbered
+    by its first."""
+    parts = []
+    for number, raw in enumerate(raw_lines, 1):
+        line = raw.removesuffix(b"\n").removesuffix(b"\r")
+        if not parts:
+            first = number
+        if line.endswith(b"\\"):
+            parts.append(line[:-1])
+            continue
+        if parts:
+            line, parts = b"".join(parts) + line, []
+        yield first, line
+    if parts:
+        yield first, b"".join(parts)
+
+
+def _obj_face_index(path, number, word, before, vertex_total):
+    """Face index ``word`` ("v", "v/vt", "v//vn", "v/vt/vn") of line ``number`` with its negative
+    numbers made positive; ``before`` counts each kind of element before the line."""
+    parts, resolved = word.split(b"/"), False
+    for kind, part in enumerate(parts[:3]):
+        if kind and not part:
+            continue                                        # "1//3": no texture coordinate
+        try:
+            n = int(part)
+        except ValueError:
+            hint = " (a comment must be on a line of its own)" if word.startswith(b"#") else ""
+            shown = word.decode(errors="replace")
+            raise InputError(path, f"line {number}: a face holds {shown!r}, which is not an "
+                                   f"index{hint}") from None
+        if n > 0:
+            if kind == 0 and vertex_total is not None and n > vertex_total:
+                raise InputError(path, f"line {number}: a face refers to vertex {n}, but the "
+                                       f"file has {_obj_count(vertex_total, 0)}")
+            continue
+        if n == 0:
+            raise InputError(path, f"line {number}: face index 0 (OBJ indices start at 1)")
+        if before[kind] + n < 0:
+            have = (f"no {_OBJ_KINDS[kind][0]} comes" if before[kind] == 0 else
+                    f"only {_obj_count(before[kind], kind)} come{'s' if before[kind] == 1 else ''}")
+            raise InputError(path, f"line {number}: a face refers to {_OBJ_KINDS[kind][0]} {n}, "
+                                   f"counting back from that line, but {have} before it")
+        parts[kind], resolved = b"%d" % (before[kind] + n + 1), True
+    return b"/".join(parts) if resolved else word
+
+
+def _obj_count(n, kind):
+    """'1 vertex', '3 vertices' (kind 0; 1 and 2 are texture coordinates and normals)."""
+    return f"{n} {_OBJ_KINDS[kind][n != 1]}"
+
+
+def _obj_resolved_lines(path, raw_lines, vertex_total=None):
+    """The lines of an OBJ file (as :func:`_obj_lines` reads them) with each negative face index
+    made the positive one it means. Raises InputError naming the first face line with an index
+    that is not a number, is 0, counts back before the first element of its kind, or (given
+    ``vertex_total``) refers past the file's last vertex."""
+    before = [0, 0, 0]                  # vertices, texture coordinates, normals so far
+    for number, line in _obj_lines(raw_lines):
+        if line[:2] == b"v ":
+            before[0] += 1
+        elif line[:3] == b"vt ":
+            before[1] += 1
+        elif line[:3] == b"vn ":
+            before[2] += 1
+        else:
+            words = line.split()
+            if words[:1] == [b"f"]:
+                resolved = [_obj_face_index(path, number, w, before, vertex_total)
+                            for w in words[1:]]
+                if resolved != words[1:]:       # keep the indent: trimesh skips indented lines
+                    line = line[:len(line) - len(line.lstrip())] + b" ".join([b"f", *resolved])
+        yield line
+
+
+def _obj_load_args(path):
+    """trimesh.load's arguments for OBJ file ``path``: the path itself, or (for a file with a
+    face index starting "-" or "0", or a continued line) its text read line by line, negative
+    indices made positive. A face index 0 or one counting back before the first vertex raises
+    InputError naming its line. Other files pay one C-speed regex search."""
+    import trimesh
+
     try:
         with open(path, "rb") as f:
             data = f.read()
     except OSError:
-        return
-    m = _OBJ_ZERO_INDEX.search(data)
-    if m:
-        line = data.count(b"\n", 0, m.start()) + 1
-        raise InputError(path, f"line {line}: face index 0 (OBJ indices start at 1)")
+        return {"file_obj": path}           # trimesh reports it
+    if not (_OBJ_ODD_INDEX_FIRST_LINE.match(data) or _OBJ_ODD_INDEX_LATER_LINE.search(data)
+            or _OBJ_CONTINUATION.search(data)):
+        return {"file_obj": path}
+    text = io.BytesIO()
+    for line in _obj_resolved_lines(path, io.BytesIO(data)):
+        text.write(line)
+        text.write(b"\n")
+    text.seek(0)
+    return {"file_obj": text, "file_type": "obj",
+            "resolver": trimesh.resolvers.FilePathResolver(path)}    # its mtllib, as for a path
+
+
+def _count_obj_vertices(f, block_size=1 << 24):
+    """Vertices of binary OBJ file ``f`` (lines starting "v " that do not continue the line
+    before), counted at C speed a block at a time."""
+    def starts(buf):
+        return buf.count(b"\nv ") - buf.count(b"\\\nv ") - buf.count(b"\\\r\nv ")
+    count, tail = 0, b"\n"                  # the last bytes of the blocks so far; start of file
+    while block := f.read(block_size):
+        buf = tail + block
+        count += starts(buf) - starts(tail)     # the tail's were counted with the block before
+        tail = buf[-4:]                         # the longest pattern less one byte
+    return count
 
 
 def _check_obj_face_range(path):
-    """Name the first face of an OBJ file that refers past the file's vertices (trimesh reports
-    it as a bare IndexError, 0-based). Run only after a failed load: a good file pays nothing."""
+    """Name the first face line of an OBJ file that trimesh cannot read: an index that is not a
+    number, refers past the file's vertices or counts back before the first (trimesh reports
+    a bare 0-based IndexError or numpy's parse error). Run only after a failed load: a good file
+    pays nothing. The file is streamed, so a multi-GB file gets its message in little memory."""
     try:
         with open(path, "rb") as f:
-            lines = [ln.split(b"#", 1)[0].split() for ln in f.read().split(b"\n")]
+            total = _count_obj_vertices(f)
+            f.seek(0)
+            for _ in _obj_resolved_lines(path, f, total):
+                pass
     except OSError:
         return
-    count = sum(1 for w in lines if w[:1] == [b"v"])
-    for k, words in enumerate(lines, 1):
-        for w in words[1:] if words[:1] == [b"f"] else ():
-            try:
-                n = int(w.split(b"/")[0])
-            except ValueError:
-                continue
-            if not -count <= n <= count:
-                back = " (counting back from the last)" if n < 0 else ""
-                raise InputError(path, f"line {k}: a face refers to vertex {n}{back}, but the "
-                                       f"file has {count} {'vertex' if count == 1 else 'vertices'}")
 
 
 def check_count(n, source):
@@ -133,12 +243,12 @@ def load_mesh_arrays(path):
     declared = _ply_face_count(path)
     if declared is not None:
         check_count(declared, path)
-    if path.lower().endswith(".obj"):
-        _check_obj_indices(path)
+    obj = path.lower().endswith(".obj")
+    load_args = _obj_load_args(path) if obj else {"file_obj": path}
     try:
-        mesh = trimesh.load(path, force="mesh", process=False)
+        mesh = trimesh.load(**load_args, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files
-        if isinstance(exc, IndexError) and path.lower().endswith(".obj"):
+        if obj:
             _check_obj_face_range(path)
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise InputError(path, f"cannot read mesh ({msg})") from None

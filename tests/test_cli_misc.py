@@ -138,14 +138,75 @@ def test_a_mesh_whose_vertices_all_coincide_is_refused_naming_the_file(tmp_path,
 @pytest.mark.parametrize("face, problem", [
     ("f 1 2 7", "line 5: a face refers to vertex 7, but the file has 3 vertices"),
     ("f 1/1 2/1 4/1", "line 5: a face refers to vertex 4, but the file has 3 vertices"),
-    ("f -1 -2 -4", "line 5: a face refers to vertex -4 (counting back from the last), but the "
-                   "file has 3 vertices"),
+    ("f -1 -2 -4", "line 5: a face refers to vertex -4, counting back from that line, but only "
+                   "3 vertices come before it"),
+    # read as the vertex after it before negative indices counted back from the face's line
+    ("f -4 -2 -1\nv 0 0 1", "line 5: a face refers to vertex -4, counting back from that line, "
+                            "but only 3 vertices come before it"),
+    ("f 1/-2 2/-1 3/-1", "line 5: a face refers to texture coordinate -2, counting back from "
+                         "that line, but only 1 texture coordinate comes before it"),
+    ("f 1 2 \\\n7", "line 5: a face refers to vertex 7, but the file has 3 vertices"),
+    ("f 1 2 \\\r\n  \\\n 3 # c", "line 5: a face holds '#', which is not an index (a comment "
+                                 "must be on a line of its own)"),
+    ("f 1 2 3 #\nf 1 2 9", "line 5: a face holds '#', which is not an index (a comment must be "
+                           "on a line of its own)"),
 ])
 def test_an_obj_face_past_the_vertices_is_named_by_its_line_and_index(tmp_path, face, problem):
     p = tmp_path / "bad.obj"
-    p.write_text(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\n{face}\n")
+    p.write_bytes(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\n{face}\n".encode())
     out = tmp_path / "o.exr"
     _refused(_hwrt("render", p, "-o", out, "--width", 8, "--height", 6), out, f"{p}: {problem}")
+
+
+# the triangle each group of vertices below makes
+A, B, C = ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[5, 5, 5], [6, 5, 5], [5, 6, 5]],
+           [[0, 0, 9], [1, 0, 9], [0, 1, 9]])
+_OBJ_VERTICES = {"A": "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "B": "v 5 5 5\nv 6 5 5\nv 5 6 5\n",
+                 "C": "v 0 0 9\nv 1 0 9\nv 0 1 9\n"}
+
+
+@pytest.mark.parametrize("text, triangles", [
+    ("o a\n{A}f -3 -2 -1\no b\n{B}f -3 -2 -1\n", [A, B]),           # each object's own vertices
+    ("{A}vt 0 0\nvn 0 0 1\nf -3/-1/-1 -2/-1/-1 -1/-1/-1\n{B}vt 1 1\nf -3/-1 -2/-1 -1/-2\n", [A, B]),
+    ("{A}f -3 2 -1\n{B}f -6 -2 \\\n -1\n{C}f 1 -5 \\\r\n3\r\n",
+     [A, [A[0]] + B[1:], [A[0], B[1], A[2]]]),
+    ("{A}{B}{C}f 4 5 6\nf -9 -8 -7\nf 7 8 9\n", [B, A, C]),
+])
+def test_negative_obj_indices_count_back_from_their_line(tmp_path, text, triangles):
+    from hwbvh.primitives import load_mesh_arrays
+    p = tmp_path / "relative.obj"
+    p.write_bytes(text.format(**_OBJ_VERTICES).encode())
+    V, F = load_mesh_arrays(p)
+    assert V[F].tolist() == triangles
+
+
+def test_an_obj_without_negative_indices_is_handed_to_trimesh_unread(tmp_path, monkeypatch):
+    """Minus signs in coordinates, names and comments do not send a file through the per-line
+    pass that makes negative indices positive; trimesh reads it from its path as before."""
+    from hwbvh import primitives
+
+    def per_line(*args):
+        raise AssertionError("read line by line")
+    monkeypatch.setattr(primitives, "_obj_resolved_lines", per_line)
+    p = tmp_path / "plain.obj"
+    p.write_text("# a mesh-1 -2\nv -1 -0 -1e-3\nv 1 0 0\nv 0 1 -0\ng part-2\nusemtl m-1\n"
+                 "f 1 2 3\nf 3/1  10/2 1\nv 0 0 1\nv 0 0 2\nv 0 0 3\nv 0 0 4\nv 0 0 5\nv 0 0 6\n"
+                 "v 0 0 7\n")
+    V, F = primitives.load_mesh_arrays(p)
+    assert V[F].tolist() == [[[-1, 0, -1e-3], [1, 0, 0], [0, 1, 0]],
+                             [[0, 1, 0], [0, 0, 7], [-1, 0, -1e-3]]]
+
+
+@pytest.mark.parametrize("block_size", [1, 2, 3, 4, 5, 7, 64])
+def test_obj_vertices_are_counted_across_blocks_as_lines_are_read(block_size):
+    """The error path counts a file's vertices at C speed a block at a time; every block
+    boundary gives the count of its line-by-line reading (continued lines are not vertices)."""
+    import io
+    from hwbvh.primitives import _count_obj_vertices, _obj_lines
+    data = (b"v 0 0 0\nvt 0 0\nv 1 0 0\\\nv 2 0 0\r\nvn 0 0 1\\\r\nv 3\r\nv 4 0 0\nv\t5\n"
+            b"f 1 2 3 \\\n\\\nv 6\n  v 7\nv 8 0 0")
+    lines = sum(line.startswith(b"v ") for _, line in _obj_lines(io.BytesIO(data)))
+    assert lines == 4 and _count_obj_vertices(io.BytesIO(data), block_size) == lines
 
 
 @pytest.mark.parametrize("how", ["mesh", "nan mesh", "mesh in a scene", "scene triangles"])
