@@ -6,11 +6,13 @@ import statistics
 import time
 from collections import Counter
 from pathlib import Path
+from typing import Callable, NamedTuple, Optional
 
 import numpy as np
 
-from hwbvh.errors import InputError
-from .paths import default_mesh_dir, mesh_files
+from hwbvh.errors import InputError, ParameterError
+from hwbvh.primitives import MESH_EXTENSIONS
+from .paths import MESH_DIR_ENV, default_mesh_dir, mesh_files
 from .progress import progress_over
 
 
@@ -41,31 +43,90 @@ def machine():
             "numpy": np.__version__, "embreex": emb}
 
 
+class MeshInput(NamedTuple):
+    """One benchmark mesh. ``name`` names its rows (see :func:`mesh_names`); ``path`` is its
+    file, None for a generated mesh; ``stem`` the file's stem or the generated mesh's name
+    (what the thesis' scenes are looked up by); ``load()`` gives (vertices, faces)."""
+    name: str
+    path: Optional[Path]
+    stem: str
+    load: Callable
+
+    @property
+    def source(self):
+        """What errors about the mesh name: its file, or the generated mesh's name."""
+        return self.name if self.path is None else str(self.path)
+
+
+def mesh_names(paths, base=None):
+    """Each mesh file's name: its stem, unless another of ``paths`` shares the stem (a/bunny.ply
+    and b/bunny.ply, bunny.ply and bunny.obj), then its path (relative to ``base``, the
+    directory the files were found in). A file given twice is refused: its rows would be one."""
+    paths = [Path(p) for p in paths]
+    seen = set()
+    for p in paths:
+        if p in seen:
+            raise InputError(p, "given twice")
+        seen.add(p)
+    stems = Counter(p.stem for p in paths)
+    return [p.stem if stems[p.stem] == 1 else str(p.relative_to(base) if base else p) for p in paths]
+
+
+def mesh_directory(mesh_dir):
+    """The mesh files of the directory asked for: ``mesh_dir``, else $HWRT_MESHES, else the
+    default directory when it is there (None: no directory asked for, none by default). A
+    directory asked for must exist and hold mesh files (errors name the parameter or the
+    environment variable); so must the default one, when it is there."""
+    if mesh_dir:
+        d = Path(mesh_dir)
+
+        def refuse(problem):
+            raise ParameterError("mesh_dir", f"{d}: {problem}")
+    else:
+        env = os.environ.get(MESH_DIR_ENV)
+        d = Path(env) if env else default_mesh_dir()
+        if d is None:
+            return None
+        named = f"${MESH_DIR_ENV} {d}" if env else d
+
+        def refuse(problem):
+            raise InputError(named, problem)
+    if not d.exists():
+        refuse("no such directory")
+    if not d.is_dir():
+        refuse("not a directory")
+    files = mesh_files(d)
+    if not files:
+        refuse(f"has no mesh files ({', '.join(MESH_EXTENSIONS)})")
+    return d, files
+
+
 def mesh_inputs(args):
-    """[(name, source, loader)] from explicit paths, --mesh-dir, the default directory, or
-    generated. A mesh file is named by its stem unless another input shares the stem (a/bunny.ply
-    and b/bunny.ply, bunny.ply and bunny.obj): then by its path (relative to the mesh
-    directory). ``source`` (the path) is what errors name."""
+    """[MeshInput] of the mesh files ``args.meshes``, else of the mesh directory
+    (:func:`mesh_directory` of ``args.mesh_dir``), else the generated meshes. Every file is
+    checked to be there before any is loaded."""
     from hwbvh.primitives import load_mesh_arrays
     from scenes.meshes import GENERATED
 
     paths = [Path(m) for m in args.meshes]
+    for p in paths:
+        if not p.exists():
+            raise InputError(p, "no such file")
+        if p.is_dir():
+            raise InputError(p, "is a directory, not a mesh file")
     base = None
     if not paths:
-        d = Path(args.mesh_dir) if args.mesh_dir else default_mesh_dir()
-        if d is not None:
-            if not d.is_dir():
-                raise InputError(d, "mesh directory does not exist")
-            paths, base = mesh_files(d), d
+        found = mesh_directory(args.mesh_dir)
+        if found is not None:
+            base, paths = found
     if paths:
-        stems = Counter(p.stem for p in paths)
-        return [(p.stem if stems[p.stem] == 1 else str(p.relative_to(base) if base else p),
-                 str(p), (lambda p=p: load_mesh_arrays(p))) for p in paths]
+        return [MeshInput(name, p, p.stem, (lambda p=p: load_mesh_arrays(p)))
+                for name, p in zip(mesh_names(paths, base), paths)]
 
     def indexed(fn):
         tris = fn()
         return tris.reshape(-1, 3).astype(np.float64), np.arange(3 * len(tris)).reshape(-1, 3)
-    return [(name, name, (lambda fn=fn: indexed(fn))) for name, fn in GENERATED.items()]
+    return [MeshInput(name, None, name, (lambda fn=fn: indexed(fn))) for name, fn in GENERATED.items()]
 
 
 def _median_time(fn, repeat):
@@ -84,15 +145,15 @@ def bench_build(args):
     from traversal.embree_ref import embree_scene
 
     rows = []
-    for name, source, load in progress_over(mesh_inputs(args), "bench build", "mesh"):
-        verts, faces = load()
-        tris = as_triangles(verts[faces], source=source)
+    for mesh in progress_over(mesh_inputs(args), "bench build", "mesh"):
+        verts, faces = mesh.load()
+        tris = as_triangles(verts[faces], source=mesh.source)
         v32 = verts.astype(np.float32)
         f32 = faces.astype(np.int32)
         ours, ours_all = _median_time(lambda: build(tris), args.repeat)
         emb, emb_all = _median_time(lambda: embree_scene(v32, f32), args.repeat)
         bvh = build(tris)
-        rows.append({"mesh": name, "triangles": int(len(tris)), "hwbvh_seconds": ours,
+        rows.append({"mesh": mesh.name, "triangles": int(len(tris)), "hwbvh_seconds": ours,
                      "embree_seconds": emb, "ratio": ours / emb,
                      "hwbvh_spread": [min(ours_all), max(ours_all)],
                      "embree_spread": [min(emb_all), max(emb_all)],
@@ -284,9 +345,10 @@ def bench_trace(args):
     for accel in accels:
         warm_up_accel(accel)
     rows, later = [], []
-    for name, source, load in progress_over(mesh_inputs(args), "bench trace", "mesh"):
-        verts, faces = load()
-        tris = as_triangles(verts[faces], source=source)
+    for mesh in progress_over(mesh_inputs(args), "bench trace", "mesh"):
+        name = mesh.name
+        verts, faces = mesh.load()
+        tris = as_triangles(verts[faces], source=mesh.source)
         v32, f32 = verts.astype(np.float32), faces.astype(np.int32)
         tracer = Tracer(hwbvh.build(tris))
         emb = embree_scene(v32, f32)
@@ -667,9 +729,9 @@ def bench_model(args):
     from .explore import warm_up
 
     meshes = []
-    for name, source, load in progress_over(mesh_inputs(args), "bench model: load", "mesh"):
-        verts, faces = load()
-        meshes.append((name, Path(source).stem, as_triangles(verts[faces], source=source)))
+    for mesh in progress_over(mesh_inputs(args), "bench model: load", "mesh"):
+        verts, faces = mesh.load()
+        meshes.append((mesh.name, mesh.stem, as_triangles(verts[faces], source=mesh.source)))
     subs = cal.fit_subtrees([t for _, _, t in meshes])
     target, (t_lo, t_hi) = cal.target_rate()
     fit = {"target_cycles_per_primitive": target, "target_range": [t_lo, t_hi],

@@ -346,7 +346,7 @@ BENCH_OPTIONS = {
 }
 BENCH_QUICK = {"tti": {"repeat": 1, "width": 160, "height": 120},     # --quick: small cells
                "accuracy": {"repeat": 1, "width": 64, "height": 48}}
-BENCH_NONE = {"mesh_dir": "$HWRT_MESHES or ../shared/meshes, else generated meshes",
+BENCH_NONE = {"mesh_dir": "$HWRT_MESHES, else ../shared/meshes if it is there, else generated meshes",
               "out_dir": "no files", "width": "the scene's", "height": "the scene's",
               "spp": "the scene's", "max_depth": "the scene's",
               "scheduler": "$HWRT_SCHEDULER, else a local cluster of one worker with every core"}

@@ -5,8 +5,11 @@ from pathlib import Path
 from hwbvh.primitives import MESH_EXTENSIONS
 
 
+MESH_DIR_ENV = "HWRT_MESHES"
+
+
 def default_mesh_dir():
-    env = os.environ.get("HWRT_MESHES")
+    env = os.environ.get(MESH_DIR_ENV)
     if env:
         return Path(env)
     for base in (Path(__file__).resolve().parents[1], Path.cwd()):

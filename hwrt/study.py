@@ -105,17 +105,15 @@ def _scene_specs(args, quick):
     ``generated`` with the name of a generated mesh). Meshes are found and named as the other
     benchmarks find and name them (``bench.mesh_inputs``)."""
     from scenes.builtin import BUILTIN
-    from scenes.meshes import GENERATED
 
     specs = [(n, "builtin", n) for n in (["cornell"] if quick else list(BUILTIN))]
-    meshes = [(name, source) for name, source, _ in mesh_inputs(args)]
-    # no mesh file given or found: the generated meshes, whose source is their name (a file
-    # found in a mesh directory has a mesh extension, which no generated name has)
-    if not args.meshes and all(source in GENERATED for _, source in meshes):
-        return specs + [(n, "generated", n) for n, _ in meshes[:1 if quick else None]]
+    meshes = mesh_inputs(args)
+    generated = [m for m in meshes if m.path is None]
+    if generated:
+        return specs + [(m.name, "generated", m.stem) for m in generated[:1 if quick else None]]
     if quick:
-        meshes = sorted(meshes, key=lambda m: os.path.getsize(m[1]))[:1]
-    return specs + [(name, "mesh", os.path.abspath(source)) for name, source in meshes]
+        meshes = sorted(meshes, key=lambda m: m.path.stat().st_size)[:1]
+    return specs + [(m.name, "mesh", os.path.abspath(m.path)) for m in meshes]
 
 
 _generated = {"dir": None, "lock": threading.Lock()}
@@ -282,8 +280,8 @@ def bench_tti(args, *, use_dask=True, progress=True):
     spp, depth = args.spp, args.max_depth
     repeat = args.repeat
     out_dir = args.out_dir
+    specs = _scene_specs(args, args.quick)      # bad meshes refused before the cells file is opened
     cells = Cells(os.path.join(out_dir, "tti.jsonl"), fresh=args.fresh)
-    specs = _scene_specs(args, args.quick)
     run = _run_id()
     jobs, keys = [], {}
     structures = tti_structures(getattr(args, "accel", None))
@@ -555,8 +553,8 @@ def bench_accuracy(args, *, use_dask=True, progress=True):
     W, H = args.width, args.height
     repeat = args.repeat
     rays = MISMATCH_RAYS_QUICK if quick else MISMATCH_RAYS
+    specs = _scene_specs(args, quick)[:1 if quick else 3]   # before the cells file is opened
     cells = Cells(os.path.join(args.out_dir, "accuracy.jsonl"), fresh=args.fresh)
-    specs = _scene_specs(args, quick)[:1 if quick else 3]
     work = [(spec, knob, val) for spec in specs for knob, vals in KNOBS.items() for val in vals]
     key_of = lambda spec, knob, val: json.dumps([spec[0], knob, val, W, H, repeat])
     pending = [(spec, knob, val) for spec, knob, val in work if not cells.get(key_of(spec, knob, val))]

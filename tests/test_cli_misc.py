@@ -267,3 +267,73 @@ def test_bench_trace_tells_meshes_of_one_stem_apart_and_errors_name_the_file(tmp
     r = _hwrt("bench", "trace", bad, "--rays", 200, "--repeat", 1)
     assert r.returncode == 2 and r.stderr.splitlines() == [
         f"hwrt: error: {bad}: triangle 0 has a NaN or infinite coordinate"]
+
+
+def test_bench_refuses_a_missing_mesh_or_a_directory_before_any_work(tmp_path):
+    (tmp_path / "d").mkdir()
+    for given, problem in ((tmp_path / "none.ply", "no such file"),
+                           (tmp_path / "d", "is a directory, not a mesh file")):
+        r = _hwrt("bench", "trace", given, "--rays", 200, "--repeat", 1, "--out-dir", tmp_path / "out")
+        _refused(r, tmp_path / "out", f"{given}: {problem}")
+
+
+def _mesh_args(mesh_dir=None, meshes=()):
+    from argparse import Namespace
+    return Namespace(meshes=[str(m) for m in meshes], mesh_dir=None if mesh_dir is None else str(mesh_dir))
+
+
+def test_a_mesh_directory_asked_for_must_exist_and_hold_meshes(tmp_path, monkeypatch):
+    """Asked for by the parameter (the command line's --mesh-dir) or by $HWRT_MESHES: a
+    directory that is missing, a file, or empty of meshes is an error naming what asked for
+    it, never a silent run on generated meshes."""
+    from hwbvh.errors import InputError, ParameterError
+    from hwrt.bench import mesh_inputs
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "notes.txt").write_text("")
+    (tmp_path / "file").write_text("")
+    cases = [(tmp_path / "none", "no such directory"), (tmp_path / "file", "not a directory"),
+             (tmp_path / "empty", "has no mesh files (.ply, .obj, .stl, .off, .glb, .gltf)")]
+    monkeypatch.delenv("HWRT_MESHES", raising=False)
+    for d, problem in cases:
+        with pytest.raises(ParameterError) as e:
+            mesh_inputs(_mesh_args(d))
+        assert e.value.parameter == "mesh_dir" and e.value.problem == f"{d}: {problem}"
+        r = _hwrt("bench", "build", "--mesh-dir", d, "--repeat", 1)
+        assert r.returncode == 2 and r.stderr.splitlines() == [f"hwrt: error: --mesh-dir: {d}: {problem}"]
+    for d, problem in cases:
+        monkeypatch.setenv("HWRT_MESHES", str(d))
+        with pytest.raises(InputError) as e:
+            mesh_inputs(_mesh_args())
+        assert (e.value.source, e.value.problem) == (f"$HWRT_MESHES {d}", problem)
+
+
+def test_generated_meshes_only_when_no_directory_is_asked_for_or_there(tmp_path, monkeypatch):
+    import hwrt.bench as bench
+    from hwbvh.errors import InputError
+    from scenes.meshes import GENERATED
+    monkeypatch.delenv("HWRT_MESHES", raising=False)
+    monkeypatch.setattr(bench, "default_mesh_dir", lambda: None)          # ../shared/meshes absent
+    got = bench.mesh_inputs(_mesh_args())
+    assert [(m.name, m.path, m.stem) for m in got] == [(n, None, n) for n in GENERATED]
+    assert got[0].source == got[0].name
+    (tmp_path / "default").mkdir()
+    monkeypatch.setattr(bench, "default_mesh_dir", lambda: tmp_path / "default")  # there, but empty
+    with pytest.raises(InputError) as e:
+        bench.mesh_inputs(_mesh_args())
+    assert e.value.source == str(tmp_path / "default") and e.value.problem.startswith("has no mesh files")
+
+
+def test_mesh_inputs_are_records_naming_files_by_stem_unless_shared(tmp_path):
+    from hwbvh.errors import InputError
+    from hwrt.bench import mesh_inputs
+    for rel in ("a/s.ply", "b/s.ply", "a/t.obj"):
+        (tmp_path / rel).parent.mkdir(exist_ok=True)
+        (tmp_path / rel).write_text("")
+    a, b, t = tmp_path / "a/s.ply", tmp_path / "b/s.ply", tmp_path / "a/t.obj"
+    got = mesh_inputs(_mesh_args(meshes=[a, b, t]))
+    assert [(m.name, m.path, m.stem, m.source) for m in got] == [
+        (str(a), a, "s", str(a)), (str(b), b, "s", str(b)), ("t", t, "t", str(t))]
+    in_dir = mesh_inputs(_mesh_args(tmp_path / "a"))
+    assert [(m.name, m.path, m.stem) for m in in_dir] == [("s", a, "s"), ("t", t, "t")]
+    with pytest.raises(InputError, match=f"^{a}: given twice$"):
+        mesh_inputs(_mesh_args(meshes=[a, t, a]))

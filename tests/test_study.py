@@ -154,3 +154,30 @@ def test_study_meshes_that_share_a_stem_are_told_apart_by_their_paths(tmp_path):
                       ("other", "mesh", str(given[2]))]
     in_dir = _scene_specs(Namespace(meshes=[], mesh_dir=str(tmp_path / "dir")), False)[-3:]
     assert [name for name, _, _ in in_dir] == ["ball", "bunny.obj", "bunny.ply"]
+
+
+def test_a_missing_mesh_is_refused_before_any_cell_or_cluster(tmp_path):
+    out = tmp_path / "out"
+    for quick in (["--quick"], []):
+        t0 = time.perf_counter()
+        r = run("bench", "tti", tmp_path / "none.ply", *quick, "--out-dir", out)
+        assert r.returncode == 2 and r.stderr.splitlines() == [f"hwrt: error: {tmp_path / 'none.ply'}: no such file"]
+        assert time.perf_counter() - t0 < 60 and not out.exists()
+
+
+def test_a_bad_mesh_directory_is_refused_before_the_cells_file_is_touched(tmp_path):
+    """Opening the cells file repairs a last line cut short by an interruption; a run that
+    fails on its input leaves the file as it was."""
+    from hwbvh.errors import ParameterError
+    from hwrt.study import _scene_specs
+    with pytest.raises(ParameterError, match="/nonexistent: no such directory"):
+        _scene_specs(Namespace(meshes=[], mesh_dir="/nonexistent"), False)
+    out = tmp_path / "out"
+    out.mkdir()
+    saved = '{"key": "kept"}\n{"key": "cut sh'
+    for what in ("tti", "accuracy"):
+        (out / f"{what}.jsonl").write_text(saved)
+        r = run("bench", what, "--quick", "--mesh-dir", tmp_path / "none", "--out-dir", out)
+        assert r.returncode == 2 and r.stderr.splitlines() == [
+            f"hwrt: error: --mesh-dir: {tmp_path / 'none'}: no such directory"]
+        assert (out / f"{what}.jsonl").read_text() == saved
