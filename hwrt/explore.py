@@ -132,22 +132,18 @@ def _digest(path):
 
 def mesh_specs(paths):
     """``[{"name", "path", "digest", "triangles"}]`` for the mesh files, each loaded once here
-    so a bad file fails before any cell runs."""
+    so a bad file fails before any cell runs. Named as the benchmarks name them
+    (``bench.mesh_names``: the stem, or the path where stems are shared)."""
     from hwbvh.primitives import as_triangles, load_mesh_arrays
+    from .bench import mesh_names
 
     if not paths:
         raise ParameterError("meshes", "no mesh given")
-    specs, names = [], {}
-    for path in paths:
-        path = os.fspath(path)
-        name = Path(path).stem
-        if name in names:
-            raise InputError(path, f"has the same name as {names[name]}; rows are keyed by name")
-        if not os.path.isfile(path):
-            raise InputError(path, "no such mesh file")
+    paths = [os.fspath(p) for p in paths]
+    specs = []
+    for name, path in zip(mesh_names(paths), paths):
         verts, faces = load_mesh_arrays(path)
         tris = as_triangles(verts[faces], source=path)
-        names[name] = path
         specs.append({"name": name, "path": os.path.abspath(path), "digest": _digest(path),
                       "triangles": int(len(tris))})
     return specs

@@ -124,6 +124,25 @@ def test_cells_resume_after_an_interruption(meshes, tmp_path):
     assert len(cells.read_text().splitlines()) == fresh["cells"]
 
 
+def test_meshes_are_named_as_the_benchmarks_name_them(tmp_path):
+    """A stem two files share names each by its path (the benchmarks' rule); the same file
+    given twice is refused, its rows would be one."""
+    from hwbvh.errors import InputError
+    paths = []
+    for rel, n in (("a/s.ply", 100), ("b/s.ply", 120), ("a/t.obj", 80)):
+        (tmp_path / rel).parent.mkdir(exist_ok=True)
+        paths.append(write_mesh(tmp_path / rel, random_soup(n, seed=n)))
+    assert [(m["name"], m["triangles"]) for m in ex.mesh_specs(paths)] == [
+        (paths[0], 100), (paths[1], 120), ("t", 80)]
+    with pytest.raises(InputError, match="given twice"):
+        ex.mesh_specs([paths[2], paths[2]])
+    for bad, problem in ((tmp_path / "none.ply", "no such file"),
+                         (tmp_path / "a", "is a directory, not a mesh file")):
+        with pytest.raises(InputError) as e:
+            ex.mesh_specs([bad])
+        assert str(e.value) == f"{bad}: {problem}"
+
+
 @pytest.mark.parametrize("args,message", [
     (["--grid", "w="], "--grid: w: empty value"),
     (["--grid", "bogus=1"], "unknown knob 'bogus'"),
