@@ -448,6 +448,8 @@ def _camera_fn(track, base, source):
         c.update(eye=k["eye"], target=k["target"], up=k["up"], fov=float(k["fov"]))
         if np.array_equal(c["eye"], c["target"]):   # the still scene's rule (scenes.loader)
             _fail(source, "animation.camera", f"eye equals target at time {t:g}")
+        if not np.any(c["up"]):                      # no roll to take from it
+            _fail(source, "animation.camera", f"up is zero at time {t:g}")
         return c
     return cam
 

@@ -519,6 +519,8 @@ def compile_scene(d, source=None, first_shape=0):
               "fov": ctx.num(cam, "fov", "camera", default=40.0, lo=FOV_RANGE[0], hi=FOV_RANGE[1])}
     if np.array_equal(camera["eye"], camera["target"]):
         ctx.fail("camera.target", "must differ from camera.eye")
+    if not np.any(camera["up"]):
+        ctx.fail("camera.up", "must not be zero (it sets the camera's roll)")
     film = ctx.obj(d, "film", default={})
     ctx.keys(film, FILM_KEYS, "film")
     integ = ctx.obj(d, "integrator", default={})

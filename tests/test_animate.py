@@ -225,6 +225,9 @@ def test_keyframes_interpolate_translate_rotate_scale(tmp_path):
     ({"animation": {"fps": 2, "camera": [{"time": 0}, {"time": 0.5, "eye": [0, 0, 0], "target": [0, 0, 0]},
                                          {"time": 1, "eye": [0, 1, 4]}]}},
      "key 'animation.camera': eye equals target at time 0.5"),
+    # up turned over between keys: zero half way
+    ({"animation": {"fps": 2, "camera": [{"time": 0, "up": [0, 1, 0]}, {"time": 1, "up": [0, -1, 0]}]}},
+     "key 'animation.camera': up is zero at time 0.5"),
 ])
 def test_bad_scene_files_exit_2_naming_file_and_key(tmp_path, capsys, shape_or_anim, message):
     anim = shape_or_anim.pop("animation", None)

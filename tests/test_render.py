@@ -256,6 +256,10 @@ BAD_SCENES = {
     "badvec.json": ({"camera": {"eye": [0, "x", 1], "target": [0, 0, 0]}, "materials": {"m": {"type": "diffuse"}},
                      "shapes": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m"}]},
                     "key 'camera.eye'"),
+    "zeroup.json": ({"camera": {"eye": [0, 0, 3], "target": [0, 0, 0], "up": [0, 0, 0]},
+                     "materials": {"m": {"type": "diffuse"}},
+                     "shapes": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m"}]},
+                    "key 'camera.up': must not be zero"),
     "badshape.toml": ('[camera]\neye=[0,0,1]\ntarget=[0,0,0]\n[materials.m]\ntype="diffuse"\n'
                       '[[shapes]]\ntype="cone"\nmaterial="m"\n', "key 'shapes\\[0\\].type': unknown shape type"),
     "badnum.toml": ('[camera]\neye=[0,0,1]\ntarget=[0,0,0]\nfov=-5\n[materials.m]\ntype="diffuse"\n'
