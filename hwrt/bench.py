@@ -139,6 +139,22 @@ def _median_time(fn, repeat):
     return statistics.median(times), times
 
 
+def _alternating_times(first, second, repeat):
+    """Seconds of ``repeat`` runs of each of two functions, after a warm-up run of each, the
+    two alternating run by run and taking turns to go first: a drift in a shared machine's
+    speed falls on both, and the median of the runs' ratios cancels it."""
+    first()
+    second()
+    times = ([], [])
+    for i in range(repeat):
+        for k in ((0, 1) if i % 2 == 0 else (1, 0)):
+            fn = (first, second)[k]
+            t = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t)
+    return times
+
+
 def bench_build(args):
     from hwbvh.api import build
     from hwbvh.primitives import as_triangles
@@ -150,11 +166,13 @@ def bench_build(args):
         tris = as_triangles(verts[faces], source=mesh.source)
         v32 = verts.astype(np.float32)
         f32 = faces.astype(np.int32)
-        ours, ours_all = _median_time(lambda: build(tris), args.repeat)
-        emb, emb_all = _median_time(lambda: embree_scene(v32, f32), args.repeat)
+        ours_all, emb_all = _alternating_times(lambda: build(tris),
+                                               lambda: embree_scene(v32, f32), args.repeat)
         bvh = build(tris)
-        rows.append({"mesh": mesh.name, "triangles": int(len(tris)), "hwbvh_seconds": ours,
-                     "embree_seconds": emb, "ratio": ours / emb,
+        rows.append({"mesh": mesh.name, "triangles": int(len(tris)),
+                     "hwbvh_seconds": statistics.median(ours_all),
+                     "embree_seconds": statistics.median(emb_all),
+                     "ratio": statistics.median(o / e for o, e in zip(ours_all, emb_all)),
                      "hwbvh_spread": [min(ours_all), max(ours_all)],
                      "embree_spread": [min(emb_all), max(emb_all)],
                      "sah_cost": bvh.meta["sah_cost"], "nodes": bvh.meta["nodes"]})
@@ -168,6 +186,8 @@ def human(what):
             for m in r["meshes"]:
                 lines.append(f"{m['mesh']:<18}{m['triangles']:>10}{m['hwbvh_seconds']*1e3:>11.1f}"
                              f"{m['embree_seconds']*1e3:>11.1f}{m['ratio']:>8.2f}{m['sah_cost']:>9.2f}")
+            lines.append(f"times: medians of {r['repeat']} runs each, the two builders alternating "
+                         "run by run; ratio: the median of the runs' hwbvh / embree")
             return "\n".join(lines)
         if what in ("tti", "accuracy"):
             return "wrote " + ", ".join(r["files"])
@@ -180,6 +200,8 @@ def human(what):
                     o3 = f"{s['open3d_mrays']:>8.2f}" if "open3d_mrays" in s else f"{'-':>8}"
                     lines.append(f"{m['mesh']:<14}{k:<12}{s['rays']:>9}{s['ours_mrays']:>11.2f}"
                                  f"{s['embreex_mrays']:>9.2f}{s['ratio_vs_embreex']:>7.2f}{o3}")
+            lines.append(f"rates: medians of {r['repeat']} runs each, ours and embreex alternating "
+                         "run by run; ratio: the median of the runs' ours / embreex rate")
             if r.get("accels"):
                 lines += ["", f"{'mesh':<14}{'accel':<8}{'build ms':>10}{'x sweep':>8}{'MiB':>8}"
                               f"{'refs/tri':>9}{'set':>12}{'Mr/s':>8}{'vs bvh':>8}"]
@@ -387,10 +409,12 @@ def bench_trace(args):
                 peer = lambda: embree_intersect(emb, O32, D32)
             else:
                 peer = lambda: embree_occluded(emb, O32, D32, tm32)
-            t_ours, spread_o = _median_time(ours, args.repeat)
-            t_emb, spread_e = _median_time(peer, args.repeat)
+            spread_o, spread_e = _alternating_times(ours, peer, args.repeat)
+            t_ours, t_emb = statistics.median(spread_o), statistics.median(spread_e)
             out[kind] = {"rays": int(len(O)), "ours_mrays": len(O) / t_ours / 1e6,
-                         "embreex_mrays": len(O) / t_emb / 1e6, "ratio_vs_embreex": t_emb / t_ours,
+                         "embreex_mrays": len(O) / t_emb / 1e6,
+                         "ratio_vs_embreex": statistics.median(e / o for o, e in
+                                                              zip(spread_o, spread_e)),
                          "ours_spread_s": [min(spread_o), max(spread_o)],
                          "embreex_spread_s": [min(spread_e), max(spread_e)]}
             later.append((out[kind], v32, f32, O32, D32, tm32, t_ours))
