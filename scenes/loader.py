@@ -44,6 +44,8 @@ SHAPE_KEYS = {"quad": ("corners",), "box": ("min", "max", "rotate_y"),
               "sheet": ("resolution", "size", "wave", "height"),
               "triangles": ("data",), "mesh": ("filename", "smooth", "transform")}
 TRANSFORM_KEYS = ("scale", "rotate_y", "translate")
+# Keys a shape does not take that a scene file's author may reach for: what to write instead.
+SHAPE_KEY_HINTS = {"frames": 'a shape of "type": "frames" with a "pattern"'}
 # Light (intensities, irradiance, ambient, background): a point light's intensity grows with
 # the square of the scene's scale (up to 1e30 at hwbvh's largest coordinates), and shading
 # multiplies it by a few more factors in float64, which holds up to ~1e308.
@@ -247,14 +249,16 @@ class _Ctx:
     def fail(self, key, problem):
         raise InputError(self.source, f"key '{key}': {problem}")
 
-    def keys(self, obj, allowed, path):
-        """Fail on the first key of ``obj`` not in ``allowed``, suggesting the closest one."""
+    def keys(self, obj, allowed, path, hints=None):
+        """Fail on the first key of ``obj`` not in ``allowed``, suggesting the closest one
+        (or ``hints[key]``, for a key that belongs elsewhere)."""
         for key in obj:
             if key not in allowed:
                 where = f"{path}.{key}" if path else str(key)
                 close = difflib.get_close_matches(str(key), [a for a in allowed if a[0] != "_"], 1)
-                hint = (f"did you mean '{close[0]}'?" if close else
-                        "known keys: " + ", ".join(a for a in allowed if a[0] != "_"))
+                known = "known keys: " + ", ".join(a for a in allowed if a[0] != "_")
+                hint = (f"did you mean {hints[key]}? {known}" if key in (hints or {}) else
+                        f"did you mean '{close[0]}'?" if close else known)
                 self.fail(where, f"unknown key ({hint})")
 
     def obj(self, d, key, path=None, default=None):
@@ -363,7 +367,7 @@ def _shape(ctx, sh, i, scene_dir):
     typ = sh.get("type")
     if typ not in SHAPE_TYPES:
         ctx.fail(f"{path}.type", f"unknown shape type {typ!r} (choose from {', '.join(SHAPE_TYPES)})")
-    ctx.keys(sh, _SHAPE_COMMON + SHAPE_KEYS[typ], path)
+    ctx.keys(sh, _SHAPE_COMMON + SHAPE_KEYS[typ], path, SHAPE_KEY_HINTS)
     if typ == "quad":
         c = sh.get("corners")
         try:
