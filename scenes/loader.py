@@ -462,8 +462,10 @@ def compile_scene(d, source=None, first_shape=0):
     ``first_shape``: the index errors give the first shape (a part of a larger scene)."""
     source = source or d.get("_source", "<scene>")
     ctx = _Ctx(source)
-    moving = "animation" in d or any(isinstance(sh, dict) and "keyframes" in sh
-                                     for sh in (d.get("shapes") or []))
+    shapes = d.get("shapes")
+    moving = "animation" in d or any(
+        isinstance(sh, dict) and ("keyframes" in sh or sh.get("type") == "frames")
+        for sh in (shapes if isinstance(shapes, list) else []))
     if moving:
         ctx.fail("animation" if "animation" in d else "shapes",
                  "the scene moves: render it with hwrt animate")

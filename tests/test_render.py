@@ -264,6 +264,9 @@ BAD_SCENES = {
                       '[[shapes]]\ntype="cone"\nmaterial="m"\n', "key 'shapes\\[0\\].type': unknown shape type"),
     "badnum.toml": ('[camera]\neye=[0,0,1]\ntarget=[0,0,0]\nfov=-5\n[materials.m]\ntype="diffuse"\n'
                     '[[shapes]]\ntype="sphere"\ncenter=[0,0,0]\nradius=1\nmaterial="m"\n', "key 'camera.fov'"),
+    "frameshape.json": ({"camera": {"eye": [0, 0, 3], "target": [0, 0, 0]}, "materials": {"m": {"type": "diffuse"}},
+                         "shapes": [{"type": "frames", "pattern": "f_%04d.ply", "material": "m"}]},
+                        "key 'shapes': the scene moves: render it with hwrt animate"),
     "meshframes.json": ({"camera": {"eye": [0, 0, 3], "target": [0, 0, 0]}, "materials": {"m": {"type": "diffuse"}},
                          "shapes": [{"type": "mesh", "filename": "f_0000.ply", "frames": "f_%04d.ply",
                                      "material": "m"}]},
