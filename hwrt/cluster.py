@@ -1,7 +1,8 @@
 """Cells on Dask: one helper gives a client, another runs a list of cells through it.
 
 By default the client talks to an embedded local cluster: one worker process per core, one
-thread each, no dashboard, quiet logs. ``scheduler`` (or ``$HWRT_SCHEDULER``) names a running
+thread each, no dashboard, quiet logs, workers deaf to SIGINT (a Ctrl-C is this process's to
+act on: it closes the cluster). ``scheduler`` (or ``$HWRT_SCHEDULER``) names a running
 Dask scheduler instead (``tcp://HOST:PORT``), whose workers must have hwrt installed and read the
 inputs at the same paths. Each worker runs a warm-up once when it starts (Numba kernels loaded
 from their cache, not once per cell). A cell lost with a killed worker is run again elsewhere
@@ -10,6 +11,7 @@ process, one after the other: the reference a cluster's results equal bit for bi
 """
 import logging
 import os
+import signal
 from contextlib import contextmanager
 
 from distributed.diagnostics.plugin import WorkerPlugin
@@ -85,6 +87,29 @@ def _probe(address):
 
 
 @contextmanager
+def _sigint_blocked():
+    """SIGINT blocked in this thread while the embedded cluster starts, and so in the threads
+    it starts meanwhile (its event loop, and the threads that loop starts to spawn worker
+    processes, now or to replace one later) and in those processes: a signal mask is inherited
+    by threads and across fork and exec. Ctrl-C at a terminal signals every process of the
+    foreground group; this way only this process acts on it (its main thread unblocks SIGINT
+    again), and it closes the cluster, instead of each worker dying with a traceback."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    # multiprocessing starts its resource tracker the first time a worker's queue is made,
+    # and unblocks both signals in the thread that starts it: started here first, it is not
+    # started again in the event loop's thread, whose mask stays as this one leaves it
+    from multiprocessing import resource_tracker
+    resource_tracker.ensure_running()
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+@contextmanager
 def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=None):
     """A ``distributed.Client``: on ``scheduler`` (else ``$HWRT_SCHEDULER``), else on an
     embedded local cluster of ``workers`` processes (default: one per core) whose Numba kernels
@@ -96,34 +121,39 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
 
     _quiet()
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
-    cluster = None
+    cluster = client = None
     # settings for this cluster only: restored when it closes, so the caller's process keeps
     # its own Dask configuration
     with dask.config.set({"distributed.scheduler.allowed-failures": 8,
                           "distributed.worker.daemon": False,
                           "distributed.comm.timeouts.connect": f"{CONNECT_TIMEOUT_S}s"}):
-        if address:
-            problem = _probe(address)
-            if problem:
-                raise ParameterError("scheduler", f"no Dask scheduler answers at {address!r} within "
-                                                  f"{CONNECT_TIMEOUT_S} s ({problem})")
-            client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
-        else:
-            n = workers or os.cpu_count() or 1
-            threads = str(max(1, int(threads_per_cell)))
-            # the scheduler's HTTP port is left to the system: 8787 may be another cluster's
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.CRITICAL,
-                                   scheduler_kwargs={"dashboard_address": ":0"},
-                                   env={CELL_THREADS_ENV: threads, "OMP_NUM_THREADS": threads})
-            client = Client(cluster, set_as_default=False)
         try:
+            if address:
+                problem = _probe(address)
+                if problem:
+                    raise ParameterError("scheduler", f"no Dask scheduler answers at {address!r} "
+                                                      f"within {CONNECT_TIMEOUT_S} s ({problem})")
+                client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+            else:
+                n = workers or os.cpu_count() or 1
+                threads = str(max(1, int(threads_per_cell)))
+                # a Ctrl-C while the cluster starts is acted on once it has started (and is
+                # closed below); the scheduler's HTTP port is left to the system: 8787 may be
+                # another cluster's
+                with _sigint_blocked():
+                    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                           dashboard_address=None, silence_logs=logging.CRITICAL,
+                                           scheduler_kwargs={"dashboard_address": ":0"},
+                                           env={CELL_THREADS_ENV: threads,
+                                                "OMP_NUM_THREADS": threads})
+                client = Client(cluster, set_as_default=False)
             if warm_up is not None:
                 client.register_plugin(WarmUp(warm_up))
             yield client
         finally:
             _quiet()
-            client.close()
+            if client is not None:
+                client.close()
             if cluster is not None:
                 cluster.close()
 

@@ -237,3 +237,35 @@ def test_embedded_cluster_cells_get_the_threads_asked_for():
         # the cluster's own Dask settings end with it
         assert dask.config.get("distributed.comm.timeouts.connect") == "17s"
     assert got == {"one": 1}
+
+
+def test_ctrl_c_on_the_embedded_cluster_prints_one_line_and_leaves_resumable_cells(meshes, tmp_path):
+    """Ctrl-C at a terminal signals every process of the foreground group, the embedded
+    cluster's workers too: they must not die each with its own traceback. One line, exit 130,
+    no worker left behind, and the cells saved so far resume."""
+    out = tmp_path / "out"
+    cells = out / ex.CELLS_NAME
+    p = subprocess.Popen([sys.executable, "-m", "hwrt.cli", "explore", meshes[1], "--workers", "2",
+                          "--out-dir", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True, start_new_session=True)
+    try:
+        deadline = time.time() + 60
+        while not (cells.exists() and cells.stat().st_size) and p.poll() is None:
+            assert time.time() < deadline, "no cell finished"
+            time.sleep(0.02)
+        assert p.poll() is None, "the run ended before it could be interrupted"
+        workers = subprocess.run(["pgrep", "-g", str(p.pid)], capture_output=True,
+                                 text=True).stdout.split()
+        os.killpg(p.pid, signal.SIGINT)             # what a terminal's Ctrl-C does
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert p.returncode == 130 and err == "hwrt: interrupted\n", err
+    assert len(workers) > 1, "the cluster's processes were not seen"
+    deadline = time.time() + 10                     # the resource tracker exits as it sees EOF
+    while (left := subprocess.run(["pgrep", "-a", "-g", str(p.pid)], capture_output=True,
+                                  text=True).stdout) and time.time() < deadline:
+        time.sleep(0.1)
+    assert left == "", f"processes left behind: {left}"
+    assert ex._CellStore(cells, fresh=False).done          # a rerun resumes these
