@@ -324,6 +324,38 @@ def cmd_animate(args):
     _emit(args, animate.cmd_animate(args), animate.human)
 
 
+# What each benchmark measures, against which peer, and roughly how long it runs with its
+# defaults (mesh benchmarks: on the shared meshes). The bench help lists them;
+# `hwrt bench NAME --help` opens with one.
+BENCHMARKS = {
+    "build": ("build time of the hardware's binned SAH builder (run in software) against "
+              "Embree's build, per mesh", "a minute or so"),
+    "scale": ("build time of the hardware's builder from 10k to 2M generated triangles and the "
+              "exponent of its growth, beside N log N's over the same range; no peer", "minutes"),
+    "trace": ("rays per second of our traversal against embreex (and Open3D when installed) on "
+              "the same primary, incoherent and shadow rays, per mesh", "minutes"),
+    "render": ("time to image (build + render) of the hardware's tree and our traversal "
+               "against Embree's build and traversal through the same renderer, and against "
+               "Mitsuba 3 on mesh scenes", "minutes"),
+    "tti": ("time to image per scene of every path (simulated HWBVH-C and HWBVH-HP builds, the "
+            "builder in software, the full-SAH sweep tree, grid, kd-tree) against Embree's, "
+            "with the ray budgets up to which a hardware build stays ahead",
+            "minutes; --quick: seconds"),
+    "accuracy": ("what each accuracy knob (bins, leaf size, builder, precision, triangle test, "
+                 "ray offset, depth, spp) costs in time and buys in image error against a "
+                 "float64 reference, in hits that disagree with Embree's and in holes",
+                 "minutes; --quick: seconds"),
+    "model": ("the cycle model's build times for HWBVH-C and HWBVH-HP against the thesis' "
+              "published times, and the fit of its one calibrated constant", "minutes"),
+    "contention": ("how much a busy competitor on every core slows our build + render, against "
+                   "how much it slows Embree's, for each threading set-up", "minutes"),
+    "trees": ("whether render time shows the tree: the full-SAH sweep tree against the "
+              "hardware's, render and trace time against the work per ray", "minutes"),
+    "animation": ("time to image per frame of every built-in animation: the hardware's rebuild, "
+                  "refit and adaptive update against Embree's rebuild every frame (and the grid "
+                  "and kd-tree rebuilt every frame)", "minutes"),
+}
+
 # The options each benchmark reads, with their defaults (None: see BENCH_NONE). Any other
 # option given to a benchmark is an error, so that no option is silently ignored.
 BENCH_OPTIONS = {
@@ -356,14 +388,42 @@ BENCH_WRITES_OUT_DIR = ("tti", "accuracy")
 BENCH_REPORTS = ("build", "scale", "trace", "model", "contention", "trees")  # --out-dir: OUT/<what>.md, .json   # checked here; bench render checks its own files
 
 
-def _bench_help(dest, text):
-    """``text`` plus each benchmark's default for the option, from BENCH_OPTIONS."""
+BENCH_OPTION_HELP = {
+    "mesh_dir": "directory of meshes", "repeat": "timed runs; figures are their medians",
+    "rays": "rays per set",
+    "quick": "a short run: tti and accuracy, a few small cells (seconds); animation, fewer "
+             "frames of fewer triangles",
+    "fresh": "start over, ignoring finished cells", "out_dir": "where result files go",
+    "scheduler": "a running Dask scheduler, tcp://HOST:PORT, whose workers run the cells one at "
+                 "a time on one host",
+    "width": "image width", "height": "image height", "spp": "samples per pixel",
+    "max_depth": "longest reflection/refraction path"}
+
+
+# The MESH arguments of a benchmark (None: of those not listed)
+BENCH_MESHES = {None: "mesh files (default: every mesh in --mesh-dir)",
+                "render": "scenes or mesh files (default: cornell)",
+                "trees": "scenes or mesh files (default: cornell, marbles)",
+                "contention": "one scene or mesh file (default: cornell)"}
+
+
+def _bench_help(dest, what=None):
+    """The help of a bench option: what it sets (BENCH_OPTION_HELP) and its default, for
+    benchmark ``what`` or for each benchmark (BENCH_OPTIONS)."""
+    text = BENCH_OPTION_HELP[dest]
+    if what is not None:
+        v = BENCH_OPTIONS[what][dest]
+        if v is False:                                        # a flag
+            return text
+        shown = BENCH_NONE.get(dest, "none") if v is None else v
+        quick = BENCH_QUICK.get(what, {}).get(dest)
+        return f"{text} (default: {shown}{'' if quick is None else f'; with --quick: {quick}'})"
     groups = {}
-    for what, opts in BENCH_OPTIONS.items():
+    for name, opts in BENCH_OPTIONS.items():
         if dest in opts:
             v = opts[dest]
             shown = BENCH_NONE.get(dest, "none") if v is None else v
-            groups.setdefault(str(shown), []).append(what)
+            groups.setdefault(str(shown), []).append(name)
     unused = [w for w, opts in BENCH_OPTIONS.items() if dest not in opts]
     if set(groups) == {"False"}:                              # a flag: who reads it
         return f"{text} (read by {', '.join(groups['False'])})"
@@ -507,6 +567,60 @@ class _HelpFormatter(argparse.HelpFormatter):
             return text
         shown = " ".join(map(str, action.default)) if isinstance(action.default, list) else "%(default)s"
         return f"{text} (default: {shown})"
+
+
+class _ListFormatter(_HelpFormatter):
+    """Also keeps a description's or epilog's lines: a line that starts with two spaces is an
+    item of a list, "  NAME TEXT", its TEXT filled beside NAME's column."""
+
+    NAME_COLUMN = 14
+
+    def _fill_text(self, text, width, indent):
+        import textwrap
+        lines = []
+        for line in text.split("\n"):
+            if line.startswith("  "):
+                name, _, rest = line.strip().partition(" ")
+                head = f"{indent}  {name:<{self.NAME_COLUMN - 2}}"
+                lines.append(textwrap.fill(rest, width, initial_indent=head,
+                                           subsequent_indent=" " * len(head)))
+            else:
+                lines.append(super()._fill_text(line, width, indent))
+        return "\n".join(lines)
+
+
+class _BenchHelp(argparse._HelpAction):
+    """-h/--help of ``hwrt bench``: after a benchmark's name, that benchmark's page (what it
+    measures, against which peer, about how long it runs, and only the options it reads, with
+    its defaults); else the page of every benchmark."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        what = getattr(namespace, "what", None)
+        if what is None:
+            parser.print_help()
+        else:
+            parser._print_message(_bench_page(parser, what), sys.stdout)
+        parser.exit()
+
+
+def _bench_page(parser, what):
+    """The help page of ``hwrt bench WHAT``, from ``parser`` (bench's): its description from
+    BENCHMARKS, the options it reads (BENCH_OPTIONS) with their defaults for it."""
+    import copy
+    text, duration = BENCHMARKS[what]
+    page = _Parser(prog=f"{parser.prog} {what}", add_help=False,
+                   description=f"{text[0].upper()}{text[1:]}. Runs for {duration}. An option "
+                               f"not listed here is an error.")
+    reads = set(BENCH_OPTIONS[what]) | {"json"}
+    for action in parser._actions:
+        if not (isinstance(action, argparse._HelpAction) or action.dest in reads):
+            continue
+        if action.dest in BENCH_OPTION_HELP or action.dest == "meshes":
+            action = copy.copy(action)
+            action.help = BENCH_MESHES.get(what, BENCH_MESHES[None]) if action.dest == "meshes" \
+                else _bench_help(action.dest, what)
+        page._add_action(action)
+    return page.format_help()
 
 
 class _Parser(argparse.ArgumentParser):
@@ -684,31 +798,36 @@ def make_parser():
 
     be = sub.add_parser("bench", help="benchmarks against peers measured in the same run",
                         description="Benchmarks: each figure is a median of warm runs, beside "
-                                    "a peer measured in the same run. An option a benchmark does "
-                                    "not read is an error.")
-    be.add_argument("what", help="the benchmark", choices=["build", "scale", "trace", "render", "tti", "accuracy", "model",
-                                                           "contention", "trees", "animation"])
-    be.add_argument("meshes", nargs="*", metavar="MESH",
-                    help="mesh files; bench render also takes scenes (default: every mesh in "
-                         "--mesh-dir; bench render: cornell)")
-    be.add_argument("--mesh-dir", help=_bench_help("mesh_dir", "directory of meshes"))
+                                    "a peer measured in the same run (scale: beside N log N). An "
+                                    "option a benchmark does not read is an error.",
+                        epilog="Benchmarks (hwrt bench BENCHMARK --help: what it reads):\n"
+                               + "\n".join(f"  {name} {text} ({duration})"
+                                           for name, (text, duration) in BENCHMARKS.items()),
+                        formatter_class=_ListFormatter, add_help=False)
+    be.add_argument("-h", "--help", action=_BenchHelp,
+                    help="show this help message (after a benchmark's name: its own) and exit")
+    be.add_argument("what", metavar="BENCHMARK", choices=list(BENCHMARKS),
+                    help=f"the benchmark: {', '.join(BENCHMARKS)} (see below)")
+    be.add_argument("meshes", nargs="*", default=[], metavar="MESH",
+                    help=f"{BENCH_MESHES[None]}; " + "; ".join(
+                        f"{what}: {text}" for what, text in BENCH_MESHES.items() if what))
+    be.add_argument("--mesh-dir", help=_bench_help("mesh_dir"))
     be.add_argument("--repeat", type=_int_at_least(1, MAX_REPEAT),
-                    help=_bench_help("repeat", "timed runs; figures are their medians"))
+                    help=_bench_help("repeat"))
     be.add_argument("--rays", type=_int_at_least(1, MAX_RAYS),
-                    help=_bench_help("rays", "rays per set"))
+                    help=_bench_help("rays"))
     be.add_argument("--quick", action="store_true",
-                    help=_bench_help("quick", "a few small cells (minutes)"))
+                    help=_bench_help("quick"))
     be.add_argument("--fresh", action="store_true",
-                    help=_bench_help("fresh", "start over, ignoring finished cells"))
-    be.add_argument("--out-dir", help=_bench_help("out_dir", "where result files go"))
+                    help=_bench_help("fresh"))
+    be.add_argument("--out-dir", help=_bench_help("out_dir"))
     be.add_argument("--scheduler", metavar="ADDRESS",
-                    help=_bench_help("scheduler", "a running Dask scheduler, tcp://HOST:PORT, whose "
-                                                  "workers run the cells one at a time on one host"))
-    be.add_argument("--width", type=_film_side, help=_bench_help("width", "image width"))
-    be.add_argument("--height", type=_film_side, help=_bench_help("height", "image height"))
-    be.add_argument("--spp", type=_spp, help=_bench_help("spp", "samples per pixel"))
+                    help=_bench_help("scheduler"))
+    be.add_argument("--width", type=_film_side, help=_bench_help("width"))
+    be.add_argument("--height", type=_film_side, help=_bench_help("height"))
+    be.add_argument("--spp", type=_spp, help=_bench_help("spp"))
     be.add_argument("--max-depth", type=_depth,
-                    help=_bench_help("max_depth", "longest reflection/refraction path"))
+                    help=_bench_help("max_depth"))
     be.add_argument("--accel", action="append", choices=ACCELS, metavar="NAME",
                     help=f"an acceleration structure ({', '.join(ACCELS)}); repeat the option "
                          "for more. trace: also trace the ray sets with each (default: the BVH "
@@ -716,8 +835,10 @@ def make_parser():
                          "paths, which are always timed (default: every one); animation: the "
                          "structures rebuilt every frame beside the BVH's strategies (default: "
                          "every one)")
+    from .animate import BENCH_FRAMES, BENCH_QUICK_FRAMES
     be.add_argument("--frames", type=_int_at_least(1, MAX_FRAMES),
-                    help="frames per animation (read by animation; default 60, with --quick 12)")
+                    help=f"frames per animation (read by animation; default {BENCH_FRAMES}, "
+                         f"with --quick {BENCH_QUICK_FRAMES})")
     be.add_argument("--json", action="store_true", help="print one JSON object")
     be.set_defaults(func=cmd_bench)
     return p

@@ -785,3 +785,42 @@ def test_rendering_a_moving_scene_points_to_animate(tmp_path, capsys):
 def test_frame_overrides_are_checked_as_options(capsys, tmp_path, option, value):
     rc, out, err = call(capsys, "render", "cornell", option, value, "-o", tmp_path / "o.exr")
     assert rc == 2 and f"argument {option}: must be at most" in one_line_error(err)
+
+
+# ---------------------------------------------------------------------------------------
+# bench: its usage and one help page per benchmark
+# ---------------------------------------------------------------------------------------
+def test_bench_without_a_benchmark_names_the_benchmark_only(capsys):
+    rc, out, err = call(capsys, "bench")
+    line = one_line_error(err)
+    assert rc == 2 and "required: BENCHMARK" in line and "what" not in line and "MESH" not in line
+    usage = _subparsers(make_parser())["bench"].format_usage()
+    assert "BENCHMARK [MESH ...]" in usage and "{build" not in usage
+
+
+def test_each_benchmark_has_a_page_of_its_own(capsys):
+    from hwrt.cli import BENCH_OPTIONS, BENCHMARKS
+    pages = {}
+    for what in BENCH_OPTIONS:
+        rc, out, _ = call(capsys, "bench", what, "--help")
+        assert rc == 0 and out.startswith(f"usage: hwrt bench {what} ")
+        text, duration = BENCHMARKS[what]
+        flat = " ".join(out.split())
+        assert text[1:] in flat and duration in flat, what
+        # the options it reads, and no other
+        for option in ("--mesh-dir", "--rays", "--quick", "--scheduler", "--frames", "--accel"):
+            reads = option[2:].replace("-", "_") in BENCH_OPTIONS[what]
+            assert (f"  {option} " in out) == reads, (what, option)
+        pages[what] = out
+    assert len(set(pages.values())) == len(pages)
+    assert "no peer" in pages["scale"] and "Embree" in pages["build"]
+    assert "(default: 5)" in pages["build"] and "(default: 3)" in pages["scale"]   # --repeat
+    rc, generic, _ = call(capsys, "bench", "--help")
+    flat = " ".join(generic.split())
+    assert rc == 0 and all(f"{what} {BENCHMARKS[what][0]}" in flat for what in BENCHMARKS)
+
+
+def test_bench_quick_is_described_as_seconds_not_minutes(capsys):
+    rc, out, _ = call(capsys, "bench", "tti", "--help")
+    quick = " ".join(out.split("--quick ", 1)[1].split("--fresh")[0].split())
+    assert "seconds" in quick and "minutes" not in quick
