@@ -190,7 +190,8 @@ def human(what):
                          "run by run; ratio: the median of the runs' hwbvh / embree")
             return "\n".join(lines)
         if what in ("tti", "accuracy"):
-            return "wrote " + ", ".join(r["files"])
+            from .study import human_accuracy, human_tti
+            return (human_tti if what == "tti" else human_accuracy)(r)
         if what == "render":
             return _render_human(r)
         if what == "trace":

@@ -363,6 +363,13 @@ def _tti_rows(cells, specs, W, H, spp, depth, repeat, structures=()):
     return rows, summary
 
 
+def human_tti(result):
+    """A ``bench_tti`` result as the command line prints it: the tables of its tti.md."""
+    s = result["setting"]
+    return (_tti_markdown(result["rows"], result["break_even"], s["width"], s["height"], s["spp"],
+                          s["max_depth"]) + "\nwrote " + ", ".join(result["files"]))
+
+
 def _tti_markdown(rows, summary, W, H, spp, depth):
     lines = [f"Time to image (build + render), Whitted {W}x{H}, {spp} spp, depth {depth}.\n",
              "Medians of the repeated runs; the render spread is min-max over them.\n",
@@ -587,6 +594,12 @@ def bench_accuracy(args, *, use_dask=True, progress=True):
     return _write_outputs(args.out_dir, "accuracy", rows, md, plots,
                           {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE}},
                           where)
+
+
+def human_accuracy(result):
+    """A ``bench_accuracy`` result as the command line prints it: the table of its
+    accuracy.md."""
+    return _accuracy_markdown(result["rows"]) + "\nwrote " + ", ".join(result["files"])
 
 
 def _accuracy_markdown(rows):

@@ -57,6 +57,21 @@ def test_tti_quick_outputs_and_resume(tti_quick, mesh_dir):
     assert json.loads(r2.stdout)["rows"] == res["rows"]
 
 
+def _page_body(md):
+    """A study page without its title and the line naming the command that made it."""
+    return md.split("`.\n\n", 1)[1]
+
+
+def test_tti_prints_the_tables_of_its_page(tti_quick, mesh_dir):
+    out, _ = tti_quick
+    r = run("bench", "tti", "--quick", "--mesh-dir", mesh_dir, "--out-dir", out)   # resumed
+    assert r.returncode == 0, r.stderr
+    body = _page_body((out / "tti.md").read_text())
+    assert "| cornell | hwbvh-C |" in body and "Break-even ray budget" in body
+    assert r.stdout == body + "\nwrote " + ", ".join(str(out / f) for f in (
+        "tti.csv", "tti.json", "tti.md", "tti.png")) + "\n"
+
+
 def test_accuracy_quick(tmp_path, mesh_dir):
     out = tmp_path / "a"
     r = run("bench", "accuracy", "--quick", "--mesh-dir", mesh_dir, "--out-dir", out, "--json")
@@ -75,6 +90,13 @@ def test_accuracy_quick(tmp_path, mesh_dir):
     assert get[("spp", "8")]["rmse"] < get[("spp", "1")]["rmse"]
     assert all(x["holes"] == 0 for x in rows)
     assert (out / "accuracy.png").exists() and (out / "accuracy.md").exists()
+    # without --json (every cell resumed): the table of its page
+    r = run("bench", "accuracy", "--quick", "--mesh-dir", mesh_dir, "--out-dir", out)
+    assert r.returncode == 0, r.stderr
+    body = _page_body((out / "accuracy.md").read_text())
+    assert "| bins | 16 |" in body
+    assert r.stdout == body + "\nwrote " + ", ".join(str(out / f) for f in (
+        "accuracy.csv", "accuracy.json", "accuracy.md", "accuracy.png")) + "\n"
 
 
 def untimed(record):
