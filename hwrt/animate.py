@@ -202,11 +202,22 @@ def warm_up(strategy, accel="bvh"):
 # One animation run
 # --------------------------------------------------------------------------------------
 def default_mesh():
-    """The bunny from the benchmark mesh directory, when it is there (exploding's default)."""
-    from .paths import default_mesh_dir
-    d = default_mesh_dir()
-    p = None if d is None else os.path.join(d, "bunny.ply")
-    return p if p and os.path.isfile(p) else None
+    """Exploding's default mesh: the bunny of the mesh directory the benchmarks use
+    (:func:`hwrt.bench.mesh_directory`: $HWRT_MESHES, else the default one when it is there),
+    else None, for a generated sphere. A directory asked for that is missing or holds no mesh
+    files is an error, and so is one without a bunny, rather than a sphere in its place."""
+    from .bench import mesh_directory
+    from .paths import MESH_DIR_ENV
+    found = mesh_directory(None)
+    if found is None:
+        return None
+    d, files = found
+    bunny = next((p for p in files if p.stem == "bunny"), None)
+    if bunny is None:
+        named = f"${MESH_DIR_ENV} {d}" if os.environ.get(MESH_DIR_ENV) else str(d)
+        raise InputError(named, "has no bunny (bunny.ply, .obj, ...) for exploding to break: "
+                                "name a mesh with --mesh, or give --triangles for a sphere")
+    return str(bunny)
 
 
 def open_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=None,

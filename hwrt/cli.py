@@ -784,7 +784,8 @@ def make_parser():
     an.add_argument("--max-depth", type=_depth,
                     help="longest reflection/refraction path (default: the animation's)")
     an.add_argument("--mesh", help="exploding: the mesh that breaks (default: the bunny of the mesh "
-                                   "directory, else a generated sphere)")
+                                   "directory, $HWRT_MESHES, else ../shared/meshes if it is "
+                                   "there; without either, a generated sphere)")
     an.add_argument("--triangles", type=_int_at_least(1, config.MAX_PRIMITIVES),
                     help="exploding (generated sphere) and cloth: about this many triangles")
     an.add_argument("--physics", help="marbles: pybullet, analytic or auto (default: auto)")

@@ -459,3 +459,40 @@ def test_errors_name_the_shape_by_its_place_in_the_file(tmp_path, capsys):
     p = _scene_file(tmp_path, [BOX, dict(BOX, rotate_y="x")])
     rc, out, err = _run_cli(capsys, "animate", p, "--frames", 2, "-o", tmp_path / "out")
     assert rc == 2 and "key 'shapes[1].rotate_y'" in err, err
+
+
+@pytest.mark.parametrize("directory,problem", [
+    ("empty", "has no mesh files"), ("missing", "no such directory"),
+    ("no-bunny", "has no bunny")])
+def test_exploding_takes_its_bunny_from_the_mesh_directory_by_the_benchmarks_rule(
+        tmp_path, capsys, monkeypatch, directory, problem):
+    """$HWRT_MESHES names the directory exploding's default bunny comes from: one that is
+    missing, empty or without a bunny is an error, not a generated sphere in its place."""
+    import trimesh
+    d = tmp_path / directory
+    if directory != "missing":
+        d.mkdir()
+    if directory == "no-bunny":
+        tris = sphere(4, 6)
+        trimesh.Trimesh(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3),
+                        process=False).export(d / "ball.ply")
+    monkeypatch.setenv("HWRT_MESHES", str(d))
+    out = tmp_path / "o"
+    rc, _, err = _run_cli(capsys, "animate", "exploding", "--frames", 1, "-o", out)
+    assert rc == 2 and err.count("\n") == 1 and f"$HWRT_MESHES {d}: {problem}" in err, err
+    assert not out.exists()
+
+
+def test_exploding_breaks_the_bunny_of_the_mesh_directory(tmp_path, monkeypatch, capsys):
+    import trimesh
+    with pytest.raises(SystemExit):
+        main(["animate", "--help"])
+    assert "the bunny of the mesh directory, $HWRT_MESHES, else" in " ".join(
+        capsys.readouterr().out.split())
+    from hwrt.animate import open_animation
+    tris = sphere(4, 6)
+    trimesh.Trimesh(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3),
+                    process=False).export(tmp_path / "bunny.ply")
+    monkeypatch.setenv("HWRT_MESHES", str(tmp_path))
+    assert open_animation("exploding").info["mesh"] == "bunny.ply"
+    assert open_animation("exploding", triangles=500).info["mesh"].startswith("generated sphere")
