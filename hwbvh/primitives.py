@@ -251,7 +251,10 @@ def load_mesh_arrays(path):
         if obj:
             _check_obj_face_range(path)
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise InputError(path, f"cannot read mesh ({msg})") from None
+        ext = os.path.splitext(path)[1].lower()
+        what = (f"not a readable {ext[1:].upper()} file" if ext in MESH_EXTENSIONS
+                else "cannot read mesh")
+        raise InputError(path, f"{what} ({msg})") from None
     faces = getattr(mesh, "faces", None)
     verts = getattr(mesh, "vertices", None)
     if faces is None or verts is None or len(faces) == 0:

@@ -63,6 +63,23 @@ def _kv(result, keys):
 
 
 # --------------------------------------------------------------------------------------
+# The build options only some builders read (hwbvh.api.build): the binned SAH's leaf size and
+# bins are the hardware builder's (the sweep is full SAH, with its own leaves); placement is our
+# layout's, which Embree's internal tree has not.
+BUILD_OPTION_READERS = {"leaf_size": ("hwbvh",), "bins": ("hwbvh",),
+                        "capacity": ("hwbvh", "sweep"), "subtree_builders": ("hwbvh", "sweep"),
+                        "block_nodes": ("hwbvh", "sweep")}
+
+
+def _check_mesh_file(path, command):
+    """A built-in scene's name given where a mesh file goes (and no such file is there) is
+    said to be one."""
+    from scenes.builtin import BUILTIN
+    if path in BUILTIN and not os.path.exists(path):
+        raise InputError(path, f"no such file; {path} is a built-in scene: {command} takes a "
+                               f"mesh file; render and verify take scenes")
+
+
 def cmd_build(args):
     import time
     import numpy as np
@@ -70,8 +87,22 @@ def cmd_build(args):
     from hwbvh.files import write_files
     from hwbvh.primitives import as_triangles, load_mesh_arrays, pack_records, primitive_boxes
 
+    _check_mesh_file(args.mesh, "build")
+    # options only some builders read: refused with the others, not ignored
+    for dest, readers in BUILD_OPTION_READERS.items():
+        if getattr(args, dest) is not None and args.builder not in readers:
+            raise InputError(f"--{dest.replace('_', '-')}",
+                             f"--builder {args.builder} does not read this option (read by "
+                             f"--builder {' and '.join(readers)})")
     planned = []
     if args.out:
+        # PREFIX.nodes etc.: a directory's prefix would write hidden files .nodes etc. in it
+        problem = ("names a directory" if os.path.isdir(args.out) else "ends in a path separator"
+                   if args.out.endswith(tuple(filter(None, (os.sep, os.altsep)))) else None)
+        if problem:
+            raise InputError("--out", f"{args.out} {problem}; give a prefix of file names such as "
+                                      f"{os.path.join(args.out, 'tree')} (writes PREFIX.nodes, "
+                                      f"PREFIX.indices and PREFIX.json)")
         planned += [args.out + ext for ext in (".nodes", ".indices", ".json")]
     if args.dump_aabbs:
         planned.append(args.dump_aabbs)
@@ -94,9 +125,9 @@ def cmd_build(args):
                   "fallback_splits": None, "builder": "embree"}
         return _emit(args, result, lambda r: _kv(r, r.keys()))
     startup = warm_up(args.builder, parallel=len(tris) > config.SEQUENTIAL_MAX_PRIMS)
-    bvh = build(tris, builder=args.builder, leaf_size=args.leaf_size, bins=args.bins,
-                capacity=args.capacity, subtree_builders=args.subtree_builders,
-                block_nodes=args.block_nodes, validate_tree=True, source_name=args.mesh)
+    given = {dest: getattr(args, dest) for dest in BUILD_OPTION_READERS
+             if getattr(args, dest) is not None}           # the others: the library's defaults
+    bvh = build(tris, builder=args.builder, validate_tree=True, source_name=args.mesh, **given)
     result = dict(bvh.meta, startup_seconds=startup)
     outputs = []
     if args.dump_aabbs or args.dump_handoff:
@@ -219,6 +250,7 @@ def cmd_verify(args):
 def cmd_simulate(args):
     from hwbvh.cycle_model import simulate_mesh
 
+    _check_mesh_file(args.mesh, "simulate")
     result = simulate_mesh(args.mesh, args.preset, w=args.w, tsize=args.tsize, psize=args.psize,
                            subtree_builders=args.subtree_builders, ram_pairs=args.ram_pairs,
                            clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins,
@@ -252,15 +284,24 @@ def cmd_render(args):
     from scenes import compile_scene, load_scene, with_frame
 
     t_start = time.perf_counter()
-    if (args.builder == "embree") != (args.traversal == "embree"):
-        raise InputError("--traversal", "Embree's tree is traversed by Embree only, and Embree "
-                         "traverses only its own tree: use --builder embree with --traversal "
-                         "embree, or --traversal numba with --builder hwbvh or sweep")
-    if args.verify and args.traversal == "embree":
-        raise InputError("--verify", "checks our traversal against Embree; use --traversal numba")
-    if args.accel != "bvh" and (args.builder != "hwbvh" or args.traversal != "numba"):
+    if args.accel != "bvh" and (args.builder not in (None, "hwbvh")
+                                or args.traversal not in (None, "numba")):
         raise InputError("--accel", f"--accel {args.accel} builds and traverses its own structure: "
                          "it takes no --builder and no --traversal embree")
+    # Embree's tree is traversed by Embree only, and Embree traverses only its own tree: one
+    # of the pair given as embree picks the other
+    if args.builder == "embree" and args.traversal == "numba":
+        raise InputError("--builder embree", "needs --traversal embree, not numba (Embree's "
+                                             "tree is traversed by Embree only)")
+    if args.traversal == "embree" and args.builder not in (None, "embree"):
+        raise InputError("--traversal embree", f"needs --builder embree, not {args.builder} "
+                                               f"(Embree traverses only its own tree)")
+    embree = "embree" in (args.builder, args.traversal)
+    args.builder = args.builder or ("embree" if embree else "hwbvh")
+    args.traversal = args.traversal or ("embree" if embree else "numba")
+    if args.verify and embree:
+        raise InputError("--verify", "checks our traversal against Embree; it takes no --builder "
+                                     "embree or --traversal embree")
     d = with_frame(load_scene(args.scene), args.width, args.height, args.spp, args.max_depth)
     out = args.output or os.path.join("renders", f"{d.get('name', 'scene')}.exr")
     if not out.lower().endswith(".exr"):
@@ -654,16 +695,20 @@ def make_parser():
     b.add_argument("--builder", choices=["hwbvh", "sweep", "embree"], default="hwbvh",
                    help="hwbvh: the hardware's binned SAH; sweep: full SAH reference; "
                         "embree: Embree's own build (timing only)")
-    b.add_argument("--leaf-size", type=_positive, default=config.DEFAULT_LEAF_SIZE,
-                   help="primitives per leaf (hwbvh)")
-    b.add_argument("--bins", type=_positive, default=config.DEFAULT_BINS,
-                   help="SAH bins per axis (hwbvh; the hardware has at most 16)")
-    b.add_argument("--capacity", type=_positive, default=config.DEFAULT_CAPACITY,
-                   help="subtree capacity w*Psize (placement only; the tree never changes)")
-    b.add_argument("--subtree-builders", type=_positive, default=1,
-                   help="subtree builders (placement only)")
-    b.add_argument("--block-nodes", type=_positive, default=config.DEFAULT_BLOCK_NODES,
-                   help="nodes per block of the upper builder's pool (placement only)")
+    # defaults None: an option a builder does not read is refused only when given
+    b.add_argument("--leaf-size", type=_positive,
+                   help=f"primitives per leaf, hwbvh only (default: {config.DEFAULT_LEAF_SIZE})")
+    b.add_argument("--bins", type=_positive,
+                   help=f"SAH bins per axis, hwbvh only; the hardware has at most 16 (default: "
+                        f"{config.DEFAULT_BINS})")
+    b.add_argument("--capacity", type=_positive,
+                   help=f"subtree capacity w*Psize, placement only (the tree never changes); "
+                        f"hwbvh and sweep (default: {config.DEFAULT_CAPACITY})")
+    b.add_argument("--subtree-builders", type=_positive,
+                   help="subtree builders, placement only; hwbvh and sweep (default: 1)")
+    b.add_argument("--block-nodes", type=_positive,
+                   help=f"nodes per block of the upper builder's pool, placement only; hwbvh "
+                        f"and sweep (default: {config.DEFAULT_BLOCK_NODES})")
     b.add_argument("--out", metavar="PREFIX",
                    help="write PREFIX.nodes, PREFIX.indices and PREFIX.json (default: no files)")
     b.add_argument("--dump-aabbs", metavar="F",
@@ -673,7 +718,11 @@ def make_parser():
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=cmd_build)
 
-    s = sub.add_parser("simulate", help="cycles, traffic, footprint and energy of the hardware build")
+    s = sub.add_parser("simulate", help="cycles, traffic, footprint and energy of the hardware build",
+                       description="Simulate the hardware build of a mesh on one of the thesis' "
+                                   "instances (HWBVH-C or HWBVH-HP, or one with its knobs "
+                                   "changed): cycles, seconds, DRAM traffic, memory footprint, "
+                                   "energy, area and utilisation, from the cycle model.")
     s.add_argument("mesh", help="mesh file")
     s.add_argument("--preset", default="HWBVH-C", choices=["HWBVH-C", "HWBVH-HP"],
                    help="the thesis' hardware instance")
@@ -725,10 +774,12 @@ def make_parser():
     r.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
     r.add_argument("--max-depth", type=_depth,
                    help="longest reflection/refraction path (default: the scene's)")
-    r.add_argument("--builder", choices=["hwbvh", "sweep", "embree"], default="hwbvh",
-                   help="the tree: hwbvh (the hardware's), sweep (full SAH) or embree")
-    r.add_argument("--traversal", choices=["numba", "embree"], default="numba",
-                   help="numba: our units on the raw nodes; embree: Embree on its own tree")
+    r.add_argument("--builder", choices=["hwbvh", "sweep", "embree"],
+                   help="the tree: hwbvh (the hardware's), sweep (full SAH) or embree (default: "
+                        "hwbvh; embree with --traversal embree)")
+    r.add_argument("--traversal", choices=["numba", "embree"],
+                   help="numba: our units on the raw nodes; embree: Embree on its own tree "
+                        "(default: numba; embree with --builder embree)")
     r.add_argument("--accel", choices=ACCELS, default="bvh",
                    help="acceleration structure: bvh (built by --builder), grid (uniform grid) "
                         "or kdtree (SAH kd-tree)")
@@ -740,7 +791,12 @@ def make_parser():
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_render)
 
-    v = sub.add_parser("verify", help="trace rays with our units and with Embree; classify each")
+    v = sub.add_parser("verify", help="trace rays with our units and with Embree; classify each",
+                       description="Trace a set of rays through our traversal and through Intel "
+                                   "Embree on the same scene or mesh and classify each ray: "
+                                   "agree, tie (both answers right by a float64 re-test, as on a "
+                                   "shared edge) or mismatch. Mismatching rays go to a file "
+                                   "that --replay traces again.")
     v.add_argument("scene", help="built-in scene name, scene file, or mesh file")
     v.add_argument("--rays", type=_int_at_least(1, MAX_RAYS),
                    help=f"rays to trace; exactly these many (default: {VERIFY_RAYS})")
@@ -865,6 +921,33 @@ def _option_of(parser, args, parameter):
     return None
 
 
+def _option_valued(parser, args, value):
+    """The option of the running subcommand given as ``value`` (a path an error names), or None."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            command = action.choices.get(getattr(args, "command", None))
+            for a in (command._actions if command else ()):
+                if a.option_strings and isinstance(getattr(args, a.dest, None), str) \
+                        and getattr(args, a.dest) == value:
+                    return max(a.option_strings, key=len)
+    return None
+
+
+def _input_message(parser, args, e):
+    """The line of InputError ``e``, naming what the user typed: the option that sets a
+    library parameter, or whose value (a path) the error names; the film size options for a
+    film too large (the scene's key 'film.width' reports width x height), since --width,
+    with or without --height, set it."""
+    if isinstance(e, ParameterError):
+        return f"{_option_of(parser, args, e.parameter) or e.parameter}: {e.problem}"
+    key, _, problem = e.problem.partition(": ")
+    if key == "key 'film.width'" and getattr(args, "width", None) is not None:
+        given = [d for d in ("width", "height") if getattr(args, d, None) is not None]
+        return " ".join(f"--{d} {getattr(args, d)}" for d in given) + f": {problem}"
+    option = _option_valued(parser, args, e.source)
+    return f"{option} {e.source}: {e.problem}" if option else str(e)
+
+
 def main(argv=None):
     parser = make_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -878,10 +961,7 @@ def main(argv=None):
         check_threading()
         args.func(args)
     except InputError as e:
-        message = str(e)
-        if isinstance(e, ParameterError):
-            message = f"{_option_of(parser, args, e.parameter) or e.parameter}: {e.problem}"
-        print(f"hwrt: error: {message}", file=sys.stderr)
+        print(f"hwrt: error: {_input_message(parser, args, e)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except Terminated:
         print("hwrt: terminated", file=sys.stderr)

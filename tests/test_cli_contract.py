@@ -824,3 +824,73 @@ def test_bench_quick_is_described_as_seconds_not_minutes(capsys):
     rc, out, _ = call(capsys, "bench", "tti", "--help")
     quick = " ".join(out.split("--quick ", 1)[1].split("--fresh")[0].split())
     assert "seconds" in quick and "minutes" not in quick
+
+
+# ---------------------------------------------------------------------------------------
+# errors name what the user typed
+# ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("prefix,problem", [("d/", "names a directory"), ("d", "names a directory"),
+                                            ("new/", "ends in a path separator")])
+def test_build_refuses_an_out_prefix_that_is_a_directory(tmp_path, capsys, tetra, prefix, problem):
+    (tmp_path / "d").mkdir()
+    rc, out, err = call(capsys, "build", tetra, "--out", str(tmp_path) + os.sep + prefix)
+    assert rc == 2 and one_line_error(err).startswith("hwrt: error: --out: ") and problem in err
+    assert list((tmp_path / "d").iterdir()) == [] and not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("argv,flag,problem", [
+    (["--builder", "embree", "--bins", "8"], "--bins", "--builder embree does not read"),
+    (["--builder", "embree", "--leaf-size", "2"], "--leaf-size", "--builder embree does not read"),
+    (["--builder", "embree", "--capacity", "64"], "--capacity", "--builder embree does not read"),
+    (["--builder", "sweep", "--bins", "8"], "--bins", "--builder sweep does not read"),
+    (["--builder", "sweep", "--leaf-size", "2"], "--leaf-size", "--builder sweep does not read")])
+def test_build_refuses_options_its_builder_does_not_read(capsys, tetra, argv, flag, problem):
+    rc, out, err = call(capsys, "build", tetra, *argv)
+    assert rc == 2 and out == "" and one_line_error(err).startswith(f"hwrt: error: {flag}: {problem}")
+
+
+def test_build_passes_the_options_given_and_the_library_defaults_otherwise(capsys, tetra):
+    rc, out, _ = call(capsys, "build", tetra, "--bins", 8, "--json")
+    p = json.loads(out)["parameters"]
+    assert rc == 0 and p["bins"] == 8 and p["leaf_size"] == 4
+    rc, out, _ = call(capsys, "build", tetra, "--builder", "sweep", "--capacity", 64, "--json")
+    p = json.loads(out)["parameters"]
+    assert rc == 0 and p["capacity"] == 64 and p["bins"] is None
+
+
+def test_a_film_too_large_names_the_options_that_set_it(capsys, tmp_path):
+    rc, _, err = call(capsys, "render", "cornell", "--width", 32768, "--height", 2048,
+                      "-o", tmp_path / "o.exr")
+    assert rc == 2 and one_line_error(err) == (
+        "hwrt: error: --width 32768 --height 2048: 32768 x 2048 is more than the 33554432 "
+        "pixels a film may hold")
+
+
+def test_an_output_directory_that_is_a_file_is_named_by_its_option(capsys, tmp_path):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    for argv, option in ((["bench", "tti"], "--out-dir"), (["bench", "build"], "--out-dir"),
+                         (["animate", "cloth", "-o"], "--output")):
+        argv = argv + [f] if option == "--output" else argv + ["--out-dir", f]
+        rc, _, err = call(capsys, *argv)
+        assert rc == 2 and one_line_error(err) == f"hwrt: error: {option} {f}: exists and is not a directory"
+
+
+def test_an_unreadable_ply_says_so(capsys, tmp_path):
+    p = tmp_path / "g.ply"
+    p.write_text("ply\n")
+    rc, _, err = call(capsys, "build", p)
+    assert rc == 2 and one_line_error(err).startswith(f"hwrt: error: {p}: not a readable PLY file (")
+
+
+def test_a_scene_given_to_build_or_simulate_is_said_to_be_one(capsys):
+    for command in ("build", "simulate"):
+        rc, _, err = call(capsys, command, "cornell")
+        assert rc == 2 and one_line_error(err) == (
+            f"hwrt: error: cornell: no such file; cornell is a built-in scene: {command} takes a "
+            f"mesh file; render and verify take scenes")
+
+
+def test_every_command_opens_its_help_with_a_description():
+    for name, sub in _subparsers(make_parser()).items():
+        assert sub.description, name

@@ -309,7 +309,22 @@ def test_scene_file_roundtrip_with_mesh(tmp_path):
         assert k in res
 
 
-def test_cli_embree_builder_needs_embree_traversal(tmp_path):
-    r = cli("render", "cornell", "--builder", "embree", "--width", "8", "--height", "8", "-o", tmp_path / "x.exr")
-    assert r.returncode == 2 and "--traversal" in r.stderr
+def test_cli_embree_builder_and_traversal_go_together(tmp_path):
+    # one of the pair given as embree picks the other
+    for given in (["--builder", "embree"], ["--traversal", "embree"]):
+        r = cli("render", "cornell", *given, "--width", "8", "--height", "8", "--json",
+                "-o", tmp_path / "x.exr")
+        assert r.returncode == 0, r.stderr
+        res = json.loads(r.stdout)
+        assert (res["builder"], res["traversal"]) == ("embree", "embree")
+    # the other of the pair given otherwise: an error naming both options
+    (tmp_path / "x.exr").unlink()
+    r = cli("render", "cornell", "--builder", "embree", "--traversal", "numba", "--width", "8",
+            "--height", "8", "-o", tmp_path / "x.exr")
+    assert r.returncode == 2 and r.stderr.startswith(
+        "hwrt: error: --builder embree: needs --traversal embree, not numba")
+    r = cli("render", "cornell", "--builder", "sweep", "--traversal", "embree", "-o",
+            tmp_path / "x.exr")
+    assert r.returncode == 2 and r.stderr.startswith(
+        "hwrt: error: --traversal embree: needs --builder embree, not sweep")
     assert not (tmp_path / "x.exr").exists()
