@@ -8,6 +8,7 @@ import argparse
 import os
 import signal
 import sys
+from contextlib import contextmanager
 
 from hwbvh import config
 from hwbvh.errors import InputError, ParameterError
@@ -34,7 +35,41 @@ EXIT_SIGTERM = 128 + signal.SIGTERM
 DEBUG_ENV = "HWRT_DEBUG"           # set: an internal error is re-raised with its traceback
 
 
+def _succeeded(args):
+    """The run has succeeded: its outputs are in place and only its report is left to print.
+    From here until ``main`` returns, SIGINT and SIGTERM are ignored, so that a signal arriving
+    this late cannot turn the success into exit status 130 or 143."""
+    if getattr(args, "signals_owned", False):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
+
+
+def _file_identity(path):
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+@contextmanager
+def _committing(args, paths):
+    """The step that puts the run's last outputs, ``paths``, in place; then
+    :func:`_succeeded`. ``write_files`` holds a signal that arrives while it renames, and acts
+    on it as the renames end: if every path is then a new file (each renamed temporary file
+    is one, made while the old file was still there), the outputs are in place and the signal
+    came too late to undo them, so it is dropped."""
+    before = {p: _file_identity(p) for p in paths}
+    try:
+        yield
+    except KeyboardInterrupt:
+        if not paths or any(_file_identity(p) in (None, before[p]) for p in paths):
+            raise
+    _succeeded(args)
+
+
 def _emit(args, result, human):
+    _succeeded(args)
     if args.json:
         sys.stdout.write(json_text(result) + "\n")
     else:
@@ -130,22 +165,23 @@ def cmd_build(args):
     bvh = build(tris, builder=args.builder, validate_tree=True, source_name=args.mesh, **given)
     result = dict(bvh.meta, startup_seconds=startup)
     outputs = []
-    if args.dump_aabbs or args.dump_handoff:
-        boxes = primitive_boxes(bvh.triangles)
-        files = []
-        if args.dump_aabbs:
-            files.append((args.dump_aabbs, pack_records(boxes)))
-        if args.dump_handoff:
-            order, sizes = bvh.handoff_order()
-            files.append((args.dump_handoff, pack_records(boxes, order)))
-            files.append((args.dump_handoff + ".json",
-                          json_text({"record_bytes": config.PRIMITIVE_RECORD_BYTES,
-                                     "handoff_sizes": sizes}) + "\n"))
-            result["handoff_sizes"] = [int(x) for x in sizes]
-        write_files(files)
-        outputs += [f for f, _ in files]
-    if args.out:
-        outputs += save(bvh, args.out)
+    with _committing(args, planned):
+        if args.dump_aabbs or args.dump_handoff:
+            boxes = primitive_boxes(bvh.triangles)
+            files = []
+            if args.dump_aabbs:
+                files.append((args.dump_aabbs, pack_records(boxes)))
+            if args.dump_handoff:
+                order, sizes = bvh.handoff_order()
+                files.append((args.dump_handoff, pack_records(boxes, order)))
+                files.append((args.dump_handoff + ".json",
+                              json_text({"record_bytes": config.PRIMITIVE_RECORD_BYTES,
+                                         "handoff_sizes": sizes}) + "\n"))
+                result["handoff_sizes"] = [int(x) for x in sizes]
+            write_files(files)
+            outputs += [f for f, _ in files]
+        if args.out:
+            outputs += save(bvh, args.out)
     result["outputs"] = outputs
     keys = ["builder", "triangles", "nodes", "leaves", "max_depth", "sah_cost", "fallback_splits",
             "build_seconds", "startup_seconds", "handoffs", "outputs"]
@@ -241,7 +277,8 @@ def cmd_verify(args):
         np.savez(buf, origins=O[bad], dirs=D[bad], ours_prim=h.prim[bad], ours_t=h.t[bad],
                  embree_prim=pe[bad], embree_t=te[bad],
                  tmax=(np.full(len(bad), np.inf) if tmax is None else np.asarray(tmax)[bad]))
-        write_files([(out, buf.getvalue())])
+        with _committing(args, [out]):
+            write_files([(out, buf.getvalue())])
         result["mismatch_file"] = out
     _emit(args, result, lambda r: _kv(r, ["scene", "accel", "kind", "rays", "rays_requested", "agree", "tie",
                                           "mismatch", "mismatch_file"]))
@@ -353,7 +390,8 @@ def cmd_render(args):
     if png:
         files.append((png, png_writer(png, res.image)))
         result["png"] = png
-    write_files(files)
+    with _committing(args, [f for f, _ in files]):
+        write_files(files)
     result["wall_seconds"] = time.perf_counter() - t_start
     _emit(args, result, lambda r: _kv(r, ["output", "png", "scene", "triangles", "build_seconds",
                                           "render_seconds", "time_to_image_seconds",
@@ -486,7 +524,7 @@ def _bench_options(args):
                 setattr(args, dest, default)
         return
     for dest in sorted(vars(args)):
-        if dest in ("command", "func", "what", "json", "argv") or dest in table \
+        if dest in ("command", "func", "what", "json", "argv", "signals_owned") or dest in table \
                 or getattr(args, dest) in (None, False, []):
             continue
         if dest == "meshes":
@@ -954,9 +992,11 @@ def main(argv=None):
     args = parser.parse_args(argv)
     args.argv = argv
     try:
-        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+        previous = {signal.SIGINT: signal.getsignal(signal.SIGINT),
+                    signal.SIGTERM: signal.signal(signal.SIGTERM, _raise_terminated)}
     except ValueError:                        # not the main thread: leave signals alone
         previous = None
+    args.signals_owned = previous is not None
     try:
         check_threading()
         args.func(args)
@@ -975,8 +1015,8 @@ def main(argv=None):
             raise
         return 1
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for sig, handler in (previous or {}).items():
+            signal.signal(sig, handler)
     return 0
 
 

@@ -533,6 +533,44 @@ def test_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, receiver)
     assert list(tmp_path.iterdir()) == []
 
 
+LATE_SIGNAL = textwrap.dedent("""
+    import os, signal, sys, time
+    import hwrt.cli as cli
+
+    out, when = sys.argv[1], sys.argv[2]
+    if when == "renames":                   # held while write_files renames, acted on after
+        real_replace = os.replace
+
+        def replace(src, dst):
+            real_replace(src, dst)
+            if dst == out:
+                os.kill(os.getpid(), signal.SIGINT)
+
+        os.replace = replace
+    else:                                   # once the report is out
+        real_emit = cli._emit
+
+        def emit(*args):
+            real_emit(*args)
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1)                   # Python acts on the signal here
+
+        cli._emit = emit
+    sys.exit(cli.main(["render", "cornell", "--width", "8", "--height", "8", "--spp", "1",
+                       "-o", out]))
+""")
+
+
+@pytest.mark.parametrize("when", ["renames", "report"])
+def test_a_signal_once_the_outputs_are_in_place_does_not_fail_the_run(tmp_path, when):
+    out = tmp_path / "x.exr"
+    r = subprocess.run([sys.executable, "-c", LATE_SIGNAL, str(out), when], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert f"output: {out}" in r.stdout
+    assert [p.name for p in tmp_path.iterdir()] == ["x.exr"]
+
+
 def test_sigterm_during_a_render_leaves_nothing(tmp_path):
     out = tmp_path / "x.exr"
     env = dict(os.environ, **{PROGRESS_ENV: "1"})
