@@ -460,7 +460,8 @@ BENCH_QUICK = {"tti": {"repeat": 1, "width": 160, "height": 120},     # --quick:
 BENCH_NONE = {"mesh_dir": "$HWRT_MESHES, else ../shared/meshes if it is there, else generated meshes",
               "out_dir": "no files", "width": "the scene's", "height": "the scene's",
               "spp": "the scene's", "max_depth": "the scene's",
-              "scheduler": "$HWRT_SCHEDULER, else a local cluster of one worker with every core"}
+              "scheduler": "$HWRT_SCHEDULER, else a local cluster: for tti and accuracy one "
+                           "worker with every core, for model one worker per core"}
 BENCH_COMMON = {"repeat": 5, "rays": 500_000, "out_dir": "renders/bench", "width": 320,
                 "height": 240, "spp": 1, "max_depth": 5}
 BENCH_WRITES_OUT_DIR = ("tti", "accuracy")
@@ -473,8 +474,8 @@ BENCH_OPTION_HELP = {
     "quick": "a short run: tti and accuracy, a few small cells (seconds); animation, fewer "
              "frames of fewer triangles",
     "fresh": "start over, ignoring finished cells", "out_dir": "where result files go",
-    "scheduler": "a running Dask scheduler, tcp://HOST:PORT, whose workers run the cells one at "
-                 "a time on one host",
+    "scheduler": "a running Dask scheduler, tcp://HOST:PORT, whose workers run the cells "
+                 "(tti and accuracy time theirs one at a time on one host)",
     "width": "image width", "height": "image height", "spp": "samples per pixel",
     "max_depth": "longest reflection/refraction path"}
 
@@ -530,6 +531,8 @@ def _bench_options(args):
         if dest == "meshes":
             raise InputError(args.meshes[0], f"bench {args.what} takes no mesh files")
         raise InputError("--" + dest.replace("_", "-"), f"bench {args.what} does not read this option")
+    if args.what == "contention" and len(args.meshes) > 1:     # it measures one scene
+        raise InputError(args.meshes[1], "bench contention takes one scene or mesh file")
     defaults = dict(table, **(BENCH_QUICK.get(args.what, {}) if args.quick else {}))
     for dest, default in defaults.items():
         if getattr(args, dest, None) is None:
