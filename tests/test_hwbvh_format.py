@@ -223,7 +223,7 @@ def write_ply_header_only(path, faces):
 
 @pytest.mark.parametrize("setup,match", [
     (lambda d: d / "missing.ply", "no such file"),
-    (lambda d: (d / "garbage.ply").write_bytes(b"\x00\x01 not a mesh") and d / "garbage.ply", "cannot read"),
+    (lambda d: (d / "garbage.ply").write_bytes(b"\x00\x01 not a mesh") and d / "garbage.ply", "not a readable PLY file"),
     (lambda d: (d / "empty.obj").write_text("# nothing\n") and d / "empty.obj", "no triangles"),
     (lambda d: (d / "nan.obj").write_text("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n") and d / "nan.obj", "NaN"),
     (lambda d: write_ply_header_only(d / "big.ply", (1 << 24) + 1) or d / "big.ply", "2\\^24"),
