@@ -128,7 +128,7 @@ _HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @contextmanager
-def _signals_held():
+def signals_held():
     """Hold SIGINT/SIGTERM for a short step (creating and recording a temporary file, the
     renames), so a set of files appears whole; a signal that arrives meanwhile is acted on
     right after, by the handler that was in place.
@@ -199,7 +199,7 @@ def write_files(pairs):
             path = os.fspath(path)
             d = os.path.dirname(os.path.abspath(path))
             os.makedirs(d, exist_ok=True)
-            with _signals_held():        # a signal between creating and recording the
+            with signals_held():        # a signal between creating and recording the
                 fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(path)[1],
                                            dir=d)
                 tmps.append((tmp, path))  # temporary file would leave it behind
@@ -210,7 +210,7 @@ def write_files(pairs):
                 with os.fdopen(fd, "w" if isinstance(data, str) else "wb") as f:
                     f.write(data)
             os.chmod(tmp, _file_mode())
-        with _signals_held():
+        with signals_held():
             for tmp, path in tmps:
                 os.replace(tmp, path)
     finally:                             # a renamed temporary file no longer exists

@@ -108,7 +108,11 @@ def _obj_resolved_lines(path, raw_lines, vertex_total=None):
     that is not a number, is 0, counts back before the first element of its kind, or (given
     ``vertex_total``) refers past the file's last vertex."""
     before = [0, 0, 0]                  # vertices, texture coordinates, normals so far
+    started = False
     for number, line in _obj_lines(raw_lines):
+        if not started and line.strip():
+            # trimesh strips the whole text, so the first line with content loses its indent
+            line, started = line.lstrip(), True
         if line[:2] == b"v ":
             before[0] += 1
         elif line[:3] == b"vt ":

@@ -65,9 +65,10 @@ def mesh_names(paths, base=None):
     paths = [Path(p) for p in paths]
     seen = set()
     for p in paths:
-        if p in seen:
+        real = os.path.realpath(p)                  # one file however it is spelled
+        if real in seen:
             raise InputError(p, "given twice")
-        seen.add(p)
+        seen.add(real)
     stems = Counter(p.stem for p in paths)
     return [p.stem if stems[p.stem] == 1 else str(p.relative_to(base) if base else p) for p in paths]
 

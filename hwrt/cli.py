@@ -41,7 +41,8 @@ def _succeeded(args):
     this late cannot turn the success into exit status 130 or 143."""
     if getattr(args, "signals_owned", False):
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, signal.SIG_IGN)
+            if signal.getsignal(sig) is not None:     # a handler set outside Python stays
+                signal.signal(sig, signal.SIG_IGN)
 
 
 def _file_identity(path):
@@ -164,7 +165,6 @@ def cmd_build(args):
              if getattr(args, dest) is not None}           # the others: the library's defaults
     bvh = build(tris, builder=args.builder, validate_tree=True, source_name=args.mesh, **given)
     result = dict(bvh.meta, startup_seconds=startup)
-    outputs = []
     with _committing(args, planned):
         if args.dump_aabbs or args.dump_handoff:
             boxes = primitive_boxes(bvh.triangles)
@@ -179,10 +179,11 @@ def cmd_build(args):
                                          "handoff_sizes": sizes}) + "\n"))
                 result["handoff_sizes"] = [int(x) for x in sizes]
             write_files(files)
-            outputs += [f for f, _ in files]
         if args.out:
-            outputs += save(bvh, args.out)
-    result["outputs"] = outputs
+            save(bvh, args.out)
+    # every planned file is in place here (a signal at the renames is dropped only then), even
+    # when the signal cut a write call short of returning its names
+    result["outputs"] = planned
     keys = ["builder", "triangles", "nodes", "leaves", "max_depth", "sah_cost", "fallback_splits",
             "build_seconds", "startup_seconds", "handoffs", "outputs"]
     _emit(args, result, lambda r: _kv(r, keys))
@@ -1019,7 +1020,8 @@ def main(argv=None):
         return 1
     finally:
         for sig, handler in (previous or {}).items():
-            signal.signal(sig, handler)
+            if handler is not None:            # None: set outside Python, never changed here
+                signal.signal(sig, handler)
     return 0
 
 

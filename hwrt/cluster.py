@@ -1,8 +1,8 @@
 """Cells on Dask: one helper gives a client, another runs a list of cells through it.
 
 By default the client talks to an embedded local cluster: one worker process per core, one
-thread each, no dashboard, quiet logs, workers deaf to SIGINT (a Ctrl-C is this process's to
-act on: it closes the cluster). ``scheduler`` (or ``$HWRT_SCHEDULER``) names a running
+thread each, no dashboard, quiet logs, workers deaf to SIGINT on POSIX systems (a Ctrl-C is this
+process's to act on: it closes the cluster). ``scheduler`` (or ``$HWRT_SCHEDULER``) names a running
 Dask scheduler instead (``tcp://HOST:PORT``), whose workers must have hwrt installed and read the
 inputs at the same paths. Each worker runs a warm-up once when it starts (Numba kernels loaded
 from their cache, not once per cell). A cell lost with a killed worker is run again elsewhere
@@ -17,6 +17,7 @@ from contextlib import contextmanager
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from hwbvh.errors import ParameterError
+from hwbvh.files import signals_held
 
 from .progress import progress_bar
 
@@ -137,10 +138,11 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
             else:
                 n = workers or os.cpu_count() or 1
                 threads = str(max(1, int(threads_per_cell)))
-                # a Ctrl-C while the cluster starts is acted on once it has started (and is
-                # closed below); the scheduler's HTTP port is left to the system: 8787 may be
-                # another cluster's
-                with _sigint_blocked():
+                # a Ctrl-C while the cluster starts is held (the Python handler: the mask
+                # does not hold a signal the kernel hands another thread) and acted on once
+                # the cluster is made, which is then closed below; the scheduler's HTTP port
+                # is left to the system: 8787 may be another cluster's
+                with signals_held(), _sigint_blocked():
                     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                            dashboard_address=None, silence_logs=logging.CRITICAL,
                                            scheduler_kwargs={"dashboard_address": ":0"},

@@ -229,7 +229,7 @@ def test_an_interrupt_before_the_renames_leaves_nothing(tmp_path, monkeypatch):
     """An interrupt after every file is written but before they are renamed into place
     removes the temporary files."""
     import hwbvh.files as files
-    held = files._signals_held
+    held = files.signals_held
     entered = []
 
     def interrupted_at_the_renames():
@@ -237,18 +237,18 @@ def test_an_interrupt_before_the_renames_leaves_nothing(tmp_path, monkeypatch):
         if len(entered) == 3:                 # two files made; the third hold is the renames
             raise KeyboardInterrupt
         return held()
-    monkeypatch.setattr(files, "_signals_held", interrupted_at_the_renames)
+    monkeypatch.setattr(files, "signals_held", interrupted_at_the_renames)
     with pytest.raises(KeyboardInterrupt):
         files.write_files([(tmp_path / "a.bin", b"a"), (tmp_path / "b.txt", "b")])
     assert len(entered) == 3 and list(tmp_path.iterdir()) == []
 
 
 def test_a_signal_during_a_hold_is_acted_on_after_it_by_the_handler_in_place():
-    from hwbvh.files import _signals_held
+    from hwbvh.files import signals_held
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     steps = []
     with pytest.raises(KeyboardInterrupt):
-        with _signals_held():
+        with signals_held():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.2)                   # Python acts on the signal here: it is held
             steps.append("held")
@@ -272,7 +272,7 @@ def test_a_handler_that_raises_as_a_hold_begins_leaves_the_handlers_as_they_were
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     monkeypatch.setattr(files.signal, "signal", swap_then_raise)
     with pytest.raises(KeyboardInterrupt):
-        with files._signals_held():
+        with files.signals_held():
             pass
     monkeypatch.undo()
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before

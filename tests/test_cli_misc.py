@@ -171,6 +171,7 @@ _OBJ_VERTICES = {"A": "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "B": "v 5 5 5\nv 6 5 5\nv 5
     ("{A}f -3 2 -1\n{B}f -6 -2 \\\n -1\n{C}f 1 -5 \\\r\n3\r\n",
      [A, [A[0]] + B[1:], [A[0], B[1], A[2]]]),
     ("{A}{B}{C}f 4 5 6\nf -9 -8 -7\nf 7 8 9\n", [B, A, C]),
+    ("\n  {A}f -3 -2 -1\n{B}f -3 -2 -1\n", [A, B]),    # trimesh strips the file's first indent
 ])
 def test_negative_obj_indices_count_back_from_their_line(tmp_path, text, triangles):
     from hwbvh.primitives import load_mesh_arrays
@@ -337,3 +338,6 @@ def test_mesh_inputs_are_records_naming_files_by_stem_unless_shared(tmp_path):
     assert [(m.name, m.path, m.stem) for m in in_dir] == [("s", a, "s"), ("t", t, "t")]
     with pytest.raises(InputError, match=f"^{a}: given twice$"):
         mesh_inputs(_mesh_args(meshes=[a, t, a]))
+    other_spelling = tmp_path / "b" / ".." / "a" / "s.ply"
+    with pytest.raises(InputError, match="given twice$"):
+        mesh_inputs(_mesh_args(meshes=[a, other_spelling]))
