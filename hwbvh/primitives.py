@@ -229,10 +229,17 @@ def checked_coordinates(t, source):
     bad = int(np.argmin(ok))
     if not np.isfinite(t64[bad]).all():
         raise InputError(source, f"triangle {bad} has a NaN or infinite coordinate")
-    big = float(np.abs(t64[bad]).max())
-    shown = f"{big:.3g}" if float(f"{big:.3g}") > MAX_COORDINATE else repr(big)
+    shown = beyond_bound_text(np.abs(t64[bad]).max())
     raise InputError(source, f"triangle {bad} has a coordinate too large: magnitude {shown} "
                              f"exceeds {MAX_COORDINATE:.0e} (float32 SAH costs would overflow)")
+
+
+def beyond_bound_text(big):
+    """A magnitude beyond MAX_COORDINATE as an error shows it: three digits, or every digit
+    where three would round it onto the bound ("1e+15 exceeds 1e+15")."""
+    big = float(big)
+    short = f"{big:.3g}"
+    return short if float(short) > MAX_COORDINATE else repr(big)
 
 
 def load_mesh_arrays(path):

@@ -207,14 +207,12 @@ def default_mesh():
     else None, for a generated sphere. A directory asked for that is missing or holds no mesh
     files is an error, and so is one without a bunny, rather than a sphere in its place."""
     from .bench import mesh_directory
-    from .paths import MESH_DIR_ENV
     found = mesh_directory(None)
     if found is None:
         return None
-    d, files = found
+    _, files, named = found
     bunny = next((p for p in files if p.stem == "bunny"), None)
     if bunny is None:
-        named = f"${MESH_DIR_ENV} {d}" if os.environ.get(MESH_DIR_ENV) else str(d)
         raise InputError(named, "has no bunny (bunny.ply, .obj, ...) for exploding to break: "
                                 "name a mesh with --mesh, or give --triangles for a sphere")
     return str(bunny)

@@ -74,12 +74,14 @@ def mesh_names(paths, base=None):
 
 
 def mesh_directory(mesh_dir):
-    """The mesh files of the directory asked for: ``mesh_dir``, else $HWRT_MESHES, else the
-    default directory when it is there (None: no directory asked for, none by default). A
-    directory asked for must exist and hold mesh files (errors name the parameter or the
-    environment variable); so must the default one, when it is there."""
+    """(directory, its mesh files, its name in messages) of the directory asked for:
+    ``mesh_dir``, else $HWRT_MESHES, else the default directory when it is there (None: no
+    directory asked for, none by default). A directory asked for must exist and hold mesh
+    files (errors name the parameter or the environment variable); so must the default one,
+    when it is there."""
     if mesh_dir:
         d = Path(mesh_dir)
+        named = str(d)
 
         def refuse(problem):
             raise ParameterError("mesh_dir", f"{d}: {problem}")
@@ -88,7 +90,7 @@ def mesh_directory(mesh_dir):
         d = Path(env) if env else default_mesh_dir()
         if d is None:
             return None
-        named = f"${MESH_DIR_ENV} {d}" if env else d
+        named = f"${MESH_DIR_ENV} {d}" if env else str(d)
 
         def refuse(problem):
             raise InputError(named, problem)
@@ -99,7 +101,7 @@ def mesh_directory(mesh_dir):
     files = mesh_files(d)
     if not files:
         refuse(f"has no mesh files ({', '.join(MESH_EXTENSIONS)})")
-    return d, files
+    return d, files, named
 
 
 def mesh_inputs(args):
@@ -119,7 +121,7 @@ def mesh_inputs(args):
     if not paths:
         found = mesh_directory(args.mesh_dir)
         if found is not None:
-            base, paths = found
+            base, paths, _ = found
     if paths:
         return [MeshInput(name, p, p.stem, (lambda p=p: load_mesh_arrays(p)))
                 for name, p in zip(mesh_names(paths, base), paths)]

@@ -1,4 +1,6 @@
-"""Where the benchmark meshes are: $HWRT_MESHES, else ../shared/meshes beside the project."""
+"""Where the benchmark meshes are by default: ../shared/meshes beside the project (or beside
+the working directory). ``$HWRT_MESHES`` names another directory; ``hwrt.bench.mesh_directory``
+reads it, and decides which directory a run uses."""
 import os
 from pathlib import Path
 
@@ -9,9 +11,7 @@ MESH_DIR_ENV = "HWRT_MESHES"
 
 
 def default_mesh_dir():
-    env = os.environ.get(MESH_DIR_ENV)
-    if env:
-        return Path(env)
+    """../shared/meshes beside the project or the working directory, when it is there."""
     for base in (Path(__file__).resolve().parents[1], Path.cwd()):
         d = base.parent / "shared" / "meshes"
         if d.is_dir():

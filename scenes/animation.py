@@ -45,7 +45,7 @@ from numba import njit
 
 from hwbvh.config import MAX_COORDINATE
 from hwbvh.errors import InputError, ParameterError
-from hwbvh.primitives import as_triangles, load_mesh_arrays, within_bound
+from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
 from .loader import (FOV_RANGE, compile_scene, finite, load_scene, mesh_scene, vector_ok,
                      with_frame)
@@ -346,9 +346,9 @@ class Animation:
                 p.motion.check(frames)
             elif isinstance(p.motion, RigidMotion):
                 p.motion.check(np.arange(frames) / self.fps, self.source)
-        if self.camera is not None:
-            for i in range(frames):
-                self.camera(self.time(i))
+        check_camera = getattr(self.camera, "check", None)      # a scene file's camera track
+        if check_camera is not None:                            # (built-in paths are fixed)
+            check_camera(np.arange(frames) / self.fps)
 
     def geometry(self, i):
         """(triangles float32 (n, 3, 3), normals float32 (n, 3, 3), material int32 (n,))."""
@@ -406,10 +406,9 @@ class RigidMotion:
         for f in near[np.sort(np.unique(held, axis=0, return_index=True)[1])]:
             v = self._placed(self.track.at(times[f]))
             if not within_bound(v):
-                big = float(np.abs(v).max())
-                shown = f"{big:.3g}" if float(f"{big:.3g}") > MAX_COORDINATE else repr(big)
                 _fail(source, self.key, f"at time {times[f]:g} the shape reaches a coordinate of "
-                                        f"magnitude {shown}, beyond {MAX_COORDINATE:.0e}")
+                                        f"magnitude {beyond_bound_text(np.abs(v).max())}, "
+                                        f"beyond {MAX_COORDINATE:.0e}")
 
     def _placed(self, k):
         """The triangles under the channel values ``k`` of one time."""
@@ -441,16 +440,33 @@ class FrameSequence:
         return load_frame_mesh(self.files[i], self.smooth)
 
 
+def _check_camera(source, times, eye, target, up):
+    """Refuse the first of ``times`` whose camera (rows of ``eye``, ``target``, ``up``) has its
+    eye on its target (the still scene's rule, scenes.loader) or a zero up (no roll to take
+    from it)."""
+    on_target = np.all(eye == target, axis=1)
+    no_up = ~np.any(up, axis=1)
+    bad = on_target | no_up
+    if bad.any():
+        f = int(np.argmax(bad))
+        problem = "eye equals target" if on_target[f] else "up is zero"
+        _fail(source, "animation.camera", f"{problem} at time {times[f]:g}")
+
+
 def _camera_fn(track, base, source):
+    """The camera at a time, a callable; its ``check(times)`` checks the track at all of
+    ``times`` at once, before any frame is made."""
     def cam(t):
         k = track.at(t)
         c = dict(base)
         c.update(eye=k["eye"], target=k["target"], up=k["up"], fov=float(k["fov"]))
-        if np.array_equal(c["eye"], c["target"]):   # the still scene's rule (scenes.loader)
-            _fail(source, "animation.camera", f"eye equals target at time {t:g}")
-        if not np.any(c["up"]):                      # no roll to take from it
-            _fail(source, "animation.camera", f"up is zero at time {t:g}")
+        _check_camera(source, [t], c["eye"][None], c["target"][None], c["up"][None])
         return c
+
+    def check(times):
+        k = track.at_times(times)
+        _check_camera(source, times, k["eye"], k["target"], k["up"])
+    cam.check = check
     return cam
 
 
