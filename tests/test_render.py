@@ -142,6 +142,18 @@ def test_up_along_the_view_direction_picks_another_up():
         np.testing.assert_allclose(B @ B.T, np.eye(3), atol=1e-15)
 
 
+@pytest.mark.parametrize("sine", [7e-13, 1.3e-12])
+def test_up_nearly_along_the_view_is_judged_by_angle_not_length(sine):
+    """Whether up is too close to the view direction to set the roll depends on the angle
+    alone: the same up at any length gives the same basis."""
+    up = np.array([0.0, sine, -1.0])     # the fallback's up would roll the camera otherwise
+    bases = [look_at_basis([0, 0, 1], [0, 0, 0], up * s) for s in (1.0, 1.5, 1.99, 1e-100, 3e90)]
+    for b in bases[1:]:
+        np.testing.assert_array_equal(np.array(b), np.array(bases[0]))
+    u = bases[0][0]
+    assert (abs(u[0]) == 1.0) == (sine > 1e-12)         # up's own roll only above the cut-off
+
+
 def test_an_eye_1e_200_from_its_target_renders_a_finite_image(tmp_path, capsys):
     import warnings
     from hwrt.cli import main
