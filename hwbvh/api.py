@@ -136,15 +136,20 @@ def warm_up(builder="hwbvh", parallel=False):
     return time.perf_counter() - t
 
 
+def tree_files(bvh, prefix):
+    """The (path, data) pairs of PREFIX.nodes, PREFIX.indices and PREFIX.json (SPEC 4), for
+    :func:`hwbvh.files.write_files` (alone, or in one set with other files)."""
+    prefix = os.fspath(prefix)
+    return [(prefix + ".nodes", bvh.nodes.tobytes()),
+            (prefix + ".indices", pack_indices(bvh.indices)),
+            (prefix + ".json", json_text(bvh.meta, indent=2) + "\n")]
+
+
 def save(bvh, prefix):
     """Write PREFIX.nodes, PREFIX.indices and PREFIX.json (SPEC 4)."""
-    prefix = os.fspath(prefix)
-    write_files([
-        (prefix + ".nodes", bvh.nodes.tobytes()),
-        (prefix + ".indices", pack_indices(bvh.indices)),
-        (prefix + ".json", json_text(bvh.meta, indent=2) + "\n"),
-    ])
-    return [prefix + ext for ext in (".nodes", ".indices", ".json")]
+    files = tree_files(bvh, prefix)
+    write_files(files)
+    return [path for path, _ in files]
 
 
 def load(prefix, triangles=None):

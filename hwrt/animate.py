@@ -295,7 +295,7 @@ def _csv_text(rows):
 
 
 def _preview(out_dir, frames, fps):
-    """An animated GIF (imageio) of the tone-mapped frames, written atomically."""
+    """An animated GIF (imageio) of the tone-mapped frames: its bytes."""
     import imageio.v3 as iio
     from raytracer.output import read_exr, tonemap
 
@@ -303,19 +303,18 @@ def _preview(out_dir, frames, fps):
     for i in range(frames):
         px, _, _ = read_exr(os.path.join(out_dir, FRAME_NAME.format(i)))
         images.append(tonemap(px[..., :3]))
-    data = iio.imwrite("<bytes>", np.stack(images), extension=".gif",
+    return iio.imwrite("<bytes>", np.stack(images), extension=".gif",
                        duration=max(20, int(round(1000 / fps))), loop=0)
-    path = os.path.join(out_dir, PREVIEW_NAME)
-    write_files([(path, data)])
-    return path
 
 
 def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_THRESHOLD,
-        verify=False, progress=None, seed=0, inspect=None, accel="bvh", on_start=None):
+        verify=False, progress=None, seed=0, inspect=None, accel="bvh", on_start=None,
+        commit=write_files):
     """Render ``frames`` frames of ``anim`` (scenes.animation.Animation) under a tree update
     ``strategy`` (``accel`` other than "bvh": that structure, rebuilt every frame). With ``out_dir``: one EXR per frame (written atomically), the run state
-    (animation.json, also what a rerun resumes from, at the first missing frame), a CSV and a
-    GIF preview. Without it nothing is written (benchmarks). ``inspect(i, scene, bvh)`` sees
+    (animation.json, also what a rerun resumes from, at the first missing frame), then a CSV
+    and a GIF preview, the last set, through ``commit(files)`` (the command line's also marks
+    the run done). Without it nothing is written (benchmarks). ``inspect(i, scene, bvh)`` sees
     every frame's tree (None under embree). ``on_start(first)``: called once every input and
     the output directory have been checked, with the first frame to render (later than 0 when
     a rerun resumes); ``progress(i)`` after each frame. Returns the result dict."""
@@ -414,11 +413,12 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
                             for k in ("rays", "agree", "tie", "mismatch")}
     if out_dir is not None:
         csv_path = os.path.join(out_dir, CSV_NAME)
-        write_files([(csv_path, _csv_text([{k: v for k, v in r.items() if k != "rays"} |
-                                            {f"rays.{k}": v for k, v in r["rays"].items()}
-                                            for r in ordered]))])
+        preview_path = os.path.join(out_dir, PREVIEW_NAME)
+        csv_text = _csv_text([{k: v for k, v in r.items() if k != "rays"} |
+                              {f"rays.{k}": v for k, v in r["rays"].items()} for r in ordered])
+        commit([(csv_path, csv_text), (preview_path, _preview(out_dir, frames, anim.fps))])
         result["files"] = {"frames": os.path.join(out_dir, "frame_%04d.exr"),
-                           "preview": _preview(out_dir, frames, anim.fps), "csv": csv_path,
+                           "preview": preview_path, "csv": csv_path,
                            "state": os.path.join(out_dir, STATE_NAME)}
     result["output"] = out_dir
     result["total_seconds"] = time.perf_counter() - t_start
@@ -428,8 +428,9 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
 # --------------------------------------------------------------------------------------
 # Command line
 # --------------------------------------------------------------------------------------
-def cmd_animate(args):
-    """``hwrt animate`` (library errors name parameters; the command line reports options)."""
+def cmd_animate(args, commit=write_files):
+    """``hwrt animate`` (library errors name parameters; the command line reports options);
+    ``commit`` writes the run's last set of files (see :func:`run`)."""
     from .progress import progress_bar
 
     for key in ("width", "height", "spp", "max_depth", "frames", "triangles"):
@@ -452,7 +453,7 @@ def cmd_animate(args):
     try:
         result = run(anim, args.strategy, frames, out, threshold=threshold, verify=args.verify,
                      progress=lambda i: bars[0].update(1), seed=args.seed, accel=accel,
-                     on_start=start)
+                     on_start=start, commit=commit)
     finally:
         for bar in bars:
             bar.close()
@@ -480,13 +481,14 @@ def human(r):
 # --------------------------------------------------------------------------------------
 # Benchmark: every built-in animation under every strategy
 # --------------------------------------------------------------------------------------
-def bench_animation(args):
+def bench_animation(args, commit=write_files):
     """Every built-in animation under every strategy, and with every other acceleration
     structure (``args.accel``: names from ``raytracer.render.ACCELS``; None: all) rebuilt
     every frame, in one process after warm-up: time to image per frame (build + render),
     totals, SAH drift of refit against rebuild, the frames at which adaptive rebuilds, and when
     the hardware's full rebuild beats software refitting. Writes animation.csv/.json/.md and
-    plots to ``--out-dir``."""
+    plots to ``--out-dir``, in one set through ``commit(files)`` (the command line's also marks
+    the run done)."""
     from scenes.animation import ANIMATIONS
     from raytracer.render import ACCELS
     from .bench import machine
@@ -525,11 +527,12 @@ def bench_animation(args):
     summary = _bench_summary(runs, structures)
     out_dir = args.out_dir
     files = _bench_files(out_dir, rows, summary, runs, frames, args, structures)
-    write_files(files)
-    return jsonable({"rows": rows, "summary": summary, "frames": frames, "machine": machine(),
-                     "structures": structures,
-                   "physics": runs[("marbles", "rebuild")]["animation"].get("physics"),
-                   "files": [f for f, _ in files]})
+    result = jsonable({"rows": rows, "summary": summary, "frames": frames, "machine": machine(),
+                       "structures": structures,
+                       "physics": runs[("marbles", "rebuild")]["animation"].get("physics"),
+                       "files": [f for f, _ in files]})
+    commit(files)
+    return result
 
 
 def _per_frame(frames):

@@ -11,6 +11,7 @@ from typing import Callable, NamedTuple, Optional
 import numpy as np
 
 from hwbvh.errors import InputError, ParameterError
+from hwbvh.files import write_files
 from hwbvh.primitives import MESH_EXTENSIONS
 from .paths import MESH_DIR_ENV, default_mesh_dir, mesh_files
 from .progress import progress_over
@@ -462,7 +463,7 @@ def _peer_variants(specs):
     return {v: mp.variant_status(v) for v in mp.VARIANTS}
 
 
-def bench_render(args):
+def bench_render(args, commit=write_files):
     """Time to image (build + render) of each scene (default: cornell) with our build and
     traversal against Embree's, through the same renderer, and for a mesh scene against
     Mitsuba 3 (``scalar_rgb`` and ``llvm_ad_rgb``) when it is installed.
@@ -479,9 +480,11 @@ def bench_render(args):
     its render. Its rays/s count the rays ours traced for the same image (camera + shadow rays):
     Mitsuba traces at least those (it also sends a shadow ray from surfaces that face away from
     the light), so its rate is a lower bound. Image agreement: relative RMSE of our image
-    against Mitsuba's (seed 1), over Mitsuba's seed 1 against seed 2."""
+    against Mitsuba's (seed 1), over Mitsuba's seed 1 against seed 2. With ``args.out_dir``,
+    render.json and render.md are written in one set through ``commit(files)`` (the command
+    line's also marks the run done)."""
     import json
-    from hwbvh.files import check_output_dir, jsonable, write_files
+    from hwbvh.files import check_output_dir, jsonable
     from raytracer.render import warm_up
     from scenes import compile_scene, is_scene, load_scene
     from . import mitsuba_peer as mp
@@ -512,7 +515,7 @@ def bench_render(args):
     if out_dir:
         files = [(os.path.join(out_dir, "render.json"), json.dumps(result, indent=1) + "\n"),
                  (os.path.join(out_dir, "render.md"), _render_markdown(result, args))]
-        write_files(files)
+        commit(files)
         result["files"] = [f for f, _ in files]
     return result
 

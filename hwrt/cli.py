@@ -8,7 +8,7 @@ import argparse
 import os
 import signal
 import sys
-from contextlib import contextmanager
+from functools import partial
 
 from hwbvh import config
 from hwbvh.errors import InputError, ParameterError
@@ -53,18 +53,20 @@ def _file_identity(path):
     return st.st_dev, st.st_ino
 
 
-@contextmanager
-def _committing(args, paths):
-    """The step that puts the run's last outputs, ``paths``, in place; then
+def _commit(args, files):
+    """Write ``files`` (``hwbvh.files.write_files`` pairs), the run's last outputs, then
     :func:`_succeeded`. ``write_files`` holds a signal that arrives while it renames, and acts
     on it as the renames end: if every path is then a new file (each renamed temporary file
     is one, made while the old file was still there), the outputs are in place and the signal
-    came too late to undo them, so it is dropped."""
-    before = {p: _file_identity(p) for p in paths}
+    came too late to undo them, so it is dropped. The commands whose last files are written
+    in a library function (explore, the benchmarks, animate) pass this down as its ``commit``."""
+    from hwbvh.files import write_files
+    files = [(os.fspath(p), data) for p, data in files]
+    before = {p: _file_identity(p) for p, _ in files}
     try:
-        yield
+        write_files(files)
     except KeyboardInterrupt:
-        if not paths or any(_file_identity(p) in (None, before[p]) for p in paths):
+        if not files or any(_file_identity(p) in (None, before[p]) for p in before):
             raise
     _succeeded(args)
 
@@ -119,8 +121,7 @@ def _check_mesh_file(path, command):
 def cmd_build(args):
     import time
     import numpy as np
-    from hwbvh.api import build, save, warm_up
-    from hwbvh.files import write_files
+    from hwbvh.api import build, tree_files, warm_up
     from hwbvh.primitives import as_triangles, load_mesh_arrays, pack_records, primitive_boxes
 
     _check_mesh_file(args.mesh, "build")
@@ -165,24 +166,22 @@ def cmd_build(args):
              if getattr(args, dest) is not None}           # the others: the library's defaults
     bvh = build(tris, builder=args.builder, validate_tree=True, source_name=args.mesh, **given)
     result = dict(bvh.meta, startup_seconds=startup)
-    with _committing(args, planned):
-        if args.dump_aabbs or args.dump_handoff:
-            boxes = primitive_boxes(bvh.triangles)
-            files = []
-            if args.dump_aabbs:
-                files.append((args.dump_aabbs, pack_records(boxes)))
-            if args.dump_handoff:
-                order, sizes = bvh.handoff_order()
-                files.append((args.dump_handoff, pack_records(boxes, order)))
-                files.append((args.dump_handoff + ".json",
-                              json_text({"record_bytes": config.PRIMITIVE_RECORD_BYTES,
-                                         "handoff_sizes": sizes}) + "\n"))
-                result["handoff_sizes"] = [int(x) for x in sizes]
-            write_files(files)
-        if args.out:
-            save(bvh, args.out)
+    # the tree and the dumps are one set: all of them appear, or none
+    files = tree_files(bvh, args.out) if args.out else []
+    if args.dump_aabbs or args.dump_handoff:
+        boxes = primitive_boxes(bvh.triangles)
+        if args.dump_aabbs:
+            files.append((args.dump_aabbs, pack_records(boxes)))
+        if args.dump_handoff:
+            order, sizes = bvh.handoff_order()
+            files.append((args.dump_handoff, pack_records(boxes, order)))
+            files.append((args.dump_handoff + ".json",
+                          json_text({"record_bytes": config.PRIMITIVE_RECORD_BYTES,
+                                     "handoff_sizes": sizes}) + "\n"))
+            result["handoff_sizes"] = [int(x) for x in sizes]
+    _commit(args, files)
     # every planned file is in place here (a signal at the renames is dropped only then), even
-    # when the signal cut a write call short of returning its names
+    # when the signal cut the write call short of returning
     result["outputs"] = planned
     keys = ["builder", "triangles", "nodes", "leaves", "max_depth", "sah_cost", "fallback_splits",
             "build_seconds", "startup_seconds", "handoffs", "outputs"]
@@ -234,7 +233,6 @@ def cmd_verify(args):
     import io
     import numpy as np
     from traversal.verify import verify_mesh
-    from hwbvh.files import write_files
 
     if args.replay:
         for flag, value in (("--rays", args.rays), ("--kind", args.kind),
@@ -278,8 +276,7 @@ def cmd_verify(args):
         np.savez(buf, origins=O[bad], dirs=D[bad], ours_prim=h.prim[bad], ours_t=h.t[bad],
                  embree_prim=pe[bad], embree_t=te[bad],
                  tmax=(np.full(len(bad), np.inf) if tmax is None else np.asarray(tmax)[bad]))
-        with _committing(args, [out]):
-            write_files([(out, buf.getvalue())])
+        _commit(args, [(out, buf.getvalue())])
         result["mismatch_file"] = out
     _emit(args, result, lambda r: _kv(r, ["scene", "accel", "kind", "rays", "rays_requested", "agree", "tie",
                                           "mismatch", "mismatch_file"]))
@@ -306,7 +303,8 @@ def cmd_explore(args):
         from .report import command_of
         result = explore(args.meshes, grid, args.out_dir, command=command_of(args),
                          scheduler=args.scheduler,
-                         workers=args.workers, fresh=args.fresh)
+                         workers=args.workers, fresh=args.fresh,
+                         commit=partial(_commit, args))
     except ParameterError as e:      # a knob's value was given in --grid
         if e.parameter in KNOBS:
             raise ParameterError("grid", f"{e.parameter}: {e.problem}") from None
@@ -317,7 +315,6 @@ def cmd_explore(args):
 def cmd_render(args):
     import time
     from raytracer.render import make_tracer, render, warm_up
-    from hwbvh.files import write_files
     from raytracer.output import exr_writer, png_writer
     from scenes import compile_scene, load_scene, with_frame
 
@@ -391,8 +388,7 @@ def cmd_render(args):
     if png:
         files.append((png, png_writer(png, res.image)))
         result["png"] = png
-    with _committing(args, [f for f, _ in files]):
-        write_files(files)
+    _commit(args, files)
     result["wall_seconds"] = time.perf_counter() - t_start
     _emit(args, result, lambda r: _kv(r, ["output", "png", "scene", "triangles", "build_seconds",
                                           "render_seconds", "time_to_image_seconds",
@@ -401,7 +397,7 @@ def cmd_render(args):
 
 def cmd_animate(args):
     from . import animate
-    _emit(args, animate.cmd_animate(args), animate.human)
+    _emit(args, animate.cmd_animate(args, commit=partial(_commit, args)), animate.human)
 
 
 # What each benchmark measures, against which peer, and roughly how long it runs with its
@@ -467,6 +463,8 @@ BENCH_COMMON = {"repeat": 5, "rays": 500_000, "out_dir": "renders/bench", "width
                 "height": 240, "spp": 1, "max_depth": 5}
 BENCH_WRITES_OUT_DIR = ("tti", "accuracy")
 BENCH_REPORTS = ("build", "scale", "trace", "model", "contention", "trees")  # --out-dir: OUT/<what>.md, .json   # checked here; bench render checks its own files
+# The benchmarks that write their own files (with --out-dir), the last set through ``commit``
+BENCH_COMMITS = ("render", "tti", "accuracy", "animation")
 
 
 BENCH_OPTION_HELP = {
@@ -563,19 +561,19 @@ def cmd_bench(args):
         fn, human = animate.bench_animation, animate.human_bench
     else:
         human = bench.human(args.what)
-    result = fn(args)
+    commit = partial(_commit, args)
+    result = fn(args, commit=commit) if args.what in BENCH_COMMITS else fn(args)
     if args.what in BENCH_REPORTS and args.out_dir:
-        _write_report(args, result, human)
+        _write_report(args, result, human, commit)
     _emit(args, result, human)
 
 
-def _write_report(args, result, human):
+def _write_report(args, result, human, commit):
     """OUT/<what>.md (the table and the command that made it) and OUT/<what>.json."""
-    from hwbvh.files import json_text, write_files
     from .report import command_of, made_by_block
     md = (f"# hwrt bench {args.what}\n\n{made_by_block(command_of(args))}```text\n{human(result)}\n```\n")
-    write_files([(os.path.join(args.out_dir, f"{args.what}.md"), md),
-                 (os.path.join(args.out_dir, f"{args.what}.json"), json_text(result, indent=1) + "\n")])
+    commit([(os.path.join(args.out_dir, f"{args.what}.md"), md),
+            (os.path.join(args.out_dir, f"{args.what}.json"), json_text(result, indent=1) + "\n")])
 
 
 # --------------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ from collections import OrderedDict
 from dataclasses import replace
 from pathlib import Path
 
-from hwbvh.files import figure_png
+from hwbvh.files import figure_png, write_files
 from hwbvh import config
 from hwbvh.cycle_model import PRESETS, check_params
 from hwbvh.errors import InputError, ParameterError
@@ -501,15 +501,16 @@ def markdown(result, command=None):
 # the exploration
 # --------------------------------------------------------------------------------------
 def explore(meshes, grid=None, out_dir=None, *, scheduler=None, workers=None, use_dask=True,
-            fresh=False, progress=True, command=None):
+            fresh=False, progress=True, command=None, commit=write_files):
     """Simulate every configuration of ``grid`` (``{knob: [values]}``, default ``DEFAULT_GRID``;
     unset knobs at HWBVH-C's value) on every mesh file, on Dask (``hwrt.cluster.dask_client``:
     ``scheduler`` or a local cluster of ``workers`` processes) or, with ``use_dask=False``, in
     this process. With ``out_dir``, finished cells are saved as they come (a rerun resumes) and
     the CSV, JSON, summary and plots are written there (the summary names ``command``, the
-    command line that made it, when given). Everything is checked before any work."""
+    command line that made it, when given), in one set through ``commit(files)`` (the command
+    line's also marks the run done). Everything is checked before any work."""
     from hwbvh.calibration import fit_cost_model
-    from hwbvh.files import check_output_dir, json_text, write_files
+    from hwbvh.files import check_output_dir, json_text
     from .cluster import dask_client, describe, run_cells
 
     t0 = time.perf_counter()
@@ -579,7 +580,7 @@ def explore(meshes, grid=None, out_dir=None, *, scheduler=None, workers=None, us
         files = [("explore.csv", _csv(rows)), ("explore.json", json_text(result, indent=0) + "\n"),
                  ("explore.md", markdown(result, command))] + plots(rows, summary, specs, configs, grid)
         files = [(os.path.join(out_dir, n), d) for n, d in files]
-        write_files(files)
+        commit(files)
         result["files"] = [p for p, _ in files]
     return result
 

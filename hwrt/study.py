@@ -153,9 +153,9 @@ def _median(xs):
     return statistics.median(xs), [min(xs), max(xs)]
 
 
-def _write_outputs(out_dir, name, rows, md, plot_files, extra, where=None):
-    """The CSV, JSON, summary and plots; ``where``: the machine the cells were timed on
-    (default: this one)."""
+def _write_outputs(out_dir, name, rows, md, plot_files, extra, where=None, commit=write_files):
+    """The CSV, JSON, summary and plots, in one set through ``commit(files)``; ``where``: the
+    machine the cells were timed on (default: this one)."""
     buf = io.StringIO()
     flat = [{k: (json_text(v) if isinstance(v, (dict, list)) else v) for k, v in r.items()} for r in rows]
     keys = sorted({k for r in flat for k in r})
@@ -167,7 +167,7 @@ def _write_outputs(out_dir, name, rows, md, plot_files, extra, where=None):
     files = [(os.path.join(out_dir, f"{name}.csv"), buf.getvalue()),
              (os.path.join(out_dir, f"{name}.json"), json_text(result, indent=1) + "\n"),
              (os.path.join(out_dir, f"{name}.md"), md)] + plot_files
-    write_files(files)
+    commit(files)
     result["files"] = [f for f, _ in files]
     return result
 
@@ -273,9 +273,10 @@ def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat, accel="bvh"):
     return record
 
 
-def bench_tti(args, *, use_dask=True, progress=True):
+def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
     """Time to image per scene and path; cells on Dask (``args.scheduler``, else the embedded
-    local cluster) or, with ``use_dask=False``, in this process."""
+    local cluster) or, with ``use_dask=False``, in this process. ``commit(files)`` writes the
+    last set of files (the command line's also marks the run done)."""
     W, H = args.width, args.height
     spp, depth = args.spp, args.max_depth
     repeat = args.repeat
@@ -304,7 +305,7 @@ def bench_tti(args, *, use_dask=True, progress=True):
     plots = _tti_plot(rows, out_dir, TTI_PATHS + structures)
     return _write_outputs(out_dir, "tti", rows, md, plots,
                           {"setting": {"width": W, "height": H, "spp": spp, "max_depth": depth,
-                                       "repeat": repeat}, "break_even": summary}, where)
+                                       "repeat": repeat}, "break_even": summary}, where, commit)
 
 
 def _tti_rows(cells, specs, W, H, spp, depth, repeat, structures=()):
@@ -552,10 +553,11 @@ def accuracy_cell(spec, knob, val, W, H, repeat, rays, reference):
             "rmse": float(np.sqrt(np.mean(err ** 2))), "max_error": float(np.abs(err).max())}
 
 
-def bench_accuracy(args, *, use_dask=True, progress=True):
+def bench_accuracy(args, *, use_dask=True, progress=True, commit=write_files):
     """What each accuracy knob costs and buys; cells on Dask (``args.scheduler``, else the
     embedded local cluster) or, with ``use_dask=False``, in this process. The reference
-    images the pending cells need are cells too, run first."""
+    images the pending cells need are cells too, run first. ``commit(files)`` writes the last
+    set of files (the command line's also marks the run done)."""
     quick = args.quick
     W, H = args.width, args.height
     repeat = args.repeat
@@ -593,7 +595,7 @@ def bench_accuracy(args, *, use_dask=True, progress=True):
     plots = _accuracy_plots(rows, args.out_dir)
     return _write_outputs(args.out_dir, "accuracy", rows, md, plots,
                           {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE}},
-                          where)
+                          where, commit)
 
 
 def human_accuracy(result):
