@@ -9,6 +9,7 @@ import os
 import re
 
 import numpy as np
+from numba import njit
 
 from .config import MAX_COORDINATE, MAX_PRIMITIVES, PRIMITIVE_RECORD_BYTES
 from .errors import InputError
@@ -35,7 +36,10 @@ def _ply_face_count(path):
 # only those). A face index counts from 1; a negative one counts back from the elements of its
 # kind before the face's line, but trimesh counts it back from the file's last, so a file with
 # one is handed to trimesh with its negative indices made positive. 0 is no index, yet trimesh
-# reads it silently (as the first vertex).
+# reads it silently (as the first vertex). The text is rewritten by a compiled pass
+# (_obj_resolve); a file it cannot vouch for (a bad index, or a rare form such as "+1",
+# "1/2/3/4" or a continued last line) goes to the line-by-line reader (_obj_resolved_lines),
+# which names the line of a bad index and is the reference the compiled pass is tested against.
 _OBJ_KINDS = (("vertex", "vertices"), ("texture coordinate", "texture coordinates"),
               ("normal", "normals"))
 
@@ -46,6 +50,8 @@ _OBJ_ODD_INDEX = rb"[ \t]*f(?:[ \t/]+[1-9][0-9]*)*+[ \t/]+[-0]"
 _OBJ_ODD_INDEX_FIRST_LINE = re.compile(_OBJ_ODD_INDEX)
 _OBJ_ODD_INDEX_LATER_LINE = re.compile(rb"\n" + _OBJ_ODD_INDEX)
 _OBJ_CONTINUATION = re.compile(rb"\\\r?\n")
+# a file ending in a continued line ends in a line of its own, which joining leaves out
+_OBJ_CONTINUED_END = (b"\\", b"\\\r", b"\\\n", b"\\\r\n")
 
 
 def _obj_lines(raw_lines):
@@ -129,11 +135,159 @@ def _obj_resolved_lines(path, raw_lines, vertex_total=None):
         yield line
 
 
+def _obj_resolved_text(path, data):
+    """The text :func:`_obj_resolved_lines` makes of OBJ file ``path`` whose bytes are ``data``
+    (each line ending in "\\n"): made by the compiled pass, or for a file that pass leaves to
+    it, by the line-by-line reader, which raises InputError naming the line of a bad index."""
+    text = _obj_compiled_text(data)
+    if text is None:
+        text = b"".join([line + b"\n" for line in _obj_resolved_lines(path, io.BytesIO(data))])
+    return text
+
+
+def _obj_compiled_text(data):
+    """The text :func:`_obj_resolved_lines` makes of OBJ bytes ``data``, made at compiled
+    speed; or None for a file with a bad face index or a rare form (see _obj_face_indices),
+    or whose last line is continued."""
+    if data.endswith(_OBJ_CONTINUED_END):
+        return None
+    text = _OBJ_CONTINUATION.sub(b"", data)
+    # a rewritten index "-n" (2+ bytes) becomes at most 19 digits; the last line gains "\n"
+    out = np.empty(len(text) + 1 + 17 * text.count(b"-"), dtype=np.uint8)
+    size = _obj_resolve(np.frombuffer(text, dtype=np.uint8), out)
+    return out[:size].tobytes() if size >= 0 else None
+
+
+@njit(cache=True)
+def _obj_blank(c):
+    """Whether byte ``c`` is ASCII whitespace (" \\t\\n\\v\\f\\r"), what bytes.split() splits on."""
+    return c == 32 or 9 <= c <= 13
+
+
+@njit(cache=True)
+def _obj_element_kind(text, s, e):
+    """0, 1 or 2 if line ``text[s:e]`` is a vertex, texture coordinate or normal, else -1."""
+    if e - s >= 2 and text[s] == 118:                               # "v"
+        if text[s + 1] == 32:
+            return 0
+        if e - s >= 3 and text[s + 2] == 32:
+            if text[s + 1] == 116:                                  # "vt "
+                return 1
+            if text[s + 1] == 110:                                  # "vn "
+                return 2
+    return -1
+
+
+@njit(cache=True)
+def _obj_face_indices(text, p, e, before, out, o):
+    """Write the face indices ``text[p:e]`` (the words after "f") to ``out`` from ``o`` as
+    _obj_resolved_lines writes a face line it changes: each word after one space, negative
+    numbers made positive (``before`` counts each kind of element before the line). Returns
+    (end in ``out``, 1 if a number was negative else 0), or (o, -1) for a part that is not
+    -?[0-9]+ (or empty after a "/"), is 0, counts back before the first element of its kind,
+    or is a word's fourth: the line-by-line reader decides those."""
+    negative = 0
+    while True:
+        while p < e and _obj_blank(text[p]):
+            p += 1
+        if p == e:
+            return o, negative
+        out[o] = 32
+        o += 1
+        kind = 0
+        while True:                                         # one "/"-separated part a pass
+            start = p
+            if p < e and text[p] == 45:                     # "-"
+                p += 1
+            digits = p
+            value = 0
+            nonzero = False
+            while p < e and 48 <= text[p] <= 57:
+                nonzero |= text[p] != 48
+                if p - digits < 18:                         # longer ones are refused below
+                    value = value * 10 + (text[p] - 48)
+                p += 1
+            if p < e and not (text[p] == 47 or _obj_blank(text[p])):
+                return o, -1
+            if p == start:
+                if kind == 0:                               # a word starting "/"
+                    return o, -1
+            elif p == digits or not nonzero:                # "-" alone, or 0
+                return o, -1
+            elif digits > start:
+                if p - digits > 18 or value > before[kind]:
+                    return o, -1
+                resolved = before[kind] - value + 1
+                width, rest = 1, resolved // 10
+                while rest:
+                    width, rest = width + 1, rest // 10
+                for k in range(width - 1, -1, -1):
+                    out[o + k] = 48 + resolved % 10
+                    resolved //= 10
+                o += width
+                negative = 1
+            else:
+                out[o:o + p - start] = text[start:p]
+                o += p - start
+            if p == e or text[p] != 47:
+                break
+            out[o] = 47                                     # "/"
+            o += 1
+            p += 1
+            kind += 1
+            if kind == 3:
+                return o, -1
+
+
+@njit(cache=True)
+def _obj_resolve(text, out):
+    """Write to ``out`` the text _obj_resolved_lines makes of OBJ text ``text`` (its continued
+    lines joined), each line ending in "\\n", and return its length; or -1 if a face line holds
+    a part that :func:`_obj_face_indices` leaves to the line-by-line reader."""
+    n = len(text)
+    before = np.zeros(3, dtype=np.int64)    # vertices, texture coordinates, normals so far
+    started = False
+    o = 0
+    i = 0
+    while i < n:
+        e = i
+        while e < n and text[e] != 10:
+            e += 1
+        following = e + 1
+        if e > i and text[e - 1] == 13:
+            e -= 1
+        s = i
+        q = i                               # the line's first byte of content
+        while q < e and _obj_blank(text[q]):
+            q += 1
+        if not started and q < e:
+            s, started = q, True            # trimesh strips the whole text
+        kind = _obj_element_kind(text, s, e)
+        rewritten = False
+        if kind >= 0:
+            before[kind] += 1
+        elif q < e and text[q] == 102 and (q + 1 == e or _obj_blank(text[q + 1])):    # "f"
+            out[o:o + q - s] = text[s:q]    # the indent: trimesh skips indented lines
+            out[o + q - s] = 102
+            end, negative = _obj_face_indices(text, q + 1, e, before, out, o + q - s + 1)
+            if negative < 0:
+                return -1
+            if negative:
+                o, rewritten = end, True
+        if not rewritten:
+            out[o:o + e - s] = text[s:e]
+            o += e - s
+        out[o] = 10
+        o += 1
+        i = following
+    return o
+
+
 def _obj_load_args(path):
     """trimesh.load's arguments for OBJ file ``path``: the path itself, or (for a file with a
-    face index starting "-" or "0", or a continued line) its text read line by line, negative
-    indices made positive. A face index 0 or one counting back before the first vertex raises
-    InputError naming its line. Other files pay one C-speed regex search."""
+    face index starting "-" or "0", or a continued line) its text as :func:`_obj_resolved_text`
+    rewrites it. A face index 0 or one counting back before the first vertex raises InputError
+    naming its line. Other files pay one C-speed regex search."""
     import trimesh
 
     try:
@@ -144,12 +298,7 @@ def _obj_load_args(path):
     if not (_OBJ_ODD_INDEX_FIRST_LINE.match(data) or _OBJ_ODD_INDEX_LATER_LINE.search(data)
             or _OBJ_CONTINUATION.search(data)):
         return {"file_obj": path}
-    text = io.BytesIO()
-    for line in _obj_resolved_lines(path, io.BytesIO(data)):
-        text.write(line)
-        text.write(b"\n")
-    text.seek(0)
-    return {"file_obj": text, "file_type": "obj",
+    return {"file_obj": io.BytesIO(_obj_resolved_text(path, data)), "file_type": "obj",
             "resolver": trimesh.resolvers.FilePathResolver(path)}    # its mtllib, as for a path
 
 

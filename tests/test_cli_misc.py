@@ -182,13 +182,13 @@ def test_negative_obj_indices_count_back_from_their_line(tmp_path, text, triangl
 
 
 def test_an_obj_without_negative_indices_is_handed_to_trimesh_unread(tmp_path, monkeypatch):
-    """Minus signs in coordinates, names and comments do not send a file through the per-line
-    pass that makes negative indices positive; trimesh reads it from its path as before."""
+    """Minus signs in coordinates, names and comments do not send a file through the pass
+    that makes negative indices positive; trimesh reads it from its path as before."""
     from hwbvh import primitives
 
-    def per_line(*args):
-        raise AssertionError("read line by line")
-    monkeypatch.setattr(primitives, "_obj_resolved_lines", per_line)
+    def rewritten(*args):
+        raise AssertionError("rewritten")
+    monkeypatch.setattr(primitives, "_obj_resolved_text", rewritten)
     p = tmp_path / "plain.obj"
     p.write_text("# a mesh-1 -2\nv -1 -0 -1e-3\nv 1 0 0\nv 0 1 -0\ng part-2\nusemtl m-1\n"
                  "f 1 2 3\nf 3/1  10/2 1\nv 0 0 1\nv 0 0 2\nv 0 0 3\nv 0 0 4\nv 0 0 5\nv 0 0 6\n"
