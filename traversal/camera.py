@@ -25,7 +25,7 @@ def look_at_basis(eye, target, up):
     w /= np.linalg.norm(w)
     up = _power_of_two_scaled(np.asarray(up, np.float64))
     u = np.cross(w, up)
-    # looking along up (sine of the angle between them below 1e-12, whatever up's length):
+    # looking along up (sine of the angle between them at most 1e-12, whatever up's length):
     # pick another up
     if np.linalg.norm(u) <= 1e-12 * np.linalg.norm(up):
         u = np.cross(w, [1.0, 0.0, 0.0] if abs(w[0]) < 0.9 else [0.0, 0.0, 1.0])
