@@ -3,17 +3,16 @@
 Every subcommand takes ``--json`` and then prints exactly one JSON object on stdout; progress
 and logs go to stderr. Outputs are checked before any work and written whole or not at all.
 Library errors name a function's parameter; ``main`` reports the option that sets it.
+
+This module imports only the standard library at its top, and ``main`` sets its signal handling
+before importing the rest (NumPy, Numba, the commands), so that a Ctrl-C at any moment of a run
+is the one line "hwrt: interrupted" and exit status 130.
 """
 import argparse
 import os
 import signal
 import sys
 from functools import partial
-
-from hwbvh import config
-from hwbvh.errors import InputError, ParameterError
-from hwbvh.files import check_output_dir, check_outputs, json_text
-from hwbvh.parallel import check_threading
 
 from .progress import progress_bar
 
@@ -65,13 +64,15 @@ def _commit(args, files):
     before = {p: _file_identity(p) for p, _ in files}
     try:
         write_files(files)
-    except KeyboardInterrupt:
+        _succeeded(args)         # a signal up to the moment it ignores them is judged below
+    except KeyboardInterrupt:    # SIGTERM's Terminated too
         if not files or any(_file_identity(p) in (None, before[p]) for p in before):
             raise
-    _succeeded(args)
+        _succeeded(args)
 
 
 def _emit(args, result, human):
+    from hwbvh.files import json_text
     _succeeded(args)
     if args.json:
         sys.stdout.write(json_text(result) + "\n")
@@ -112,6 +113,7 @@ BUILD_OPTION_READERS = {"leaf_size": ("hwbvh",), "bins": ("hwbvh",),
 def _check_mesh_file(path, command):
     """A built-in scene's name given where a mesh file goes (and no such file is there) is
     said to be one."""
+    from hwbvh.errors import InputError
     from scenes.builtin import BUILTIN
     if path in BUILTIN and not os.path.exists(path):
         raise InputError(path, f"no such file; {path} is a built-in scene: {command} takes a "
@@ -121,7 +123,10 @@ def _check_mesh_file(path, command):
 def cmd_build(args):
     import time
     import numpy as np
+    from hwbvh import config
     from hwbvh.api import build, tree_files, warm_up
+    from hwbvh.errors import InputError
+    from hwbvh.files import check_outputs, json_text
     from hwbvh.primitives import as_triangles, load_mesh_arrays, pack_records, primitive_boxes
 
     _check_mesh_file(args.mesh, "build")
@@ -205,6 +210,7 @@ def _replay(path, tris, verts, faces):
     """Re-trace the rays of a mismatch file with both tracers and the float64 reference."""
     import numpy as np
     import hwbvh
+    from hwbvh.errors import InputError
     from traversal import Tracer
     from traversal.embree_ref import embree_intersect, embree_scene
     from traversal.verify import classify
@@ -232,6 +238,8 @@ def _stem(spec):
 def cmd_verify(args):
     import io
     import numpy as np
+    from hwbvh.errors import InputError
+    from hwbvh.files import check_outputs, json_text
     from traversal.verify import verify_mesh
 
     if args.replay:
@@ -296,6 +304,7 @@ def cmd_simulate(args):
 
 
 def cmd_explore(args):
+    from hwbvh.errors import ParameterError
     from .explore import KNOBS, explore, human, parse_grid
 
     try:
@@ -314,6 +323,8 @@ def cmd_explore(args):
 
 def cmd_render(args):
     import time
+    from hwbvh.errors import InputError
+    from hwbvh.files import check_outputs
     from raytracer.render import make_tracer, render, warm_up
     from raytracer.output import exr_writer, png_writer
     from scenes import compile_scene, load_scene, with_frame
@@ -517,6 +528,7 @@ def _bench_help(dest, what=None):
 
 def _bench_options(args):
     """Reject options the benchmark does not read; fill in the defaults of those it does."""
+    from hwbvh.errors import InputError
     table = BENCH_OPTIONS.get(args.what)
     if table is None:                       # a benchmark without a row: the common defaults
         for dest, default in BENCH_COMMON.items():
@@ -539,6 +551,7 @@ def _bench_options(args):
 
 
 def cmd_bench(args):
+    from hwbvh.files import check_output_dir
     from . import bench
     from . import study
     _bench_options(args)
@@ -570,6 +583,7 @@ def cmd_bench(args):
 
 def _write_report(args, result, human, commit):
     """OUT/<what>.md (the table and the command that made it) and OUT/<what>.json."""
+    from hwbvh.files import json_text
     from .report import command_of, made_by_block
     md = (f"# hwrt bench {args.what}\n\n{made_by_block(command_of(args))}```text\n{human(result)}\n```\n")
     commit([(os.path.join(args.out_dir, f"{args.what}.md"), md),
@@ -581,10 +595,10 @@ def _write_report(args, result, human, commit):
 # integers, and none is meaningful beyond this.
 MAX_OPTION_INT = (1 << 31) - 1
 # Tighter limits where a larger value would only exhaust memory or the machine: rays per query
-# set (2^26 rays hold some 1.5 GB of rays and answers), frames of an animation, triangles of a
-# generated animation (a tree holds 2^24), timed repeats, local Dask workers (one process each).
+# set (2^26 rays hold some 1.5 GB of rays and answers), triangles of a generated animation (a
+# tree holds 2^24), timed repeats, local Dask workers (one process each). Frames of an
+# animation: scenes.loader.MAX_FRAMES, which a scene file's animation.frames shares.
 MAX_RAYS = 1 << 26
-MAX_FRAMES = 100_000
 MAX_REPEAT = 1000
 MAX_WORKERS = 256
 
@@ -618,6 +632,7 @@ def _scene_limit(name):
 _film_side = _scene_limit("MAX_FILM_SIDE")
 _spp = _scene_limit("MAX_SPP")
 _depth = _scene_limit("MAX_DEPTH")
+_frames = _scene_limit("MAX_FRAMES")
 
 
 def _fps(v):
@@ -724,6 +739,7 @@ def _version():
 
 
 def make_parser():
+    from hwbvh import config
     from raytracer.render import ACCELS
     p = _Parser(prog="hwrt", description=DESCRIPTION, epilog=EPILOG)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
@@ -860,7 +876,7 @@ def make_parser():
                                     "same directory resumes at the first missing frame.")
     an.add_argument("scene", help="built-in animation (exploding, cloth, marbles, flythrough), "
                                   "scene file, or frame pattern of mesh files ('f_%%04d.ply' or a glob)")
-    an.add_argument("--frames", type=_int_at_least(1, MAX_FRAMES),
+    an.add_argument("--frames", type=_frames,
                     help="frames to render (default: the animation's)")
     an.add_argument("--fps", type=_fps,
                     help="frames per second of animation time (default: the animation's, else 30)")
@@ -933,7 +949,7 @@ def make_parser():
                          "structures rebuilt every frame beside the BVH's strategies (default: "
                          "every one)")
     from .animate import BENCH_FRAMES, BENCH_QUICK_FRAMES
-    be.add_argument("--frames", type=_int_at_least(1, MAX_FRAMES),
+    be.add_argument("--frames", type=_frames,
                     help=f"frames per animation (read by animation; default {BENCH_FRAMES}, "
                          f"with --quick {BENCH_QUICK_FRAMES})")
     be.add_argument("--json", action="store_true", help="print one JSON object")
@@ -978,6 +994,7 @@ def _input_message(parser, args, e):
     library parameter, or whose value (a path) the error names; the film size options for a
     film too large (the scene's key 'film.width' reports width x height), since --width,
     with or without --height, set it."""
+    from hwbvh.errors import ParameterError
     if isinstance(e, ParameterError):
         return f"{_option_of(parser, args, e.parameter) or e.parameter}: {e.problem}"
     key, _, problem = e.problem.partition(": ")
@@ -988,40 +1005,87 @@ def _input_message(parser, args, e):
     return f"{option} {e.source}: {e.problem}" if option else str(e)
 
 
-def main(argv=None):
+def _reads_mesh_files(args):
+    """Whether the command may read a mesh file: all but render and verify of a built-in scene."""
+    if args.command in ("render", "verify"):
+        from scenes.builtin import BUILTIN
+        return args.scene not in BUILTIN or os.path.exists(args.scene)
+    return True
+
+
+def _import_mesh_reader():
+    """Import trimesh with SIGINT and SIGTERM held. Several of its modules wrap their imports in
+    ``except BaseException``, which swallows the KeyboardInterrupt of a signal arriving there;
+    held, the signal is acted on as the import ends."""
+    from hwbvh.files import signals_held
+    with signals_held():
+        import trimesh  # noqa: F401
+
+
+def _run(argv, signals_owned):
+    """Parse ``argv`` and run its command; the exit status. Interrupts go to the caller."""
+    from hwbvh.errors import InputError
+    from hwbvh.parallel import check_threading
     parser = make_parser()
-    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
     args.argv = argv
+    args.signals_owned = signals_owned
+    try:
+        check_threading()
+        if _reads_mesh_files(args):
+            _import_mesh_reader()
+        args.func(args)
+    except InputError as e:
+        print(f"hwrt: error: {_input_message(parser, args, e)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as e:  # anything else is our fault, not the input's
+        print(f"hwrt: internal error: {type(e).__name__}: {e}", file=sys.stderr)
+        if os.environ.get(DEBUG_ENV):
+            raise
+        return 1
+    return 0
+
+
+def _main(argv, last_act):
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
         previous = {signal.SIGINT: signal.getsignal(signal.SIGINT),
                     signal.SIGTERM: signal.signal(signal.SIGTERM, _raise_terminated)}
     except ValueError:                        # not the main thread: leave signals alone
         previous = None
-    args.signals_owned = previous is not None
+    status = None
     try:
-        check_threading()
-        args.func(args)
-    except InputError as e:
-        print(f"hwrt: error: {_input_message(parser, args, e)}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        status = _run(argv, signals_owned=previous is not None)
+        return status
     except Terminated:
         print("hwrt: terminated", file=sys.stderr)
         return EXIT_SIGTERM
     except KeyboardInterrupt:
         print("hwrt: interrupted", file=sys.stderr)
         return EXIT_SIGINT
-    except Exception as e:  # anything else is our fault, not the input's
-        print(f"hwrt: internal error: {type(e).__name__}: {e}", file=sys.stderr)
-        if os.environ.get(DEBUG_ENV):
-            raise
-        return 1
     finally:
-        for sig, handler in (previous or {}).items():
-            if handler is not None:            # None: set outside Python, never changed here
-                signal.signal(sig, handler)
-    return 0
+        # a run that succeeded ignores the signals from _succeeded on; as the process's last
+        # act it goes on ignoring them through the interpreter's exit
+        if not (last_act and status == 0):
+            for sig, handler in (previous or {}).items():
+                if handler is not None:        # None: set outside Python, never changed here
+                    signal.signal(sig, handler)
+
+
+def main(argv=None):
+    """Run the command line ``argv`` (default: this process's arguments); its exit status.
+    The signal handlers it sets are put back as it returns, so it can be called in-process;
+    the console script is :func:`run`."""
+    return _main(argv, last_act=False)
+
+
+def run():
+    """The console script ``hwrt`` (and ``python -m hwrt``): :func:`main` as the process's last
+    act. Once the run has succeeded, SIGINT and SIGTERM stay ignored until the interpreter has
+    exited (flushing stdout and unloading the libraries takes tenths of a second), so that a
+    signal then cannot turn the success into 130 or 143."""
+    sys.exit(_main(None, last_act=True))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

@@ -341,3 +341,106 @@ def test_mesh_inputs_are_records_naming_files_by_stem_unless_shared(tmp_path):
     other_spelling = tmp_path / "b" / ".." / "a" / "s.ply"
     with pytest.raises(InputError, match="given twice$"):
         mesh_inputs(_mesh_args(meshes=[a, other_spelling]))
+
+
+# --------------------------------------------------------------------------------------
+# the process's signals: one line and 130 at any moment before success, 0 after it
+# --------------------------------------------------------------------------------------
+TETRA_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+
+# the console script's path (hwrt.cli.run) with ``{setup}`` run first: argv after the script
+CONSOLE_RUN = """
+import os, signal, sys, time
+{setup}
+import hwrt.cli
+sys.argv = ["hwrt", *sys.argv[1:]]
+hwrt.cli.run()
+"""
+
+
+def _console(setup, *argv):
+    return subprocess.run([sys.executable, "-c", CONSOLE_RUN.format(setup=setup), *map(str, argv)],
+                          capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+
+def test_the_console_script_is_run():
+    from importlib.metadata import entry_points
+    (script,) = [e for e in entry_points(group="console_scripts") if e.name == "hwrt"]
+    assert script.value == "hwrt.cli:run"
+
+
+def test_importing_the_command_line_loads_no_numerical_library():
+    """A Ctrl-C while the libraries load is handled by main, not shown as a traceback."""
+    r = subprocess.run([sys.executable, "-c", "import sys, hwrt.cli; print(sorted(m for m in "
+                        "('numpy', 'numba', 'hwbvh', 'scenes', 'raytracer') if m in sys.modules))"],
+                       capture_output=True, text=True, timeout=600,
+                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert r.stdout == "[]\n", r.stderr
+
+
+@pytest.mark.parametrize("sig,code,word", [("SIGINT", 130, "interrupted"),
+                                           ("SIGTERM", 143, "terminated")])
+def test_a_signal_while_the_parser_is_made_is_one_line(tmp_path, sig, code, word):
+    setup = f"""
+import hwrt.cli as cli
+real = cli.make_parser
+def make_parser():
+    os.kill(os.getpid(), signal.{sig})
+    time.sleep(1)                           # Python acts on the signal here
+    return real()
+cli.make_parser = make_parser
+"""
+    r = _console(setup, "build", "x.obj", "--out", tmp_path / "t")
+    assert r.returncode == code and r.stderr == f"hwrt: {word}\n" and r.stdout == ""
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_signal_as_the_interpreter_exits_after_a_success_is_ignored(tmp_path, sig):
+    """The report is printed: a signal while Python shuts down (here from an exit handler)
+    leaves exit status 0."""
+    setup = f"""
+import atexit
+def late():
+    os.kill(os.getpid(), signal.{sig})
+    time.sleep(0.5)                         # Python acts on the signal here unless ignored
+atexit.register(late)
+"""
+    mesh = tmp_path / "tetra.obj"
+    mesh.write_text(TETRA_OBJ)
+    r = _console(setup, "build", mesh, "--out", tmp_path / "tree", "--json")
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert json.loads(r.stdout)["triangles"] == 4
+
+
+def test_main_in_process_puts_the_handlers_back_after_a_success(tmp_path, capsys):
+    import signal
+    from hwrt.cli import main
+    mesh = tmp_path / "tetra.obj"
+    mesh.write_text(TETRA_OBJ)
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    assert main(["build", str(mesh)]) == 0
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+
+
+def test_a_signal_while_trimesh_is_imported_is_acted_on(tmp_path):
+    """trimesh catches BaseException around some of its imports: a Ctrl-C landing in one of
+    them still interrupts the run, with no output written."""
+    setup = """
+import importlib.abc
+class Interrupting(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        # scipy.sparse: first imported by trimesh, inside its `except BaseException`
+        if name == "scipy.sparse" and "trimesh" in sys.modules:
+            sys.meta_path.remove(self)
+            print("signalled", file=sys.stderr)
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.5)                 # Python acts on the signal here unless held
+        return None
+sys.meta_path.insert(0, Interrupting())
+"""
+    mesh = tmp_path / "tetra.obj"
+    mesh.write_text(TETRA_OBJ)
+    r = _console(setup, "build", mesh, "--out", tmp_path / "tree")
+    assert r.stderr == "signalled\nhwrt: interrupted\n" and r.returncode == 130
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tetra.obj"]

@@ -186,3 +186,22 @@ def test_build_writes_its_tree_and_dumps_whole_or_not_at_all(tmp_path, tetra, ca
                            "--dump-aabbs", out / "boxes.bin", "--dump-handoff", out / "handoff.bin")
     assert rc == code and stdout == "", err
     assert not out.exists() or list(out.iterdir()) == []
+
+
+def test_a_signal_as_the_run_turns_to_ignoring_signals_does_not_fail_it(tmp_path, tetra, capsys,
+                                                                        monkeypatch):
+    """SIGINT on entry to ``_succeeded``, after the last renames and before it ignores
+    signals: the outputs are in place, so the run has succeeded."""
+    real, signalled = cli._succeeded, []
+
+    def succeeded(args):
+        if not signalled:
+            signalled.append(True)
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.2)                   # Python acts on the signal here
+        real(args)
+    monkeypatch.setattr(cli, "_succeeded", succeeded)
+    out = tmp_path / "out"
+    rc, stdout, err = call(capsys, "build", tetra, "--out", out / "tree")
+    assert signalled and rc == 0 and "interrupted" not in err, err
+    assert sorted(p.name for p in out.iterdir()) == ["tree.indices", "tree.json", "tree.nodes"]
