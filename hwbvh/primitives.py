@@ -37,8 +37,8 @@ def _ply_face_count(path):
 # kind before the face's line, but trimesh counts it back from the file's last, so a file with
 # one is handed to trimesh with its negative indices made positive. 0 is no index, yet trimesh
 # reads it silently (as the first vertex). The text is rewritten by a compiled pass
-# (_obj_resolve); a file it cannot vouch for (a bad index, or a rare form such as "+1",
-# "1/2/3/4" or a continued last line) goes to the line-by-line reader (_obj_resolved_lines),
+# (_obj_resolve); a small file, or one it cannot vouch for (a bad index, or a rare form such as
+# "+1", "1/2/3/4" or a continued last line), goes to the line-by-line reader (_obj_resolved_lines),
 # which names the line of a bad index and is the reference the compiled pass is tested against.
 _OBJ_KINDS = (("vertex", "vertices"), ("texture coordinate", "texture coordinates"),
               ("normal", "normals"))
@@ -50,8 +50,20 @@ _OBJ_ODD_INDEX = rb"[ \t]*f(?:[ \t/]+[1-9][0-9]*)*+[ \t/]+[-0]"
 _OBJ_ODD_INDEX_FIRST_LINE = re.compile(_OBJ_ODD_INDEX)
 _OBJ_ODD_INDEX_LATER_LINE = re.compile(rb"\n" + _OBJ_ODD_INDEX)
 _OBJ_CONTINUATION = re.compile(rb"\\\r?\n")
-# a file ending in a continued line ends in a line of its own, which joining leaves out
+# A file ending in a continued line: the reader ends it there, as a line of its own. If the file
+# ends in a backslash (and at most a CR), removing _OBJ_CONTINUATION leaves that backslash in; if
+# it ends "\\\n" or "\\\r\n", the joined text is the same but for a last line holding only
+# continuations (as in "f 1 2 3\n\\\n"), which the reader keeps as an empty line and the text
+# loses. Such files are rare: all four go to the reader.
 _OBJ_CONTINUED_END = (b"\\", b"\\\r", b"\\\n", b"\\\r\n")
+# A continued line ending in CR ("...\r\\\n"): the reader strips the CR of a line end only, so if
+# the line joined to it is empty that CR stays in the line, which the joined text ends in CRLF.
+_OBJ_CR_BEFORE_CONTINUATION = re.compile(rb"\r\\\r?\n")
+# Below this size an OBJ file with a negative index is rewritten by the line-by-line reader, which
+# takes ~0.1 s per MB (~30 ms at this size): the compiled pass, though ~20x faster, is compiled on
+# first use where Numba's cache is empty or unwritable (~3.5 s), and the small files where that
+# would dominate (examples, tests, hand-written scenes) are the common ones; large files repay it.
+_OBJ_COMPILED_MIN_BYTES = 256 * 1024
 
 
 def _obj_lines(raw_lines):
@@ -139,21 +151,31 @@ def _obj_resolved_text(path, data):
     """The text :func:`_obj_resolved_lines` makes of OBJ file ``path`` whose bytes are ``data``
     (each line ending in "\\n"): made by the compiled pass, or for a file that pass leaves to
     it, by the line-by-line reader, which raises InputError naming the line of a bad index."""
-    text = _obj_compiled_text(data)
+    text = _obj_compiled_text(data) if len(data) >= _OBJ_COMPILED_MIN_BYTES else None
     if text is None:
-        text = b"".join([line + b"\n" for line in _obj_resolved_lines(path, io.BytesIO(data))])
+        out = io.BytesIO()              # not a list of the lines: each would be an object
+        for line in _obj_resolved_lines(path, io.BytesIO(data)):
+            out.write(line)
+            out.write(b"\n")
+        text = out.getvalue()
     return text
 
 
 def _obj_compiled_text(data):
     """The text :func:`_obj_resolved_lines` makes of OBJ bytes ``data``, made at compiled
     speed; or None for a file with a bad face index or a rare form (see _obj_face_indices),
-    or whose last line is continued."""
-    if data.endswith(_OBJ_CONTINUED_END):
+    or whose last line is continued into nothing, or that has a continued line ending in CR."""
+    if data.endswith(_OBJ_CONTINUED_END) or _OBJ_CR_BEFORE_CONTINUATION.search(data):
         return None
     text = _OBJ_CONTINUATION.sub(b"", data)
-    # a rewritten index "-n" (2+ bytes) becomes at most 19 digits; the last line gains "\n"
-    out = np.empty(len(text) + 1 + 17 * text.count(b"-"), dtype=np.uint8)
+    # The output never outgrows the text but where an index "-n" is rewritten (and by the "\n"
+    # the last line may gain): a face line is otherwise copied or shortened (one space for each
+    # run of blanks, no CR). "-n" is 2+ bytes, and its positive index is at most the count of
+    # elements of its kind before it, so at most the count of lines: it adds at most that
+    # count's digits less 2 bytes. Counting every "-" (coordinates, comments too) keeps this a
+    # bound; _obj_resolve writes unchecked, so it must be one.
+    index_digits = len(b"%d" % (text.count(b"\n") + 1))
+    out = np.empty(len(text) + 1 + max(0, index_digits - 2) * text.count(b"-"), dtype=np.uint8)
     size = _obj_resolve(np.frombuffer(text, dtype=np.uint8), out)
     return out[:size].tobytes() if size >= 0 else None
 
