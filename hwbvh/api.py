@@ -15,7 +15,7 @@ import numpy as np
 from . import config
 from .builder import build_canonical, check_params
 from .errors import InputError, ParameterError
-from .files import json_text, write_files
+from .files import json_text, made_as_written, write_files
 from .format import NODE_DTYPE, pack_indices, tree_stats, unpack_indices, validate
 from .layout import lay_out
 from .parallel import check_threading
@@ -136,13 +136,22 @@ def warm_up(builder="hwbvh", parallel=False):
     return time.perf_counter() - t
 
 
-def tree_files(bvh, prefix):
-    """The (path, data) pairs of PREFIX.nodes, PREFIX.indices and PREFIX.json (SPEC 4), for
-    :func:`hwbvh.files.write_files` (alone, or in one set with other files)."""
+TREE_EXTENSIONS = (".nodes", ".indices", ".json")      # SPEC 4, in the order they are written
+
+
+def tree_paths(prefix):
+    """The files a tree saved under ``prefix`` is: PREFIX.nodes, PREFIX.indices, PREFIX.json."""
     prefix = os.fspath(prefix)
-    return [(prefix + ".nodes", bvh.nodes.tobytes()),
-            (prefix + ".indices", pack_indices(bvh.indices)),
-            (prefix + ".json", json_text(bvh.meta, indent=2) + "\n")]
+    return [prefix + ext for ext in TREE_EXTENSIONS]
+
+
+def tree_files(bvh, prefix):
+    """The (path, data) pairs of :func:`tree_paths` for :func:`hwbvh.files.write_files` (alone,
+    or in one set with other files); each file's bytes are made as it is written."""
+    nodes, indices, meta = tree_paths(prefix)
+    return [(nodes, made_as_written(lambda: bvh.nodes)),
+            (indices, made_as_written(lambda: pack_indices(bvh.indices))),
+            (meta, json_text(bvh.meta, indent=2) + "\n")]
 
 
 def save(bvh, prefix):

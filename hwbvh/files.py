@@ -219,6 +219,16 @@ def write_files(pairs):
                 os.unlink(tmp)
 
 
+def made_as_written(make):
+    """A ``write(tmp_path)`` for :func:`write_files` that calls ``make()`` (bytes, or a buffer
+    such as an array) only as its file is written: a set of large files then holds one payload
+    in memory at a time, not all of them."""
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            f.write(make())
+    return write
+
+
 def figure_png(fig, dpi=100):
     """A matplotlib figure as PNG bytes (for :func:`write_files`); closes the figure."""
     import io

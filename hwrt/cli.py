@@ -58,7 +58,9 @@ def _commit(args, files):
     on it as the renames end: if every path is then a new file (each renamed temporary file
     is one, made while the old file was still there), the outputs are in place and the signal
     came too late to undo them, so it is dropped. The commands whose last files are written
-    in a library function (explore, the benchmarks, animate) pass this down as its ``commit``."""
+    in a library function (explore, animate, the benchmarks in BENCH_COMMITS) pass this down
+    as its ``commit``; the --out-dir reports of the others go through :func:`_write_report`,
+    which writes them with it too."""
     from hwbvh.files import write_files
     files = [(os.fspath(p), data) for p, data in files]
     before = {p: _file_identity(p) for p, _ in files}
@@ -124,9 +126,9 @@ def cmd_build(args):
     import time
     import numpy as np
     from hwbvh import config
-    from hwbvh.api import build, tree_files, warm_up
+    from hwbvh.api import build, tree_files, tree_paths, warm_up
     from hwbvh.errors import InputError
-    from hwbvh.files import check_outputs, json_text
+    from hwbvh.files import check_outputs, json_text, made_as_written
     from hwbvh.primitives import as_triangles, load_mesh_arrays, pack_records, primitive_boxes
 
     _check_mesh_file(args.mesh, "build")
@@ -145,7 +147,7 @@ def cmd_build(args):
             raise InputError("--out", f"{args.out} {problem}; give a prefix of file names such as "
                                       f"{os.path.join(args.out, 'tree')} (writes PREFIX.nodes, "
                                       f"PREFIX.indices and PREFIX.json)")
-        planned += [args.out + ext for ext in (".nodes", ".indices", ".json")]
+        planned += tree_paths(args.out)
     if args.dump_aabbs:
         planned.append(args.dump_aabbs)
     if args.dump_handoff:
@@ -171,22 +173,23 @@ def cmd_build(args):
              if getattr(args, dest) is not None}           # the others: the library's defaults
     bvh = build(tris, builder=args.builder, validate_tree=True, source_name=args.mesh, **given)
     result = dict(bvh.meta, startup_seconds=startup)
-    # the tree and the dumps are one set: all of them appear, or none
+    # the tree and the dumps are one set: all of them appear, or none; each file's bytes are
+    # made as it is written, so that only one payload is in memory at a time
     files = tree_files(bvh, args.out) if args.out else []
     if args.dump_aabbs or args.dump_handoff:
         boxes = primitive_boxes(bvh.triangles)
         if args.dump_aabbs:
-            files.append((args.dump_aabbs, pack_records(boxes)))
+            files.append((args.dump_aabbs, made_as_written(lambda: pack_records(boxes))))
         if args.dump_handoff:
             order, sizes = bvh.handoff_order()
-            files.append((args.dump_handoff, pack_records(boxes, order)))
+            files.append((args.dump_handoff, made_as_written(lambda: pack_records(boxes, order))))
             files.append((args.dump_handoff + ".json",
                           json_text({"record_bytes": config.PRIMITIVE_RECORD_BYTES,
                                      "handoff_sizes": sizes}) + "\n"))
             result["handoff_sizes"] = [int(x) for x in sizes]
     _commit(args, files)
-    # every planned file is in place here (a signal at the renames is dropped only then), even
-    # when the signal cut the write call short of returning
+    # _commit returns only with every planned file in place: it drops a signal at the renames
+    # only when every file was then renamed
     result["outputs"] = planned
     keys = ["builder", "triangles", "nodes", "leaves", "max_depth", "sah_cost", "fallback_splits",
             "build_seconds", "startup_seconds", "handoffs", "outputs"]
@@ -552,33 +555,42 @@ def _bench_options(args):
 
 def cmd_bench(args):
     from hwbvh.files import check_output_dir
-    from . import bench
     from . import study
     _bench_options(args)
     if args.what in BENCH_WRITES_OUT_DIR:
         check_output_dir(args.out_dir, study.output_names(args.what), inputs=args.meshes)
-    fn = {"build": bench.bench_build, "scale": bench.bench_scale,
-          "trace": bench.bench_trace, "render": bench.bench_render,
-          "tti": study.bench_tti, "accuracy": study.bench_accuracy,
-          "model": bench.bench_model}.get(args.what)
     if args.what in BENCH_REPORTS and args.out_dir:
         check_output_dir(args.out_dir, [f"{args.what}.md", f"{args.what}.json"], inputs=args.meshes)
-    if args.what == "contention":
-        from . import contention
-        fn, human = contention.bench_contention, contention.human
-    elif args.what == "trees":
-        from . import trees
-        fn, human = trees.bench_trees, trees.human
-    elif args.what == "animation":
-        from . import animate
-        fn, human = animate.bench_animation, animate.human_bench
-    else:
-        human = bench.human(args.what)
+    run, human = _bench_run(args.what)
     commit = partial(_commit, args)
-    result = fn(args, commit=commit) if args.what in BENCH_COMMITS else fn(args)
+    result = run(args, commit=commit)
     if args.what in BENCH_REPORTS and args.out_dir:
         _write_report(args, result, human, commit)
     _emit(args, result, human)
+
+
+def _bench_run(what):
+    """(run, human) of benchmark ``what``: ``run(args, commit=)`` runs it, ``human(result)`` shows
+    its result. Those in BENCH_COMMITS write their last set of files through ``commit``; the
+    others write no file (their --out-dir report is written by :func:`_write_report`)."""
+    from . import bench, study
+    if what == "contention":
+        from . import contention
+        fn, human = contention.bench_contention, contention.human
+    elif what == "trees":
+        from . import trees
+        fn, human = trees.bench_trees, trees.human
+    elif what == "animation":
+        from . import animate
+        fn, human = animate.bench_animation, animate.human_bench
+    else:
+        fn = {"build": bench.bench_build, "scale": bench.bench_scale, "trace": bench.bench_trace,
+              "render": bench.bench_render, "tti": study.bench_tti,
+              "accuracy": study.bench_accuracy, "model": bench.bench_model}[what]
+        human = bench.human(what)
+    if what in BENCH_COMMITS:
+        return fn, human
+    return (lambda args, commit: fn(args)), human
 
 
 def _write_report(args, result, human, commit):

@@ -2,6 +2,7 @@
 into place, or between it and the report, gives exit status 0 with every output there, for
 every command that writes files. And what build writes (its tree and its dumps) appears
 whole or not at all."""
+import json
 import os
 import signal
 import time
@@ -78,7 +79,8 @@ def _study_args(mesh_dir, out, **more):
 # cluster runs them here first, in this process, so that the command line only resumes them
 # (seconds, no cluster) and leaves the files the first run left (None).
 def _build(tmp_path, tetra, mesh_dir):
-    # the dump is renamed first: the tree's files must follow it all the same
+    # the tree's files are renamed first: a signal at a dump's rename, after them, must
+    # leave the dumps' files in place all the same
     out = tmp_path / "out"
     return (["build", tetra, "--out", out / "tree", "--dump-aabbs", out / "boxes.bin",
              "--dump-handoff", out / "handoff.bin"], "boxes.bin", out,
@@ -161,7 +163,7 @@ def test_a_signal_once_the_last_outputs_are_written_does_not_fail_the_run(
     assert (out / trigger).stat().st_ino != before.get(trigger)
 
 
-def test_every_benchmark_with_an_out_dir_writes_its_last_files_through_commit():
+def test_each_benchmark_with_an_out_dir_is_listed_as_a_report_or_a_committer_not_both():
     writers = [w for w, opts in BENCH_OPTIONS.items() if "out_dir" in opts]
     assert sorted(writers) == sorted(BENCH_REPORTS + BENCH_COMMITS)
     assert not set(BENCH_REPORTS) & set(BENCH_COMMITS)
@@ -205,3 +207,36 @@ def test_a_signal_as_the_run_turns_to_ignoring_signals_does_not_fail_it(tmp_path
     rc, stdout, err = call(capsys, "build", tetra, "--out", out / "tree")
     assert signalled and rc == 0 and "interrupted" not in err, err
     assert sorted(p.name for p in out.iterdir()) == ["tree.indices", "tree.json", "tree.nodes"]
+
+
+def test_build_makes_each_file_as_it_writes_it(tmp_path, tetra, capsys, monkeypatch):
+    """The tree and the dumps are one set, but their bytes are not all in memory at once:
+    each payload is made once its temporary file exists, in the order they are written."""
+    import hwbvh.api
+    import hwbvh.files as files
+    import hwbvh.primitives as primitives
+    events = []
+    real_mkstemp, real_pack_records = files.tempfile.mkstemp, primitives.pack_records
+    real_pack_indices = hwbvh.api.pack_indices
+
+    def mkstemp(*args, **kwargs):
+        events.append("file " + kwargs["suffix"])
+        return real_mkstemp(*args, **kwargs)
+
+    def pack(real, name):
+        def made(*args, **kwargs):
+            events.append(name)
+            return real(*args, **kwargs)
+        return made
+    monkeypatch.setattr(files.tempfile, "mkstemp", mkstemp)
+    monkeypatch.setattr(primitives, "pack_records", pack(real_pack_records, "records"))
+    monkeypatch.setattr(hwbvh.api, "pack_indices", pack(real_pack_indices, "indices"))
+    out = tmp_path / "out"
+    rc, stdout, err = call(capsys, "build", tetra, "--out", out / "tree", "--dump-aabbs",
+                           out / "boxes.bin", "--dump-handoff", out / "handoff.bin", "--json")
+    assert rc == 0, err
+    assert events == ["file .nodes", "file .indices", "indices", "file .json",
+                      "file .bin", "records", "file .bin", "records", "file .json"]
+    from hwbvh.api import tree_paths
+    assert json.loads(stdout)["outputs"] == tree_paths(str(out / "tree")) + [
+        str(out / "boxes.bin"), str(out / "handoff.bin"), str(out / "handoff.bin.json")]
