@@ -209,20 +209,93 @@ def _scene_geometry(name):
         faces.astype(np.int32)
 
 
+def _scene_inputs(spec):
+    """The files a scene reads: the scene file, and the mesh and frame files its shapes name
+    (a problem with one of them is reported when the scene is loaded)."""
+    from hwbvh.errors import InputError
+    from scenes import load_scene
+    from scenes.animation import expand_pattern
+    inputs = [spec]
+    if not str(spec).lower().endswith((".json", ".toml")) or not os.path.isfile(spec):
+        return inputs
+    try:
+        shapes = load_scene(spec).get("shapes")
+    except InputError:
+        return inputs
+    scene_dir = os.path.dirname(os.path.abspath(spec))
+    for sh in shapes if isinstance(shapes, list) else ():
+        for key in ("filename", "pattern"):
+            name = sh.get(key) if isinstance(sh, dict) else None
+            if not isinstance(name, str):
+                continue
+            full = os.path.join(scene_dir, name)       # an absolute name stays itself
+            if key == "filename":
+                inputs.append(full)
+                continue
+            try:
+                inputs += expand_pattern(full)
+            except InputError:
+                pass
+    return inputs
+
+
+# The arrays of a mismatch file (hwrt verify writes them) that --replay reads: key -> the
+# shape of one ray's entry
+REPLAY_ARRAYS = {"origins": (3,), "dirs": (3,), "tmax": ()}
+
+
+def _replay_rays(path):
+    """(origins, dirs, tmax) of mismatch file ``path``, checked: InputError naming the file and
+    the key for anything but finite float arrays of one length (tmax may be infinite) and
+    non-zero directions."""
+    import zipfile
+    import numpy as np
+    from hwbvh.errors import InputError
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {}
+            for key, shape in REPLAY_ARRAYS.items():
+                if key not in data.files:
+                    raise InputError(path, f"not a mismatch file from hwrt verify (no key '{key}')")
+                try:
+                    a = data[key]
+                except ValueError:                    # an object array needs pickle
+                    a = None
+                if a is None or a.dtype.kind not in "fiu" or a.ndim != 1 + len(shape) \
+                        or a.shape[1:] != shape:
+                    want = "(n, 3)" if shape else "(n,)"
+                    raise InputError(path, f"key '{key}': expected a {want} array of numbers, got "
+                                           + ("an object array" if a is None else
+                                              f"{a.dtype} of shape {a.shape}"))
+                arrays[key] = a.astype(np.float64 if key == "tmax" else np.float32)
+    except InputError:                                # (a ValueError)
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+        raise InputError(path, "not a mismatch file from hwrt verify (not an .npz archive)") from None
+    O, D, tmax = arrays["origins"], arrays["dirs"], arrays["tmax"]
+    if not len(O) == len(D) == len(tmax):
+        raise InputError(path, f"keys 'origins', 'dirs' and 'tmax' hold {len(O)}, {len(D)} and "
+                               f"{len(tmax)} rays; expected one length")
+    for key, a in (("origins", O), ("dirs", D)):
+        if not np.isfinite(a).all():
+            raise InputError(path, f"key '{key}': not every value is finite")
+    if np.isnan(tmax).any() or (tmax <= 0).any():
+        raise InputError(path, "key 'tmax': expected positive numbers (inf for no bound)")
+    if (~D.any(axis=1)).any():
+        raise InputError(path, f"key 'dirs': ray {int(np.flatnonzero(~D.any(axis=1))[0])} has "
+                               f"a zero direction")
+    return O, D, tmax
+
+
 def _replay(path, tris, verts, faces):
     """Re-trace the rays of a mismatch file with both tracers and the float64 reference."""
     import numpy as np
     import hwbvh
-    from hwbvh.errors import InputError
     from traversal import Tracer
     from traversal.embree_ref import embree_intersect, embree_scene
     from traversal.verify import classify
 
-    try:
-        data = np.load(path)
-        O, D, tmax = data["origins"], data["dirs"], data["tmax"]
-    except (OSError, KeyError, ValueError) as e:
-        raise InputError(path, f"not a mismatch file from hwrt verify ({e})") from None
+    O, D, tmax = _replay_rays(path)
     h = Tracer(hwbvh.build(tris)).intersect(O, D, 0.0, tmax)
     te, pe, *_ = embree_intersect(embree_scene(verts, faces), O, D,
                                   None if np.isinf(tmax).all() else tmax)
@@ -260,7 +333,7 @@ def cmd_verify(args):
     rays = VERIFY_RAYS if args.rays is None else args.rays
     kind = args.kind or VERIFY_KIND
     out = args.mismatches or os.path.join("renders", f"verify-{_stem(args.scene)}-{kind}-mismatches.npz")
-    check_outputs([out], inputs=[args.scene])
+    check_outputs([out], inputs=_scene_inputs(args.scene))
     label, tris, verts, faces = _scene_geometry(args.scene)
     tracer = None
     if args.accel == "grid":

@@ -938,3 +938,36 @@ def test_a_scene_given_to_build_or_simulate_is_said_to_be_one(capsys):
 def test_every_command_opens_its_help_with_a_description():
     for name, sub in _subparsers(make_parser()).items():
         assert sub.description, name
+
+
+def test_verify_refuses_mismatches_over_a_mesh_its_scene_reads(capsys, tmp_path, tetra):
+    scene = tmp_path / "s.json"
+    scene.write_text(json.dumps(scene_dict(shapes=[{"type": "mesh", "filename": tetra.name, "material": "m"}])))
+    before = tetra.read_bytes()
+    rc, _, err = call(capsys, "verify", scene, "--rays", 10, "--mismatches", tetra)
+    assert rc == 2 and "is an input of this run" in one_line_error(err)
+    assert tetra.read_bytes() == before
+
+
+@pytest.mark.parametrize("arrays,problem", [
+    ({"origins": np.zeros((2, 2)), "dirs": np.ones((2, 3)), "tmax": np.ones(2)}, "key 'origins'"),
+    ({"origins": np.array(["a", "b"]), "dirs": np.ones((2, 3)), "tmax": np.ones(2)},
+     "key 'origins'"),
+    ({"origins": np.zeros((2, 3)), "dirs": np.ones((3, 3)), "tmax": np.ones(2)}, "one length"),
+    ({"origins": np.zeros((2, 3)), "dirs": np.ones((2, 3))}, "no key 'tmax'"),
+    ({"origins": np.full((2, 3), np.nan), "dirs": np.ones((2, 3)), "tmax": np.ones(2)},
+     "key 'origins': not every value is finite"),
+    ({"origins": np.zeros((2, 3)), "dirs": np.zeros((2, 3)), "tmax": np.ones(2)},
+     "key 'dirs': ray 0 has a zero direction"),
+    (None, "not an .npz archive")])
+def test_replay_of_a_malformed_file_is_one_line_naming_the_file(capsys, tmp_path, tetra,
+                                                                arrays, problem):
+    f = tmp_path / "m.npz"
+    if arrays is None:
+        f.write_text("origins dirs tmax\n")
+    else:
+        np.savez(f, **arrays)
+    rc, out, err = call(capsys, "verify", tetra, "--replay", f)
+    line = one_line_error(err)
+    assert rc == 2 and out == "" and line.startswith(f"hwrt: error: --replay {f}: ") and problem in line
+    assert "pickle" not in line
