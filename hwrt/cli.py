@@ -809,6 +809,7 @@ class _Parser(argparse.ArgumentParser):
 
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("formatter_class", _HelpFormatter)
+        kwargs.setdefault("allow_abbrev", False)    # --wid is no --width: options are spelled out
         super().__init__(*args, **kwargs)
 
     def error(self, message):

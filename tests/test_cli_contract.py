@@ -971,3 +971,12 @@ def test_replay_of_a_malformed_file_is_one_line_naming_the_file(capsys, tmp_path
     line = one_line_error(err)
     assert rc == 2 and out == "" and line.startswith(f"hwrt: error: --replay {f}: ") and problem in line
     assert "pickle" not in line
+
+
+@pytest.mark.parametrize("argv", [["render", "--wid", "10"], ["build", "x.obj", "--leaf", "2"],
+                                  ["bench", "build", "--rep", "1"]])
+def test_an_abbreviated_option_is_not_taken_for_the_whole(capsys, argv):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    assert f"unrecognized arguments: {argv[-2]}" in capsys.readouterr().err
