@@ -437,6 +437,9 @@ def cmd_animate(args, commit=write_files):
         v = getattr(args, key, None)
         if v is not None and v < 1:
             raise InputError(f"--{key.replace('_', '-')}", f"must be at least 1, got {v}")
+    if args.threshold is not None and args.strategy in STRATEGIES and args.strategy != "adaptive":
+        raise InputError("--threshold", f"is read by --strategy adaptive only, not "
+                                        f"{args.strategy}")
     anim = open_animation(args.scene, width=args.width, height=args.height, spp=args.spp,
                           max_depth=args.max_depth, fps=args.fps, mesh=args.mesh,
                           triangles=args.triangles, physics=args.physics)

@@ -201,7 +201,7 @@ def _scene_geometry(name):
     from hwbvh.primitives import as_triangles, load_mesh_arrays
     import numpy as np
     from scenes import is_scene, load_scene_geometry
-    if is_scene(name):
+    if is_scene(name) or not os.path.exists(name):     # the scene loader names a missing one
         return load_scene_geometry(name)
     verts, faces = load_mesh_arrays(name)
     tris = as_triangles(verts[faces], source=name)
@@ -380,9 +380,14 @@ def cmd_simulate(args):
 
 
 def cmd_explore(args):
-    from hwbvh.errors import ParameterError
+    from hwbvh.errors import InputError, ParameterError
+    from .cluster import SCHEDULER_ENV
     from .explore import KNOBS, explore, human, parse_grid
 
+    if args.workers is not None and (args.scheduler or os.environ.get(SCHEDULER_ENV)):
+        given = "--scheduler" if args.scheduler else f"${SCHEDULER_ENV}"
+        raise InputError("--workers", f"sizes the local cluster, which is not made when "
+                                      f"{given} names a running scheduler")
     try:
         grid = parse_grid(args.grid) if args.grid else None
         from .report import command_of
@@ -728,6 +733,16 @@ def _fps(v):
     return x
 
 
+def _path(v):
+    """A path option's value: not empty (an empty one would silently mean the current
+    directory, or no file at all) and without NUL bytes."""
+    if not v:
+        raise argparse.ArgumentTypeError("expected a path, got an empty value")
+    if "\0" in v:
+        raise argparse.ArgumentTypeError(f"a path cannot hold a NUL byte, got {v!r}")
+    return v
+
+
 def _positive_float(v):
     try:
         x = float(v)
@@ -851,11 +866,11 @@ def make_parser():
     b.add_argument("--block-nodes", type=_positive,
                    help=f"nodes per block of the upper builder's pool, placement only; hwbvh "
                         f"and sweep (default: {config.DEFAULT_BLOCK_NODES})")
-    b.add_argument("--out", metavar="PREFIX",
+    b.add_argument("--out", metavar="PREFIX", type=_path,
                    help="write PREFIX.nodes, PREFIX.indices and PREFIX.json (default: no files)")
-    b.add_argument("--dump-aabbs", metavar="F",
+    b.add_argument("--dump-aabbs", metavar="F", type=_path,
                    help="write the 27-byte primitive records as the hardware reads them")
-    b.add_argument("--dump-handoff", metavar="F",
+    b.add_argument("--dump-handoff", metavar="F", type=_path,
                    help="write the records in upper-builder hand-off order, sizes in F.json")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=cmd_build)
@@ -898,7 +913,7 @@ def make_parser():
                         "else a local cluster of one worker per core)")
     x.add_argument("--workers", type=_int_at_least(1, MAX_WORKERS),
                    help="workers of the local cluster (default: one per core)")
-    x.add_argument("--out-dir", default="renders/explore", help="where the files and the "
+    x.add_argument("--out-dir", default="renders/explore", type=_path, help="where the files and the "
                                                                 "resumable cells go")
     x.add_argument("--fresh", action="store_true", help="ignore finished cells")
     x.add_argument("--json", action="store_true", help="print one JSON object")
@@ -909,7 +924,7 @@ def make_parser():
     r.add_argument("scene", nargs="?", default="cornell",
                    help="built-in scene (cornell, marbles, cloth, room), scene file (.json, "
                         ".toml), or mesh file (default: cornell)")
-    r.add_argument("-o", "--output", metavar="FILE.exr",
+    r.add_argument("-o", "--output", metavar="FILE.exr", type=_path,
                    help="EXR path (default: renders/<scene>.exr)")
     r.add_argument("--width", type=_film_side, help="image width (default: the scene's)")
     r.add_argument("--height", type=_film_side, help="image height (default: the scene's)")
@@ -944,13 +959,13 @@ def make_parser():
                    help=f"rays to trace; exactly these many (default: {VERIFY_RAYS})")
     v.add_argument("--kind", choices=["primary", "random", "bounces", "shadow"],
                    help=f"the ray set (default: {VERIFY_KIND})")
-    v.add_argument("--mismatches", metavar="F.npz",
+    v.add_argument("--mismatches", metavar="F.npz", type=_path,
                    help="where mismatching rays are written (default: "
                         "renders/verify-<scene>-<kind>-mismatches.npz, only if there are any)")
     v.add_argument("--accel", choices=ACCELS, default="bvh",
                    help="acceleration structure checked: bvh (hwbvh's tree), grid (uniform grid) "
                         "or kdtree (SAH kd-tree)")
-    v.add_argument("--replay", metavar="F.npz",
+    v.add_argument("--replay", metavar="F.npz", type=_path,
                    help="re-trace the rays of a mismatch file instead (default: a new run)")
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=cmd_verify)
@@ -981,7 +996,7 @@ def make_parser():
     an.add_argument("--spp", type=_spp, help="samples per pixel (default: the animation's)")
     an.add_argument("--max-depth", type=_depth,
                     help="longest reflection/refraction path (default: the animation's)")
-    an.add_argument("--mesh", help="exploding: the mesh that breaks (default: the bunny of the mesh "
+    an.add_argument("--mesh", type=_path, help="exploding: the mesh that breaks (default: the bunny of the mesh "
                                    "directory, $HWRT_MESHES, else ../shared/meshes if it is "
                                    "there; without either, a generated sphere)")
     an.add_argument("--triangles", type=_int_at_least(1, config.MAX_PRIMITIVES),
@@ -990,7 +1005,7 @@ def make_parser():
     an.add_argument("--verify", action="store_true",
                     help="check every ray (closest hits and shadows) against Embree")
     an.add_argument("--seed", type=_non_negative, default=0, help="seed of the pixel jitter")
-    an.add_argument("-o", "--output", metavar="DIR",
+    an.add_argument("-o", "--output", metavar="DIR", type=_path,
                     help="output directory (default: renders/animate-<scene>-<strategy>)")
     an.add_argument("--json", action="store_true", help="print one JSON object")
     an.set_defaults(func=cmd_animate)
@@ -1010,7 +1025,7 @@ def make_parser():
     be.add_argument("meshes", nargs="*", default=[], metavar="MESH",
                     help=f"{BENCH_MESHES[None]}; " + "; ".join(
                         f"{what}: {text}" for what, text in BENCH_MESHES.items() if what))
-    be.add_argument("--mesh-dir", help=_bench_help("mesh_dir"))
+    be.add_argument("--mesh-dir", type=_path, help=_bench_help("mesh_dir"))
     be.add_argument("--repeat", type=_int_at_least(1, MAX_REPEAT),
                     help=_bench_help("repeat"))
     be.add_argument("--rays", type=_int_at_least(1, MAX_RAYS),
@@ -1019,7 +1034,7 @@ def make_parser():
                     help=_bench_help("quick"))
     be.add_argument("--fresh", action="store_true",
                     help=_bench_help("fresh"))
-    be.add_argument("--out-dir", help=_bench_help("out_dir"))
+    be.add_argument("--out-dir", type=_path, help=_bench_help("out_dir"))
     be.add_argument("--scheduler", metavar="ADDRESS",
                     help=_bench_help("scheduler"))
     be.add_argument("--width", type=_film_side, help=_bench_help("width"))
@@ -1082,6 +1097,10 @@ def _input_message(parser, args, e):
     with or without --height, set it."""
     from hwbvh.errors import ParameterError
     if isinstance(e, ParameterError):
+        if e.parameter == "scheduler" and getattr(args, "scheduler", None) is None:
+            from .cluster import SCHEDULER_ENV       # the address came from the environment
+            if os.environ.get(SCHEDULER_ENV):
+                return f"${SCHEDULER_ENV}: {e.problem}"
         return f"{_option_of(parser, args, e.parameter) or e.parameter}: {e.problem}"
     key, _, problem = e.problem.partition(": ")
     if key == "key 'film.width'" and getattr(args, "width", None) is not None:

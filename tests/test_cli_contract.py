@@ -980,3 +980,62 @@ def test_an_abbreviated_option_is_not_taken_for_the_whole(capsys, argv):
         main(argv)
     assert e.value.code == 2
     assert f"unrecognized arguments: {argv[-2]}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["build", "x.obj", "--out", ""], "--out"),
+    (["build", "x.obj", "--dump-aabbs", ""], "--dump-aabbs"),
+    (["render", "cornell", "-o", ""], "-o/--output"),
+    (["explore", "x.obj", "--out-dir", ""], "--out-dir"),
+    (["verify", "cornell", "--mismatches", ""], "--mismatches"),
+    (["animate", "exploding", "-o", ""], "-o/--output"),
+    (["bench", "build", "--out-dir", ""], "--out-dir")])
+def test_an_empty_path_is_refused_naming_its_option(capsys, tmp_path, monkeypatch, argv, option):
+    """An empty path would mean the current directory, or no file at all, without a word."""
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = call(capsys, *argv)
+    line = one_line_error(err)
+    assert rc == 2 and out == "" and f"argument {option}: expected a path" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_verify_of_a_misspelt_scene_lists_the_built_in_scenes(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = call(capsys, "verify", "cornel")
+    assert rc == 2 and one_line_error(err) == \
+        "hwrt: error: cornel: no such scene or file (built-in scenes: cornell, marbles, cloth, room)"
+
+
+@pytest.mark.parametrize("strategy", ["rebuild", "refit", "embree"])
+def test_animate_refuses_a_threshold_its_strategy_does_not_read(capsys, tmp_path, strategy):
+    rc, out, err = call(capsys, "animate", "exploding", "--strategy", strategy, "--threshold", "2",
+                        "-o", tmp_path / "a")
+    assert rc == 2 and one_line_error(err) == \
+        f"hwrt: error: --threshold: is read by --strategy adaptive only, not {strategy}"
+    assert not (tmp_path / "a").exists()
+
+
+@pytest.mark.parametrize("from_env", [False, True])
+def test_explore_refuses_workers_beside_a_running_scheduler(capsys, tmp_path, monkeypatch, from_env):
+    """--workers sizes the local cluster, which a scheduler address replaces."""
+    argv = ["explore", tmp_path / "x.obj", "--workers", "2", "--out-dir", tmp_path / "e"]
+    (tmp_path / "x.obj").write_text(TETRA_OBJ)
+    monkeypatch.delenv("HWRT_SCHEDULER", raising=False)
+    if from_env:
+        monkeypatch.setenv("HWRT_SCHEDULER", "tcp://127.0.0.1:1")
+    else:
+        argv += ["--scheduler", "tcp://127.0.0.1:1"]
+    rc, out, err = call(capsys, *argv)
+    given = "$HWRT_SCHEDULER" if from_env else "--scheduler"
+    assert rc == 2 and one_line_error(err) == (
+        f"hwrt: error: --workers: sizes the local cluster, which is not made when {given} "
+        "names a running scheduler")
+    assert not (tmp_path / "e").exists()
+
+
+def test_a_bad_scheduler_from_the_environment_is_named_as_such(capsys, tmp_path, monkeypatch):
+    (tmp_path / "x.obj").write_text(TETRA_OBJ)
+    monkeypatch.setenv("HWRT_SCHEDULER", "tcp://127.0.0.1:1")
+    rc, out, err = call(capsys, "explore", tmp_path / "x.obj", "--out-dir", tmp_path / "e")
+    assert rc == 2 and one_line_error(err).startswith(
+        "hwrt: error: $HWRT_SCHEDULER: no Dask scheduler answers at 'tcp://127.0.0.1:1'")
