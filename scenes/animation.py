@@ -47,8 +47,8 @@ from hwbvh.config import MAX_COORDINATE
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
-from .loader import (FOV_RANGE, compile_scene, finite, load_scene, mesh_scene, vector_ok,
-                     with_frame)
+from .loader import (FOV_RANGE, MAX_FRAMES, check_scale, compile_scene, finite, load_scene,
+                     mesh_scene, vector_ok, with_frame)
 
 DEFAULT_FPS = 30.0
 # Frame rates an animation may have: an animation without a frame count lasts four seconds,
@@ -214,8 +214,10 @@ def rigid_track(source, keys, path):
     tr = parse_keys(source, keys, path, KEYFRAME_KEYS,
                     {"translate": [0, 0, 0], "rotate": [0, 0, 0], "scale": [1, 1, 1]},
                     vec_keys=("translate", "rotate", "scale"))
-    if (tr.channels["scale"] == 0).any():
-        _fail(source, f"{path}.scale", "a scale of 0 flattens the shape; use a positive scale")
+    # a key without a scale holds the previous key's (or 1), so only keys giving one can fail
+    for j, key in enumerate(keys):
+        if "scale" in key:
+            check_scale(source, tr.channels["scale"][j], f"{path}[{j}].scale")
     return tr
 
 
@@ -338,6 +340,9 @@ class Animation:
         """Check, before any output, that ``frames`` frames can be produced (a sequence has
         them all, none has NaN vertices, no keyframed shape moves beyond the coordinate bound,
         and the camera can be placed at every frame)."""
+        if frames > MAX_FRAMES:
+            raise ParameterError("frames", f"{frames} is more than the {MAX_FRAMES} frames an "
+                                           "animation may have")
         if self.max_frames is not None and frames > self.max_frames:
             raise InputError(self.source, f"{frames} frames asked for, but the sequence has "
                                           f"only {self.max_frames}")
@@ -476,6 +481,12 @@ def from_scene_dict(d, source=None, fps=None):
     source = source or d.get("_source", "<scene>")
     anim = d.get("animation", {})
     _check_keys(source, anim, ANIMATION_KEYS, "animation")
+    frames = anim.get("frames")
+    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
+        _fail(source, "animation.frames", f"expected a positive integer, got {frames!r}")
+    if frames is not None and frames > MAX_FRAMES:
+        _fail(source, "animation.frames", f"{frames} is more than the {MAX_FRAMES} frames an "
+                                          "animation may have")
     shapes = d.get("shapes")
     if not isinstance(shapes, list) or not shapes:
         _fail(source, "shapes", "expected a non-empty list")
@@ -521,9 +532,6 @@ def from_scene_dict(d, source=None, fps=None):
     if "camera" in anim:
         camera = _camera_fn(camera_track(source, anim["camera"], "animation.camera", base.camera),
                             base.camera, source)
-    frames = anim.get("frames")
-    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
-        _fail(source, "animation.frames", f"expected a positive integer, got {frames!r}")
     f = fps if fps is not None else _number(source, anim.get("fps", DEFAULT_FPS), "animation.fps",
                                             lo=MIN_FPS, hi=MAX_FPS)
     if frames is None:

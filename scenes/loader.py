@@ -15,8 +15,8 @@ import numpy as np
 
 from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
 from hwbvh.errors import InputError
-from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, checked_coordinates, load_mesh_arrays,
-                              within_bound)
+from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
+                              load_mesh_arrays, within_bound)
 from .builtin import BUILTIN
 from .meshes import grid_sheet, uv_sphere
 
@@ -60,6 +60,16 @@ MAX_FILM_SIDE = 1 << 15         # pixels on a side
 MAX_SPP = 4096
 MAX_DEPTH = 64                  # bounces: between mirrors of reflectance 0.9 a path meets the
                                 # default contribution cut-off (1e-3) after about 65
+# Frames of an animation (a scene file's animation.frames, hwrt animate's and hwrt bench's
+# --frames): the frame times, the camera track and the keyframed shapes' bounds are checked
+# for every frame before the first is made, and each frame writes an EXR; beyond this the
+# checks alone would take gigabytes and a run would never end.
+MAX_FRAMES = 100_000
+# The magnitude of each component of a scale (a mesh's transform.scale, a keyframe's scale):
+# at most the coordinate bound, and at least its inverse, so that a unit shape scaled down
+# stays far above float32's smallest numbers (~1e-38) and the shading normals, divided by the
+# scale, stay finite.
+SCALE_RANGE = (1.0 / MAX_COORDINATE, MAX_COORDINATE)
 
 
 def is_scene(spec):
@@ -103,7 +113,22 @@ def load_scene(spec, **overrides):
     _refuse_internal_keys(spec, d)
     d["_source"] = spec
     d.setdefault("name", os.path.splitext(os.path.basename(spec))[0])
+    check_name(spec, d["name"])
     return d
+
+
+def check_name(source, name):
+    """Refuse (InputError naming ``source`` and the key ``name``) a scene name that is not a
+    plain file name: the default outputs are named after it (renders/<name>.exr,
+    renders/animate-<name>-<strategy>/), so a separator or a "." / ".." would write elsewhere."""
+    if not isinstance(name, str) or not name:
+        problem = f"expected a non-empty string, got {name!r}"
+    elif name in (".", "..") or any(c in name for c in "/\\\0"):
+        problem = (f"{name!r} is not a plain file name (outputs are named after it: no '/', "
+                   "'\\' or NUL, not '.' or '..')")
+    else:
+        return
+    raise InputError(source, f"key 'name': {problem}")
 
 
 def vector_ok(v, a, bound=MAX_COORDINATE):
@@ -360,6 +385,46 @@ def _box(lo, hi, rot_y):
     return np.concatenate([_quad(P[q]) for q in quads])
 
 
+def check_scale(source, s, key):
+    """Refuse (InputError naming ``source`` and ``key``) a scale (three numbers) with a
+    component whose magnitude is outside SCALE_RANGE: 0 flattens the shape, and a scale
+    beyond the range carries its coordinates out of float32's useful range."""
+    mag = np.abs(np.asarray(s, np.float64))
+    if not mag.all():
+        raise InputError(source, f"key '{key}': a scale of 0 flattens the shape, got "
+                                 f"{np.asarray(s).tolist()}")
+    if not ((mag >= SCALE_RANGE[0]) & (mag <= SCALE_RANGE[1])).all():
+        raise InputError(source, f"key '{key}': each component's magnitude must lie in "
+                                 f"[{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}], got "
+                                 f"{np.asarray(s).tolist()}")
+
+
+def _bounded(ctx, tris, key, what):
+    """Refuse, naming ``key``, a shape made from in-bound keys whose triangles still reach
+    beyond MAX_COORDINATE (a rotated box's corners, a sphere's centre plus its radius)."""
+    if not within_bound(tris):
+        ctx.fail(key, f"{what} reaches a coordinate of magnitude "
+                      f"{beyond_bound_text(np.abs(tris).max())}, beyond {MAX_COORDINATE:.0e}")
+
+
+def _zero_area(tris32):
+    """How many of float32 triangles ``tris32`` have no area (the cross product taken in
+    float64, where the products of float32 numbers neither overflow nor underflow)."""
+    t = tris32.astype(np.float64)
+    return int((~np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]).any(axis=1)).sum())
+
+
+def _no_collapse(ctx, before, after, key):
+    """Refuse, naming ``key``, a transform under which triangles with an area in float32
+    (as the builder and renderer see them) lose it: a scale small against the mesh's
+    coordinates rounds its vertices together."""
+    with np.errstate(under="ignore"):
+        lost = _zero_area(after.astype(np.float32)) - _zero_area(before.astype(np.float32))
+    if lost > 0:
+        ctx.fail(key, f"the mesh collapses: {lost} of its {len(before)} triangles lose their "
+                      "area in float32 at this scale")
+
+
 def _shape(ctx, sh, i, scene_dir):
     path = f"shapes[{i}]"
     if not isinstance(sh, dict):
@@ -374,8 +439,10 @@ def _shape(ctx, sh, i, scene_dir):
             c = np.asarray(c, np.float64)
         except (TypeError, ValueError):
             c = None
-        if c is None or c.shape != (4, 3) or not np.isfinite(c).all():
-            ctx.fail(f"{path}.corners", "expected 4 corners of 3 finite numbers")
+        if c is None or c.shape != (4, 3) or not within_bound(c) or \
+                any(isinstance(x, bool) for row in sh["corners"] for x in row):
+            ctx.fail(f"{path}.corners", f"expected 4 corners of 3 finite numbers of magnitude at "
+                                        f"most {MAX_COORDINATE:g}")
         tris = _quad(c)
         normals = _flat_normals(tris)
     elif typ == "box":
@@ -383,6 +450,7 @@ def _shape(ctx, sh, i, scene_dir):
         if not (lo <= hi).all():
             ctx.fail(f"{path}.min", "min must not exceed max")
         tris = _box(lo, hi, ctx.num(sh, "rotate_y", path, default=0.0))
+        _bounded(ctx, tris, f"{path}.rotate_y", "rotated, the box")
         normals = _flat_normals(tris)
     elif typ == "sphere":
         c = ctx.vec(sh, "center", path)
@@ -395,6 +463,7 @@ def _shape(ctx, sh, i, scene_dir):
             ctx.fail(f"{path}.subdiv", f"{sub!r} makes more than the 2^24 triangles a tree holds")
         V, F = uv_sphere(sub[0], sub[1])
         tris = V[F] * r + c
+        _bounded(ctx, tris, f"{path}.radius", "the sphere")
         normals = V[F]                                   # radial, outward
     elif typ == "sheet":
         res = sh.get("resolution", [64, 64])
@@ -404,15 +473,26 @@ def _shape(ctx, sh, i, scene_dir):
         if 2 * res[0] * res[1] > MAX_PRIMITIVES:
             ctx.fail(f"{path}.resolution",
                      f"{res!r} makes more than the 2^24 triangles a tree holds")
-        tris = grid_sheet(res[0], res[1], size=ctx.num(sh, "size", path, default=2.0, lo=0),
-                          wave=ctx.num(sh, "wave", path, default=0.15)).astype(np.float64)
-        tris[:, :, 1] += ctx.num(sh, "height", path, default=0.0)
+        # each within the coordinate bound before any arithmetic (which would overflow, with
+        # numpy's warnings); the sheet's y is height plus up to |wave|, checked after
+        big = MAX_COORDINATE
+        size = ctx.num(sh, "size", path, default=2.0, lo=0, hi=big, wanted=f"in [0, {big:g}]")
+        wave = ctx.num(sh, "wave", path, default=0.15, lo=-big, hi=big,
+                       wanted=f"of magnitude at most {big:g}")
+        height = ctx.num(sh, "height", path, default=0.0, lo=-big, hi=big,
+                         wanted=f"of magnitude at most {big:g}")
+        tris = grid_sheet(res[0], res[1], size=size, wave=wave).astype(np.float64)
+        tris[:, :, 1] += height
+        _bounded(ctx, tris, f"{path}.{'height' if abs(height) >= abs(wave) else 'wave'}",
+                 "with its height and wave, the sheet")
         normals = _flat_normals(tris)
     elif typ == "triangles":
         try:
             tris = np.asarray(sh.get("data"), np.float64).reshape(-1, 3, 3)
         except (TypeError, ValueError):
             ctx.fail(f"{path}.data", "expected a list of triangles (3 points of 3 numbers)")
+        if not len(tris):
+            ctx.fail(f"{path}.data", "expected at least one triangle, got an empty list")
         if not within_bound(tris):
             ctx.fail(f"{path}.data", f"expected finite coordinates of magnitude at most "
                                      f"{MAX_COORDINATE:g}")
@@ -427,18 +507,25 @@ def _shape(ctx, sh, i, scene_dir):
         if not isinstance(tf, dict):
             ctx.fail(f"{path}.transform", "expected an object with scale/rotate_y/translate")
         ctx.keys(tf, TRANSFORM_KEYS, f"{path}.transform")
-        verts, faces = _mesh_arrays(full)
+        # the transform is checked before the mesh is read: a bad key is named at once
+        s = ctx.vec(tf, "scale", f"{path}.transform", default=[1, 1, 1])
+        check_scale(ctx.source, s, f"{path}.transform.scale")
+        a = np.radians(ctx.num(tf, "rotate_y", f"{path}.transform", default=0.0))
+        t = ctx.vec(tf, "translate", f"{path}.transform", default=[0, 0, 0])
+        try:
+            verts, faces = _mesh_arrays(full)
+        except InputError as e:                 # names the mesh file; add the scene's key
+            ctx.fail(f"{path}.filename", str(e))
         tris = verts[faces]
         normals = smooth_normals(verts, faces) if smooth else _flat_normals(tris)
         if tf:
-            s = ctx.vec(tf, "scale", f"{path}.transform", default=[1, 1, 1])
-            if (s == 0).any():
-                ctx.fail(f"{path}.transform.scale", "a scale of 0 flattens the shape")
-            a = np.radians(ctx.num(tf, "rotate_y", f"{path}.transform", default=0.0))
             R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-            t = ctx.vec(tf, "translate", f"{path}.transform", default=[0, 0, 0])
-            tris = (tris * s) @ R.T + t
-            normals = (normals / np.where(s == 0, 1, s)) @ R.T
+            scaled = (tris * s) @ R.T
+            _bounded(ctx, scaled, f"{path}.transform.scale", "scaled, the mesh")
+            _bounded(ctx, scaled + t, f"{path}.transform.translate", "moved, the mesh")
+            _no_collapse(ctx, tris, scaled, f"{path}.transform.scale")
+            tris = scaled + t
+            normals = (normals / s) @ R.T
             normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-30)
     w = sh.get("_world")
     if w:
@@ -446,6 +533,14 @@ def _shape(ctx, sh, i, scene_dir):
         if float(w["scale"]) < 0:
             normals = -normals
     return tris, normals
+
+
+def _reflectance(ctx, obj, key, path, default):
+    """Three reflectances, each in [0, 1] (more would add light at every bounce)."""
+    v = ctx.vec(obj, key, path, default=default)
+    if (v < 0).any() or (v > 1).any():
+        ctx.fail(f"{path}.{key}", f"reflectances must lie in [0, 1], got {v.tolist()}")
+    return v
 
 
 def _light(ctx, obj, key, path, default=None):
@@ -475,6 +570,7 @@ def compile_scene(d, source=None, first_shape=0):
             ctx.fail(key, "missing")
     if d.get("type", "scene") != "scene":
         ctx.fail("type", f"expected 'scene', got {d.get('type')!r}")
+    check_name(source, d.get("name", "scene"))
     mats = d["materials"]
     if not isinstance(mats, dict) or not mats:
         ctx.fail("materials", "expected a non-empty object of named materials")
@@ -490,18 +586,16 @@ def compile_scene(d, source=None, first_shape=0):
         t = m["type"]
         ctx.keys(m, MATERIAL_KEYS[t], p)
         if t in ("diffuse", "plastic"):
-            kd[k] = ctx.vec(m, "reflectance", p, default=[0.7, 0.7, 0.7])
+            kd[k] = _reflectance(ctx, m, "reflectance", p, [0.7, 0.7, 0.7])
             ks[k] = ctx.num(m, "specular", p, default=0.0 if t == "diffuse" else 0.3, lo=0, hi=1)
             sh_[k] = ctx.num(m, "shininess", p, default=32.0, lo=1)
-            kr[k] = ctx.vec(m, "mirror", p, default=[0, 0, 0] if t == "diffuse" else [0.04] * 3)
+            kr[k] = _reflectance(ctx, m, "mirror", p, [0, 0, 0] if t == "diffuse" else [0.04] * 3)
         elif t == "mirror":
-            kr[k] = ctx.vec(m, "reflectance", p, default=[0.9, 0.9, 0.9])
+            kr[k] = _reflectance(ctx, m, "reflectance", p, [0.9, 0.9, 0.9])
         else:
             ior[k] = ctx.num(m, "ior", p, default=1.5, lo=1.0, hi=4.0)
             if ior[k] == 1.0:
                 ior[k] = 1.0 + 1e-6
-        if (kd[k] < 0).any() or (kd[k] > 1).any() or (kr[k] < 0).any() or (kr[k] > 1).any():
-            ctx.fail(p, "reflectances must lie in [0, 1]")
     shapes = d["shapes"]
     if not isinstance(shapes, list) or not shapes:
         ctx.fail("shapes", "expected a non-empty list")

@@ -224,6 +224,8 @@ def test_an_infinite_or_nan_vertex_is_one_line_on_stderr(tmp_path, how):
         spec.write_text(json.dumps(scene))          # inf as JSON's Infinity, which Python reads
         if how == "scene triangles":
             message = f"{spec}: key 'shapes[0].data': expected finite coordinates of magnitude at most 1e+15"
+        else:
+            message = f"{spec}: key 'shapes[0].filename': {message}"
     else:
         spec = mesh
     out = tmp_path / "o.exr"
@@ -244,8 +246,9 @@ def test_a_too_large_vertex_is_named_as_such_in_one_line(tmp_path, how):
             "materials": {"m": {"type": "diffuse"}},
             "shapes": [{"type": "mesh", "filename": mesh.name, "material": "m"}]}))
     out = tmp_path / "o.exr"
+    key = f"{spec}: key 'shapes[0].filename': " if how == "mesh in a scene" else ""
     _refused(_hwrt("render", spec, "-o", out, "--width", 8, "--height", 6), out,
-             f"{mesh}: triangle 0 has a coordinate too large: magnitude 1e+200 exceeds 1e+15 "
+             f"{key}{mesh}: triangle 0 has a coordinate too large: magnitude 1e+200 exceeds 1e+15 "
              "(float32 SAH costs would overflow)")
 
 

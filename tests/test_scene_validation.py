@@ -1,0 +1,204 @@
+"""Scene-file keys that reach beyond their checks: each bad value is exit status 2 with one line
+naming the file and the key, no numpy warning, and nothing written."""
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from hwbvh.errors import InputError, ParameterError
+from hwrt.cli import main
+from scenes import compile_scene, load_animation, load_scene
+from scenes.loader import MAX_FRAMES, SCALE_RANGE
+
+TRIANGLE_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+
+
+def scene_dict(shapes=None, **top):
+    d = {"type": "scene", "camera": {"eye": [0, 1, 4], "target": [0, 0, 0]},
+         "film": {"width": 8, "height": 8, "spp": 1},
+         "lights": [{"type": "point", "position": [1, 3, 2], "intensity": [10, 10, 10]}],
+         "materials": {"white": {"type": "diffuse"}},
+         "shapes": shapes or [{"type": "box", "min": [-0.5, 0, -0.5], "max": [0.5, 1, 0.5],
+                               "material": "white"}]}
+    d.update(top)
+    return d
+
+
+def write_scene(tmp_path, d, name="s.json"):
+    p = tmp_path / name
+    p.write_text(json.dumps(d))
+    return p
+
+
+def refused(capsys, tmp_path, monkeypatch, *argv):
+    """Run the CLI in ``tmp_path``: (the one error line, the warnings numpy raised). Checks
+    exit status 2 and that nothing was written there (renders/ included)."""
+    monkeypatch.chdir(tmp_path)
+    before = set(tmp_path.rglob("*"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rc = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert rc == 2 and out == "" and len(lines) == 1, err
+    assert set(tmp_path.rglob("*")) == before
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)], \
+        [str(w.message) for w in caught]
+    return lines[0]
+
+
+# --------------------------------------------------------------------------------------
+# animation.frames shares --frames' limit
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("frames", [MAX_FRAMES + 1, 1_000_000_000])
+def test_animation_frames_beyond_the_limit_are_refused_before_any_frame(tmp_path, capsys,
+                                                                         monkeypatch, frames):
+    p = write_scene(tmp_path, scene_dict(animation={"frames": frames}))
+    line = refused(capsys, tmp_path, monkeypatch, "animate", p, "-o", tmp_path / "d",
+                   "--width", 8, "--height", 8)
+    assert f"{p}: key 'animation.frames': {frames} is more than the {MAX_FRAMES} frames" in line
+
+
+def test_the_frame_limit_is_one_number_for_the_key_the_option_and_the_library(tmp_path, capsys,
+                                                                             monkeypatch):
+    p = write_scene(tmp_path, scene_dict(animation={"frames": MAX_FRAMES}))
+    anim = load_animation(p)
+    assert anim.frames == MAX_FRAMES
+    with pytest.raises(ParameterError, match=f"frames: {MAX_FRAMES + 1} is more than"):
+        anim.check(MAX_FRAMES + 1)
+    with pytest.raises(SystemExit):
+        main(["animate", str(p), "--frames", str(MAX_FRAMES + 1)])
+    assert f"must be at most {MAX_FRAMES}" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------
+# name: the default outputs are named after it
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["", "../../evil", "a/b", "a\\b", ".", "..", "x\0y", 5, [1], None])
+@pytest.mark.parametrize("command", ["render", "animate"])
+def test_a_name_that_is_not_a_plain_file_name_is_refused(tmp_path, capsys, monkeypatch, name,
+                                                         command):
+    p = write_scene(tmp_path, scene_dict(name=name))
+    line = refused(capsys, tmp_path, monkeypatch, command, p, "--width", 8, "--height", 8)
+    assert line.startswith(f"hwrt: error: {p}: key 'name': ")
+    d = scene_dict(name=name)
+    with pytest.raises(InputError, match="key 'name'"):
+        compile_scene(d, source="dict")
+
+
+def test_a_plain_name_names_the_default_output(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert load_scene(write_scene(tmp_path, scene_dict(name="my scene.v2")))["name"] == "my scene.v2"
+    assert load_scene(write_scene(tmp_path, scene_dict(), "plain.json"))["name"] == "plain"
+
+
+# --------------------------------------------------------------------------------------
+# huge and tiny values that pass a key's type check
+# --------------------------------------------------------------------------------------
+SHEET = {"type": "sheet", "resolution": [2, 2], "material": "white"}
+QUAD = {"type": "quad", "corners": [[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]],
+        "material": "white"}
+
+
+@pytest.mark.parametrize("shape, key", [
+    (dict(SHEET, size=1e300), "shapes[0].size"),
+    (dict(SHEET, wave=1e300), "shapes[0].wave"),
+    (dict(SHEET, wave=-1e300), "shapes[0].wave"),
+    (dict(SHEET, height=1e300), "shapes[0].height"),
+    (dict(SHEET, height=1e15, wave=1e14), "shapes[0].height"),      # each in bound, not the sum
+    # at x = size / 2 = pi / 6 the wave reaches its full amplitude
+    (dict(SHEET, size=np.pi / 3, height=1e14, wave=1e15), "shapes[0].wave"),
+    (dict(QUAD, corners=[[-1, 0, -1], [1e300, 0, -1], [1, 0, 1], [-1, 0, 1]]), "shapes[0].corners"),
+    (dict(QUAD, corners=[[-1, 0, -1], [2e15, 0, -1], [1, 0, 1], [-1, 0, 1]]), "shapes[0].corners"),
+    ({"type": "sphere", "center": [0, 0, 0], "radius": 1e300, "material": "white"},
+     "shapes[0].radius"),
+    ({"type": "sphere", "center": [1e15, 0, 0], "radius": 1e15, "material": "white"},
+     "shapes[0].radius"),
+    ({"type": "box", "min": [-1e15] * 3, "max": [1e15] * 3, "rotate_y": 45, "material": "white"},
+     "shapes[0].rotate_y"),
+    ({"type": "triangles", "data": [], "material": "white"}, "shapes[0].data"),
+])
+def test_generated_geometry_beyond_the_bound_names_its_key(tmp_path, capsys, monkeypatch, shape, key):
+    p = write_scene(tmp_path, scene_dict([shape]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert line.startswith(f"hwrt: error: {p}: key '{key}': "), line
+
+
+@pytest.mark.parametrize("transform, problem", [
+    ({"scale": 1e-300}, "each component's magnitude must lie in"),
+    ({"scale": [1, 0, 1]}, "a scale of 0 flattens the shape"),
+    ({"scale": [1, 1, 1e16]}, "expected 3 finite numbers of magnitude at most 1e+15"),
+    ({"scale": [-1e-16, 1, 1]}, "each component's magnitude must lie in"),
+    ({"scale": 1e15, "translate": [0, 0, 0]}, None),       # 1e15 x a unit mesh: in bound
+])
+def test_a_mesh_scale_outside_its_range_is_refused(tmp_path, capsys, monkeypatch, transform, problem):
+    (tmp_path / "tri.obj").write_text(TRIANGLE_OBJ)
+    shape = {"type": "mesh", "filename": "tri.obj", "material": "white", "transform": transform}
+    p = write_scene(tmp_path, scene_dict([shape]))
+    if problem is None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            c = compile_scene(load_scene(p))
+        assert np.abs(c.triangles).max() == np.float32(1e15)
+        return
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert f"{p}: key 'shapes[0].transform.scale': {problem}" in line
+    if "must lie in" in problem:
+        assert f"[{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}]" in line
+
+
+def test_a_mesh_scale_that_collapses_its_triangles_in_float32_is_refused(tmp_path, capsys,
+                                                                         monkeypatch):
+    """1e-15 is in range, but the mesh's vertices at 1e-32 go below float32's smallest number."""
+    (tmp_path / "tiny.obj").write_text("v 0 0 0\nv 1e-32 0 0\nv 0 1e-32 0\nf 1 2 3\n")
+    shape = {"type": "mesh", "filename": "tiny.obj", "material": "white",
+             "transform": {"scale": 1e-15}}
+    p = write_scene(tmp_path, scene_dict([dict(shape, transform={"scale": 1e-15}),
+                                          scene_dict()["shapes"][0]]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert f"{p}: key 'shapes[0].transform.scale': the mesh collapses: 1 of its 1 triangles" in line
+
+
+def test_a_mesh_transform_beyond_the_bound_names_scale_or_translate(tmp_path, capsys, monkeypatch):
+    (tmp_path / "big.obj").write_text("v 0 0 0\nv 1e14 0 0\nv 0 1 0\nf 1 2 3\n")
+    for transform, key in (({"scale": 100}, "scale"), ({"translate": [1e15, 0, 0]}, "translate")):
+        shape = {"type": "mesh", "filename": "big.obj", "material": "white", "transform": transform}
+        p = write_scene(tmp_path, scene_dict([shape]))
+        line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+        assert f"{p}: key 'shapes[0].transform.{key}': " in line and "beyond 1e+15" in line
+
+
+@pytest.mark.parametrize("scale", [0, 1e-300, 1e16])
+def test_a_keyframe_scale_outside_its_range_names_the_key_index(tmp_path, capsys, monkeypatch, scale):
+    box = dict(scene_dict()["shapes"][0], keyframes=[{"time": 0}, {"time": 1, "scale": scale}])
+    p = write_scene(tmp_path, scene_dict([box]))
+    line = refused(capsys, tmp_path, monkeypatch, "animate", p, "-o", tmp_path / "d", "--frames", 2)
+    assert f"{p}: key 'shapes[0].keyframes[1].scale': " in line
+    assert ("a scale of 0 flattens" if scale == 0 else "each component's magnitude" if scale < 1
+            else "magnitude at most 1e+15") in line
+
+
+# --------------------------------------------------------------------------------------
+# key paths in messages
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("material, key", [
+    ({"type": "diffuse", "reflectance": [1.5, 0, 0]}, "materials.x.reflectance"),
+    ({"type": "diffuse", "mirror": [0, -0.1, 0]}, "materials.x.mirror"),
+    ({"type": "mirror", "reflectance": 2}, "materials.x.reflectance"),
+])
+def test_a_reflectance_out_of_range_names_its_key(tmp_path, capsys, monkeypatch, material, key):
+    d = scene_dict()
+    d["materials"]["x"] = material
+    p = write_scene(tmp_path, d)
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert f"{p}: key '{key}': reflectances must lie in [0, 1]" in line
+
+
+@pytest.mark.parametrize("command", ["render", "animate"])
+def test_a_missing_mesh_names_the_scene_file_the_key_and_the_mesh(tmp_path, capsys, monkeypatch,
+                                                                  command):
+    shape = {"type": "mesh", "filename": "gone.ply", "material": "white"}
+    p = write_scene(tmp_path, scene_dict([scene_dict()["shapes"][0], shape]))
+    line = refused(capsys, tmp_path, monkeypatch, command, p, "--width", 8, "--height", 8)
+    assert line == f"hwrt: error: {p}: key 'shapes[1].filename': {tmp_path / 'gone.ply'}: no such file"
