@@ -305,12 +305,26 @@ def _obj_resolve(text, out):
     return o
 
 
+def trimesh_module():
+    """trimesh, imported with SIGINT and SIGTERM held (``files.signals_held``): several of its
+    modules wrap their own imports in ``except BaseException``, which would swallow the
+    KeyboardInterrupt of a Ctrl-C arriving there; held, the signal is acted on as the import
+    ends. Imported where a mesh is first read, so commands that read none do not pay for it."""
+    import sys
+    module = sys.modules.get("trimesh")
+    if module is None:
+        from .files import signals_held
+        with signals_held():
+            import trimesh as module
+    return module
+
+
 def _obj_load_args(path):
     """trimesh.load's arguments for OBJ file ``path``: the path itself, or (for a file with a
     face index starting "-" or "0", or a continued line) its text as :func:`_obj_resolved_text`
     rewrites it. A face index 0 or one counting back before the first vertex raises InputError
     naming its line. Other files pay one C-speed regex search."""
-    import trimesh
+    trimesh = trimesh_module()
 
     try:
         with open(path, "rb") as f:
@@ -415,7 +429,7 @@ def beyond_bound_text(big):
 
 def load_mesh_arrays(path):
     """Read a mesh file with trimesh; return (vertices float32 (v,3), faces int64 (f,3))."""
-    import trimesh
+    trimesh = trimesh_module()
 
     path = os.fspath(path)
     if not os.path.exists(path):

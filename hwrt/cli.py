@@ -5,8 +5,9 @@ and logs go to stderr. Outputs are checked before any work and written whole or 
 Library errors name a function's parameter; ``main`` reports the option that sets it.
 
 This module imports only the standard library at its top, and ``main`` sets its signal handling
-before importing the rest (NumPy, Numba, the commands), so that a Ctrl-C at any moment of a run
-is the one line "hwrt: interrupted" and exit status 130.
+before importing the rest (NumPy, Numba, the commands), so that a Ctrl-C at any moment once
+``main`` has started is the one line "hwrt: interrupted" and exit status 130 (before that, in
+the few tens of milliseconds of Python's start-up, Python's own handling applies).
 """
 import argparse
 import os
@@ -252,7 +253,10 @@ def _replay_rays(path):
     import numpy as np
     from hwbvh.errors import InputError
     try:
-        with np.load(path, allow_pickle=False) as data:
+        data = np.load(path, allow_pickle=False)
+        if not isinstance(data, np.lib.npyio.NpzFile):   # a .npy file: one bare array
+            raise ValueError("not an archive")
+        with data:
             arrays = {}
             for key, shape in REPLAY_ARRAYS.items():
                 if key not in data.files:
@@ -734,10 +738,10 @@ def _fps(v):
 
 
 def _path(v):
-    """A path option's value: not empty (an empty one would silently mean the current
-    directory, or no file at all) and without NUL bytes."""
+    """A path (or address) argument's value: not empty (an empty one would silently mean the
+    current directory, no file at all, or the default) and without NUL bytes."""
     if not v:
-        raise argparse.ArgumentTypeError("expected a path, got an empty value")
+        raise argparse.ArgumentTypeError("expected a value, got an empty one")
     if "\0" in v:
         raise argparse.ArgumentTypeError(f"a path cannot hold a NUL byte, got {v!r}")
     return v
@@ -848,7 +852,7 @@ def make_parser():
 
     b = sub.add_parser("build", help="build a BVH over a mesh",
                        description="Build a BVH over a mesh in the hardware's node format.")
-    b.add_argument("mesh", help="mesh file (.ply, .obj, .stl, .off, .glb, .gltf)")
+    b.add_argument("mesh", type=_path, help="mesh file (.ply, .obj, .stl, .off, .glb, .gltf)")
     b.add_argument("--builder", choices=["hwbvh", "sweep", "embree"], default="hwbvh",
                    help="hwbvh: the hardware's binned SAH; sweep: full SAH reference; "
                         "embree: Embree's own build (timing only)")
@@ -880,7 +884,7 @@ def make_parser():
                                    "instances (HWBVH-C or HWBVH-HP, or one with its knobs "
                                    "changed): cycles, seconds, DRAM traffic, memory footprint, "
                                    "energy, area and utilisation, from the cycle model.")
-    s.add_argument("mesh", help="mesh file")
+    s.add_argument("mesh", type=_path, help="mesh file")
     s.add_argument("--preset", default="HWBVH-C", choices=["HWBVH-C", "HWBVH-HP"],
                    help="the thesis' hardware instance")
     for name, text in (("w", "partitioning units per subtree builder"),
@@ -903,12 +907,12 @@ def make_parser():
                                    "with each configuration's own area and power; write the rows, "
                                    "the Pareto fronts of time and energy against area, and plots. "
                                    "Cells run on Dask and resume after an interruption.")
-    x.add_argument("meshes", nargs="+", metavar="MESH", help="mesh files")
+    x.add_argument("meshes", nargs="+", metavar="MESH", type=_path, help="mesh files")
     x.add_argument("--grid", action="append", metavar="KNOB=V1,V2,...",
                    help="values of one knob (bins, leaf_size, w, tsize, psize, subtree_builders, "
                         "ram_pairs, clock_mhz); repeat for more knobs (default: a grid over w, "
                         "tsize, psize, subtree_builders, ram_pairs, clock_mhz and leaf_size)")
-    x.add_argument("--scheduler", metavar="ADDRESS",
+    x.add_argument("--scheduler", metavar="ADDRESS", type=_path,
                    help="a running Dask scheduler, tcp://HOST:PORT (default: $HWRT_SCHEDULER, "
                         "else a local cluster of one worker per core)")
     x.add_argument("--workers", type=_int_at_least(1, MAX_WORKERS),
@@ -921,7 +925,7 @@ def make_parser():
 
     r = sub.add_parser("render", help="render a scene (Whitted) to EXR",
                        description="Render a scene with the Whitted ray tracer to an EXR file.")
-    r.add_argument("scene", nargs="?", default="cornell",
+    r.add_argument("scene", nargs="?", default="cornell", type=_path,
                    help="built-in scene (cornell, marbles, cloth, room), scene file (.json, "
                         ".toml), or mesh file (default: cornell)")
     r.add_argument("-o", "--output", metavar="FILE.exr", type=_path,
@@ -954,7 +958,7 @@ def make_parser():
                                    "agree, tie (both answers right by a float64 re-test, as on a "
                                    "shared edge) or mismatch. Mismatching rays go to a file "
                                    "that --replay traces again.")
-    v.add_argument("scene", help="built-in scene name, scene file, or mesh file")
+    v.add_argument("scene", type=_path, help="built-in scene name, scene file, or mesh file")
     v.add_argument("--rays", type=_int_at_least(1, MAX_RAYS),
                    help=f"rays to trace; exactly these many (default: {VERIFY_RAYS})")
     v.add_argument("--kind", choices=["primary", "random", "bounces", "shadow"],
@@ -975,7 +979,7 @@ def make_parser():
                                     "each frame by the chosen strategy; one EXR per frame, a GIF "
                                     "preview and a CSV in the output directory. A rerun into the "
                                     "same directory resumes at the first missing frame.")
-    an.add_argument("scene", help="built-in animation (exploding, cloth, marbles, flythrough), "
+    an.add_argument("scene", type=_path, help="built-in animation (exploding, cloth, marbles, flythrough), "
                                   "scene file, or frame pattern of mesh files ('f_%%04d.ply' or a glob)")
     an.add_argument("--frames", type=_frames,
                     help="frames to render (default: the animation's)")
@@ -1022,7 +1026,7 @@ def make_parser():
                     help="show this help message (after a benchmark's name: its own) and exit")
     be.add_argument("what", metavar="BENCHMARK", choices=list(BENCHMARKS),
                     help=f"the benchmark: {', '.join(BENCHMARKS)} (see below)")
-    be.add_argument("meshes", nargs="*", default=[], metavar="MESH",
+    be.add_argument("meshes", nargs="*", default=[], metavar="MESH", type=_path,
                     help=f"{BENCH_MESHES[None]}; " + "; ".join(
                         f"{what}: {text}" for what, text in BENCH_MESHES.items() if what))
     be.add_argument("--mesh-dir", type=_path, help=_bench_help("mesh_dir"))
@@ -1035,7 +1039,7 @@ def make_parser():
     be.add_argument("--fresh", action="store_true",
                     help=_bench_help("fresh"))
     be.add_argument("--out-dir", type=_path, help=_bench_help("out_dir"))
-    be.add_argument("--scheduler", metavar="ADDRESS",
+    be.add_argument("--scheduler", metavar="ADDRESS", type=_path,
                     help=_bench_help("scheduler"))
     be.add_argument("--width", type=_film_side, help=_bench_help("width"))
     be.add_argument("--height", type=_film_side, help=_bench_help("height"))
@@ -1110,23 +1114,6 @@ def _input_message(parser, args, e):
     return f"{option} {e.source}: {e.problem}" if option else str(e)
 
 
-def _reads_mesh_files(args):
-    """Whether the command may read a mesh file: all but render and verify of a built-in scene."""
-    if args.command in ("render", "verify"):
-        from scenes.builtin import BUILTIN
-        return args.scene not in BUILTIN or os.path.exists(args.scene)
-    return True
-
-
-def _import_mesh_reader():
-    """Import trimesh with SIGINT and SIGTERM held. Several of its modules wrap their imports in
-    ``except BaseException``, which swallows the KeyboardInterrupt of a signal arriving there;
-    held, the signal is acted on as the import ends."""
-    from hwbvh.files import signals_held
-    with signals_held():
-        import trimesh  # noqa: F401
-
-
 def _run(argv, signals_owned):
     """Parse ``argv`` and run its command; the exit status. Interrupts go to the caller."""
     from hwbvh.errors import InputError
@@ -1137,8 +1124,6 @@ def _run(argv, signals_owned):
     args.signals_owned = signals_owned
     try:
         check_threading()
-        if _reads_mesh_files(args):
-            _import_mesh_reader()
         args.func(args)
     except InputError as e:
         print(f"hwrt: error: {_input_message(parser, args, e)}", file=sys.stderr)

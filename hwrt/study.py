@@ -123,8 +123,9 @@ def _generated_mesh(name):
     """The file of a generated mesh, written once per process into a directory that goes
     with the process (scenes read their meshes from files)."""
     import tempfile
-    import trimesh
+    from hwbvh.primitives import trimesh_module
     from scenes.meshes import GENERATED
+    trimesh = trimesh_module()
 
     with _generated["lock"]:
         if _generated["dir"] is None:

@@ -989,13 +989,17 @@ def test_an_abbreviated_option_is_not_taken_for_the_whole(capsys, argv):
     (["explore", "x.obj", "--out-dir", ""], "--out-dir"),
     (["verify", "cornell", "--mismatches", ""], "--mismatches"),
     (["animate", "exploding", "-o", ""], "-o/--output"),
-    (["bench", "build", "--out-dir", ""], "--out-dir")])
-def test_an_empty_path_is_refused_naming_its_option(capsys, tmp_path, monkeypatch, argv, option):
+    (["bench", "build", "--out-dir", ""], "--out-dir"),
+    (["build", ""], "mesh"),
+    (["render", ""], "scene"),
+    (["bench", "build", ""], "MESH"),
+    (["explore", "x.obj", "--scheduler", ""], "--scheduler")])
+def test_an_empty_path_or_address_is_refused_naming_its_argument(capsys, tmp_path, monkeypatch, argv, option):
     """An empty path would mean the current directory, or no file at all, without a word."""
     monkeypatch.chdir(tmp_path)
     rc, out, err = call(capsys, *argv)
     line = one_line_error(err)
-    assert rc == 2 and out == "" and f"argument {option}: expected a path" in line
+    assert rc == 2 and out == "" and f"argument {option}: expected a value, got an empty one" in line
     assert list(tmp_path.iterdir()) == []
 
 
@@ -1039,3 +1043,11 @@ def test_a_bad_scheduler_from_the_environment_is_named_as_such(capsys, tmp_path,
     rc, out, err = call(capsys, "explore", tmp_path / "x.obj", "--out-dir", tmp_path / "e")
     assert rc == 2 and one_line_error(err).startswith(
         "hwrt: error: $HWRT_SCHEDULER: no Dask scheduler answers at 'tcp://127.0.0.1:1'")
+
+
+def test_replay_of_a_bare_npy_array_is_refused_in_one_line(capsys, tmp_path):
+    f = tmp_path / "rays.npy"
+    np.save(f, np.zeros((3, 3)))
+    rc, out, err = call(capsys, "verify", "cornell", "--replay", f)
+    assert rc == 2 and one_line_error(err) == (f"hwrt: error: --replay {f}: not a mismatch file "
+                                              "from hwrt verify (not an .npz archive)")
