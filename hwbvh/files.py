@@ -75,35 +75,53 @@ def _directory_problem(d):
     return None
 
 
-def _same_file(a, b):
-    if os.path.realpath(a) == os.path.realpath(b):
-        return True
+def _identity(path):
+    """``(st_dev, st_ino)`` of the existing file ``path`` (symlinks followed), else None: two
+    spellings of one file that realpath cannot tie together (hard links, bind mounts)."""
     try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
 
 
 def check_outputs(outputs, inputs=()):
     """Fail before any work unless every path in ``outputs`` can be written and none of them
-    is one of ``inputs`` (or one another). Paths are reported as given. Raises InputError."""
+    is one of ``inputs`` (or one another). Paths are reported as given. Raises InputError.
+
+    Linear in the number of paths (an animation names one output per frame): each path is
+    resolved once and looked up in dicts, and the writability probe runs once per directory."""
     outputs = [os.fspath(p) for p in outputs if p is not None]
-    inputs = [os.fspath(p) for p in inputs if p is not None and os.path.exists(p)]
-    for k, out in enumerate(outputs):
-        for src in inputs:
-            if _same_file(out, src):
-                same = "" if out == src else f" ({src})"
-                raise InputError(out, f"is an input of this run{same}; an output may not overwrite an input")
-        for other in outputs[:k]:
-            if _same_file(out, other):
-                raise InputError(out, "is named twice as an output")
+    input_by_path, input_by_id = {}, {}
+    for src in (os.fspath(p) for p in inputs if p is not None):
+        if not os.path.exists(src):
+            continue
+        input_by_path.setdefault(os.path.realpath(src), src)
+        input_by_id.setdefault(_identity(src), src)
+    input_by_id.pop(None, None)
+    seen_paths, seen_ids = set(), set()
+    problems = {}                                # nearest existing directory -> problem or None
+    for out in outputs:
+        real = os.path.realpath(out)
+        ident = _identity(out)
+        src = input_by_path.get(real) or (ident and input_by_id.get(ident))
+        if src:
+            same = "" if out == src else f" ({src})"
+            raise InputError(out, f"is an input of this run{same}; an output may not overwrite an input")
+        if real in seen_paths or (ident and ident in seen_ids):
+            raise InputError(out, "is named twice as an output")
+        seen_paths.add(real)
+        if ident:
+            seen_ids.add(ident)
         if os.path.isdir(out):
             raise InputError(out, "is a directory; give a file path")
-        if os.path.exists(out) and not os.access(out, os.W_OK):
+        if ident and not os.access(out, os.W_OK):
             raise InputError(out, "exists and is read-only")
-        problem = _directory_problem(_nearest_existing(out))
-        if problem:
-            raise InputError(out, problem)
+        d = _nearest_existing(out)
+        if d not in problems:
+            problems[d] = _directory_problem(d)
+        if problems[d]:
+            raise InputError(out, problems[d])
 
 
 def check_output_dir(directory, names=(), inputs=()):

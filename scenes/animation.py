@@ -218,6 +218,16 @@ def rigid_track(source, keys, path):
     for j, key in enumerate(keys):
         if "scale" in key:
             check_scale(source, tr.channels["scale"][j], f"{path}[{j}].scale")
+    # interpolated linearly, a component that changes sign between two keys passes through 0
+    # on the way, flattening the shape (and dividing its normals by 0)
+    S = np.asarray(tr.channels["scale"], np.float64)
+    flips = (np.diff(np.sign(S), axis=0) != 0).any(axis=1)
+    if flips.any():
+        j = int(np.argmax(flips)) + 1
+        _fail(source, f"{path}[{j}].scale",
+              f"{S[j].tolist()} changes the sign of a component from the previous key's "
+              f"{S[j - 1].tolist()}: interpolated between the keys, the scale passes through 0 "
+              "and flattens the shape")
     return tr
 
 

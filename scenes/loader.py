@@ -407,22 +407,34 @@ def _bounded(ctx, tris, key, what):
                       f"{beyond_bound_text(np.abs(tris).max())}, beyond {MAX_COORDINATE:.0e}")
 
 
-def _zero_area(tris32):
-    """How many of float32 triangles ``tris32`` have no area (the cross product taken in
-    float64, where the products of float32 numbers neither overflow nor underflow)."""
-    t = tris32.astype(np.float64)
-    return int((~np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]).any(axis=1)).sum())
-
-
-def _no_collapse(ctx, before, after, key):
-    """Refuse, naming ``key``, a transform under which triangles with an area in float32
-    (as the builder and renderer see them) lose it: a scale small against the mesh's
-    coordinates rounds its vertices together."""
+def _has_area(tris):
+    """Which of triangles ``tris``, rounded to float32 (as the builder and renderer see them),
+    keep an area: the cross product is taken in float64, where the products of float32
+    numbers neither overflow nor underflow."""
     with np.errstate(under="ignore"):
-        lost = _zero_area(after.astype(np.float32)) - _zero_area(before.astype(np.float32))
-    if lost > 0:
-        ctx.fail(key, f"the mesh collapses: {lost} of its {len(before)} triangles lose their "
-                      "area in float32 at this scale")
+        t = tris.astype(np.float32).astype(np.float64)
+    return np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]).any(axis=1)
+
+
+def _no_collapse(ctx, mesh, scaled, moved, path):
+    """Refuse a transform under which triangles of ``mesh`` with an area in float32 lose it in
+    the final coordinates ``moved`` (``scaled`` plus the translation): a scale small against
+    the mesh's coordinates rounds its vertices together, and so does a translation large
+    against the mesh's size. The key named is the scale when the scaled mesh has already
+    lost those triangles, else the translation."""
+    after = _has_area(moved)
+    if after.all():                     # the usual case: the mesh's own areas are not needed
+        return
+    lost = _has_area(mesh) & ~after
+    n = int(lost.sum())
+    if not n:
+        return
+    if (lost & ~_has_area(scaled)).any():
+        key, cause = "scale", "at this scale"
+    else:
+        key, cause = "translate", "moved this far from the origin"
+    ctx.fail(f"{path}.transform.{key}", f"the mesh collapses: {n} of its {len(mesh)} triangles "
+                                        f"lose their area in float32 {cause}")
 
 
 def _shape(ctx, sh, i, scene_dir):
@@ -522,9 +534,10 @@ def _shape(ctx, sh, i, scene_dir):
             R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
             scaled = (tris * s) @ R.T
             _bounded(ctx, scaled, f"{path}.transform.scale", "scaled, the mesh")
-            _bounded(ctx, scaled + t, f"{path}.transform.translate", "moved, the mesh")
-            _no_collapse(ctx, tris, scaled, f"{path}.transform.scale")
-            tris = scaled + t
+            moved = scaled + t
+            _bounded(ctx, moved, f"{path}.transform.translate", "moved, the mesh")
+            _no_collapse(ctx, tris, scaled, moved, path)
+            tris = moved
             normals = (normals / s) @ R.T
             normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-30)
     w = sh.get("_world")

@@ -169,6 +169,52 @@ def test_a_mesh_transform_beyond_the_bound_names_scale_or_translate(tmp_path, ca
         assert f"{p}: key 'shapes[0].transform.{key}': " in line and "beyond 1e+15" in line
 
 
+@pytest.mark.parametrize("translate", [[1e9, 0, 0], [0, -3e8, 0]])
+def test_a_mesh_translation_that_collapses_its_triangles_in_float32_names_translate(
+        tmp_path, capsys, monkeypatch, translate):
+    """Moved 1e9 away, a unit triangle's vertices round together in float32 (spacing 64 there);
+    only the triangles that had an area and lost it are counted (the third, flat, had none)."""
+    (tmp_path / "tris.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 2 0 0\n"
+                                       "f 1 2 3\nf 2 4 3\nf 1 2 5\n")
+    shape = {"type": "mesh", "filename": "tris.obj", "material": "white",
+             "transform": {"translate": translate}}
+    p = write_scene(tmp_path, scene_dict([shape]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert (f"{p}: key 'shapes[0].transform.translate': the mesh collapses: 2 of its 3 "
+            "triangles lose their area in float32") in line
+
+
+def test_a_mesh_moved_far_but_keeping_its_area_is_accepted(tmp_path):
+    (tmp_path / "big.obj").write_text("v 0 0 0\nv 1e3 0 0\nv 0 1e3 0\nf 1 2 3\n")
+    shape = {"type": "mesh", "filename": "big.obj", "material": "white",
+             "transform": {"translate": [1e9, 0, 0]}}
+    c = compile_scene(load_scene(write_scene(tmp_path, scene_dict([shape]))))
+    assert c.triangles[:, :, 0].min() == np.float32(1e9)
+
+
+def test_a_keyframe_scale_changing_sign_names_the_later_key(tmp_path, capsys, monkeypatch):
+    """Interpolated from 1 to -1, the scale passes through 0: refused, not NaN normals."""
+    box = dict(scene_dict()["shapes"][0],
+               keyframes=[{"time": 0, "scale": 1}, {"time": 1, "scale": 1},
+                          {"time": 2, "scale": [1, -1, 1]}])
+    p = write_scene(tmp_path, scene_dict([box], animation={"frames": 3, "fps": 2}))
+    line = refused(capsys, tmp_path, monkeypatch, "animate", p, "-o", tmp_path / "d",
+                   "--width", 8, "--height", 8)
+    assert f"{p}: key 'shapes[0].keyframes[2].scale': [1.0, -1.0, 1.0] changes the sign" in line
+    assert "passes through 0" in line
+
+
+def test_a_keyframe_scale_negative_throughout_is_accepted(tmp_path):
+    box = dict(scene_dict()["shapes"][0],
+               keyframes=[{"time": 0, "scale": -1}, {"time": 1}, {"time": 2, "scale": [-2, -1, -3]}])
+    anim = load_animation(write_scene(tmp_path, scene_dict([box], animation={"frames": 5, "fps": 2})))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for i in range(anim.frames):
+            tris, normals, _ = anim.geometry(i)
+            assert np.isfinite(normals).all() and np.isfinite(tris).all()
+
+
 @pytest.mark.parametrize("scale", [0, 1e-300, 1e16])
 def test_a_keyframe_scale_outside_its_range_names_the_key_index(tmp_path, capsys, monkeypatch, scale):
     box = dict(scene_dict()["shapes"][0], keyframes=[{"time": 0}, {"time": 1, "scale": scale}])

@@ -1,0 +1,76 @@
+"""check_outputs / check_output_dir: the same refusals for any number of outputs, in time linear
+in their number (an animation names one output per frame, up to MAX_FRAMES)."""
+import os
+import signal
+import time
+
+import pytest
+
+from hwbvh.errors import InputError
+from hwbvh.files import check_output_dir, check_outputs
+
+FRAMES = 20_000
+# a guard against quadratic work, not a benchmark: linear checking takes a fraction of this,
+# pairwise comparison of 20,000 paths takes minutes
+BOUND_S = 5.0
+
+
+@pytest.fixture
+def deadline():
+    """Fail a test still running after BOUND_S seconds, rather than waiting for it."""
+    def expired(signum, frame):
+        raise AssertionError(f"still checking after {BOUND_S:g} s")
+    previous = signal.signal(signal.SIGALRM, expired)
+    signal.setitimer(signal.ITIMER_REAL, BOUND_S)
+    yield
+    signal.setitimer(signal.ITIMER_REAL, 0)
+    signal.signal(signal.SIGALRM, previous)
+
+
+def frame_names(n):
+    return [f"frame_{k:06d}.exr" for k in range(n)]
+
+
+def test_many_frames_are_checked_in_linear_time(tmp_path, deadline):
+    start = time.perf_counter()
+    check_output_dir(tmp_path / "renders", frame_names(FRAMES) + ["timings.json"],
+                     inputs=[__file__])
+    check_outputs([tmp_path / n for n in frame_names(FRAMES)])
+    assert time.perf_counter() - start < BOUND_S
+    assert not os.listdir(tmp_path)           # the probes leave nothing behind
+
+
+def test_a_duplicate_at_the_end_of_many_frames_is_still_found(tmp_path, deadline):
+    names = frame_names(FRAMES) + ["./frame_000007.exr"]
+    with pytest.raises(InputError, match="is named twice as an output"):
+        check_output_dir(tmp_path, names)
+
+
+def test_two_spellings_of_one_existing_file_are_one_file(tmp_path):
+    a = tmp_path / "a.exr"
+    a.write_bytes(b"x")
+    os.link(a, tmp_path / "hard.exr")
+    os.symlink(a, tmp_path / "soft.exr")
+    for other in ("hard.exr", "soft.exr", "sub/../a.exr"):
+        (tmp_path / "sub").mkdir(exist_ok=True)
+        with pytest.raises(InputError) as e:
+            check_outputs([a, tmp_path / other])
+        assert str(e.value) == f"{tmp_path / other}: is named twice as an output"
+        with pytest.raises(InputError) as e:
+            check_outputs([tmp_path / other], inputs=[a])
+        assert str(e.value) == (f"{tmp_path / other}: is an input of this run ({a}); "
+                                "an output may not overwrite an input")
+
+
+def test_an_unwritable_directory_names_each_output_given(tmp_path):
+    if os.geteuid() == 0:
+        pytest.skip("root writes anywhere")
+    d = tmp_path / "locked"
+    d.mkdir()
+    d.chmod(0o500)
+    try:
+        with pytest.raises(InputError) as e:
+            check_outputs([tmp_path / "ok.exr", d / "x.exr", d / "y.exr"])
+        assert str(e.value).startswith(f"{d / 'x.exr'}: cannot create files in {d}")
+    finally:
+        d.chmod(0o700)
