@@ -130,3 +130,10 @@ TASK_MIN_PRIMS = 2048
 SEQUENTIAL_MAX_PRIMS = 10000   # below this one sequential subtree build is as fast, and needs
                                # no parallel kernels compiled (first-run time)
 TASKS_PER_THREAD = 16
+
+# Below this size an OBJ file with a negative face index is rewritten by the line-by-line
+# reader, which takes ~0.1 s per MB (~30 ms at this size): the compiled pass, though ~20x
+# faster, is compiled on first use where Numba's cache is empty or unwritable (~3.5 s), and the
+# small files where that would dominate (examples, tests, hand-written scenes) are the common
+# ones; large files repay it.
+OBJ_COMPILED_MIN_BYTES = 256 * 1024

@@ -75,7 +75,7 @@ def _directory_problem(d):
     return None
 
 
-def _identity(path):
+def file_identity(path):
     """``(st_dev, st_ino)`` of the existing file ``path`` (symlinks followed), else None: two
     spellings of one file that realpath cannot tie together (hard links, bind mounts)."""
     try:
@@ -97,13 +97,13 @@ def check_outputs(outputs, inputs=()):
         if not os.path.exists(src):
             continue
         input_by_path.setdefault(os.path.realpath(src), src)
-        input_by_id.setdefault(_identity(src), src)
+        input_by_id.setdefault(file_identity(src), src)
     input_by_id.pop(None, None)
     seen_paths, seen_ids = set(), set()
     problems = {}                                # nearest existing directory -> problem or None
     for out in outputs:
         real = os.path.realpath(out)
-        ident = _identity(out)
+        ident = file_identity(out)
         src = input_by_path.get(real) or (ident and input_by_id.get(ident))
         if src:
             same = "" if out == src else f" ({src})"

@@ -11,7 +11,7 @@ import re
 import numpy as np
 from numba import njit
 
-from .config import MAX_COORDINATE, MAX_PRIMITIVES, PRIMITIVE_RECORD_BYTES
+from .config import MAX_COORDINATE, MAX_PRIMITIVES, OBJ_COMPILED_MIN_BYTES, PRIMITIVE_RECORD_BYTES
 from .errors import InputError
 
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
@@ -59,11 +59,6 @@ _OBJ_CONTINUED_END = (b"\\", b"\\\r", b"\\\n", b"\\\r\n")
 # A continued line ending in CR ("...\r\\\n"): the reader strips the CR of a line end only, so if
 # the line joined to it is empty that CR stays in the line, which the joined text ends in CRLF.
 _OBJ_CR_BEFORE_CONTINUATION = re.compile(rb"\r\\\r?\n")
-# Below this size an OBJ file with a negative index is rewritten by the line-by-line reader, which
-# takes ~0.1 s per MB (~30 ms at this size): the compiled pass, though ~20x faster, is compiled on
-# first use where Numba's cache is empty or unwritable (~3.5 s), and the small files where that
-# would dominate (examples, tests, hand-written scenes) are the common ones; large files repay it.
-_OBJ_COMPILED_MIN_BYTES = 256 * 1024
 
 
 def _obj_lines(raw_lines):
@@ -151,7 +146,7 @@ def _obj_resolved_text(path, data):
     """The text :func:`_obj_resolved_lines` makes of OBJ file ``path`` whose bytes are ``data``
     (each line ending in "\\n"): made by the compiled pass, or for a file that pass leaves to
     it, by the line-by-line reader, which raises InputError naming the line of a bad index."""
-    text = _obj_compiled_text(data) if len(data) >= _OBJ_COMPILED_MIN_BYTES else None
+    text = _obj_compiled_text(data) if len(data) >= OBJ_COMPILED_MIN_BYTES else None
     if text is None:
         out = io.BytesIO()              # not a list of the lines: each would be an object
         for line in _obj_resolved_lines(path, io.BytesIO(data)):

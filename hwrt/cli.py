@@ -45,14 +45,6 @@ def _succeeded(args):
                 signal.signal(sig, signal.SIG_IGN)
 
 
-def _file_identity(path):
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    return st.st_dev, st.st_ino
-
-
 def _commit(args, files):
     """Write ``files`` (``hwbvh.files.write_files`` pairs), the run's last outputs, then
     :func:`_succeeded`. ``write_files`` holds a signal that arrives while it renames, and acts
@@ -62,14 +54,14 @@ def _commit(args, files):
     in a library function (explore, animate, the benchmarks in BENCH_COMMITS) pass this down
     as its ``commit``; the --out-dir reports of the others go through :func:`_write_report`,
     which writes them with it too."""
-    from hwbvh.files import write_files
+    from hwbvh.files import file_identity, write_files
     files = [(os.fspath(p), data) for p, data in files]
-    before = {p: _file_identity(p) for p, _ in files}
+    before = {p: file_identity(p) for p, _ in files}
     try:
         write_files(files)
         _succeeded(args)         # a signal up to the moment it ignores them is judged below
     except KeyboardInterrupt:    # SIGTERM's Terminated too
-        if not files or any(_file_identity(p) in (None, before[p]) for p in before):
+        if not files or any(file_identity(p) in (None, before[p]) for p in before):
             raise
         _succeeded(args)
 
@@ -210,36 +202,6 @@ def _scene_geometry(name):
         faces.astype(np.int32)
 
 
-def _scene_inputs(spec):
-    """The files a scene reads: the scene file, and the mesh and frame files its shapes name
-    (a problem with one of them is reported when the scene is loaded)."""
-    from hwbvh.errors import InputError
-    from scenes import load_scene
-    from scenes.animation import expand_pattern
-    inputs = [spec]
-    if not str(spec).lower().endswith((".json", ".toml")) or not os.path.isfile(spec):
-        return inputs
-    try:
-        shapes = load_scene(spec).get("shapes")
-    except InputError:
-        return inputs
-    scene_dir = os.path.dirname(os.path.abspath(spec))
-    for sh in shapes if isinstance(shapes, list) else ():
-        for key in ("filename", "pattern"):
-            name = sh.get(key) if isinstance(sh, dict) else None
-            if not isinstance(name, str):
-                continue
-            full = os.path.join(scene_dir, name)       # an absolute name stays itself
-            if key == "filename":
-                inputs.append(full)
-                continue
-            try:
-                inputs += expand_pattern(full)
-            except InputError:
-                pass
-    return inputs
-
-
 # The arrays of a mismatch file (hwrt verify writes them) that --replay reads: key -> the
 # shape of one ray's entry
 REPLAY_ARRAYS = {"origins": (3,), "dirs": (3,), "tmax": ()}
@@ -320,6 +282,7 @@ def cmd_verify(args):
     import numpy as np
     from hwbvh.errors import InputError
     from hwbvh.files import check_outputs, json_text
+    from scenes.loader import scene_inputs
     from traversal.verify import verify_mesh
 
     if args.replay:
@@ -337,7 +300,7 @@ def cmd_verify(args):
     rays = VERIFY_RAYS if args.rays is None else args.rays
     kind = args.kind or VERIFY_KIND
     out = args.mismatches or os.path.join("renders", f"verify-{_stem(args.scene)}-{kind}-mismatches.npz")
-    check_outputs([out], inputs=_scene_inputs(args.scene))
+    check_outputs([out], inputs=scene_inputs(args.scene))
     label, tris, verts, faces = _scene_geometry(args.scene)
     tracer = None
     if args.accel == "grid":
@@ -413,6 +376,7 @@ def cmd_render(args):
     from raytracer.render import make_tracer, render, warm_up
     from raytracer.output import exr_writer, png_writer
     from scenes import compile_scene, load_scene, with_frame
+    from scenes.loader import scene_inputs
 
     t_start = time.perf_counter()
     if args.accel != "bvh" and (args.builder not in (None, "hwbvh")
@@ -438,7 +402,7 @@ def cmd_render(args):
     if not out.lower().endswith(".exr"):
         raise InputError("-o", f"{out} does not end in .exr (--png adds a PNG preview beside the EXR)")
     png = os.path.splitext(out)[0] + ".png" if args.png else None
-    check_outputs([out, png], inputs=[args.scene])
+    check_outputs([out, png], inputs=scene_inputs(args.scene))
     scene = compile_scene(d)
     startup_s = warm_up(args.builder, args.traversal)
     if args.accel == "grid":
@@ -1101,10 +1065,6 @@ def _input_message(parser, args, e):
     with or without --height, set it."""
     from hwbvh.errors import ParameterError
     if isinstance(e, ParameterError):
-        if e.parameter == "scheduler" and getattr(args, "scheduler", None) is None:
-            from .cluster import SCHEDULER_ENV       # the address came from the environment
-            if os.environ.get(SCHEDULER_ENV):
-                return f"${SCHEDULER_ENV}: {e.problem}"
         return f"{_option_of(parser, args, e.parameter) or e.parameter}: {e.problem}"
     key, _, problem = e.problem.partition(": ")
     if key == "key 'film.width'" and getattr(args, "width", None) is not None:

@@ -115,13 +115,14 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
     """A ``distributed.Client``: on ``scheduler`` (else ``$HWRT_SCHEDULER``), else on an
     embedded local cluster of ``workers`` processes (default: one per core) whose Numba kernels
     get ``threads_per_cell`` threads each. ``warm_up`` runs once per worker. Raises
-    ParameterError("scheduler") when the scheduler cannot be reached within
-    ``CONNECT_TIMEOUT_S``."""
+    ParameterError when the scheduler cannot be reached within ``CONNECT_TIMEOUT_S``, naming
+    "scheduler", or "$HWRT_SCHEDULER" when the address came from there."""
     import dask
     from distributed import Client, LocalCluster
 
     _quiet()
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
+    named = "scheduler" if scheduler else f"${SCHEDULER_ENV}"     # what an error blames
     cluster = client = None
     # settings for this cluster only: restored when it closes, so the caller's process keeps
     # its own Dask configuration
@@ -132,8 +133,8 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
             if address:
                 problem = _probe(address)
                 if problem:
-                    raise ParameterError("scheduler", f"no Dask scheduler answers at {address!r} "
-                                                      f"within {CONNECT_TIMEOUT_S} s ({problem})")
+                    raise ParameterError(named, f"no Dask scheduler answers at {address!r} "
+                                                f"within {CONNECT_TIMEOUT_S} s ({problem})")
                 client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
             else:
                 n = workers or os.cpu_count() or 1

@@ -117,6 +117,36 @@ def load_scene(spec, **overrides):
     return d
 
 
+def scene_inputs(spec):
+    """The files scene ``spec`` reads: a scene file itself and the mesh and frame files its
+    shapes name; a mesh file or a built-in scene's name is itself alone. For the outputs'
+    check that no output overwrites an input; a problem with one of them is reported when the
+    scene is loaded."""
+    from .animation import expand_pattern
+    inputs = [spec]
+    if not str(spec).lower().endswith(SCENE_EXTENSIONS) or not os.path.isfile(spec):
+        return inputs
+    try:
+        shapes = load_scene(spec).get("shapes")
+    except InputError:
+        return inputs
+    scene_dir = os.path.dirname(os.path.abspath(spec))
+    for sh in shapes if isinstance(shapes, list) else ():
+        for key in ("filename", "pattern"):
+            name = sh.get(key) if isinstance(sh, dict) else None
+            if not isinstance(name, str):
+                continue
+            full = os.path.join(scene_dir, name)       # an absolute name stays itself
+            if key == "filename":
+                inputs.append(full)
+                continue
+            try:
+                inputs += expand_pattern(full)
+            except InputError:
+                pass
+    return inputs
+
+
 def check_name(source, name):
     """Refuse (InputError naming ``source`` and the key ``name``) a scene name that is not a
     plain file name: the default outputs are named after it (renders/<name>.exr,

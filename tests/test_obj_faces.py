@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from hwbvh import primitives
+from hwbvh.config import OBJ_COMPILED_MIN_BYTES
 from hwbvh.errors import InputError
 
 ELEMENTS = ("v 1 2 3", "vt 0 0", "vn 0 0 1")
@@ -126,7 +127,7 @@ def test_the_compiled_pass_writes_the_reference_text_or_leaves_the_file_to_it(ra
 def _padded(data):
     """OBJ bytes ``data`` with a comment line after them that makes the file large enough for
     the compiled pass (a small one is read line by line)."""
-    return data + b"#" * primitives._OBJ_COMPILED_MIN_BYTES + b"\n"
+    return data + b"#" * OBJ_COMPILED_MIN_BYTES + b"\n"
 
 
 def test_a_file_with_negative_indices_is_rewritten_without_the_line_by_line_reader(tmp_path,
@@ -173,7 +174,7 @@ def test_a_small_file_is_read_line_by_line_without_compiling_the_pass(tmp_path, 
     monkeypatch.setattr(primitives, "_obj_compiled_text", compiled)
     face = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -3\n"
     p = tmp_path / "small.obj"
-    small = face + b"#" * (primitives._OBJ_COMPILED_MIN_BYTES - len(face) - 2) + b"\n"
+    small = face + b"#" * (OBJ_COMPILED_MIN_BYTES - len(face) - 2) + b"\n"
     p.write_bytes(small)
     V, F = primitives.load_mesh_arrays(p)
     assert V[F].tolist() == [[[0, 1, 0], [1, 0, 0], [0, 0, 0]]] and calls == []
