@@ -110,6 +110,12 @@ def _sigint_blocked():
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
+def address_source(scheduler):
+    """What an error about the scheduler blames: the ``scheduler`` argument when given, else
+    ``$HWRT_SCHEDULER``, where ``dask_client`` then takes the address from."""
+    return "scheduler" if scheduler else f"${SCHEDULER_ENV}"
+
+
 @contextmanager
 def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=None):
     """A ``distributed.Client``: on ``scheduler`` (else ``$HWRT_SCHEDULER``), else on an
@@ -122,7 +128,7 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
 
     _quiet()
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
-    named = "scheduler" if scheduler else f"${SCHEDULER_ENV}"     # what an error blames
+    named = address_source(scheduler)
     cluster = client = None
     # settings for this cluster only: restored when it closes, so the caller's process keeps
     # its own Dask configuration
@@ -169,15 +175,16 @@ def describe(client):
     return f"the Dask scheduler at {client.scheduler.address} ({n} workers)"
 
 
-def timing_host(client):
+def timing_host(client, named="scheduler"):
     """The host (as in the workers' addresses) where ``client``'s timed cells run: the first
-    in address order, so that every timing of a run comes from one machine."""
+    in address order, so that every timing of a run comes from one machine. A scheduler
+    without workers raises ParameterError naming ``named`` (``address_source``)."""
     from distributed.comm import get_address_host
 
     hosts = sorted({get_address_host(w) for w in client.scheduler_info().get("workers", {})})
     if not hosts:
-        raise ParameterError("scheduler", f"the Dask scheduler at {client.scheduler.address} "
-                                          f"has no workers")
+        raise ParameterError(named, f"the Dask scheduler at {client.scheduler.address} "
+                                    f"has no workers")
     return hosts[0]
 
 

@@ -177,10 +177,10 @@ class _Timing:
     """Runs timed cells one at a time on one machine: this process, or one host of a
     Dask cluster."""
 
-    def __init__(self, client):
+    def __init__(self, client, named="scheduler"):
         from .cluster import timing_host
         self.client = client
-        self.host = timing_host(client) if client is not None else None
+        self.host = timing_host(client, named) if client is not None else None
 
     def run(self, jobs, on_result, desc, progress):
         """``jobs``: [(key, fn, args)]; ``on_result(key, result)`` in this process."""
@@ -207,10 +207,10 @@ def _timing(scheduler, use_dask, warm_up):
         yield _Timing(None)
         return
     import numba
-    from .cluster import dask_client
+    from .cluster import address_source, dask_client
     with dask_client(scheduler, workers=1, threads_per_cell=numba.config.NUMBA_NUM_THREADS,
                      warm_up=warm_up) as client:
-        yield _Timing(client)
+        yield _Timing(client, address_source(scheduler))
 
 
 def _run_id():

@@ -81,6 +81,10 @@ def _fail(source, key, problem):
     raise InputError(source, f"key '{key}': {problem}")
 
 
+def too_many_frames(frames):
+    return f"{frames} is more than the {MAX_FRAMES} frames an animation may have"
+
+
 def _check_keys(source, obj, allowed, path):
     if not isinstance(obj, dict):
         _fail(source, path, "expected an object")
@@ -351,8 +355,7 @@ class Animation:
         them all, none has NaN vertices, no keyframed shape moves beyond the coordinate bound,
         and the camera can be placed at every frame)."""
         if frames > MAX_FRAMES:
-            raise ParameterError("frames", f"{frames} is more than the {MAX_FRAMES} frames an "
-                                           "animation may have")
+            raise ParameterError("frames", too_many_frames(frames))
         if self.max_frames is not None and frames > self.max_frames:
             raise InputError(self.source, f"{frames} frames asked for, but the sequence has "
                                           f"only {self.max_frames}")
@@ -495,8 +498,7 @@ def from_scene_dict(d, source=None, fps=None):
     if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
         _fail(source, "animation.frames", f"expected a positive integer, got {frames!r}")
     if frames is not None and frames > MAX_FRAMES:
-        _fail(source, "animation.frames", f"{frames} is more than the {MAX_FRAMES} frames an "
-                                          "animation may have")
+        _fail(source, "animation.frames", too_many_frames(frames))
     shapes = d.get("shapes")
     if not isinstance(shapes, list) or not shapes:
         _fail(source, "shapes", "expected a non-empty list")
@@ -505,6 +507,7 @@ def from_scene_dict(d, source=None, fps=None):
     parts, inputs = [], [source] if os.path.exists(str(source)) else []
     base = None
     max_frames = None
+    shortest = None                 # the key of the shortest frames sequence
     for i, sh in enumerate(shapes):
         path = f"shapes[{i}]"
         if not isinstance(sh, dict):
@@ -520,10 +523,19 @@ def from_scene_dict(d, source=None, fps=None):
             full = pat if os.path.isabs(pat) else os.path.join(scene_dir, pat)
             files = expand_pattern(full, f"{source}: key '{path}.pattern'")
             inputs += files
-            max_frames = len(files) if max_frames is None else min(max_frames, len(files))
+            if max_frames is None or len(files) < max_frames:
+                max_frames, shortest = len(files), f"{path}.pattern"
             one = dict(static, shapes=[{"type": "mesh", "filename": files[0],
                                         "material": sh.get("material"), "smooth": smooth}])
-            c = compile_scene(one, source=source, first_shape=i)
+            try:
+                c = compile_scene(one, source=source, first_shape=i)
+            except InputError as e:
+                # the first frame is read as a mesh shape: its errors belong to the pattern
+                as_mesh = f"key '{path}.filename'"
+                if not e.problem.startswith(as_mesh):
+                    raise
+                raise InputError(e.source, f"key '{path}.pattern'{e.problem[len(as_mesh):]}") \
+                    from None
             parts.append(Part(c.triangles, c.normals, int(c.material[0]), FrameSequence(files, smooth)))
         else:
             keys = sh.get("keyframes")
@@ -545,6 +557,9 @@ def from_scene_dict(d, source=None, fps=None):
     f = fps if fps is not None else _number(source, anim.get("fps", DEFAULT_FPS), "animation.fps",
                                             lo=MIN_FPS, hi=MAX_FPS)
     if frames is None:
+        if max_frames is not None and max_frames > MAX_FRAMES:
+            _fail(source, shortest, f"the sequence has {max_frames} files: "
+                                    f"{too_many_frames(max_frames)} (give a frame count)")
         frames = max_frames if max_frames is not None else int(round(4 * f))
     return Animation(str(d.get("name", "scene")), base, parts, frames, f, camera,
                      inputs=inputs, source=source, max_frames=max_frames)

@@ -496,3 +496,24 @@ def test_exploding_breaks_the_bunny_of_the_mesh_directory(tmp_path, monkeypatch,
     monkeypatch.setenv("HWRT_MESHES", str(tmp_path))
     assert open_animation("exploding").info["mesh"] == "bunny.ply"
     assert open_animation("exploding", triangles=500).info["mesh"].startswith("generated sphere")
+
+
+def test_frame_sequence_errors_name_the_pattern_key(tmp_path, capsys, monkeypatch):
+    """A frames shape's first file is read as a mesh, but its errors name the key the scene
+    file has (``pattern``); a sequence longer than an animation may be, with no frame count,
+    is blamed on its pattern, not on an option the user did not give."""
+    frames = tmp_path / "seq"
+    frames.mkdir()
+    (frames / "f_0000.ply").write_text("not a mesh\n")
+    shape = {"type": "frames", "pattern": "seq/f_%04d.ply", "material": "white"}
+    p = _scene_file(tmp_path, [shape])
+    rc, _, err = _run_cli(capsys, "animate", p, "-o", tmp_path / "out")
+    assert rc == 2 and "key 'shapes[0].pattern'" in err and "f_0000.ply" in err, err
+    assert "filename" not in err
+    for i in range(3):
+        _ply(frames / f"f_{i:04d}.ply", sphere(4, 8) + i)
+    import scenes.animation
+    monkeypatch.setattr(scenes.animation, "MAX_FRAMES", 2)
+    rc, _, err = _run_cli(capsys, "animate", p, "-o", tmp_path / "out")
+    assert rc == 2 and "key 'shapes[0].pattern'" in err and "3 files" in err, err
+    assert "--frames" not in err and not (tmp_path / "out").exists()
