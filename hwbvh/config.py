@@ -130,6 +130,9 @@ TASK_MIN_PRIMS = 2048
 SEQUENTIAL_MAX_PRIMS = 10000   # below this one sequential subtree build is as fast, and needs
                                # no parallel kernels compiled (first-run time)
 TASKS_PER_THREAD = 16
+# ``parallel.run_ranges`` cuts a batch into this many ranges per thread, taken as threads come
+# free: enough to rebalance around a thread slowed by another program, few enough calls.
+RANGES_PER_THREAD = 8
 
 # Below this size an OBJ file with a negative face index is rewritten by the line-by-line
 # reader, which takes ~0.1 s per MB (~30 ms at this size): the compiled pass, though ~20x

@@ -41,6 +41,7 @@ import threading
 
 import numba
 
+from .config import RANGES_PER_THREAD
 from .errors import InputError, ParameterError
 
 THREADING_SETUPS = {
@@ -83,7 +84,6 @@ def check_threading():
     if _THREADING_PROBLEM is not None:
         raise InputError(*_THREADING_PROBLEM)
 
-RANGES_PER_THREAD = 8          # enough to rebalance around a slowed thread, few enough calls
 
 class _Pool:
     """Sleeping daemon threads that run submitted callables in order of submission. Daemon

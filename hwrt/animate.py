@@ -36,12 +36,9 @@ import numpy as np
 from hwbvh.files import figure_png
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.files import check_output_dir, json_text, jsonable, write_files
+from .config import ADAPTIVE_THRESHOLD
 
 STRATEGIES = ("rebuild", "refit", "adaptive", "embree")
-# The adaptive strategy rebuilds once the refitted tree's SAH cost exceeds this multiple of the
-# cost right after the last rebuild. The SAH cost estimates traversal work per ray, so this
-# bounds what refitting may add to a frame's render at about half again of a fresh tree's.
-ADAPTIVE_THRESHOLD = 1.5
 PRESET_NAMES = ("HWBVH-C", "HWBVH-HP")
 FRAME_NAME = "frame_{:04d}.exr"
 STATE_NAME = "animation.json"

@@ -955,7 +955,8 @@ def make_parser():
     an.add_argument("--accel", choices=ACCELS, default="bvh",
                     help="acceleration structure: bvh (updated by --strategy) or another, "
                          "rebuilt every frame")
-    from .animate import ADAPTIVE_THRESHOLD
+    from scenes.animation import GENERATED_TRIANGLES
+    from .config import ADAPTIVE_THRESHOLD
     an.add_argument("--threshold", type=_positive_float,
                     help="adaptive: rebuild when the SAH cost grows past this factor of the last "
                          f"rebuild's (default: {ADAPTIVE_THRESHOLD})")
@@ -968,13 +969,15 @@ def make_parser():
                                    "directory, $HWRT_MESHES, else ../shared/meshes if it is "
                                    "there; without either, a generated sphere)")
     an.add_argument("--triangles", type=_int_at_least(1, config.MAX_PRIMITIVES),
-                    help="exploding (generated sphere) and cloth: about this many triangles")
+                    help="exploding (generated sphere) and cloth: about this many triangles "
+                         f"(default: {GENERATED_TRIANGLES})")
     an.add_argument("--physics", help="marbles: pybullet, analytic or auto (default: auto)")
     an.add_argument("--verify", action="store_true",
                     help="check every ray (closest hits and shadows) against Embree")
     an.add_argument("--seed", type=_non_negative, default=0, help="seed of the pixel jitter")
     an.add_argument("-o", "--output", metavar="DIR", type=_path,
-                    help="output directory (default: renders/animate-<scene>-<strategy>)")
+                    help="output directory (default: renders/animate-<scene>-<strategy>, or "
+                         "-<accel> with --accel grid or kdtree)")
     an.add_argument("--json", action="store_true", help="print one JSON object")
     an.set_defaults(func=cmd_animate)
 

@@ -51,6 +51,7 @@ from .loader import (FOV_RANGE, MAX_FRAMES, check_scale, compile_scene, finite, 
                      mesh_scene, vector_ok, with_frame)
 
 DEFAULT_FPS = 30.0
+GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
 # Frame rates an animation may have: an animation without a frame count lasts four seconds,
 # which at these bounds is 1 to 4000 frames (beyond them: no frame, or frame times too fine
 # for the motions' clocks).
@@ -653,7 +654,8 @@ class Explosion:
         return tris, flat_normals(tris)
 
 
-def exploding(width=320, height=240, spp=1, max_depth=3, mesh=None, triangles=20_000, seed=0):
+def exploding(width=320, height=240, spp=1, max_depth=3, mesh=None, triangles=GENERATED_TRIANGLES,
+              seed=0):
     """A mesh (the file ``mesh``, else a generated sphere of about ``triangles`` triangles)
     breaking into its triangles (after Exploding Dragon)."""
     from .meshes import sphere
@@ -768,7 +770,8 @@ class Cloth:
         return self.x[self.faces], smooth_normals(self.x, self.faces)
 
 
-def cloth(width=320, height=240, spp=1, max_depth=3, triangles=20_000, fps=DEFAULT_FPS):
+def cloth(width=320, height=240, spp=1, max_depth=3, triangles=GENERATED_TRIANGLES,
+          fps=DEFAULT_FPS):
     """A cloth sheet of about ``triangles`` triangles falling and draping over a sphere (after
     the thesis' Cloth scene), by position-based dynamics in Numba."""
     n = max(2, int(round(math.sqrt(triangles / 2))))

@@ -496,7 +496,7 @@ def _shape(ctx, sh, i, scene_dir):
         normals = _flat_normals(tris)
     elif typ == "sphere":
         c = ctx.vec(sh, "center", path)
-        r = ctx.num(sh, "radius", path, lo=1e-30, wanted="positive")
+        r = ctx.num(sh, "radius", path, lo=1e-30)
         sub = sh.get("subdiv", [32, 64])
         if not (isinstance(sub, (list, tuple)) and len(sub) == 2 and
                 all(isinstance(x, int) and not isinstance(x, bool) and x >= 3 for x in sub)):
@@ -529,12 +529,7 @@ def _shape(ctx, sh, i, scene_dir):
                  "with its height and wave, the sheet")
         normals = _flat_normals(tris)
     elif typ == "triangles":
-        try:
-            tris = np.asarray(sh.get("data"), np.float64).reshape(-1, 3, 3)
-        except (TypeError, ValueError):
-            ctx.fail(f"{path}.data", "expected a list of triangles (3 points of 3 numbers)")
-        if not len(tris):
-            ctx.fail(f"{path}.data", "expected at least one triangle, got an empty list")
+        tris = _triangle_data(ctx, sh.get("data"), f"{path}.data")
         if not within_bound(tris):
             ctx.fail(f"{path}.data", f"expected finite coordinates of magnitude at most "
                                      f"{MAX_COORDINATE:g}")
@@ -593,6 +588,28 @@ def _light(ctx, obj, key, path, default=None):
     if (v < 0).any():
         ctx.fail(f"{path}.{key}", f"must not be negative, got {v.tolist()}")
     return v
+
+
+def _triangle_data(ctx, data, key):
+    """A ``triangles`` shape's data as (n, 3, 3) float64: a non-empty list of triangles of 3
+    points of 3 numbers, nested as written (a flat list of numbers is refused, not reshaped);
+    ``true``, ``false`` and strings are not numbers."""
+    try:
+        items = np.asarray(data, dtype=object)
+    except (TypeError, ValueError):             # ragged nesting
+        items = None
+    if items is not None and items.ndim == 1 and items.shape[0] == 0:
+        ctx.fail(key, "expected at least one triangle, got an empty list")
+    ok = items is not None and items.ndim == 3 and items.shape[1:] == (3, 3)
+    if ok:
+        kinds = np.frompyfunc(type, 1, 1)(items)     # numbers as JSON and TOML give them
+        ok = bool(((kinds == int) | (kinds == float)).all())
+    if ok:
+        try:
+            return np.asarray(items, np.float64)
+        except (TypeError, ValueError):
+            pass
+    ctx.fail(key, "expected a list of triangles, each 3 points of 3 numbers")
 
 
 def compile_scene(d, source=None, first_shape=0):

@@ -336,7 +336,7 @@ BAD_SCENE_EDITS = {
     "integrator-key": (lambda d: d.update(integrator={"maxdepth": 3}), "integrator.maxdepth.*'max_depth'"),
     "film-jitter-not-bool": (lambda d: d["film"].update(jitter="no"), "film.jitter"),
     "negative-radius": (lambda d: d["shapes"][0].update(radius=-1),
-                        "shapes\\[0\\].radius': -1 is out of range \\(must be positive\\)"),
+                        "shapes\\[0\\].radius': -1 is out of range \\(must be at least 1e-30\\)"),
     "infinite-radius": (lambda d: d["shapes"][0].update(radius=float("inf")),
                         "shapes\\[0\\].radius': expected a finite number, got inf"),
     "nan-fov": (lambda d: d["camera"].update(fov=float("nan")),

@@ -118,6 +118,15 @@ QUAD = {"type": "quad", "corners": [[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 
     ({"type": "box", "min": [-1e15] * 3, "max": [1e15] * 3, "rotate_y": 45, "material": "white"},
      "shapes[0].rotate_y"),
     ({"type": "triangles", "data": [], "material": "white"}, "shapes[0].data"),
+    # not numbers, or not nested as triangles of points: refused, not converted or reshaped
+    ({"type": "triangles", "data": [[[True, 0, 0], [1, 0, 0], [0, 1, 0]]], "material": "white"},
+     "shapes[0].data"),
+    ({"type": "triangles", "data": [[["0", 0, 0], [1, 0, 0], [0, 1, 0]]], "material": "white"},
+     "shapes[0].data"),
+    ({"type": "triangles", "data": [0, 0, 0, 1, 0, 0, 0, 1, 0], "material": "white"},
+     "shapes[0].data"),
+    ({"type": "triangles", "data": [[[0, 0, 0], [1, 0, 0], [0, 1]]], "material": "white"},
+     "shapes[0].data"),
 ])
 def test_generated_geometry_beyond_the_bound_names_its_key(tmp_path, capsys, monkeypatch, shape, key):
     p = write_scene(tmp_path, scene_dict([shape]))

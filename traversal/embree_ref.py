@@ -11,14 +11,9 @@ import time
 import numpy as np
 
 from hwbvh.parallel import run_ranges
+from .config import EMBREE_CHUNK_RAYS
 
 EMBREE_MISS_T = 1e37
-# Rays per chunk of a batch. embreex traces a call's rays one by one on the calling thread (it
-# releases the GIL), so a batch is cut into chunks that ``run_ranges`` hands to the same
-# threads our traversal uses (a range of chunks per embreex call): Embree and our traversal
-# then trace on equal terms, down to the small queues of a render's later bounces. A call
-# costs about 2 us (measured), a 1024-ray chunk some 40 us or more of tracing.
-EMBREE_CHUNK_RAYS = 1 << 10
 
 
 def embree_scene(vertices, faces, robust=True):
