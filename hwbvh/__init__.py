@@ -2,8 +2,8 @@
 from . import parallel  # noqa: F401  (pins the threading set-up before any kernel runs)
 from .api import Bvh, build, load, save
 from .errors import InputError
-from .format import NODE_DTYPE, sah_cost, tree_stats, validate
+from .format import NODE_DTYPE, check_nodes, sah_cost, tree_stats, validate
 from .primitives import as_triangles, load_triangles, primitive_boxes
 
-__all__ = ["Bvh", "build", "load", "save", "InputError", "NODE_DTYPE", "sah_cost", "tree_stats",
-           "validate", "as_triangles", "load_triangles", "primitive_boxes"]
+__all__ = ["Bvh", "build", "load", "save", "InputError", "NODE_DTYPE", "check_nodes", "sah_cost",
+           "tree_stats", "validate", "as_triangles", "load_triangles", "primitive_boxes"]

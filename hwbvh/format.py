@@ -177,6 +177,82 @@ def validate(nodes, entries, n_prims, max_leaf, prim_boxes=None, source="<tree>"
 
 
 @njit(cache=True)
+def _check_topology(u, n_positions):
+    """Walk from the root: every child pointer in 1..n-1, no node reached twice, and (when
+    ``n_positions`` >= 0) every leaf's index range inside the first ``n_positions`` positions.
+    Each node is pushed at most once, so the stack never exceeds n. Returns (code, node)."""
+    nslots = u.shape[0]
+    seen = np.zeros(nslots, dtype=np.uint8)
+    stack = np.empty(nslots, dtype=np.int64)
+    stack[0] = 0
+    seen[0] = 1
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        i = stack[sp]
+        if u[i, WORD_FLAGS] & LEAF_FLAG:
+            if n_positions >= 0 and np.int64(u[i, WORD_A]) + np.int64(u[i, WORD_B]) > n_positions:
+                return 7, i
+            continue
+        for c in (np.int64(u[i, WORD_A]), np.int64(u[i, WORD_B])):
+            if c >= nslots or c == 0:
+                return 1, i
+            if seen[c]:
+                return 2, c
+            seen[c] = 1
+            stack[sp] = c
+            sp += 1
+    return 0, 0
+
+
+def _node_array(nodes, source):
+    """``nodes`` as a contiguous 1-D NODE_DTYPE array with at least one node, or InputError.
+    Only the exact little-endian dtype is accepted: the kernels reinterpret the bytes as
+    native words, so any other layout or byte order would be read as garbage."""
+    from .errors import InputError
+
+    if not isinstance(nodes, np.ndarray):
+        raise InputError(source, f"expected a NODE_DTYPE array, got {type(nodes).__name__}")
+    if nodes.dtype != NODE_DTYPE:
+        if nodes.dtype.names == NODE_DTYPE.names and nodes.dtype.itemsize == NODE_DTYPE.itemsize:
+            raise InputError(source, "NODE_DTYPE fields in a non-little-endian byte order; "
+                                     "convert with .astype(hwbvh.NODE_DTYPE)")
+        raise InputError(source, f"expected a NODE_DTYPE array, got dtype {nodes.dtype}")
+    if nodes.ndim != 1:
+        raise InputError(source, f"expected a 1-D NODE_DTYPE array, got shape {nodes.shape}")
+    if len(nodes) == 0:
+        raise InputError(source, "no nodes")
+    return np.ascontiguousarray(nodes)
+
+
+def check_nodes(nodes, n_positions=None, source="nodes"):
+    """Check that ``nodes`` can be walked safely; return them as a contiguous NODE_DTYPE array.
+
+    Refuses (InputError naming ``source``) anything that is not a non-empty 1-D array of
+    exactly NODE_DTYPE, a child pointer outside 1..len(nodes)-1, and a node reached twice (a
+    cycle or a shared child). With ``n_positions`` (the index list's length), every leaf's
+    range [a, a + b) must also lie within it. O(n); the boxes are not checked (see
+    :func:`validate` for every invariant).
+    """
+    from .errors import InputError, ParameterError
+
+    nodes = _node_array(nodes, source)
+    if n_positions is None:
+        limit = -1
+    elif isinstance(n_positions, (bool, np.bool_)) or not isinstance(n_positions, (int, np.integer)) \
+            or n_positions < 0:
+        raise ParameterError("n_positions", f"must be an integer >= 0, got {n_positions!r}")
+    else:
+        # a leaf range ends below 2^33 (two uint32 words), so a larger limit changes nothing
+        limit = min(int(n_positions), 1 << 40)
+    u, _ = node_views(nodes)
+    code, where = _check_topology(u, limit)
+    if code:
+        raise InputError(source, f"invalid tree: {_ERRORS[code]} (node {where})")
+    return nodes
+
+
+@njit(cache=True)
 def _tree_stats(u, f):
     """Depth-first walk: SAH cost terms (float64), node/leaf counts, max depth."""
     nslots = u.shape[0]
@@ -229,7 +305,10 @@ def sah_cost(nodes):
 
 
 def tree_stats(nodes):
-    u, f = node_views(np.ascontiguousarray(nodes))
+    """Node and leaf counts, maximum depth and leaf size, and the SAH cost of the tree rooted
+    at node 0. Refuses (InputError naming 'nodes') what :func:`check_nodes` refuses."""
+    nodes = check_nodes(nodes)
+    u, f = node_views(nodes)
     internal, leaf, n, leaves, depth, max_leaf = _tree_stats(u, f)
     b = nodes["bounds"][0].astype(np.float64)
     d = b[3:] - b[:3]
