@@ -411,12 +411,9 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
 
     stats: rays per kind, the passes the scene needs, and seconds per stage, summed over the
     threads."""
+    _check_render_arguments(scene, tracer, seed, progress)
     if offset not in STRATEGY_CODES:
         raise ParameterError("offset", f"unknown strategy {offset!r} (choose from {', '.join(STRATEGY_CODES)})")
-    if int(seed) < 0:
-        raise ParameterError("seed", f"must be non-negative, got {seed}")
-    if len(scene.triangles) == 0:
-        raise ParameterError("scene", "has no triangles to render")
     W, H, spp = scene.width, scene.height, scene.spp
     npix = W * H
     passes = scene_passes(scene)
@@ -457,6 +454,49 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     return RenderResult(image=frame.image.reshape(H, W, 3), depth=frame.aov_depth.reshape(H, W),
                         normal=frame.aov_normal.reshape(H, W, 3),
                         prim=frame.aov_prim.reshape(H, W), stats=stats)
+
+
+def _check_render_arguments(scene, tracer, seed, progress):
+    """``render``'s arguments, before any work: a compiled scene with triangles and a film,
+    a tracer with both queries, a seed that is an integer, a callable ``progress``."""
+    if not all(hasattr(scene, a) for a in ("triangles", "width", "height", "spp", "camera")):
+        raise ParameterError("scene", f"expected a compiled scene (scenes.compile_scene), got "
+                                      f"{type(scene).__name__}")
+    if len(scene.triangles) == 0:
+        raise ParameterError("scene", "has no triangles to render")
+    for key in ("width", "height", "spp"):
+        v = getattr(scene, key)
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ParameterError(f"scene.{key}", f"must be a positive integer, got {v!r}")
+    if not (callable(getattr(tracer, "intersect", None)) and
+            callable(getattr(tracer, "occluded", None))):
+        raise ParameterError("tracer", f"expected a tracer with intersect and occluded, got "
+                                       f"{type(tracer).__name__}")
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
+    if progress is not None and not callable(progress):
+        raise ParameterError("progress", f"expected a callable or None, got {type(progress).__name__}")
+
+
+def _checked_answers(tracer, n, n_triangles, hits=None, blocked=None):
+    """A tracer's answers, checked before the shading kernels index with them: one per ray,
+    and primitive ids in [-1, n_triangles) (a tracer built over other triangles, or one that
+    is not ours, would otherwise make shading read past the scene's arrays)."""
+    answers = {"blocked": blocked} if hits is None else \
+        {k: getattr(hits, k, None) for k in ("prim", "t", "u", "v")}
+    for key, got in answers.items():
+        if not isinstance(got, np.ndarray) or got.shape != (n,):
+            raise ParameterError("tracer", f"{type(tracer).__name__} answered {key} of shape "
+                                           f"{np.shape(got)} for {n} rays, expected ({n},)")
+    prim = answers.get("prim")
+    if prim is not None and prim.dtype.kind not in "iu":
+        raise ParameterError("tracer", f"{type(tracer).__name__} answered primitive ids of type "
+                                       f"{prim.dtype}, expected integers")
+    if prim is not None and n and (prim.min() < -1 or prim.max() >= n_triangles):
+        raise ParameterError("tracer", f"{type(tracer).__name__} answered primitive "
+                                       f"{int(prim.max() if prim.max() >= n_triangles else prim.min())}"
+                                       f", outside the scene's {n_triangles} triangles (a tracer "
+                                       f"built over other triangles?)")
 
 
 def _one_at_a_time(callback):
@@ -501,6 +541,7 @@ def _render_band(fr, band):
     Returns (rays per kind, seconds per stage)."""
     scene, tracer, sa = fr.scene, fr.tracer, fr.sa
     W, H = scene.width, scene.height
+    ntri = len(scene.triangles)
     y0 = band * fr.rows
     y1 = min(H, y0 + fr.rows)
     q0, q1 = y0 * W, y1 * W          # whole rows of tiles: slots q0..q1 of the tile order
@@ -543,6 +584,7 @@ def _render_band(fr, band):
             sp_O, sp_D, sp_W, sp_pix, sp_cnt = buf.sp
             lap("join")
             h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
+            _checked_answers(tracer, n, ntri, hits=h)
             lap("intersect")
             _shade(n, O, D, wgt, pix, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
                    bounce == 0, eye, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
@@ -556,6 +598,7 @@ def _render_band(fr, band):
             lap("join")
             if n_lights:
                 blocked = np.ascontiguousarray(tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m]))
+                _checked_answers(tracer, m, ntri, blocked=blocked)
                 lap("occluded")
                 stages.accumulate_unblocked(sh_cnt, buf.cap, sh_C, sh_pix, blocked, film)
                 rays["shadow"] += m

@@ -339,3 +339,37 @@ def test_release_buffers_frees_the_shading_scratch_too():
     assert kept.scratch is None and kept.buffers is None and kept.film is None
     again = render(scene, RecordingTracer(tracer), seed=2)
     assert np.array_equal(again.image, first.image)
+
+
+def test_render_refuses_bad_arguments_and_answers_before_shading_reads_them():
+    """A tracer's answers index the scene's arrays in compiled shading: a tracer built over
+    other triangles, or one answering the wrong number of rays, is refused, not read past."""
+    import dataclasses
+    import hwbvh
+    from hwbvh.errors import ParameterError
+    from traversal import Tracer
+
+    scene = small("cornell", 16, 12, 1)
+    ours = Tracer(hwbvh.build(scene.triangles))
+    wall = np.repeat(np.array([[[-50, -50, 2.0], [50, -50, 2.0], [0, 50, 2.0]]], np.float32), 500, 0)
+    more = Tracer(hwbvh.build(np.concatenate([scene.triangles, wall])))
+
+    class Short:
+        def intersect(self, o, d, **kw):
+            h = ours.intersect(o, d, **kw)
+            return dataclasses.replace(h, prim=h.prim[:3])
+
+        def occluded(self, *a, **kw):
+            return ours.occluded(*a, **kw)
+
+    cases = [((scene, more), {}, "tracer", "outside the scene's"),
+             ((scene, Short()), {}, "tracer", r"of shape \(3,\)"),
+             ((load_scene("cornell"), ours), {}, "scene", "compiled scene"),
+             ((scene, object()), {}, "tracer", "intersect and occluded"),
+             ((scene, ours), {"seed": 1.5}, "seed", "integer"),
+             ((scene, ours), {"progress": 5}, "progress", "callable"),
+             ((dataclasses.replace(scene, spp=0), ours), {}, "scene.spp", "positive integer")]
+    for args, kw, parameter, words in cases:
+        with pytest.raises(ParameterError, match=words) as e:
+            render(*args, **kw)
+        assert e.value.parameter == parameter
