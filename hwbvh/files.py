@@ -7,6 +7,7 @@ temporary file beside it and renames it into place only when every file of the s
 an exception (an interruption included) removes the temporary files. ``json_text`` is the one
 JSON encoder: strict JSON, with ``null`` for a number that is infinite or undefined.
 """
+import errno
 import json
 import math
 import os
@@ -215,19 +216,27 @@ def write_files(pairs):
     try:
         for path, data in pairs:
             path = os.fspath(path)
+            if os.path.isdir(path):
+                raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", path)
             d = os.path.dirname(os.path.abspath(path))
-            os.makedirs(d, exist_ok=True)
-            with signals_held():        # a signal between creating and recording the
-                fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(path)[1],
-                                           dir=d)
-                tmps.append((tmp, path))  # temporary file would leave it behind
-            if callable(data):
-                os.close(fd)
-                data(tmp)
-            else:
-                with os.fdopen(fd, "w" if isinstance(data, str) else "wb") as f:
-                    f.write(data)
-            os.chmod(tmp, _file_mode())
+            try:
+                os.makedirs(d, exist_ok=True)
+                with signals_held():        # a signal between creating and recording the
+                    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(path)[1],
+                                               dir=d)
+                    tmps.append((tmp, path))  # temporary file would leave it behind
+                if callable(data):
+                    os.close(fd)
+                    data(tmp)
+                else:
+                    with os.fdopen(fd, "w" if isinstance(data, str) else "wb") as f:
+                        f.write(data)
+                os.chmod(tmp, _file_mode())
+            except OSError as e:
+                if not e.errno:
+                    raise
+                # the error names the file the caller asked for, not its temporary file
+                raise type(e)(e.errno, e.strerror, path) from None
         with signals_held():
             for tmp, path in tmps:
                 os.replace(tmp, path)

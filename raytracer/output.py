@@ -6,20 +6,48 @@ import os
 
 import numpy as np
 
+from hwbvh.errors import ParameterError
 from hwbvh.files import write_files
 
 
-def write_exr(path, result, metadata, layers=True):
+def write_exr(path, result, metadata=None, layers=True):
     """Float RGB, plus depth (Z), shading normal (N.X/N.Y/N.Z) and primitive id (prim.id, exact
-    in float32 below 2^24) when ``layers``; ``metadata`` goes into the header as hwrt:* keys."""
+    in float32 below 2^24) when ``layers``; ``metadata`` (a dict) goes into the header as hwrt:*
+    keys: numbers as numbers where the header's types hold them, anything else as text."""
     write_files([(path, exr_writer(path, result, metadata, layers))])
 
 
-def exr_writer(path, result, metadata, layers=True):
+def _check_path(path, extension):
+    if os.path.splitext(os.fspath(path))[1].lower() != extension:
+        raise ParameterError("path", f"{os.fspath(path)}: expected a {extension} file name")
+
+
+def _check_image(name, image, shape):
+    """``image`` as an array of ``shape`` (None: any size), else ParameterError naming it."""
+    a = np.asarray(image)
+    if a.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, a.shape)) \
+            or a.dtype.kind not in "fiu" or 0 in a.shape:
+        want = ", ".join("hw"[k] if s is None else str(s) for k, s in enumerate(shape))
+        raise ParameterError(name, f"expected a non-empty ({want}) array of numbers, got "
+                                   f"{a.dtype} of shape {a.shape}")
+    return a
+
+
+def exr_writer(path, result, metadata=None, layers=True):
     """A ``write(tmp_path)`` for :func:`hwbvh.files.write_files` (see :func:`write_exr`)."""
     import OpenImageIO as oiio
 
-    H, W, _ = result.image.shape
+    _check_path(path, ".exr")
+    if metadata is None:
+        metadata = {}
+    if not isinstance(metadata, dict):
+        raise ParameterError("metadata", f"expected a dict, got {type(metadata).__name__}")
+    image = _check_image("result.image", result.image, (None, None, 3))
+    H, W, _ = image.shape
+    if layers:
+        _check_image("result.depth", result.depth, (H, W))
+        _check_image("result.normal", result.normal, (H, W, 3))
+        _check_image("result.prim", result.prim, (H, W))
     chans = [result.image[..., 0], result.image[..., 1], result.image[..., 2]]
     names = ["R", "G", "B"]
     if layers:
@@ -33,9 +61,23 @@ def exr_writer(path, result, metadata, layers=True):
         spec.channelnames = tuple(names)
         spec.attribute("compression", "zip")
         for k, v in metadata.items():
-            spec.attribute(f"hwrt:{k}", str(v) if not isinstance(v, (int, float)) else v)
+            spec.attribute(f"hwrt:{k}", _header_value(v))
         _write_image(tmp, path, spec, pixels)
     return write
+
+
+INT32 = np.iinfo(np.int32)
+
+
+def _header_value(v):
+    """An EXR header holds 32-bit integers and floats: a number it cannot hold exactly (an
+    integer beyond 32 bits, a bool) goes in as text, like every other value."""
+    if isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) \
+            and INT32.min <= v <= INT32.max:
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v)
+    return str(v)
 
 
 def _write_image(tmp, path, spec, pixels):
@@ -70,7 +112,8 @@ def png_writer(path, image):
     """A ``write(tmp_path)`` for :func:`hwbvh.files.write_files` (see :func:`write_png`)."""
     import OpenImageIO as oiio
 
-    px = np.ascontiguousarray(tonemap(image))
+    _check_path(path, ".png")
+    px = np.ascontiguousarray(tonemap(_check_image("image", image, (None, None, 3))))
     H, W, _ = px.shape
 
     def write(tmp):

@@ -1,6 +1,8 @@
 """The compiled wavefront renderer: the same image as the NumPy reference, whatever the thread
 count; one tracer interface for both back ends; verification of every closest-hit and every
 shadow answer the shading used."""
+import os
+
 import numba
 import numpy as np
 import pytest
@@ -373,3 +375,44 @@ def test_render_refuses_bad_arguments_and_answers_before_shading_reads_them():
         with pytest.raises(ParameterError, match=words) as e:
             render(*args, **kw)
         assert e.value.parameter == parameter
+
+
+def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
+    """A file name without the format's extension, a directory, a 4-channel image, a
+    metadata value the header cannot hold as a number: named, or written as text."""
+    from hwbvh.errors import ParameterError
+    from raytracer.output import read_exr, write_exr, write_png
+    from raytracer.render import RenderResult
+
+    h, w = 2, 3
+    res = RenderResult(np.full((h, w, 3), 0.5, np.float32), np.ones((h, w), np.float32),
+                       np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.int32))
+    for path in (tmp_path / "noext", tmp_path / "a.png"):
+        with pytest.raises(ParameterError, match="expected a .exr file name"):
+            write_exr(path, res)
+    (tmp_path / "d.exr").mkdir()
+    with pytest.raises(IsADirectoryError, match="d.exr"):
+        write_exr(tmp_path / "d.exr", res)
+    four = RenderResult(np.zeros((h, w, 4), np.float32), res.depth, res.normal, res.prim)
+    with pytest.raises(ParameterError, match=r"result.image: expected a non-empty \(h, w, 3\)"):
+        write_exr(tmp_path / "four.exr", four)
+    with pytest.raises(ParameterError, match="result.depth"):
+        write_exr(tmp_path / "depth.exr", RenderResult(res.image, res.depth[:1], res.normal, res.prim))
+    with pytest.raises(ParameterError, match="expected a .png file name"):
+        write_png(tmp_path / "a.exr", res.image)
+    write_exr(tmp_path / "ok.exr", res, {"rays": 2 ** 40, "flag": True, "t": 0.25, "n": 7})
+    meta = read_exr(tmp_path / "ok.exr")[2]
+    assert meta == {"rays": str(2 ** 40), "flag": "True", "t": 0.25, "n": 7}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.exr", "ok.exr"]
+
+
+def test_a_failed_write_names_the_file_asked_for_not_its_temporary_file(tmp_path, monkeypatch):
+    import errno
+    import hwbvh.files as files
+
+    def full(*args, dir=None, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", os.path.join(dir, ".tmp-x.bin"))
+    monkeypatch.setattr(files.tempfile, "mkstemp", full)
+    with pytest.raises(OSError, match="No space left") as e:
+        files.write_files([(tmp_path / "tree.bin", b"x")])
+    assert e.value.filename == str(tmp_path / "tree.bin") and ".tmp-" not in str(e.value)
