@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
-from hwbvh.errors import InputError
+from hwbvh.errors import InputError, ParameterError
 from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
                               load_mesh_arrays, within_bound)
 from .builtin import BUILTIN
@@ -80,7 +80,7 @@ def load_scene(spec, **overrides):
     """A scene dict from a built-in name, a scene file or a mesh file."""
     spec = os.fspath(spec)
     if spec in BUILTIN:
-        d = BUILTIN[spec](**overrides)
+        d = BUILTIN[spec](**_builtin_overrides(spec, overrides))
         d.setdefault("_source", spec)
         return d
     if not os.path.exists(spec):
@@ -115,6 +115,30 @@ def load_scene(spec, **overrides):
     d.setdefault("name", os.path.splitext(os.path.basename(spec))[0])
     check_name(spec, d["name"])
     return d
+
+
+def _builtin_overrides(name, overrides):
+    """The keyword arguments of built-in scene ``name``, each a known parameter holding a
+    non-negative integer (film sizes and depth are checked again with the scene)."""
+    import inspect
+
+    known = inspect.signature(BUILTIN[name]).parameters
+    for key, v in overrides.items():
+        if key not in known:
+            raise ParameterError(key, f"not a parameter of the built-in scene {name!r} "
+                                      f"(it takes {', '.join(known)})")
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ParameterError(key, f"expected a non-negative integer, got {_shown(v)}")
+    return {k: int(v) for k, v in overrides.items()}
+
+
+def _shown(v, limit=40):
+    """``repr(v)`` for a message, cut short: a 400-digit number is not worth printing."""
+    try:
+        text = repr(v)
+    except ValueError:                  # an int beyond Python's digit limit for str()
+        return f"an integer of about {int(v.bit_length() * 0.30103)} digits"
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def scene_inputs(spec):
@@ -174,6 +198,8 @@ def with_frame(d, width=None, height=None, spp=None, max_depth=None):
     """A copy of scene dict ``d`` with the given film and depth settings (None keeps the
     scene's). A film or integrator that is not an object is left for ``compile_scene`` to
     report."""
+    if not isinstance(d, dict):
+        raise ParameterError("scene", f"expected a scene dict, got {type(d).__name__}")
     d = dict(d)
     film, integ = d.get("film", {}), d.get("integrator", {"type": "whitted"})
     if not isinstance(film, dict) or not isinstance(integ, dict):
@@ -354,17 +380,19 @@ class _Ctx:
                 self.fail(f"{path}.{key}", "missing")
             return default
         v = obj[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            self.fail(f"{path}.{key}", f"expected {'an integer' if integer else 'a number'}, got {v!r}")
+        # numbers as JSON and TOML give them, and NumPy's (a dict built in Python)
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+            self.fail(f"{path}.{key}", f"expected {'an integer' if integer else 'a number'}, "
+                                       f"got {_shown(v)}")
         if not finite(v):
-            self.fail(f"{path}.{key}", f"expected a finite number, got {v!r}")
+            self.fail(f"{path}.{key}", f"expected a finite number, got {_shown(v)}")
         if integer and int(v) != v:
-            self.fail(f"{path}.{key}", f"expected an integer, got {v!r}")
+            self.fail(f"{path}.{key}", f"expected an integer, got {_shown(v)}")
         if (lo is not None and v < lo) or (hi is not None and v > hi):
             if wanted is None:
                 wanted = f"at least {lo}" if hi is None else \
                     (f"at most {hi}" if lo is None else f"in [{lo}, {hi}]")
-            self.fail(f"{path}.{key}", f"{v!r} is out of range (must be {wanted})")
+            self.fail(f"{path}.{key}", f"{_shown(v)} is out of range (must be {wanted})")
         return int(v) if integer else float(v)
 
 
@@ -615,6 +643,9 @@ def _triangle_data(ctx, data, key):
 def compile_scene(d, source=None, first_shape=0):
     """Validate a scene dict and turn it into arrays (see :class:`CompiledScene`).
     ``first_shape``: the index errors give the first shape (a part of a larger scene)."""
+    if not isinstance(d, dict):
+        raise InputError(source or "<scene>", f"a scene must be an object (a dict), got "
+                                              f"{type(d).__name__}")
     source = source or d.get("_source", "<scene>")
     ctx = _Ctx(source)
     shapes = d.get("shapes")

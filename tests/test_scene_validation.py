@@ -257,3 +257,26 @@ def test_a_missing_mesh_names_the_scene_file_the_key_and_the_mesh(tmp_path, caps
     p = write_scene(tmp_path, scene_dict([scene_dict()["shapes"][0], shape]))
     line = refused(capsys, tmp_path, monkeypatch, command, p, "--width", 8, "--height", 8)
     assert line == f"hwrt: error: {p}: key 'shapes[1].filename': {tmp_path / 'gone.ply'}: no such file"
+
+
+def test_python_callers_get_errors_naming_what_they_passed():
+    """The scene API from Python: unknown or negative built-in parameters, a non-dict scene,
+    NumPy numbers (accepted as the numbers they are) and huge ones (shown cut short)."""
+    from hwbvh.errors import InputError, ParameterError
+    from scenes import compile_scene, load_scene, with_frame
+
+    for kw, parameter in (({"foo": 1}, "foo"), ({"n": -3}, "n"), ({"seed": "5"}, "seed"),
+                          ({"n": True}, "n")):
+        with pytest.raises(ParameterError) as e:
+            load_scene("marbles", **kw)
+        assert e.value.parameter == parameter
+    for bad in (None, [1]):
+        with pytest.raises(InputError, match="a scene must be an object"):
+            compile_scene(bad)
+        with pytest.raises(ParameterError, match="expected a scene dict"):
+            with_frame(bad, width=4)
+    d = load_scene("cornell")
+    assert compile_scene(with_frame(d, width=np.int64(8), height=np.int32(6))).width == 8
+    with pytest.raises(InputError) as e:
+        compile_scene(with_frame(d, width=3 ** 2000))
+    assert "film.width" in str(e.value) and len(str(e.value)) < 200
