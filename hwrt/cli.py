@@ -809,7 +809,7 @@ def _version():
 
 def make_parser():
     from hwbvh import config
-    from raytracer.render import ACCELS
+    from raytracer.render import ACCELS, TRAVERSALS
     p = _Parser(prog="hwrt", description=DESCRIPTION, epilog=EPILOG)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -902,7 +902,7 @@ def make_parser():
     r.add_argument("--builder", choices=["hwbvh", "sweep", "embree"],
                    help="the tree: hwbvh (the hardware's), sweep (full SAH) or embree (default: "
                         "hwbvh; embree with --traversal embree)")
-    r.add_argument("--traversal", choices=["numba", "embree"],
+    r.add_argument("--traversal", choices=TRAVERSALS,
                    help="numba: our units on the raw nodes; embree: Embree on its own tree "
                         "(default: numba; embree with --builder embree)")
     r.add_argument("--accel", choices=ACCELS, default="bvh",

@@ -176,13 +176,30 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
 
 
 ACCELS = ("bvh", "grid", "kdtree")      # the acceleration structures make_tracer builds (accel=)
+TRAVERSALS = ("numba", "embree")        # who traverses a BVH (traversal=): our units or Embree
 
 
 def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
                 precision="float32", watertight=False, accel="bvh"):
     """(tracer, build_seconds, build_info). ``accel``: "bvh" (builders hwbvh, sweep, embree),
     "grid" (``traversal.grid.GridTracer``) or "kdtree" (``traversal.kdtree.KdTreeTracer``); the
-    last two with traversal "numba" and the default builder only."""
+    last two with traversal "numba" and the default builder only. Every argument is checked
+    before any build."""
+    if accel not in ACCELS:
+        raise ParameterError("accel", f"unknown acceleration structure {accel!r} "
+                                      f"(choose from {', '.join(ACCELS)})")
+    if traversal not in TRAVERSALS:
+        raise ParameterError("traversal", f"unknown traversal {traversal!r} "
+                                          f"(choose from {', '.join(TRAVERSALS)})")
+    if not isinstance(watertight, (bool, np.bool_)):
+        raise ParameterError("watertight", f"expected True or False, got {watertight!r}")
+    if not hasattr(scene, "triangles"):
+        raise ParameterError("scene", f"expected a compiled scene (scenes.compile_scene), got "
+                                      f"{type(scene).__name__}")
+    if (accel != "bvh" or builder == "embree") and (leaf_size, bins) != (4, 16):
+        raise ParameterError("leaf_size" if leaf_size != 4 else "bins",
+                             "applies to our BVH builders only (accel 'bvh', builder 'hwbvh' "
+                             "or 'sweep')")
     if accel in ("grid", "kdtree"):
         if builder != "hwbvh" or traversal != "numba":
             raise ParameterError("accel", f"the {accel} has its own build and traversal "
@@ -198,9 +215,6 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
         t = time.perf_counter()
         tr = Structure(scene.triangles)
         return tr, time.perf_counter() - t, dict(tr.stats(), accel=accel)
-    if accel != "bvh":
-        raise ParameterError("accel", f"unknown acceleration structure {accel!r} "
-                                      f"(choose from {', '.join(ACCELS)})")
     if builder == "embree":
         if traversal != "embree":
             raise ParameterError("traversal", "Embree's tree can only be traversed by Embree "
@@ -210,6 +224,9 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
         t = time.perf_counter()
         tr = EmbreeTracer(vertices, faces)
         return tr, time.perf_counter() - t, {"builder": "embree"}
+    if traversal == "embree":
+        raise ParameterError("traversal", "Embree traverses its own tree only "
+                                          "(traversal 'embree' needs builder 'embree')")
     import hwbvh
     from traversal import Tracer
     t = time.perf_counter()
@@ -222,12 +239,7 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
         from hwbvh.cycle_model import PRESETS, simulate
         info["simulated_build_seconds"] = {name: simulate(bvh.tree, p)["seconds"]
                                            for name, p in PRESETS.items()}
-    if traversal == "numba":
-        return Tracer(bvh, precision=precision, watertight=watertight), secs, info
-    if traversal == "embree":
-        raise ParameterError("traversal", "Embree traverses its own tree only "
-                                          "(traversal 'embree' needs builder 'embree')")
-    raise ParameterError("traversal", f"unknown traversal {traversal!r}")
+    return Tracer(bvh, precision=precision, watertight=watertight), secs, info
 
 
 def scene_passes(scene):

@@ -416,3 +416,21 @@ def test_a_failed_write_names_the_file_asked_for_not_its_temporary_file(tmp_path
     with pytest.raises(OSError, match="No space left") as e:
         files.write_files([(tmp_path / "tree.bin", b"x")])
     assert e.value.filename == str(tmp_path / "tree.bin") and ".tmp-" not in str(e.value)
+
+
+@pytest.mark.parametrize("kw, parameter", [
+    ({"traversal": "bogus"}, "traversal"), ({"accel": "octree"}, "accel"),
+    ({"accel": "grid", "leaf_size": 8}, "leaf_size"), ({"builder": "embree", "traversal": "embree",
+                                                        "bins": 32}, "bins"),
+    ({"watertight": "no"}, "watertight")])
+def test_make_tracer_checks_every_argument_before_building(kw, parameter, monkeypatch):
+    """An argument that cannot apply is refused before the build, not ignored or after it."""
+    import hwbvh
+    from hwbvh.errors import ParameterError
+
+    def no_build(*a, **k):
+        raise AssertionError("built before the arguments were checked")
+    monkeypatch.setattr(hwbvh, "build", no_build)
+    with pytest.raises(ParameterError) as e:
+        make_tracer(small("cornell", 8, 6, 1), **kw)
+    assert e.value.parameter == parameter
