@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import config
-from .builder import build_canonical, check_params
+from .builder import build_canonical, check_params, check_task_prims, is_integer
 from .errors import InputError, ParameterError
 from .files import json_text, made_as_written, write_files
 from .format import NODE_DTYPE, pack_indices, tree_stats, unpack_indices, validate
@@ -75,11 +75,15 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     if builder not in BUILDERS:
         raise ParameterError("builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
     check_params(leaf_size, bins)
+    check_task_prims(task_prims)
     check_threading()
+    ranges = dict(config.LAYOUT_KNOB_RANGES, subtree_builders=config.KNOB_RANGES["subtree_builders"])
     for name, v in (("capacity", capacity), ("subtree_builders", subtree_builders),
                     ("block_nodes", block_nodes)):
-        if not isinstance(v, (int, np.integer)) or v < 1:
-            raise ParameterError(name, f"must be a positive integer, got {v}")
+        lo, hi = ranges[name]
+        if not is_integer(v) or not lo <= v <= hi:
+            span = "a positive integer below 2^63" if hi == 2**63 - 1 else f"an integer in {lo}..{hi}"
+            raise ParameterError(name, f"must be {span}, got {v!r}")
     tris, src = _triangles(source, source_name)
     t0 = time.perf_counter()
     boxes = primitive_boxes(tris)
@@ -172,11 +176,14 @@ def load(prefix, triangles=None):
         raise InputError(prefix + ".json", e.strerror or "cannot read") from None
     except json.JSONDecodeError as e:
         raise InputError(prefix + ".json", f"not valid JSON ({e.msg}, line {e.lineno})") from None
-    try:
-        n = int(meta["triangles"])
-        max_leaf = int(meta["parameters"]["max_leaf"])
-    except (KeyError, TypeError, ValueError):
-        raise InputError(prefix + ".json", "missing 'triangles' or 'parameters.max_leaf'") from None
+    n = _json_count(meta, ("triangles",), config.MAX_PRIMITIVES, prefix + ".json")
+    # no builder writes a leaf above MAX_LEAF_SIZE (the sweep builder's limit is below it)
+    max_leaf = _json_count(meta, ("parameters", "max_leaf"), config.MAX_LEAF_SIZE, prefix + ".json")
+    tris = None
+    if triangles is not None:
+        tris = as_triangles(triangles, source="triangles")
+        if len(tris) != n:
+            raise InputError("triangles", f"{len(tris)} triangles, but the tree has {n} primitives")
     try:
         with open(prefix + ".nodes", "rb") as f:
             raw = f.read()
@@ -191,7 +198,24 @@ def load(prefix, triangles=None):
         entries = unpack_indices(idx)
     except ValueError as e:
         raise InputError(prefix + ".indices", str(e)) from None
-    boxes = primitive_boxes(as_triangles(triangles)) if triangles is not None else None
+    if len(entries) < n:
+        raise InputError(prefix + ".indices", f"{len(entries)} entries, but {prefix}.json says "
+                                              f"{n} triangles")
+    boxes = primitive_boxes(tris) if tris is not None else None
     validate(nodes, entries, n, max_leaf, boxes, source=prefix + ".nodes")
-    return Bvh(nodes=nodes, indices=entries[:n].copy(),
-               triangles=None if triangles is None else as_triangles(triangles), meta=meta)
+    return Bvh(nodes=nodes, indices=entries[:n].copy(), triangles=tris, meta=meta)
+
+
+def _json_count(meta, keys, hi, source):
+    """The integer at ``meta[keys[0]][keys[1]]...``, which must lie in 1..hi; InputError naming
+    ``source`` and the key otherwise."""
+    name = ".".join(keys)
+    v = meta
+    for k in keys:
+        if not isinstance(v, dict) or k not in v:
+            raise InputError(source, f"missing {name!r}")
+        v = v[k]
+    if not is_integer(v) or not 1 <= v <= hi:
+        shown = repr(v) if len(repr(v)) <= 40 else repr(v)[:37] + "..."
+        raise InputError(source, f"{name!r} must be an integer in 1..{hi}, got {shown}")
+    return int(v)

@@ -188,12 +188,25 @@ def build_tasks(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
 # --------------------------------------------------------------------------------------
 # Public API
 # --------------------------------------------------------------------------------------
+def is_integer(v):
+    """Whether ``v`` is an integer knob value: a Python or NumPy integer, never a bool (True
+    would silently mean 1)."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
 def check_params(leaf_size, bins):
-    if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= config.MAX_LEAF_SIZE):
-        raise ParameterError("leaf_size", f"leaf size must be an integer in 1..{config.MAX_LEAF_SIZE}, got {leaf_size}")
-    if not (isinstance(bins, (int, np.integer)) and 2 <= bins <= config.MAX_SOFTWARE_BINS):
+    if not (is_integer(leaf_size) and 1 <= leaf_size <= config.MAX_LEAF_SIZE):
+        raise ParameterError("leaf_size", f"leaf size must be an integer in 1..{config.MAX_LEAF_SIZE}, "
+                                          f"got {leaf_size!r}")
+    if not (is_integer(bins) and 2 <= bins <= config.MAX_SOFTWARE_BINS):
         raise ParameterError("bins", f"bins must be an integer in 2..{config.MAX_SOFTWARE_BINS} "
-                                 f"(the hardware has at most {config.MAX_HARDWARE_BINS}), got {bins}")
+                                 f"(the hardware has at most {config.MAX_HARDWARE_BINS}), got {bins!r}")
+
+
+def check_task_prims(task_prims):
+    """``task_prims`` (None for the default) must be an integer >= 1."""
+    if task_prims is not None and not (is_integer(task_prims) and task_prims >= 1):
+        raise ParameterError("task_prims", f"must be a positive integer, got {task_prims!r}")
 
 
 def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAULT_BINS,
@@ -205,6 +218,7 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
     software scheduling grain), which tests use to check exactness.
     """
     check_params(leaf_size, bins)
+    check_task_prims(task_prims)
     check_threading()
     boxes = np.ascontiguousarray(boxes, dtype=np.float32)
     n = len(boxes)
@@ -215,6 +229,10 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
         task_prims = max(config.TASK_MIN_PRIMS, n // (config.TASKS_PER_THREAD * nthreads))
         if n <= config.SEQUENTIAL_MAX_PRIMS:
             task_prims = n
+    # A node of at most leaf_size primitives is a leaf. The upper phase below splits every node
+    # above task_prims, so a smaller grain would split such nodes and change the tree; as a
+    # task, the subtree builder makes it the leaf it must be.
+    task_prims = max(int(task_prims), leaf_size)
     nchunks = max(1, 4 * nthreads)
 
     bb = np.empty((2, n, 6), dtype=np.float32)

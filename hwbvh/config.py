@@ -24,6 +24,16 @@ MAX_LEAF_SIZE = 255      # leaves are fixed-size termination; 255 keeps the stud
 DEFAULT_CAPACITY = 8192  # subtree capacity w * Psize (Table 4.1: 8192)
 DEFAULT_BLOCK_NODES = 256  # nodes per block handed out by the upper builder's pool (3.3.5)
 
+# Ranges of the layout knobs of ``hwbvh.build`` (checked before any allocation). A capacity at
+# or above the primitive count puts the whole tree in one subtree, so only the layout kernel's
+# int64 bounds it. A block never holds more nodes than a tree of MAX_PRIMITIVES has (2N - 1), and
+# with at most 1 + 64 output streams each holding a block, node slots stay below
+# 66 * 2^25 < 2^32, so every slot fits the format's 32-bit child pointers.
+LAYOUT_KNOB_RANGES = {
+    "capacity": (1, 2**63 - 1),
+    "block_nodes": (1, 2 * MAX_PRIMITIVES),
+}
+
 # --- Output format (thesis 3.3.5, SPEC 4) -----------------------------------------------
 NODE_BYTES = 48          # 384 bits = two 192-bit words
 WORD_BYTES = 24          # one 192-bit memory word
@@ -122,6 +132,9 @@ KNOB_RANGES = {
     "clock_mhz": (1.0, 1000.0),
 }
 POWER_OF_TWO_KNOBS = ("w", "tsize")
+# Control latency (above) is a calibrated cycle count per split (148). A million cycles is far
+# beyond any controller, and keeps cycle totals (at most 2^25 splits) well inside int64.
+MAX_CONTROL_LATENCY = 1_000_000
 
 # --- Software build scheduling (not a hardware parameter) -------------------------------
 # Nodes with more primitives than this are split with data-parallel binning/partitioning;
