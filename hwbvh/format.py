@@ -158,16 +158,36 @@ def _validate(u, f, entries, n_prims, max_leaf, prim_boxes, check_boxes):
 def validate(nodes, entries, n_prims, max_leaf, prim_boxes=None, source="<tree>"):
     """Check every invariant SPEC section 4 lists; raise InputError naming ``source``.
 
-    nodes : NODE_DTYPE array; entries : uint32 index-list entries (padding may be included).
+    nodes : NODE_DTYPE array; entries : uint32 index-list entries (padding may be included);
+    n_prims, max_leaf : integers >= 1; prim_boxes : optional (n_prims, 6) float primitive boxes
+    (:func:`hwbvh.primitive_boxes`), which the leaf boxes must contain.
     Returns the number of reachable nodes.
     """
-    from .errors import InputError
+    from .builder import is_integer
+    from .config import MAX_PRIMITIVES
+    from .errors import InputError, ParameterError
 
-    if len(nodes) == 0:
-        raise InputError(source, "no nodes")
-    u, f = node_views(np.ascontiguousarray(nodes))
+    nodes = _node_array(nodes, source)
+    # the counts size the kernel's arrays, so they are bounded before it runs
+    for name, v in (("n_prims", n_prims), ("max_leaf", max_leaf)):
+        if not is_integer(v) or not 1 <= v <= MAX_PRIMITIVES:
+            raise ParameterError(name, f"must be an integer in 1..{MAX_PRIMITIVES}, got {v!r}")
+    entries = np.asarray(entries)
+    if entries.ndim != 1 or entries.dtype.kind not in "iu":
+        raise ParameterError("entries", f"must be a 1-D integer array, got {entries.dtype} of "
+                                        f"shape {entries.shape}")
+    if entries.size and (entries.min() < 0 or entries.max() > np.iinfo(np.uint32).max):
+        raise ParameterError("entries", "index-list entries must lie in 0..2^32-1")
     check = prim_boxes is not None
-    pb = np.ascontiguousarray(prim_boxes, dtype=np.float32) if check else np.zeros((1, 6), np.float32)
+    if check:
+        pb = np.asarray(prim_boxes)
+        if pb.shape != (n_prims, 6) or pb.dtype.kind != "f":
+            raise ParameterError("prim_boxes", f"must be a ({n_prims}, 6) float array (one box per "
+                                               f"primitive), got {pb.dtype} of shape {pb.shape}")
+        pb = np.ascontiguousarray(pb, dtype=np.float32)
+    else:
+        pb = np.zeros((1, 6), np.float32)
+    u, f = node_views(nodes)
     code, where = _validate(u, f, np.ascontiguousarray(entries, dtype=np.uint32), int(n_prims),
                             int(max_leaf), pb, check)
     if code:
