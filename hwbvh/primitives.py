@@ -378,7 +378,11 @@ def as_triangles(tris, source="<array>"):
     shape = getattr(tris, "shape", None)
     if shape is not None and len(shape) == 3 and shape[1:] == (3, 3):
         check_count(shape[0], source)       # before any copy: 2^24+ triangles are refused cheaply
-    t = np.asarray(tris)
+    try:
+        t = np.asarray(tris)
+    except (ValueError, TypeError):         # nested sequences of uneven lengths
+        raise InputError(source, "triangles must be an (n, 3, 3) array of numbers, got nested "
+                                 "sequences of uneven lengths") from None
     if t.ndim != 3 or t.shape[1:] != (3, 3):
         raise InputError(source, f"triangles must have shape (n, 3, 3), got {t.shape}")
     check_count(t.shape[0], source)
@@ -399,9 +403,20 @@ def checked_coordinates(t, source):
     """``t`` ((n, 3, 3) triangles) in a float type, refused (InputError naming ``source`` and
     the first bad triangle) if a coordinate is NaN, infinite or beyond MAX_COORDINATE.
     Checked in the input's own precision: the float32 cast would turn a coordinate beyond
-    float32's range into inf, with numpy's overflow warning."""
-    if t.dtype.kind != "f":
+    float32's range into inf, with numpy's overflow warning. Integers are converted; booleans,
+    complex numbers (whose imaginary part a cast would drop), strings (which a cast would parse)
+    and other kinds are refused."""
+    kind = t.dtype.kind
+    if kind == "O":
+        try:
+            t = t.astype(np.float64)
+        except (ValueError, TypeError):
+            raise InputError(source, "triangles must be real numbers, got an object array holding "
+                                     "something else") from None
+    elif kind in "iu":
         t = t.astype(np.float64)
+    elif kind != "f":
+        raise InputError(source, f"triangles must be real numbers, got {t.dtype}")
     if within_bound(t):
         return t
     t64 = t.astype(np.float64)
@@ -469,7 +484,12 @@ def primitive_boxes(tris):
     """Primitive AABBs of triangles, float32 ``(n, 6)``: ``minx, miny, minz, maxx, maxy, maxz``.
 
     Min and max of float32 vertices are exact, so the boxes are what the hardware reads.
+    Anything but a real-valued ``(n, 3, 3)`` array is checked and converted by
+    :func:`as_triangles` first (InputError naming 'tris').
     """
+    if not (isinstance(tris, np.ndarray) and tris.ndim == 3 and tris.shape[1:] == (3, 3)
+            and tris.dtype.kind == "f"):
+        tris = as_triangles(tris, source="tris")
     boxes = np.empty((len(tris), 6), dtype=np.float32)
     np.minimum(np.minimum(tris[:, 0], tris[:, 1]), tris[:, 2], out=boxes[:, :3])
     np.maximum(np.maximum(tris[:, 0], tris[:, 1]), tris[:, 2], out=boxes[:, 3:])
