@@ -13,16 +13,18 @@ rebuild.
 
 >>> r = Refitter(bvh)                 # walks the topology once
 >>> moved = r.refit(new_triangles)    # a new Bvh: same topology, new boxes
->>> refit_cost(moved, PRESETS["HWBVH-C"])["seconds"]   # the hardware model of one refit pass
+>>> c = refit_cost(r.n_prims, r.node_count, r.max_depth, PRESETS["HWBVH-C"])
+>>> c["seconds"]                      # the hardware model of one refit pass
 """
 import math
 
 import numpy as np
 from numba import njit, prange
 
-from .errors import InputError
-from .config import LEAF_FLAG
-from .format import BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, node_views, tree_stats
+from .errors import InputError, ParameterError
+from .config import LEAF_FLAG, MAX_PRIMITIVES
+from .format import (BOX_MAX, NODE_DTYPE, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, check_nodes,
+                     node_views, tree_stats)
 from .parallel import check_threading
 from .primitives import as_triangles
 
@@ -105,10 +107,22 @@ class Refitter:
     """
 
     def __init__(self, bvh):
-        self.nodes = np.ascontiguousarray(bvh.nodes)
-        self.indices = np.ascontiguousarray(bvh.indices, dtype=np.int64)
+        from .api import Bvh
+
+        if not isinstance(bvh, Bvh):
+            raise ParameterError("bvh", f"expected a hwbvh.Bvh, got {type(bvh).__name__}")
+        # The kernels below follow the pointers and index ranges without bounds checks, so
+        # the topology and the index list are checked once here.
+        indices = np.asarray(bvh.indices)
+        if indices.ndim != 1 or indices.dtype.kind not in "iu" or not 1 <= len(indices) <= MAX_PRIMITIVES:
+            raise InputError("bvh.indices", f"expected 1..{MAX_PRIMITIVES} integer primitive indices, "
+                                            f"got {indices.dtype} of shape {indices.shape}")
+        if indices.min() < 0 or indices.max() >= len(indices):
+            raise InputError("bvh.indices", f"primitive index out of range 0..{len(indices) - 1}")
+        self.nodes = check_nodes(bvh.nodes, n_positions=len(indices), source="bvh.nodes")
+        self.indices = np.ascontiguousarray(indices, dtype=np.int64)
         self.meta = dict(bvh.meta)
-        self.n_prims = len(bvh.indices)
+        self.n_prims = len(indices)
         u, _ = node_views(self.nodes)
         self.leaves, self.internal = _bottom_up_order(u)
         self.max_depth = int(self.meta.get("max_depth") or tree_stats(self.nodes)["max_depth"])
@@ -127,10 +141,26 @@ class Refitter:
         return tris
 
     def refit_nodes(self, tris, out=None):
-        """Rewrite the boxes of ``out`` (default: a copy of the tree's nodes) for ``tris``, an
-        already checked (N, 3, 3) float32 array. Returns the node array."""
+        """The tree's nodes with boxes for ``tris``, the (N, 3, 3) float32 array :meth:`check`
+        returns, written into ``out`` (a NODE_DTYPE array as long as the tree's) or a new
+        array. Returns the node array."""
         check_threading()
-        nodes = self.nodes.copy() if out is None else out
+        if not (isinstance(tris, np.ndarray) and tris.dtype == np.float32
+                and tris.shape == (self.n_prims, 3, 3)):
+            raise ParameterError("tris", f"expected the ({self.n_prims}, 3, 3) float32 array "
+                                         f"Refitter.check returns, got {_described(tris)}")
+        tris = np.ascontiguousarray(tris)
+        if out is None:
+            nodes = self.nodes.copy()
+        else:
+            if not (isinstance(out, np.ndarray) and out.dtype == NODE_DTYPE
+                    and out.shape == self.nodes.shape and out.flags.c_contiguous
+                    and out.flags.writeable):
+                raise ParameterError("out", f"expected a writable contiguous NODE_DTYPE array of "
+                                            f"{len(self.nodes)} nodes, got {_described(out)}")
+            # the kernels follow out's own pointers: they must be this tree's
+            np.copyto(out, self.nodes)
+            nodes = out
         u, f = node_views(nodes)
         _refit_leaves(u, f, self.leaves, self.indices, tris)
         _refit_internal(u, f, self.internal)
@@ -146,6 +176,13 @@ class Refitter:
         st = tree_stats(nodes)
         meta = dict(self.meta, sah_cost=st["sah_cost"], refitted=True)
         return Bvh(nodes=nodes, indices=self.indices.astype(np.uint32), triangles=tris, meta=meta)
+
+
+def _described(a):
+    """An argument as an error shows it: dtype and shape for an array, else its type."""
+    if isinstance(a, np.ndarray):
+        return f"{'NODE_DTYPE' if a.dtype == NODE_DTYPE else a.dtype} of shape {a.shape}"
+    return type(a).__name__
 
 
 def refit(bvh, triangles):
@@ -170,8 +207,17 @@ def refit_cost(n_prims, n_nodes, max_depth, params):
 
     params : hwbvh.cycle_model.HwParams (its clock and RAM pairs). Returns a dict.
     """
+    from .builder import is_integer
     from .config import WORD_BYTES
+    from .cycle_model import as_params
 
+    params = as_params(params)
+    max_nodes = 2 * n_prims - 1 if is_integer(n_prims) else 1
+    for name, v, lo, hi in (("n_prims", n_prims, 1, MAX_PRIMITIVES), ("n_nodes", n_nodes, 1, max_nodes),
+                            ("max_depth", max_depth, 0, n_nodes - 1 if is_integer(n_nodes) else 0)):
+        # a binary tree over n primitives has at most 2n - 1 nodes, n nodes at most depth n - 1
+        if not is_integer(v) or not lo <= v <= hi:
+            raise ParameterError(name, f"must be an integer in {lo}..{hi}, got {v!r}")
     index_words = -(-int(n_prims) // 8)
     reads = int(n_prims) + index_words + int(n_nodes)
     writes = int(n_nodes)
