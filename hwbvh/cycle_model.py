@@ -41,6 +41,7 @@ from . import config
 from .config import (AABB_BYTES, CONTROL_LATENCY, LAT_BINNING, LAT_PARTITION, LAT_PRIM_BUFFER,
                      LAT_SAH, NODE_BYTES, THREAD_SWITCH, WORD_BYTES)
 from .config import PRIMITIVE_RECORD_BYTES as RECORD_BYTES
+from .builder import is_integer
 from .errors import ParameterError
 from .resources import cost
 
@@ -220,10 +221,16 @@ def _upper_plan(tree, capacity):
 
 
 def simulate(tree, params, node_count=None):
-    """Simulate one build of ``tree`` (a CanonicalTree from the functional builder) on the
-    instantiation ``params``. Returns a dict with the SPEC-8 keys and more."""
-    p = params
+    """Simulate one build of ``tree`` (a CanonicalTree from the functional builder: a Bvh's
+    ``bvh.tree``) on the instantiation ``params`` (a HwParams or a preset's name), which must
+    have the tree's leaf size and bins. ``node_count``: the nodes written (default: the tree's).
+    Returns a dict with the SPEC-8 keys and more."""
+    p = as_params(params)
+    check_tree(tree, p)
     n = int(tree.n_prims)
+    if node_count is not None and not (is_integer(node_count) and 1 <= node_count <= 2 * n - 1):
+        # a binary tree over n primitives has 1..2n - 1 nodes
+        raise ParameterError("node_count", f"must be an integer in 1..{2 * n - 1}, got {node_count!r}")
     cap = p.capacity
     R = p.ram_pairs
     prims_per_cycle_dram = R * WORD_BYTES / RECORD_BYTES      # records/cycle through R channels
@@ -321,9 +328,48 @@ def simulate(tree, params, node_count=None):
     }
 
 
+def as_params(params, name="params"):
+    """``params`` checked by :func:`check_params`; a preset's name stands for the preset."""
+    if isinstance(params, str):
+        if params not in PRESETS:
+            raise ParameterError(name, f"unknown preset {params!r} (choose from {', '.join(PRESETS)})")
+        return PRESETS[params]
+    if not isinstance(params, HwParams):
+        raise ParameterError(name, f"expected a HwParams or a preset name ({', '.join(PRESETS)}), "
+                                   f"got {type(params).__name__}")
+    return check_params(params)
+
+
+def check_tree(tree, params):
+    """Refuse (ParameterError 'tree') anything but a build tree the hardware ``params`` builds.
+
+    The cycles come from the tree and the area and power from ``params`` (its bins size the bin
+    records), so a tree of another leaf size or bin count would be reported with the time of
+    one machine and the cost of another: a mismatch is refused rather than reported."""
+    from .api import Bvh
+    from .builder import CanonicalTree
+
+    if isinstance(tree, Bvh):
+        hint = ("pass bvh.tree" if tree.tree is not None
+                else "this Bvh was loaded from files and has no build tree: rebuild it")
+        raise ParameterError("tree", f"expected the build tree, got a Bvh ({hint})")
+    if not isinstance(tree, CanonicalTree):
+        raise ParameterError("tree", f"expected the build tree (a CanonicalTree, bvh.tree), "
+                                     f"got {type(tree).__name__}")
+    if tree.builder != "hwbvh":
+        raise ParameterError("tree", f"the hardware builds binned SAH trees; this one comes from "
+                                     f"the {tree.builder!r} builder")
+    if (tree.leaf_size, tree.bins) != (params.leaf_size, params.bins):
+        raise ParameterError("params", f"leaf_size {params.leaf_size} and bins {params.bins} did not "
+                                       f"build this tree (leaf_size {tree.leaf_size}, bins "
+                                       f"{tree.bins}); pass params with the tree's")
+
+
 def check_params(p):
     """Raise ParameterError (naming the parameter) unless every knob of ``p`` is within the
     hardware's range (``config.KNOB_RANGES``)."""
+    if not isinstance(p, HwParams):
+        raise ParameterError("params", f"expected a HwParams, got {type(p).__name__}")
     for k, (lo, hi) in config.KNOB_RANGES.items():
         v = getattr(p, k)
         if k == "clock_mhz":
@@ -331,7 +377,7 @@ def check_params(p):
                     or not lo <= v <= hi:
                 raise ParameterError(k, f"must be a clock in MHz within {lo:g}..{hi:g}, got {v!r}")
             continue
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+        if not is_integer(v) or not lo <= v <= hi:
             raise ParameterError(k, f"must be an integer within {lo}..{hi} in the hardware, got {v!r}")
         if k in config.POWER_OF_TWO_KNOBS and v & (v - 1):
             raise ParameterError(k, f"must be a power of two (thesis 3.3), got {v}")
@@ -339,8 +385,9 @@ def check_params(p):
         raise ParameterError("psize", f"w * psize = {p.w * p.psize} exceeds the 24-bit primitive index "
                                   f"({config.MAX_PRIMITIVES})")
     v = p.control_latency
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
-        raise ParameterError("control_latency", f"must be a non-negative integer, got {v!r}")
+    if not is_integer(v) or not 0 <= v <= config.MAX_CONTROL_LATENCY:
+        raise ParameterError("control_latency", f"must be a non-negative integer up to "
+                                                f"{config.MAX_CONTROL_LATENCY}, got {v!r}")
     return p
 
 

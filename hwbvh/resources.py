@@ -84,9 +84,17 @@ def upper_builder(p):
     return _builder(counts, cores, registers, 0)
 
 
+def _checked(p):
+    """``p`` within the hardware's ranges (a preset's name stands for the preset): the tables
+    below would otherwise turn a negative or zero knob into a negative area, or fail deep inside."""
+    from .cycle_model import as_params
+    return as_params(p, name="p")
+
+
 def resources(p):
     """Table 4.5-4.8 for instantiation ``p``: the subtree builder (one of them), the upper
     builder, and the system totals (``subtree_builders`` subtree builders + the upper builder)."""
+    p = _checked(p)
     sub = subtree_builder(p)
     up = upper_builder(p)
     k = p.subtree_builders
@@ -111,6 +119,7 @@ def gates(total, gates_per_core=None, gates_per_bit=None):
 def cost(p):
     """Area (mm^2, 90 nm) and active power (W) of instantiation ``p`` at its clock, with the
     gates and the system's resource totals they come from."""
+    p = _checked(p)
     res = resources(p)
     g = gates(res["total"])
     return {"area_mm2": config.AREA_MM2_PER_GATE * g["total"],
