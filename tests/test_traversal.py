@@ -508,9 +508,9 @@ def test_a_negative_tmin_is_refused_by_every_structure(accel):
     tracer, o, d = _one_triangle(accel)
     assert tracer.intersect(o, d, 0.0).prim.tolist() == [0, 0]
     for tmin in (-1.0, np.array([0.0, -1e-30], np.float32)):
-        with pytest.raises(ValueError, match="tmin must not be negative"):
+        with pytest.raises(ValueError, match="tmin: must not be negative"):
             tracer.intersect(o, d, tmin)
-        with pytest.raises(ValueError, match="tmin must not be negative"):
+        with pytest.raises(ValueError, match="tmin: must not be negative"):
             tracer.occluded(o, d, tmin, 5.0)
 
 
@@ -518,9 +518,9 @@ def test_a_negative_tmin_is_refused_by_every_structure(accel):
 def test_an_interval_of_the_wrong_shape_is_named(accel):
     tracer, o, d = _one_triangle(accel)
     assert tracer.occluded(o, d, np.zeros(1), 5.0).tolist() == [True, True]   # (1,) broadcasts
-    with pytest.raises(ValueError, match=r"^tmax must be a scalar or one value per ray \(2,\)"):
+    with pytest.raises(ValueError, match=r"^tmax: must be a scalar or one value per ray \(2,\)"):
         tracer.intersect(o, d, 0.0, np.ones(3))
-    with pytest.raises(ValueError, match=r"^tmin must be a scalar or one value per ray \(2,\)"):
+    with pytest.raises(ValueError, match=r"^tmin: must be a scalar or one value per ray \(2,\)"):
         tracer.occluded(o, d, np.zeros((2, 1)))
 
 

@@ -9,8 +9,13 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from hwbvh.format import node_views, pack_indices, tree_stats
+from hwbvh.config import LEAF_FLAG
+from hwbvh.errors import InputError, ParameterError
+from hwbvh.format import (BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, check_nodes, node_views,
+                          pack_indices, tree_stats)
+from hwbvh.primitives import checked_coordinates, primitive_boxes
 from .aabb_unit import GAMMA3_F32, GAMMA3_F64
 from hwbvh.parallel import run_ranges
 from .config import CHUNK_RAYS, KEPT_BOUND_RAYS
@@ -72,18 +77,39 @@ def release_kept_bounds():
 def negative_tmin_error(name):
     """The error for a negative t_min bound ``name`` (the interval starts at the origin or
     after it, as every tracer here and Embree assume)."""
-    return ValueError(f"{name} must not be negative: a ray's interval starts at its origin or "
-                      "after it (as Embree's)")
+    return ParameterError(name, "must not be negative: a ray's interval starts at its origin "
+                                "or after it (as Embree's)")
+
+
+def real_array(x, name, dtype=None):
+    """``x`` as an ndarray of real numbers (converted to ``dtype`` when given); ParameterError
+    naming ``name`` for None, complex, boolean, string or object data: NumPy would drop an
+    imaginary part, read True as 1 and None as NaN, each a silently wrong ray or bound."""
+    a = np.asarray(x) if x is not None else None
+    if a is None or a.dtype.kind not in "fiu":
+        got = "None" if a is None else str(a.dtype)
+        raise ParameterError(name, f"must be real numbers, got {got}")
+    return a if dtype is None else np.asarray(a, dtype=dtype)
+
+
+def _nan_bound_error(name, a):
+    where = "" if a.ndim == 0 else f" (ray {int(np.argmax(np.isnan(a)))})"
+    return ParameterError(name, f"must be a number or one per ray, got NaN{where}")
 
 
 def _interval(x, n, dtype, name, nonnegative=False):
     """A per-ray bound ``name`` as a writable contiguous (n,) array (a scalar is broadcast);
-    ValueError naming it on another shape, or with ``nonnegative`` on a value below 0 (as
-    converted: a tiny negative that rounds to -0 is none)."""
+    ParameterError naming it on None, a NaN, a complex or boolean value or another shape, or
+    with ``nonnegative`` on a value below 0 (as converted: a tiny negative that rounds to -0 is
+    none). One reduction over an array of bounds: the minimum is NaN when any bound is."""
     a = _ready(x, dtype)
     if a is None or a.shape != (n,):
-        a = np.asarray(x, dtype=dtype)
+        if x is None:
+            raise ParameterError(name, "must be a number or one per ray, got None")
+        a = real_array(x, name, dtype)
         if a.ndim == 0:
+            if np.isnan(a):
+                raise _nan_bound_error(name, a)
             if nonnegative and n and a < 0:
                 raise negative_tmin_error(name)
             return _filled(a, n)
@@ -93,26 +119,41 @@ def _interval(x, n, dtype, name, nonnegative=False):
             try:
                 a = np.array(np.broadcast_to(a, (n,)))
             except ValueError:
-                raise ValueError(f"{name} must be a scalar or one value per ray ({n},), "
-                                 f"got shape {a.shape}") from None
-    if nonnegative and (a < 0).any():
-        raise negative_tmin_error(name)
+                raise ParameterError(name, f"must be a scalar or one value per ray ({n},), "
+                                           f"got shape {a.shape}") from None
+    if n:
+        low = a.min()
+        if not low >= 0:                    # negative or NaN
+            if np.isnan(low):
+                raise _nan_bound_error(name, a)
+            if nonnegative:
+                raise negative_tmin_error(name)
     return a
 
 
-def _rays(origins, dirs, tmin, tmax, dtype):
-    """Kernel inputs: C-contiguous, writable arrays of ``dtype``; ValueError on a bad shape or a
-    negative ``tmin``. Writable even when the caller's
-    arrays are read-only views, since Numba compiles (and caches) a separate copy of every
-    kernel for read-only arguments (twice the first render's compile time)."""
+def ray_arrays(origins, dirs, dtype):
+    """(origins, dirs) as C-contiguous, writable (n, 3) arrays of ``dtype``; ParameterError
+    naming the argument on data that are not real numbers or on a bad shape. Writable even
+    when the caller's arrays are read-only views, since Numba compiles (and caches) a separate
+    copy of every kernel for read-only arguments (twice the first render's compile time)."""
     o = _ready(origins, dtype)
     if o is None:
-        o = np.require(np.asarray(origins, dtype=dtype), requirements=("C", "W"))
+        o = np.require(real_array(origins, "origins", dtype), requirements=("C", "W"))
     d = _ready(dirs, dtype)
     if d is None:
-        d = np.require(np.asarray(dirs, dtype=dtype), requirements=("C", "W"))
-    if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
-        raise ValueError(f"origins and dirs must both be (n, 3), got {o.shape} and {d.shape}")
+        d = np.require(real_array(dirs, "dirs", dtype), requirements=("C", "W"))
+    if o.ndim != 2 or o.shape[1] != 3:
+        raise ParameterError("origins", f"must be (n, 3), got shape {o.shape}")
+    if d.shape != o.shape:
+        raise ParameterError("dirs", f"must be (n, 3) with one row per origin {o.shape}, "
+                                     f"got shape {d.shape}")
+    return o, d
+
+
+def _rays(origins, dirs, tmin, tmax, dtype):
+    """Kernel inputs (``ray_arrays``) and their (n,) bounds; ParameterError naming the argument
+    on a bad shape, data that are not real numbers, a NaN bound or a negative ``tmin``."""
+    o, d = ray_arrays(origins, dirs, dtype)
     n = len(o)
     return o, d, _interval(tmin, n, dtype, "tmin", nonnegative=True), \
         _interval(tmax, n, dtype, "tmax")
@@ -125,6 +166,44 @@ def _answers(n, anyhit, normals, dtype):
     m = 0 if anyhit else n
     return (np.empty(n, np.int32), np.empty(m, dtype), np.empty(m, dtype), np.empty(m, dtype),
             np.empty((n if normals else 0, 3), dtype))
+
+
+def _checked_triangles(tris, source):
+    """(n, 3, 3) triangles in their own float precision (integers as float64), refused
+    (InputError naming ``source``) as the builder refuses its input: data that are not real
+    numbers, another shape, or a coordinate NaN, infinite or beyond the builder's bound."""
+    t = np.asarray(tris)
+    if t.dtype.kind not in "fiu":
+        raise InputError(source, f"must be real numbers, got {t.dtype}")
+    if t.ndim != 3 or t.shape[1:] != (3, 3):
+        raise InputError(source, f"must have shape (n, 3, 3), got {t.shape}")
+    return checked_coordinates(t, source)
+
+
+@njit(cache=True)
+def _first_leaf_not_holding(u, f, entries, boxes):
+    """The first leaf reached from the root whose box does not contain the box of a primitive
+    it lists, or -1. The topology must be checked (``check_nodes`` with the index list's
+    length): each node is then pushed once and every leaf range lies inside ``entries``."""
+    stack = np.empty(u.shape[0], np.int64)
+    stack[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        i = stack[sp]
+        if u[i, WORD_FLAGS] & LEAF_FLAG:
+            a = np.int64(u[i, WORD_A])
+            for p in range(a, a + np.int64(u[i, WORD_B])):
+                j = entries[p]
+                for k in range(3):
+                    if boxes[j, k] < f[i, WORD_BOX + k] or \
+                            boxes[j, 3 + k] > f[i, WORD_BOX + BOX_MAX + k]:
+                        return i
+        else:
+            stack[sp] = u[i, WORD_A]
+            stack[sp + 1] = u[i, WORD_B]
+            sp += 2
+    return -1
 
 
 class PacketCount:
@@ -163,40 +242,63 @@ class Tracer(PacketCount):
     def __init__(self, bvh, triangles=None, precision="float32", edge_eps=None, watertight=False,
                  packets=True):
         if precision not in ("float32", "float64"):
-            raise ValueError("precision must be 'float32' or 'float64'")
+            raise ParameterError("precision", f"must be 'float32' or 'float64', got {precision!r}")
         self.dtype = np.float32 if precision == "float32" else np.float64
-        tris = bvh.triangles if triangles is None else triangles
+        f32 = self.dtype == np.float32
+        if edge_eps is None:
+            edge_eps = EDGE_EPS_F32 if f32 else EDGE_EPS_F64
+        elif isinstance(edge_eps, (bool, np.bool_)) \
+                or not isinstance(edge_eps, (int, float, np.integer, np.floating)) \
+                or not (np.isfinite(edge_eps) and edge_eps >= 0):
+            # a negative or NaN slack fails every valid check: every ray would miss
+            raise ParameterError("edge_eps", f"must be a finite number >= 0, got {edge_eps!r}")
+        if not (hasattr(bvh, "nodes") and hasattr(bvh, "indices")):
+            raise ParameterError("bvh", "expected an hwbvh.Bvh (nodes, indices, triangles), "
+                                        f"got {type(bvh).__name__}")
+        source = "bvh.triangles" if triangles is None else "triangles"
+        tris = getattr(bvh, "triangles", None) if triangles is None else triangles
         if tris is None:
-            raise ValueError("the BVH has no triangles attached; pass triangles=")
-        self.nodes = np.ascontiguousarray(bvh.nodes)
-        self.u, self.f = node_views(self.nodes)
-        # flat word views of the same bytes for the kernels (no copy, no other layout)
-        self._u1 = self.u.reshape(-1)
-        self._f1 = self.f.reshape(-1)
-        self.index_bytes = np.frombuffer(pack_indices(bvh.indices), dtype=np.uint8)
+            raise InputError("bvh.triangles", "the BVH has no triangles attached; pass triangles=")
+        tris = _checked_triangles(tris, source)
         # the triangle rows in index-list order, so that a leaf's rows lie side by side;
         # row_of[j]: primitive j's row (for the normals of hits)
         order = np.asarray(bvh.indices, np.int64)
         n = len(tris)
+        if order.ndim != 1 or len(order) != n:
+            raise InputError(source, f"{n} triangles, but the tree has {len(order)} primitives "
+                                     "(bvh.indices): not the triangles it was built over")
         self.row_of = np.full(n, -1, np.int32)
-        in_range = len(order) == n and (n == 0 or (order.min() >= 0 and order.max() < n))
+        in_range = n == 0 or (order.min() >= 0 and order.max() < n)
         if in_range:
             self.row_of[order] = np.arange(n)
         if not in_range or (self.row_of < 0).any():           # a triangle missed or repeated
-            raise ValueError(f"bvh.indices must list each of the {n} triangles once")
-        self.tris = preprocess(np.asarray(tris)[order], self.dtype)
+            raise InputError("bvh.indices", f"must list each of the {n} triangles once")
+        # the kernels follow child pointers and leaf ranges unchecked: refuse a tree they
+        # cannot walk before any of them reads it
+        self.nodes = check_nodes(bvh.nodes, n_positions=n, source="bvh.nodes")
+        self.u, self.f = node_views(self.nodes)
+        # the boxes the builder saw (it boxes the float32 triangles); a leaf that does not
+        # hold its triangles' boxes means other triangles than the tree's: every ray would
+        # miss them
+        bad = _first_leaf_not_holding(self.u, self.f, order.astype(np.uint32),
+                                      primitive_boxes(np.asarray(tris, np.float32)))
+        if bad >= 0:
+            raise InputError(source, f"a triangle lies outside its leaf's box (node {bad}): "
+                                     "not the triangles the tree was built over")
+        # flat word views of the same bytes for the kernels (no copy, no other layout)
+        self._u1 = self.u.reshape(-1)
+        self._f1 = self.f.reshape(-1)
+        self.index_bytes = np.frombuffer(pack_indices(order), dtype=np.uint8)
+        self.tris = preprocess(tris[order], self.dtype)
         self._tris1 = self.tris.reshape(-1)
         # the watertight test (accuracy study) needs the original vertices, not v0 + e1
         self.watertight = bool(watertight)
         self.raw = np.ascontiguousarray(np.asarray(tris, self.dtype).reshape(len(tris), 9)) \
             if watertight else None
         self.depth = tree_stats(self.nodes)["max_depth"]
-        f32 = self.dtype == np.float32
         self.eps2 = band_eps2(self.dtype)
         self.one = self.dtype(1)
         self.widen = self.dtype(1.0 + 2.0 * (GAMMA3_F32 if f32 else GAMMA3_F64))
-        if edge_eps is None:
-            edge_eps = EDGE_EPS_F32 if f32 else EDGE_EPS_F64
         self.edge = self.dtype(edge_eps)
         self.packets = bool(packets)
         self._start_packet_count()

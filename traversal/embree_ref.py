@@ -10,32 +10,66 @@ import time
 
 import numpy as np
 
+from hwbvh.errors import ParameterError
 from hwbvh.parallel import run_ranges
+from hwbvh.primitives import within_bound
+from .api import _interval, ray_arrays, real_array
 from .config import EMBREE_CHUNK_RAYS
 
 EMBREE_MISS_T = 1e37
 
 
-def embree_scene(vertices, faces, robust=True):
-    """Build and commit an Embree scene from an indexed mesh (float32 vertices, int32 faces)."""
+def indexed_mesh(vertices, faces):
+    """(vertices float32 (k, 3), faces int64 (m, 3)) of an indexed mesh, refused with a
+    ParameterError naming the argument unless the vertices are real (k, 3) coordinates, finite
+    in float32, and the faces (m, 3) integers in [0, k): embreex reads faces as int32 vertex
+    ids and would read past the vertex buffer, truncate fractional ids, or regroup a flat
+    array into other triangles."""
+    V = real_array(vertices, "vertices")
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise ParameterError("vertices", f"must be (k, 3), got shape {V.shape}")
+    with np.errstate(over="ignore"):            # beyond float32's range is refused just below
+        V = np.ascontiguousarray(V, dtype=np.float32)
+    if not within_bound(V, np.finfo(np.float32).max):      # NaN and inf both fail
+        bad = int(np.argmin(np.isfinite(V).all(axis=1)))
+        raise ParameterError("vertices", f"vertex {bad} has a NaN or infinite coordinate "
+                                         "(in float32)")
+    F = np.asarray(faces)
+    if F.dtype.kind not in "iu":
+        raise ParameterError("faces", f"must be integers (vertex ids), got {F.dtype}")
+    if F.ndim != 2 or F.shape[1] != 3:
+        raise ParameterError("faces", f"must be (m, 3), got shape {F.shape}")
+    F = F.astype(np.int64)
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        bad = int(np.argmax(((F < 0) | (F >= len(V))).any(axis=1)))
+        raise ParameterError("faces", f"face {bad} has a vertex id outside [0, {len(V)}): "
+                                      f"{F[bad].tolist()}")
+    return V, F
+
+
+def _commit(V, F, robust):
+    """An Embree scene of a checked mesh (``indexed_mesh``), built and committed."""
     from embreex import rtcore_scene as rs
     from embreex.mesh_construction import TriangleMesh
 
     scene = rs.EmbreeScene(robust=robust)
-    TriangleMesh(scene, np.ascontiguousarray(vertices, dtype=np.float32),
-                 np.ascontiguousarray(faces, dtype=np.int32))
+    TriangleMesh(scene, V, np.ascontiguousarray(F, dtype=np.int32))
     # embreex commits lazily on the first query; one ray makes the build part of this call
     scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
     return scene
+
+
+def embree_scene(vertices, faces, robust=True):
+    """Build and commit an Embree scene from an indexed mesh (checked by ``indexed_mesh``)."""
+    return _commit(*indexed_mesh(vertices, faces), robust)
 
 
 def shared_vertices(vertices, faces):
     """The same triangles as an indexed mesh whose vertices are unique (bitwise): what an Embree
     user hands over. A triangle soup (three vertices per face) makes Embree's build read and
     transform three times the vertices, so timing it would not be timing Embree fairly.
-    Returns (float32 vertices, int32 faces)."""
-    V = np.ascontiguousarray(vertices, dtype=np.float32)
-    F = np.asarray(faces, dtype=np.int64)
+    Returns (float32 vertices, int32 faces); the input is checked by ``indexed_mesh``."""
+    V, F = indexed_mesh(vertices, faces)
     if len(V) == 0:
         return V, np.ascontiguousarray(F, dtype=np.int32)
     rows = V.view(np.dtype((np.void, V.dtype.itemsize * 3))).ravel()
@@ -44,8 +78,12 @@ def shared_vertices(vertices, faces):
 
 
 def embree_build_seconds(vertices, faces, robust=True):
+    """Seconds Embree takes to build and commit the scene (the input is checked first, outside
+    the time)."""
+    V, F = indexed_mesh(vertices, faces)
+    F = np.ascontiguousarray(F, dtype=np.int32)
     t = time.perf_counter()
-    embree_scene(vertices, faces, robust)
+    _commit(V, F, robust)
     return time.perf_counter() - t
 
 
@@ -53,16 +91,26 @@ def _chunk_count(n):
     return max(1, n // EMBREE_CHUNK_RAYS)
 
 
+def _embree_rays(origins, dirs, tmax):
+    """float32 (n, 3) rays and a writable float32 copy of their t_max (embreex writes tfar
+    into it), checked as ``traversal.Tracer`` checks its rays (ParameterError naming the
+    argument); also whether each ray's interval [0, tmax] is empty (tmax < 0), judged before
+    the float32 rounding, which could turn a tiny negative into -0."""
+    o, d = ray_arrays(origins, dirs, np.float32)
+    n = len(o)
+    if tmax is None:
+        return o, d, None, None
+    hi = _interval(tmax, n, np.float64, "tmax")
+    with np.errstate(over="ignore"):            # beyond float32's range is as good as inf
+        return o, d, np.array(hi, dtype=np.float32), hi < 0
+
+
 def embree_intersect(scene, origins, dirs, tmax=None):
     """Closest hits: (t float64 with inf for a miss, prim int64 -1 miss, u, v, Ng (n,3)).
-    The rays are traced in chunks on the same threads as our traversal (see
-    ``EMBREE_CHUNK_RAYS``)."""
-    o = np.ascontiguousarray(origins, dtype=np.float32)
-    d = np.ascontiguousarray(dirs, dtype=np.float32)
+    ``tmax``: None (no limit), a number or one per ray. The rays are traced in chunks on the
+    same threads as our traversal (see ``EMBREE_CHUNK_RAYS``)."""
+    o, d, dist, _ = _embree_rays(origins, dirs, tmax)
     n = len(o)
-    dist = None
-    if tmax is not None:
-        dist = np.array(np.broadcast_to(tmax, (n,)), dtype=np.float32)   # writable copy
     t = np.empty(n)
     prim = np.empty(n, np.int64)
     u = np.empty(n, np.float32)
@@ -88,11 +136,11 @@ def embree_intersect(scene, origins, dirs, tmax=None):
 
 
 def embree_occluded(scene, origins, dirs, tmax):
-    """Whether each ray is blocked before ``tmax``; in chunks on our traversal's threads."""
-    o = np.ascontiguousarray(origins, dtype=np.float32)
-    d = np.ascontiguousarray(dirs, dtype=np.float32)
+    """Whether each ray is blocked in [0, tmax] (a number or one per ray); in chunks on our
+    traversal's threads. A ray with an empty interval (tmax < 0) is not blocked, as in every
+    tracer here: Embree itself reports such a ray as occluded."""
+    o, d, dist, empty = _embree_rays(origins, dirs, tmax)
     n = len(o)
-    dist = np.array(np.broadcast_to(tmax, (n,)), dtype=np.float32)  # embreex writes tfar
     blocked = np.empty(n, np.bool_)
 
     def chunks(c0, c1):
@@ -102,6 +150,7 @@ def embree_occluded(scene, origins, dirs, tmax):
     chunk_count = _chunk_count(n)
     if n:
         run_ranges(chunks, chunk_count)
+        blocked[empty] = False
     return blocked
 
 

@@ -35,6 +35,7 @@ import time
 import numpy as np
 from numba import njit
 
+from hwbvh.errors import ParameterError
 from hwbvh.parallel import run_ranges
 from .api import PacketCount
 from .structure import TriangleStructure, checked_triangles, padded_box
@@ -560,11 +561,12 @@ class GridTracer(TriangleStructure, PacketCount):
             res = np.asarray(resolution)
             if res.shape not in ((), (3,)) or not np.issubdtype(res.dtype, np.integer) \
                     or (res < 1).any():
-                raise ValueError(f"resolution must be a positive int or three, got {resolution!r}")
+                raise ParameterError("resolution", "must be a positive int or three, "
+                                                   f"got {resolution!r}")
             res = np.broadcast_to(res, (3,)).astype(np.int64)
             if np.prod(res.astype(np.float64)) > GRID_MAX_CELLS:
-                raise ValueError(f"resolution {tuple(res.tolist())} has more than "
-                                 f"{GRID_MAX_CELLS} cells")
+                raise ParameterError("resolution", f"{tuple(res.tolist())} has more than "
+                                                   f"{GRID_MAX_CELLS} cells")
         ranges = np.empty((n, 6), np.int64)
         while True:
             inv = res / extent
@@ -572,8 +574,9 @@ class GridTracer(TriangleStructure, PacketCount):
             if total <= cap:
                 break
             if resolution is not None:
-                raise ValueError(f"resolution {tuple(res.tolist())} needs {total} references, "
-                                 f"over the cap of {GRID_MAX_REFS_PER_TRI} per triangle")
+                raise ParameterError("resolution", f"{tuple(res.tolist())} needs {total} "
+                                                   f"references, over the cap of "
+                                                   f"{GRID_MAX_REFS_PER_TRI} per triangle")
             res = np.maximum(1, (res * 0.8).astype(np.int64))
         self.resolution = tuple(int(r) for r in res)
         self._res = res.astype(np.int64)

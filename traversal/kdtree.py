@@ -53,6 +53,7 @@ import time
 import numpy as np
 from numba import njit
 
+from hwbvh.errors import ParameterError
 from hwbvh.parallel import run_ranges
 from .structure import TriangleStructure, checked_triangles, padded_box
 from .config import (CHUNK_RAYS, PACKET_RAYS, KD_COST_INTERSECT, KD_COST_TRAVERSAL, KD_DEPTH_BASE,
@@ -816,8 +817,8 @@ class KdTreeTracer(TriangleStructure):
         tris = checked_triangles(triangles)
         n = len(tris)
         if n >= MAX_TRIANGLES:
-            raise ValueError(f"triangles: {n} triangles, the kd-tree holds at most "
-                             f"{MAX_TRIANGLES - 1}")
+            raise ParameterError("triangles", f"{n} triangles, the kd-tree holds at most "
+                                              f"{MAX_TRIANGLES - 1}")
         pads = triangle_pads(tris)
         # the tree's box: the mesh's, padded like a triangle's box, never flat, float32 bounds
         _, _, box_lo, box_hi = padded_box(tris, KD_PAD_TRI, KD_PAD_COORD)

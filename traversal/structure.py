@@ -3,6 +3,7 @@ mesh's padded box, the float32 Moller-Trumbore unit's triangle rows, and the bat
 ``intersect``/``occluded`` of the tracer interface (``traversal.tracers``)."""
 import numpy as np
 
+from hwbvh.errors import ParameterError
 from hwbvh.primitives import checked_coordinates
 from .api import Hits, _answers, _rays
 from .config import EDGE_EPS_F32
@@ -11,12 +12,14 @@ from .triangle_unit import band_eps2, preprocess
 
 def checked_triangles(triangles):
     """(n, 3, 3) triangles (an empty array is allowed) as float32 coordinates held in float64;
-    ValueError (InputError) on a bad shape, or on a NaN or infinite coordinate or one beyond
-    ``hwbvh.config.MAX_COORDINATE`` (the BVH builder's check, ``checked_coordinates``: far
-    beyond that bound the float32 unit's products overflow and every ray misses)."""
+    ParameterError / InputError naming 'triangles' on data that are not real numbers, a bad
+    shape, or a NaN or infinite coordinate or one beyond ``hwbvh.config.MAX_COORDINATE`` (the
+    BVH builder's check, ``checked_coordinates``)."""
     tris = np.asarray(triangles)
+    if tris.dtype.kind not in "fiu":
+        raise ParameterError("triangles", f"must be real numbers, got {tris.dtype}")
     if tris.ndim != 3 or tris.shape[1:] != (3, 3):
-        raise ValueError(f"triangles must be (n, 3, 3), got {tris.shape}")
+        raise ParameterError("triangles", f"must be (n, 3, 3), got {tris.shape}")
     tris = checked_coordinates(tris, "triangles")
     return np.ascontiguousarray(tris.astype(np.float32).astype(np.float64))
 

@@ -7,7 +7,9 @@ Every tracer answers two batched queries (pbrt's ``Intersect`` / ``IntersectP``)
 * ``occluded(origins, dirs, tmin=0.0, tmax=inf) -> (n,) bool``: any hit in [tmin, tmax].
 
 Intervals start at the origin or after it (``tmin >= 0``, as in Embree): a negative ``tmin``
-is a ValueError.
+is a ParameterError, and so are a bound that is None or NaN and rays or bounds that are not real
+numbers or not one per ray. An empty interval (``tmin > tmax``) is a miss / not blocked. A zero
+direction, or a NaN or infinite origin or direction, misses.
 
 A tracer may also declare ``concurrent = True``: it answers queries from several threads at
 once, so the renderer traces each band of rows on its own thread (``raytracer.render``);
@@ -33,9 +35,10 @@ import time
 
 import numpy as np
 
+from hwbvh.errors import ParameterError
 from hwbvh.parallel import run_ranges
 
-from .api import negative_tmin_error
+from .api import _rays
 
 
 class _Tally:
@@ -109,14 +112,15 @@ class VerifyingTracer(_Tally):
 
 def _shifted(origins, dirs, tmin, tmax):
     """Embree's tnear is fixed at 0 in embreex: rays with a t_min start at o + tmin d instead,
-    and their t_max shrinks by t_min (distances come back relative to the shifted origin)."""
-    o = np.asarray(origins, np.float64)
-    d = np.asarray(dirs, np.float64)
-    n = len(o)
-    lo = np.broadcast_to(np.asarray(tmin, np.float64), (n,))
-    if (lo < 0).any():
-        raise negative_tmin_error("tmin")
-    hi = np.broadcast_to(np.asarray(tmax, np.float64), (n,))
+    and their t_max shrinks by t_min (distances come back relative to the shifted origin). The
+    rays and bounds are checked as ``traversal.Tracer`` checks them. A ray whose interval is
+    empty (tmin > tmax, or tmin infinite) keeps its origin and gets t_max -1, which the Embree
+    queries answer as a miss / not blocked, like every other tracer."""
+    o, d, lo, hi = _rays(origins, dirs, tmin, tmax, np.float64)
+    empty = (hi < lo) | np.isinf(lo)
+    if empty.any():
+        lo = np.where(empty, 0.0, lo)
+        hi = np.where(empty, -1.0, hi)
     if lo.any():
         o = o + d * lo[:, None]
     return o, d, lo, hi - lo
@@ -130,7 +134,8 @@ class CountingTracer(_Tally):
 
     def __init__(self, inner, as_run=False):
         if not getattr(inner, "has_counters", False):
-            raise ValueError("work counters need the hwbvh traversal (traversal.Tracer)")
+            raise ParameterError("inner", "work counters need the hwbvh traversal "
+                                          "(traversal.Tracer)")
         self.inner = inner
         self.as_run = bool(as_run)
         self.totals = {kind: {"nodes": 0, "triangles": 0, "rays": 0} for kind in ("closest", "shadow")}
@@ -160,6 +165,8 @@ class CountingTracer(_Tally):
     def counts(self, kind="closest"):
         """{"nodes", "triangles", "rays"} of ``kind`` ("closest", "shadow" or "all") queries
         so far."""
+        if kind not in ("closest", "shadow", "all"):
+            raise ParameterError("kind", f"must be 'closest', 'shadow' or 'all', got {kind!r}")
         kinds = ("closest", "shadow") if kind == "all" else (kind,)
         return {k: sum(self.totals[q][k] for q in kinds) for k in ("nodes", "triangles", "rays")}
 
@@ -181,15 +188,18 @@ class RecordingTracer:
         self.inner = inner
         self.queries = []
 
+    # a query is kept once the tracer has answered it: one it refuses is not traced again
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
+        h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals)
         self.queries.append(("intersect", np.array(origins), np.array(dirs), np.array(tmin),
                              np.array(tmax), normals))
-        return self.inner.intersect(origins, dirs, tmin, tmax, normals=normals)
+        return h
 
     def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
+        blocked = self.inner.occluded(origins, dirs, tmin, tmax)
         self.queries.append(("occluded", np.array(origins), np.array(dirs), np.array(tmin),
                              np.array(tmax), False))
-        return self.inner.occluded(origins, dirs, tmin, tmax)
+        return blocked
 
     @property
     def dtype(self):

@@ -1,0 +1,291 @@
+"""Kernels trust, public functions validate: every public entry of the traversal refuses bad
+input with a one-line InputError / ParameterError naming the argument, before any kernel
+reads it, and answers every valid input as before."""
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import hwbvh
+from hwbvh.errors import InputError, ParameterError
+from traversal import Tracer
+from traversal.embree_ref import (EmbreeTracer, embree_intersect, embree_occluded, embree_scene,
+                                  shared_vertices)
+from traversal.grid import GridTracer
+from traversal.kdtree import KdTreeTracer
+from traversal.tracers import CountingTracer, RecordingTracer, VerifyingTracer
+
+# 64 small triangles and 16 rays straight down at the first 16 centroids: all 16 hit
+PRELUDE = """
+import numpy as np, hwbvh
+rng = np.random.default_rng(0)
+tris = (rng.uniform(0, 1, (64, 1, 3)) + rng.uniform(-0.05, 0.05, (64, 3, 3))).astype(np.float32)
+o = tris.mean(axis=1)[:16].copy(); o[:, 2] = 3
+d = np.zeros((16, 3), np.float32); d[:, 2] = -1
+"""
+namespace = {}
+exec(PRELUDE, namespace)
+TRIS, O, D = namespace["tris"], namespace["o"], namespace["d"]
+V = TRIS.reshape(-1, 3)
+F = np.arange(len(V)).reshape(-1, 3)
+
+
+@pytest.fixture(scope="module")
+def bvh():
+    return hwbvh.build(TRIS)
+
+
+@pytest.fixture(scope="module")
+def tracers(bvh):
+    return {"bvh": Tracer(bvh), "grid": GridTracer(TRIS), "kdtree": KdTreeTracer(TRIS),
+            "embree": EmbreeTracer(V, F)}
+
+
+REFUSALS = """
+def refused(what, f):
+    try:
+        f()
+    except Exception as e:
+        print(f"{what} {type(e).__name__} {e}", flush=True)
+    else:
+        print(f"{what} ACCEPTED", flush=True)
+"""
+
+
+def run_isolated(body):
+    """Run ``body`` (after PRELUDE and REFUSALS) in a fresh interpreter, so that a crash in a
+    kernel fails the test instead of killing the test run. Returns (returncode, stdout +
+    stderr)."""
+    r = subprocess.run([sys.executable, "-c", PRELUDE + REFUSALS + textwrap.dedent(body)],
+                       capture_output=True, text=True, timeout=300)
+    return r.returncode, r.stdout + r.stderr
+
+
+def test_a_tree_whose_nodes_a_kernel_cannot_walk_is_refused_by_the_tracer():
+    code, out = run_isolated("""
+    from traversal import Tracer
+
+    def tree(change):
+        b = hwbvh.build(tris)
+        b.nodes = b.nodes.copy()
+        change(b)
+        return b
+
+    def far_child(b):
+        b.nodes["a"][0] = 10**9
+    def far_leaf(b):
+        leaf = b.nodes["flags"] == 1
+        b.nodes["b"][leaf] = 10**6
+    def cycle(b):                      # an inner node points at the root's left child
+        inner = np.flatnonzero(b.nodes["flags"] == 0)
+        b.nodes["a"][inner[-1]] = b.nodes["a"][0]
+    def empty(b):
+        b.nodes = b.nodes[:0]
+    for change in (far_child, far_leaf, cycle, empty):
+        refused(change.__name__, lambda: Tracer(tree(change)).intersect(o, d))
+    """)
+    assert code >= 0, out                       # a negative code: killed by a signal
+    for line in ("far_child InputError bvh.nodes: invalid tree: child pointer out of range "
+                 "(node 0)",
+                 "far_leaf InputError bvh.nodes: invalid tree: leaf index range outside the "
+                 "index list (node",
+                 "cycle InputError bvh.nodes: invalid tree: node reached twice (cycle or shared "
+                 "child)",
+                 "empty InputError bvh.nodes: no nodes"):
+        assert line in out, out
+
+
+def _wrapped(tracers):
+    """Every tracer, and the wrappers in front of ours."""
+    inner = tracers["bvh"]
+    return dict(tracers, verifying=VerifyingTracer(inner, TRIS, V, F),
+                counting=CountingTracer(inner), recording=RecordingTracer(inner))
+
+
+@pytest.mark.parametrize("query", ["intersect", "occluded"])
+def test_none_and_nan_bounds_are_refused_by_every_tracer(tracers, query):
+    """None converts to NaN, and a NaN bound made every ray miss (a NaN tmin also got past
+    the negative-tmin check)."""
+    nan_last = np.r_[np.zeros(15), np.nan]
+    for name, tracer in _wrapped(tracers).items():
+        ask = getattr(tracer, query)
+        for bound, value, shown in (("tmax", None, "None"), ("tmin", None, "None"),
+                                    ("tmax", np.nan, "NaN"), ("tmin", np.nan, "NaN"),
+                                    ("tmin", nan_last, r"NaN \(ray 15\)"),
+                                    ("tmax", np.float32(np.nan), "NaN")):
+            with pytest.raises(ParameterError, match=f"^{bound}: must be a number or one per ray, "
+                                                     f"got {shown}$") as e:
+                ask(O, D, **{bound: value})
+            assert e.value.parameter == bound, name
+        assert np.count_nonzero(np.asarray(getattr(ask(O, D), "prim", ask(O, D))) >= 0) == 16, name
+
+
+@pytest.mark.parametrize("query", ["intersect", "occluded"])
+def test_an_empty_interval_is_a_miss_in_every_tracer(tracers, query):
+    """Embree called a ray with tmax < 0 or tmin > tmax blocked; every other tracer not."""
+    for name, tracer in _wrapped(tracers).items():
+        for tmin, tmax in ((0.0, -1.0), (5.0, 1.0), (np.inf, np.inf),
+                           (np.ones(16), np.r_[np.full(8, 0.5), np.full(8, 10.0)])):
+            answer = getattr(tracer, query)(O, D, tmin=tmin, tmax=tmax)
+            hit = (answer.prim >= 0) if query == "intersect" else answer
+            expect = np.zeros(16, bool) if np.ndim(tmax) == 0 else np.r_[np.zeros(8, bool),
+                                                                          np.ones(8, bool)]
+            assert hit.tolist() == expect.tolist(), (name, tmin, tmax)
+    verifying = _wrapped(tracers)["verifying"]
+    assert verifying.summary()["mismatch"] == 0, verifying.summary()
+
+
+def test_embree_empty_interval_is_not_blocked_in_the_query_functions():
+    scene = embree_scene(V, F)
+    assert not embree_occluded(scene, O, D, -1.0).any()
+    assert embree_occluded(scene, O, D, np.r_[np.full(8, -1e-30), np.full(8, 5.0)]).tolist() == \
+        [False] * 8 + [True] * 8
+    assert (embree_intersect(scene, O, D, -1.0)[1] == -1).all()
+
+
+def test_embree_rays_are_checked_as_ours(tracers):
+    emb = tracers["embree"]
+    scene = emb.scene
+    for ask in (emb.intersect, emb.occluded, lambda o, d: embree_intersect(scene, o, d),
+                lambda o, d: embree_occluded(scene, o, d, 5.0)):
+        with pytest.raises(ParameterError, match=r"^dirs: must be \(n, 3\) with one row per "
+                                                 r"origin \(16, 3\), got shape \(4, 3\)$"):
+            ask(O, D[:4])
+        with pytest.raises(ParameterError, match=r"^dirs: .*got shape \(1, 3\)$"):
+            ask(np.repeat(O, 300, 0), D[:1])
+        with pytest.raises(ParameterError, match=r"^origins: must be \(n, 3\), got shape \(8, 6\)$"):
+            ask(O.reshape(-1, 6), D.reshape(-1, 6))
+        with pytest.raises(ParameterError, match=r"^origins: must be \(n, 3\), got shape \(3,\)$"):
+            ask(np.zeros(3), np.array([0, 0, 1.0]))
+        with pytest.raises(ParameterError, match="^origins: must be real numbers, got complex64$"):
+            ask(O.astype(np.complex64), D)
+    with pytest.raises(ParameterError, match=r"^tmax: must be a scalar or one value per ray \(16,\)"):
+        emb.intersect(O, D, tmax=np.ones(5))
+    with pytest.raises(ParameterError, match="^tmax: must be a number or one per ray, got NaN"):
+        embree_occluded(scene, O, D, np.nan)
+
+
+def test_embree_meshes_are_checked():
+    for make in (embree_scene, EmbreeTracer, shared_vertices):
+        far = F.copy()
+        far[0, 0] = 10**6
+        with pytest.raises(ParameterError, match=r"^faces: face 0 has a vertex id outside "
+                                                 r"\[0, 192\): \[1000000, 1, 2\]$"):
+            make(V, far)
+        far[0, 0] = -5
+        with pytest.raises(ParameterError, match=r"^faces: face 0 has a vertex id outside"):
+            make(V, far)
+        with pytest.raises(ParameterError, match=r"^faces: must be \(m, 3\), got shape \(48, 4\)$"):
+            make(V, F.reshape(-1, 4))
+        with pytest.raises(ParameterError, match="^faces: must be integers .*got float64$"):
+            make(V, F + 0.7)
+        nan = V.copy()
+        nan[5] = np.nan
+        with pytest.raises(ParameterError, match="^vertices: vertex 5 has a NaN or infinite"):
+            make(nan, F)
+        with pytest.raises(ParameterError, match=r"^vertices: vertex 0 has a NaN or infinite"):
+            make(np.full((3, 3), 1e39), [[0, 1, 2]])           # infinite in float32
+        with pytest.raises(ParameterError, match=r"^vertices: must be \(k, 3\), got shape \(288, 2\)$"):
+            make(V.reshape(-1, 2), F)
+    with pytest.raises(ParameterError, match=r"^faces: face 0 has a vertex id outside \[0, 3\)"):
+        shared_vertices(np.zeros((3, 3)), [[0, 1, 99]])
+    Vs, Fs = shared_vertices(V, F)
+    assert np.array_equal(Vs[Fs], V[F])
+
+
+def test_a_tracer_refuses_triangles_that_are_not_its_trees(bvh):
+    other = (np.random.default_rng(9).uniform(0, 1, (64, 1, 3))
+             + np.random.default_rng(9).uniform(-.05, .05, (64, 3, 3))).astype(np.float32) + 3
+    with pytest.raises(InputError, match=r"^triangles: a triangle lies outside its leaf's box "
+                                         r"\(node \d+\): not the triangles the tree was built over$"):
+        Tracer(bvh, triangles=other)
+    swapped = hwbvh.build(TRIS)
+    swapped.triangles = other
+    with pytest.raises(InputError, match="^bvh.triangles: a triangle lies outside its leaf's box"):
+        Tracer(swapped)
+    with pytest.raises(InputError, match="^triangles: 10 triangles, but the tree has 64 primitives"):
+        Tracer(bvh, triangles=TRIS[:10])
+    nan = TRIS.copy()
+    nan[0] = np.nan
+    with pytest.raises(InputError, match="^triangles: triangle 0 has a NaN or infinite coordinate$"):
+        Tracer(bvh, triangles=nan)
+    with pytest.raises(InputError, match=r"^triangles: must have shape \(n, 3, 3\), got \(64, 9\)$"):
+        Tracer(bvh, triangles=TRIS.reshape(-1, 9))
+    with pytest.raises(InputError, match="^triangles: must be real numbers, got complex64$"):
+        Tracer(bvh, triangles=TRIS.astype(np.complex64))
+    with pytest.raises(ParameterError, match="^bvh: expected an hwbvh.Bvh"):
+        Tracer({"nodes": bvh.nodes})
+
+
+def test_a_tracer_takes_the_triangles_its_tree_was_built_over(bvh):
+    """In their own precision: float64 triangles round to the float32 ones the builder boxed
+    (every vertex nudged within its float32 rounding), and a refitted tree holds moved ones."""
+    from hwbvh.refit import refit
+
+    nudged = TRIS.astype(np.float64) + np.spacing(TRIS) * 0.4
+    h = Tracer(bvh, triangles=nudged, precision="float64").intersect(O, D)
+    assert (h.prim >= 0).all() and h.t.dtype == np.float64
+    moved = TRIS + np.float32(0.25)
+    h = Tracer(refit(bvh, moved)).intersect(O + np.float32(0.25), D)
+    assert (h.prim >= 0).all()
+
+
+def test_edge_eps_must_be_a_finite_number_at_least_zero(bvh):
+    for bad in (-1.0, np.nan, np.inf, "x", True):
+        with pytest.raises(ParameterError, match="^edge_eps: must be a finite number >= 0, got") as e:
+            Tracer(bvh, edge_eps=bad)
+        assert e.value.parameter == "edge_eps"
+    assert (Tracer(bvh, edge_eps=0).intersect(O, D).prim >= 0).all()
+
+
+def test_rays_and_bounds_that_are_not_real_numbers_are_refused(tracers):
+    for name, tracer in tracers.items():
+        with pytest.raises(ParameterError, match="^origins: must be real numbers, got complex64$"):
+            tracer.intersect(O.astype(np.complex64) + 5j, D)
+        with pytest.raises(ParameterError, match="^dirs: must be real numbers, got bool$"):
+            tracer.occluded(O, D != 0)
+        with pytest.raises(ParameterError, match="^origins: must be real numbers, got object$"):
+            tracer.intersect(O.astype(object), D)
+        with pytest.raises(ParameterError, match="^tmax: must be real numbers, got complex128$"):
+            tracer.intersect(O, D, tmax=10 + 5j)
+        with pytest.raises(ParameterError, match="^tmin: must be real numbers, got bool$"):
+            tracer.occluded(O, D, tmin=np.zeros(16, bool))
+        # integers, lists, float16/float64 and big-endian floats are real numbers
+        assert (tracer.intersect(O.astype(">f4").tolist(), D.astype(np.int64)).prim >= 0).all(), name
+    for make in (GridTracer, KdTreeTracer):
+        with pytest.raises(ParameterError, match="^triangles: must be real numbers, got complex64$"):
+            make(TRIS.astype(np.complex64))
+        with pytest.raises(ParameterError, match="^triangles: must be real numbers, got bool$"):
+            make(TRIS > 0.5)
+
+
+def test_argument_errors_are_parameter_errors_naming_the_parameter(bvh, tracers):
+    """ParameterError is a ValueError: callers that catch ValueError still do."""
+    cases = [
+        ("precision", lambda: Tracer(bvh, precision="float16")),
+        ("dirs", lambda: tracers["bvh"].intersect(O, D[:5])),
+        ("tmin", lambda: tracers["grid"].intersect(O, D, tmin=-1.0)),
+        ("tmax", lambda: tracers["kdtree"].occluded(O, D, tmax=np.ones(3))),
+        ("resolution", lambda: GridTracer(TRIS, resolution=0)),
+        ("resolution", lambda: GridTracer(TRIS, resolution=2.5)),
+        ("triangles", lambda: KdTreeTracer(np.zeros((4, 3), np.float32))),
+        ("triangles", lambda: GridTracer(np.zeros((4, 9), np.float32))),
+        ("kind", lambda: CountingTracer(tracers["bvh"]).work("bogus")),
+        ("inner", lambda: CountingTracer(tracers["embree"])),
+    ]
+    for parameter, call in cases:
+        with pytest.raises(ParameterError) as e:
+            call()
+        assert e.value.parameter == parameter, (parameter, str(e.value))
+        assert "\n" not in str(e.value) and str(e.value).startswith(parameter + ": ")
+        assert isinstance(e.value, ValueError)
+
+
+def test_a_refused_query_is_not_recorded(tracers):
+    recording = RecordingTracer(tracers["bvh"])
+    with pytest.raises(ParameterError):
+        recording.intersect(O, D, tmax=None)
+    recording.occluded(O, D)
+    assert recording.rays() == 16 and [q[0] for q in recording.queries] == ["occluded"]
