@@ -16,6 +16,7 @@ from traversal.embree_ref import (EmbreeTracer, embree_intersect, embree_occlude
 from traversal.grid import GridTracer
 from traversal.kdtree import KdTreeTracer
 from traversal.tracers import CountingTracer, RecordingTracer, VerifyingTracer
+from traversal.verify import classify, classify_occluded, verify_mesh
 
 # 64 small triangles and 16 rays straight down at the first 16 centroids: all 16 hit
 PRELUDE = """
@@ -95,6 +96,39 @@ def test_a_tree_whose_nodes_a_kernel_cannot_walk_is_refused_by_the_tracer():
                  "child)",
                  "empty InputError bvh.nodes: no nodes"):
         assert line in out, out
+
+
+def test_classify_refuses_primitive_ids_out_of_range_and_answers_not_one_per_ray():
+    code, out = run_isolated("""
+    from traversal.verify import classify, classify_occluded
+    miss = np.full(16, -1, np.int64)
+    refused("far", lambda: classify(tris, o, d, 0.0, np.inf, np.full(16, 10**7, np.int64),
+                                    np.ones(16), miss, np.full(16, np.inf)))
+    refused("below", lambda: classify(tris, o, d, 0.0, np.inf, miss, np.full(16, np.inf),
+                                      np.full(16, -2, np.int64), np.ones(16)))
+    refused("few", lambda: classify(tris, o, d, 0.0, np.inf, miss[:4], np.ones(4), miss,
+                                    np.ones(16)))
+    refused("few_blocked", lambda: classify_occluded(tris, o, d, 0.0, np.inf, np.ones(4, bool),
+                                                     np.zeros(4, bool)))
+    refused("tris", lambda: classify(tris.reshape(-1, 9), o, d, 0.0, np.inf, miss, np.ones(16),
+                                     miss, np.ones(16)))
+    """)
+    assert code >= 0, out
+    assert "far ParameterError ours_prim: primitive ids must be -1 or below len(tris) = 64, " \
+           "got 10000000 (ray 0)" in out
+    assert "below ParameterError ref_prim: primitive ids must be -1" in out
+    assert "few ParameterError ours_prim: must hold one answer per ray (16,), got shape (4,)" in out
+    assert "few_blocked ParameterError ours_blocked: must hold one answer per ray (16,)" in out
+    assert "tris ParameterError tris: must be (m, 3, 3), got shape (64, 9)" in out
+
+
+def test_classify_still_judges_right_answers(bvh):
+    h = Tracer(bvh).intersect(O, D)
+    te, pe, *_ = embree_intersect(embree_scene(V, F), O, D)
+    counts, _ = classify(TRIS, O, D, 0.0, np.inf, h.prim.astype(np.int64), h.t, pe, te)
+    assert counts == {"rays": 16, "agree": 16, "tie": 0, "mismatch": 0}
+    counts, _ = classify_occluded(TRIS, O, D, 0.0, np.inf, np.ones(16, bool), np.ones(16, bool))
+    assert counts["agree"] == 16
 
 
 def _wrapped(tracers):
@@ -272,6 +306,10 @@ def test_argument_errors_are_parameter_errors_naming_the_parameter(bvh, tracers)
         ("resolution", lambda: GridTracer(TRIS, resolution=2.5)),
         ("triangles", lambda: KdTreeTracer(np.zeros((4, 3), np.float32))),
         ("triangles", lambda: GridTracer(np.zeros((4, 9), np.float32))),
+        ("n", lambda: verify_mesh(TRIS, V, F, n=-5)),
+        ("n", lambda: verify_mesh(TRIS, V, F, n=16.5)),
+        ("kind", lambda: verify_mesh(TRIS, V, F, kind="bogus")),
+        ("accel", lambda: verify_mesh(TRIS, V, F, accel="bogus")),
         ("kind", lambda: CountingTracer(tracers["bvh"]).work("bogus")),
         ("inner", lambda: CountingTracer(tracers["embree"])),
     ]

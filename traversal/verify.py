@@ -16,8 +16,10 @@ The tolerances ``T_TOL_REL``, ``BEHIND_TOL_REL`` and ``BARY_TOL`` live in ``trav
 import numpy as np
 from numba import njit
 
+from hwbvh.errors import ParameterError
 from hwbvh.parallel import run_ranges
 
+from .api import _interval, ray_arrays, real_array
 from .config import BARY_TOL, BEHIND_TOL_REL, T_TOL_REL
 
 BEHIND = BEHIND_TOL_REL / T_TOL_REL    # the slack before t_min, as a share of the t tolerance
@@ -85,16 +87,55 @@ def t_tolerance(O, D, t):
     return T_TOL_REL * (np.where(np.isfinite(t), np.abs(t), 0) + scale)
 
 
+def _checked_triangles(tris):
+    t = real_array(tris, "tris")
+    if t.ndim != 3 or t.shape[1:] != (3, 3):
+        raise ParameterError("tris", f"must be (m, 3, 3), got shape {t.shape}")
+    return t
+
+
+def _checked_rays(O, D, tmin, tmax):
+    """The rays as both tracers saw them (float32, held in float64) and their (n,) bounds,
+    checked as ``traversal.Tracer`` checks them."""
+    O, D = ray_arrays(O, D, np.float32)
+    n = len(O)
+    return (O.astype(np.float64), D.astype(np.float64),
+            _interval(tmin, n, np.float64, "tmin", nonnegative=True),
+            _interval(tmax, n, np.float64, "tmax"))
+
+
+def _per_ray(x, n, name, kinds="fiu"):
+    """Answer array ``name``: one per ray, of a NumPy kind in ``kinds``."""
+    a = np.asarray(x)
+    if a.dtype.kind not in kinds:
+        raise ParameterError(name, f"must be {'integers' if kinds == 'iu' else 'real numbers'}, "
+                                   f"got {a.dtype}")
+    if a.shape != (n,):
+        raise ParameterError(name, f"must hold one answer per ray ({n},), got shape {a.shape}")
+    return a
+
+
+def _primitive_ids(x, n, m, name):
+    """Primitive ids ``name``: one per ray, each -1 (a miss) or a triangle of the m."""
+    p = _per_ray(x, n, name, "iu").astype(np.int64)
+    if n and (p.min() < -1 or p.max() >= m):
+        bad = int(np.argmax((p < -1) | (p >= m)))
+        raise ParameterError(name, f"primitive ids must be -1 or below len(tris) = {m}, "
+                                   f"got {p[bad]} (ray {bad})")
+    return p
+
+
 def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
     """Return (counts dict, labels (n,) int8: 0 agree, 1 tie, 2 mismatch). The float64
-    re-test uses the rays as both tracers saw them: rounded to float32."""
-    O = np.asarray(O, np.float32).astype(np.float64)
-    D = np.asarray(D, np.float32).astype(np.float64)
+    re-test uses the rays as both tracers saw them: rounded to float32. ParameterError naming
+    the argument on a bad shape or a primitive id out of range."""
+    tris = _checked_triangles(tris)
+    O, D, tmin, tmax = _checked_rays(O, D, tmin, tmax)
     n = len(O)
-    tmin = np.broadcast_to(np.asarray(tmin, np.float64), (n,))
-    tmax = np.broadcast_to(np.asarray(tmax, np.float64), (n,))
-    ours_t = np.asarray(ours_t, np.float64)
-    ref_t = np.asarray(ref_t, np.float64)
+    ours_prim = _primitive_ids(ours_prim, n, len(tris), "ours_prim")
+    ref_prim = _primitive_ids(ref_prim, n, len(tris), "ref_prim")
+    ours_t = _per_ray(ours_t, n, "ours_t").astype(np.float64)
+    ref_t = _per_ray(ref_t, n, "ref_t").astype(np.float64)
     tol = t_tolerance(O, D, np.where(ours_prim >= 0, ours_t, ref_t))
     both_miss = (ours_prim < 0) & (ref_prim < 0)
     with np.errstate(invalid="ignore"):
@@ -148,14 +189,13 @@ def classify_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
     """Any-hit answers: (counts dict, labels) as :func:`classify`. Equal answers agree. Where
     they differ, a float64 brute-force re-test decides: "blocked" is right when some triangle is
     hit within the tolerances, "not blocked" when no triangle is hit strictly inside the
-    interval; both right is a tie (a ray grazing an edge or ending on a surface)."""
-    O = np.asarray(O, np.float32).astype(np.float64)
-    D = np.asarray(D, np.float32).astype(np.float64)
+    interval; both right is a tie (a ray grazing an edge or ending on a surface).
+    ParameterError naming the argument on a bad shape."""
+    tris = _checked_triangles(tris)
+    O, D, tmin, tmax = _checked_rays(O, D, tmin, tmax)
     n = len(O)
-    tmin = np.broadcast_to(np.asarray(tmin, np.float64), (n,))
-    tmax = np.broadcast_to(np.asarray(tmax, np.float64), (n,))
-    ours = np.asarray(ours_blocked, bool)
-    ref = np.asarray(ref_blocked, bool)
+    ours = _per_ray(ours_blocked, n, "ours_blocked", "biu").astype(bool)
+    ref = _per_ray(ref_blocked, n, "ref_blocked", "biu").astype(bool)
     labels = np.where(ours == ref, 0, 2).astype(np.int8)
     disputed = np.flatnonzero(labels == 2)
     if len(disputed):
@@ -187,6 +227,10 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None):
     return counts, labels, h, (te, pe)
 
 
+RAY_KINDS = ("primary", "random", "bounces", "shadow")
+ACCELS = ("bvh", "grid", "kdtree")
+
+
 def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=0, accel="bvh",
                 tracer=None):
     """Build (unless given), trace a ray set of ``kind`` and classify against Embree.
@@ -198,6 +242,15 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
     from .api import Tracer
     from .embree_ref import embree_scene
 
+    # every argument before the build: a structure over a large mesh takes seconds
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ParameterError("n", f"must be a positive integer (rays), got {n!r}")
+    if kind not in RAY_KINDS:
+        raise ParameterError("kind", f"must be one of {', '.join(map(repr, RAY_KINDS))}, "
+                                     f"got {kind!r}")
+    if tracer is None and accel not in ACCELS:
+        raise ParameterError("accel", f"must be one of {', '.join(map(repr, ACCELS))}, "
+                                      f"got {accel!r}")
     if tracer is not None:
         pass
     elif accel == "grid":
@@ -206,10 +259,8 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
     elif accel == "kdtree":
         from .kdtree import KdTreeTracer
         tracer = KdTreeTracer(tris)
-    elif accel == "bvh":
-        tracer = Tracer(bvh or hwbvh.build(tris))
     else:
-        raise ValueError(f"accel must be 'bvh', 'grid' or 'kdtree', got {accel!r}")
+        tracer = Tracer(bvh or hwbvh.build(tris))
     scene = embree_scene(vertices, faces)
     tmax = None
     if kind == "primary":
@@ -218,9 +269,7 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
         O, D = raysets.incoherent(tris, n, seed)
     elif kind == "bounces":
         O, D = raysets.bounces(tracer, tris, n, seed)
-    elif kind == "shadow":
-        O, D, tmax = raysets.shadow(tracer, tris, n)
     else:
-        raise ValueError(f"unknown ray kind {kind!r}")
+        O, D, tmax = raysets.shadow(tracer, tris, n)
     counts, labels, h, emb = verify_rays(tracer, scene, tris, O, D, tmax)
     return counts, labels, (O, D, tmax), h, emb
