@@ -1,0 +1,375 @@
+"""Bad input to hwbvh's public functions: a one-line InputError or ParameterError naming the
+parameter or source, never a crash in a kernel, a hang, or a silently wrong answer.
+
+Probes that would read out of bounds in a Numba kernel without their check run in a fresh
+interpreter, so that a crash fails one test instead of killing the run."""
+import json
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import hwbvh
+from hwbvh import NODE_DTYPE, InputError
+from hwbvh.cycle_model import PRESETS, HwParams, simulate
+from hwbvh.errors import ParameterError
+from hwbvh.refit import Refitter, refit_cost
+from hwbvh import resources
+
+SOUP = """
+import sys
+import numpy as np
+import hwbvh
+rng = np.random.default_rng(0)
+tris = (rng.uniform(0, 1, (64, 1, 3)) + rng.uniform(-0.05, 0.05, (64, 3, 3))).astype(np.float32)
+bvh = hwbvh.build(tris)
+
+
+def probe(name, f):
+    try:
+        f()
+    except Exception as e:
+        print(f"{name}| {type(e).__name__}: {e}", file=sys.stderr, flush=True)
+    else:
+        print(f"{name}| no error", file=sys.stderr, flush=True)
+"""
+
+
+def soup(n=64, seed=0):
+    rng = np.random.default_rng(seed)
+    return (rng.uniform(0, 1, (n, 1, 3)) + rng.uniform(-0.05, 0.05, (n, 3, 3))).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def tris():
+    return soup()
+
+
+@pytest.fixture(scope="module")
+def bvh(tris):
+    return hwbvh.build(tris)
+
+
+def run_probes(code, timeout=120):
+    """Run SOUP + ``code`` in a fresh interpreter; {probe name: "Error: message"} of what each
+    ``probe`` raised. A kernel crash shows as a negative return code (the signal)."""
+    r = subprocess.run([sys.executable, "-c", SOUP + code], capture_output=True, text=True,
+                       timeout=timeout)
+    assert r.returncode >= 0, f"killed by signal {-r.returncode}; stderr:\n{r.stderr[-3000:]}"
+    assert r.returncode == 0, r.stderr[-3000:]
+    return dict(line.split("| ", 1) for line in r.stderr.splitlines() if "| " in line)
+
+
+# --- node arrays: tree_stats, sah_cost, check_nodes ----------------------------------------
+def test_tree_stats_refuses_nodes_a_kernel_cannot_walk():
+    got = run_probes("""
+from hwbvh import tree_stats, sah_cost
+far = bvh.nodes.copy(); far["a"][0] = 10**9
+probe("far", lambda: tree_stats(far))
+probe("far_sah", lambda: sah_cost(far))
+probe("strided", lambda: tree_stats(bvh.nodes[::2]))
+probe("big_endian", lambda: tree_stats(bvh.nodes.astype(bvh.nodes.dtype.newbyteorder(">"))))
+root = bvh.nodes.copy(); root["a"][1] = 0
+probe("to_root", lambda: tree_stats(root))
+loop = bvh.nodes.copy(); c = loop["a"][0]; loop["a"][c] = c
+probe("cycle", lambda: tree_stats(loop))
+shared = bvh.nodes.copy(); shared["b"][0] = shared["a"][0]
+probe("shared", lambda: sah_cost(shared))
+""")
+    assert got["far"] == got["far_sah"] == \
+        "InputError: nodes: invalid tree: child pointer out of range (node 0)"
+    assert got["strided"].startswith("InputError: nodes: invalid tree: child pointer out of range")
+    assert got["big_endian"].startswith("InputError: nodes: ") and "little-endian" in got["big_endian"]
+    assert got["to_root"] == "InputError: nodes: invalid tree: child pointer out of range (node 1)"
+    for k in ("cycle", "shared"):
+        assert got[k].startswith("InputError: nodes: invalid tree: node reached twice"), got[k]
+
+
+@pytest.mark.parametrize("nodes,problem", [
+    (np.zeros(0, NODE_DTYPE), "no nodes"),
+    (np.zeros((4, 12), np.float32), "got dtype float32"),
+    ([1, 2, 3], "got list"),
+    (np.zeros((2, 3), NODE_DTYPE), "1-D"),
+])
+def test_tree_stats_refuses_what_is_not_a_node_array(nodes, problem):
+    for f in (hwbvh.tree_stats, hwbvh.sah_cost, hwbvh.check_nodes):
+        with pytest.raises(InputError, match=problem) as e:
+            f(nodes)
+        assert e.value.source == "nodes"
+
+
+def test_check_nodes_returns_contiguous_nodes_and_checks_leaf_ranges(bvh):
+    assert hwbvh.check_nodes(bvh.nodes, n_positions=len(bvh.indices)) is bvh.nodes
+    spread = np.zeros(2 * len(bvh.nodes), NODE_DTYPE)
+    spread[::2] = bvh.nodes
+    view = spread[::2]
+    got = hwbvh.check_nodes(view)
+    assert got.flags.c_contiguous and got.tobytes() == bvh.nodes.tobytes()
+    assert hwbvh.tree_stats(view) == hwbvh.tree_stats(bvh.nodes)
+    with pytest.raises(InputError, match=r"^bvh.nodes: invalid tree: leaf index range outside"):
+        hwbvh.check_nodes(bvh.nodes, n_positions=len(bvh.indices) - 1, source="bvh.nodes")
+    long_leaf = bvh.nodes.copy()
+    leaf = np.flatnonzero(long_leaf["flags"] == 1)[0]
+    long_leaf["b"][leaf] = 10**6
+    with pytest.raises(InputError, match=f"leaf index range outside the index list \\(node {leaf}\\)"):
+        hwbvh.check_nodes(long_leaf, len(bvh.indices))
+    with pytest.raises(ParameterError, match="n_positions"):
+        hwbvh.check_nodes(bvh.nodes, n_positions=-1)
+
+
+# --- refit -----------------------------------------------------------------------------
+def test_refitter_checks_the_topology_and_the_index_list_once():
+    got = run_probes("""
+from hwbvh.refit import Refitter
+b = hwbvh.build(tris); b.nodes["a"][0] = 10**9
+probe("far", lambda: Refitter(b))
+b = hwbvh.build(tris); b.nodes["a"][1] = 0
+probe("to_root", lambda: Refitter(b))
+b = hwbvh.build(tris); b.indices = b.indices.copy(); b.indices[0] = 10**8
+probe("index", lambda: Refitter(b).refit(tris))
+b = hwbvh.build(tris); b.nodes["b"][b.nodes["flags"] == 1] = 10**6
+probe("leaf_range", lambda: Refitter(b).refit(tris))
+r = Refitter(hwbvh.build(tris))
+probe("short_tris", lambda: r.refit_nodes(tris[:5]))
+probe("short_out", lambda: r.refit_nodes(r.check(tris), out=np.zeros(3, hwbvh.NODE_DTYPE)))
+probe("out_dtype", lambda: r.refit_nodes(r.check(tris), out=np.zeros((len(r.nodes), 12), np.float32)))
+""")
+    assert got["far"] == "InputError: bvh.nodes: invalid tree: child pointer out of range (node 0)"
+    assert got["to_root"] == "InputError: bvh.nodes: invalid tree: child pointer out of range (node 1)"
+    assert got["index"] == "InputError: bvh.indices: primitive index out of range 0..63"
+    assert got["leaf_range"].startswith("InputError: bvh.nodes: invalid tree: leaf index range outside")
+    assert got["short_tris"].startswith("ParameterError: tris: expected the (64, 3, 3) float32 array")
+    assert got["short_out"].startswith("ParameterError: out: ") and "39 nodes" in got["short_out"]
+    assert got["out_dtype"].startswith("ParameterError: out: ")
+
+
+def test_refit_nodes_into_out_is_the_refit(tris, bvh):
+    r = Refitter(bvh)
+    moved = r.check(tris + np.float32(0.5))
+    out = np.zeros(len(bvh.nodes), NODE_DTYPE)       # pointers of another tree: none
+    assert r.refit_nodes(moved, out=out) is out
+    assert out.tobytes() == r.refit_nodes(moved).tobytes() == hwbvh.build(moved).nodes.tobytes()
+
+
+def test_refit_cost_checks_its_arguments(tris, bvh):
+    p = PRESETS["HWBVH-C"]
+    for args, name in [((-64, -5, -3), "n_prims"), ((64, 0, 3), "n_nodes"), ((64, 128, 3), "n_nodes"),
+                       ((64, 39, -1), "max_depth"), ((64, 39, 39), "max_depth"),
+                       ((64.0, 39, 5), "n_prims"), ((True, 1, 0), "n_prims")]:
+        with pytest.raises(ParameterError) as e:
+            refit_cost(*args, p)
+        assert e.value.parameter == name
+    with pytest.raises(ParameterError) as e:
+        refit_cost(64, 39, 5, replace(p, ram_pairs=0))
+    assert e.value.parameter == "ram_pairs"
+    assert refit_cost(64, 39, 5, "HWBVH-C") == refit_cost(64, 39, 5, p)
+
+
+def test_the_refit_module_example_runs(tris, bvh):
+    import hwbvh.refit as refit_module
+    lines = [ln.strip()[4:] for ln in refit_module.__doc__.splitlines() if ln.strip().startswith(">>> ")]
+    ns = {"Refitter": Refitter, "refit_cost": refit_cost, "PRESETS": PRESETS, "bvh": bvh,
+          "new_triangles": tris + np.float32(1)}
+    for line in lines:
+        exec(line, ns)
+    assert ns["c"]["seconds"] > 0 and ns["moved"].meta["refitted"]
+
+
+# --- build knobs -----------------------------------------------------------------------
+def test_task_prims_must_be_a_positive_integer():
+    # without the check, 0 and -5 split forever: run where a hang is only a timeout
+    r = subprocess.run([sys.executable, "-c", SOUP + """
+for v in (0, -5, "8", 2.0, True):
+    probe(repr(v), lambda: hwbvh.build(tris, task_prims=v))
+"""], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr[-3000:]
+    got = dict(line.split("| ", 1) for line in r.stderr.splitlines() if "| " in line)
+    assert len(got) == 5
+    for v, msg in got.items():
+        assert msg.startswith("ParameterError: task_prims: must be a positive integer"), (v, msg)
+
+
+def test_the_tree_does_not_depend_on_task_prims(tris):
+    for leaf in (4, 7):
+        ref = hwbvh.build(tris, leaf_size=leaf)
+        for tp in (1, 2, 3, 8):
+            b = hwbvh.build(tris, leaf_size=leaf, task_prims=tp)
+            assert b.nodes.tobytes() == ref.nodes.tobytes(), (leaf, tp)
+            assert np.array_equal(b.indices, ref.indices)
+    assert hwbvh.build(tris, task_prims=1).meta["nodes"] == 39
+
+
+@pytest.mark.parametrize("knob,value", [
+    ("subtree_builders", 65), ("capacity", 2**70), ("capacity", 0),
+    ("block_nodes", 2**30), ("block_nodes", 1.5),
+])
+def test_layout_knobs_are_bounded_before_any_allocation(tris, knob, value):
+    with pytest.raises(ParameterError) as e:
+        hwbvh.build(tris, **{knob: value})
+    assert e.value.parameter == knob
+
+
+@pytest.mark.parametrize("knob", ["leaf_size", "bins", "capacity", "subtree_builders", "block_nodes",
+                                  "task_prims"])
+def test_booleans_are_not_integer_knobs(tris, knob):
+    for v in (True, np.True_):
+        with pytest.raises(ParameterError) as e:
+            hwbvh.build(tris, **{knob: v})
+        assert e.value.parameter == knob
+
+
+def test_integer_knobs_still_take_numpy_integers(tris, bvh):
+    b = hwbvh.build(tris, leaf_size=np.int64(4), bins=np.int32(16), capacity=np.int64(1 << 40),
+                    subtree_builders=np.int8(2), block_nodes=np.uint16(8), task_prims=np.int64(3))
+    assert hwbvh.tree_stats(b.nodes)["sah_cost"] == bvh.meta["sah_cost"]
+
+
+# --- validate and load -------------------------------------------------------------------
+def test_validate_checks_its_arguments(tris, bvh):
+    boxes = hwbvh.primitive_boxes(tris)
+    for kwargs, name in [(dict(prim_boxes=boxes[:3]), "prim_boxes"),
+                         (dict(prim_boxes=np.zeros(6, np.float32)), "prim_boxes"),
+                         (dict(prim_boxes=boxes.astype(np.complex64)), "prim_boxes"),
+                         (dict(n_prims=-1), "n_prims"), (dict(n_prims=0), "n_prims"),
+                         (dict(max_leaf=10**30), "max_leaf"), (dict(max_leaf=4.0), "max_leaf"),
+                         (dict(entries=bvh.indices.astype(np.float32)), "entries"),
+                         (dict(entries=bvh.indices.astype(np.int64) - 1), "entries")]:
+        args = dict(nodes=bvh.nodes, entries=bvh.indices, n_prims=64, max_leaf=4) | kwargs
+        with pytest.raises(ParameterError) as e:
+            hwbvh.validate(**args)
+        assert e.value.parameter == name, kwargs
+    assert hwbvh.validate(bvh.nodes, bvh.indices, 64, 4, boxes) == 39
+    with pytest.raises(InputError, match="^t: .*little-endian"):
+        hwbvh.validate(bvh.nodes.astype(NODE_DTYPE.newbyteorder(">")), bvh.indices, 64, 4, source="t")
+
+
+def test_load_names_a_triangle_count_that_does_not_match(tmp_path, tris, bvh):
+    prefix = str(tmp_path / "t")
+    hwbvh.save(bvh, prefix)
+    with pytest.raises(InputError) as e:
+        hwbvh.load(prefix, triangles=tris[:10])
+    assert str(e.value) == "triangles: 10 triangles, but the tree has 64 primitives"
+    assert hwbvh.load(prefix, triangles=tris).triangles.shape == (64, 3, 3)
+
+
+@pytest.mark.parametrize("key,value", [
+    ("triangles", 64.7), ("triangles", -5), ("triangles", 10**12), ("triangles", True),
+    ("triangles", "64"), ("max_leaf", 1e30), ("max_leaf", 0), ("max_leaf", 4.5),
+])
+def test_load_checks_the_json_counts(tmp_path, bvh, key, value):
+    prefix = str(tmp_path / "t")
+    hwbvh.save(bvh, prefix)
+    with open(prefix + ".json") as f:
+        meta = json.load(f)
+    if key == "max_leaf":
+        meta["parameters"]["max_leaf"] = value
+    else:
+        meta[key] = value
+    with open(prefix + ".json", "w") as f:
+        json.dump(meta, f)
+    with pytest.raises(InputError, match="must be an integer in 1..") as e:
+        hwbvh.load(prefix)
+    assert e.value.source == prefix + ".json" and key in e.value.problem
+
+
+# --- triangle arrays ---------------------------------------------------------------------
+def test_complex_bool_and_string_coordinates_are_refused(tris):
+    with pytest.raises(InputError, match="^<array>: triangles must be real numbers, got complex64$"):
+        hwbvh.build(tris.astype(np.complex64) + 5j)
+    with pytest.raises(InputError, match="got bool$"):
+        hwbvh.build(tris > 0.5)
+    with pytest.raises(InputError, match="must be real numbers, got <U"):
+        hwbvh.build(tris.astype(str))
+    with pytest.raises(InputError, match="^triangles: .*complex128"):
+        hwbvh.as_triangles(tris.astype(complex), source="triangles")
+
+
+def test_object_and_ragged_triangles_give_an_input_error():
+    words = np.zeros((1, 3, 3), object)
+    words[0, 0, 0] = "x"
+    with pytest.raises(InputError, match="real numbers"):
+        hwbvh.build(words)
+    with pytest.raises(InputError, match="uneven lengths"):
+        hwbvh.build([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 0], [1, 0]]])
+    numbers = np.zeros((1, 3, 3), object)
+    numbers[0, 1, 0] = numbers[0, 2, 1] = 1
+    assert hwbvh.build(numbers).meta["triangles"] == 1
+
+
+def test_primitive_boxes_checks_what_it_is_given(tris):
+    with pytest.raises(InputError, match=r"^tris: triangles must have shape \(n, 3, 3\), got \(4, 9\)"):
+        hwbvh.primitive_boxes(np.zeros((4, 9)))
+    assert hwbvh.primitive_boxes(tris.tolist()).tobytes() == hwbvh.primitive_boxes(tris).tobytes()
+
+
+# --- the cycle model and the cost model --------------------------------------------------
+def test_simulate_refuses_out_of_range_params_that_hang():
+    # without check_params, negative sizes never finish: run where a hang is only a timeout
+    got = run_probes("""
+from hwbvh.cycle_model import HwParams, simulate
+t = bvh.tree
+probe("w", lambda: simulate(t, HwParams(w=-4)))
+probe("psize", lambda: simulate(t, HwParams(psize=-1)))
+""", timeout=60)
+    assert got["w"].startswith("ParameterError: w: must be an integer within 1..64")
+    assert got["psize"].startswith("ParameterError: psize: ")
+
+
+@pytest.mark.parametrize("knob,value", [
+    ("w", 0), ("w", 3), ("w", 4.0), ("w", 2**40), ("w", "4"), ("w", True), ("tsize", 0),
+    ("ram_pairs", 0), ("clock_mhz", 0), ("clock_mhz", -250.0), ("clock_mhz", float("nan")),
+    ("subtree_builders", 0), ("control_latency", -10**6), ("control_latency", 10**30),
+])
+def test_simulate_and_the_cost_model_check_params(bvh, knob, value):
+    p = replace(PRESETS["HWBVH-C"], **{knob: value})
+    for f in (lambda: simulate(bvh.tree, p), lambda: resources.cost(p), lambda: resources.resources(p),
+              lambda: refit_cost(64, 39, 5, p)):
+        with pytest.raises(ParameterError) as e:
+            f()
+        assert e.value.parameter == knob
+
+
+def test_simulate_names_a_wrong_tree_or_params(tmp_path, tris, bvh):
+    p = PRESETS["HWBVH-C"]
+    with pytest.raises(ParameterError, match=r"^tree: .*pass bvh\.tree"):
+        simulate(bvh, p)
+    hwbvh.save(bvh, str(tmp_path / "t"))
+    with pytest.raises(ParameterError, match="^tree: .*loaded from files"):
+        simulate(hwbvh.load(str(tmp_path / "t")), p)
+    with pytest.raises(ParameterError, match="^tree: "):
+        simulate(None, p)
+    with pytest.raises(ParameterError, match="^tree: .*'sweep'"):
+        simulate(hwbvh.build(tris, builder="sweep").tree, p)
+    with pytest.raises(ParameterError, match="^params: .*HwParams"):
+        simulate(bvh.tree, None)
+    with pytest.raises(ParameterError, match="^params: unknown preset 'HWBVH-X'"):
+        simulate(bvh.tree, "HWBVH-X")
+    assert simulate(bvh.tree, "HWBVH-HP") == simulate(bvh.tree, PRESETS["HWBVH-HP"])
+    with pytest.raises(ParameterError, match="^p: "):
+        resources.cost(None)
+
+
+def test_simulate_refuses_params_that_did_not_build_the_tree(tris):
+    t = hwbvh.build(tris, leaf_size=16, bins=8).tree
+    with pytest.raises(ParameterError, match="^params: leaf_size 4 and bins 16 did not build"):
+        simulate(t, PRESETS["HWBVH-C"])
+    r = simulate(t, replace(PRESETS["HWBVH-C"], leaf_size=16, bins=8))
+    assert (r["parameters"]["leaf_size"], r["parameters"]["bins"]) == (16, 8)
+
+
+def test_simulate_node_count_is_a_node_count(bvh):
+    p = PRESETS["HWBVH-C"]
+    for v in (-1000, 0, 128, 39.0, True):
+        with pytest.raises(ParameterError) as e:
+            simulate(bvh.tree, p, node_count=v)
+        assert e.value.parameter == "node_count"
+    assert simulate(bvh.tree, p, node_count=39) == simulate(bvh.tree, p)
+
+
+def test_cost_of_a_string_knob_names_it():
+    with pytest.raises(ParameterError) as e:
+        resources.cost(HwParams(w="4"))
+    assert e.value.parameter == "w"
+    assert resources.cost("HWBVH-C") == resources.cost(PRESETS["HWBVH-C"])
