@@ -327,3 +327,32 @@ def test_a_refused_query_is_not_recorded(tracers):
         recording.intersect(O, D, tmax=None)
     recording.occluded(O, D)
     assert recording.rays() == 16 and [q[0] for q in recording.queries] == ["occluded"]
+
+
+def _mesh_at(scale):
+    """The prelude's triangles and rays scaled by ``scale`` (rays from three mesh sizes away)."""
+    t = (TRIS.astype(np.float64) * scale).astype(np.float32)
+    o = t.astype(np.float64).mean(axis=1)
+    o[:, 2] = 3 * scale
+    d = np.zeros((64, 3), np.float32)
+    d[:, 2] = -1
+    return t, o.astype(np.float32), d
+
+
+def test_the_float32_units_domain_is_as_documented():
+    """traversal.structure states the float32 unit's domain (its t numerator, edge x edge x
+    origin distance, overflows float32): every hit at a finite t up to coordinates of 2.5e13,
+    hits lost at 1e14, where the float64 units still find every one (up to the builder's
+    bound)."""
+    def finite_hits(tracer, o, d):
+        h = tracer.intersect(o, d)
+        return int(((h.prim >= 0) & np.isfinite(h.t)).sum())
+
+    t, o, d = _mesh_at(2.5e13)
+    assert [finite_hits(tr, o, d) for tr in (Tracer(hwbvh.build(t)), GridTracer(t),
+                                              KdTreeTracer(t))] == [64, 64, 64]
+    t, o, d = _mesh_at(1e14)
+    assert finite_hits(Tracer(hwbvh.build(t)), o, d) < 32
+    assert finite_hits(Tracer(hwbvh.build(t), precision="float64"), o, d) == 64
+    t, o, d = _mesh_at(9.9e14 / 1.06)
+    assert finite_hits(Tracer(hwbvh.build(t), precision="float64"), o, d) == 64
