@@ -57,6 +57,8 @@ class Bvh:
 
 
 def _triangles(source, name=None):
+    if isinstance(source, bytes):                   # a path in the file system's encoding
+        source = os.fsdecode(source)
     if isinstance(source, (str, os.PathLike)):
         return load_triangles(source), os.fspath(source)
     return as_triangles(source, source=name or "<array>"), name or "<array>"
@@ -176,6 +178,8 @@ def load(prefix, triangles=None):
         raise InputError(prefix + ".json", e.strerror or "cannot read") from None
     except json.JSONDecodeError as e:
         raise InputError(prefix + ".json", f"not valid JSON ({e.msg}, line {e.lineno})") from None
+    if not isinstance(meta, dict):
+        raise InputError(prefix + ".json", f"expected a JSON object, got {type(meta).__name__}")
     n = _json_count(meta, ("triangles",), config.MAX_PRIMITIVES, prefix + ".json")
     # no builder writes a leaf above MAX_LEAF_SIZE (the sweep builder's limit is below it)
     max_leaf = _json_count(meta, ("parameters", "max_leaf"), config.MAX_LEAF_SIZE, prefix + ".json")

@@ -353,6 +353,9 @@ def check_tree(tree, params):
         hint = ("pass bvh.tree" if tree.tree is not None
                 else "this Bvh was loaded from files and has no build tree: rebuild it")
         raise ParameterError("tree", f"expected the build tree, got a Bvh ({hint})")
+    if tree is None:
+        raise ParameterError("tree", "got None: a Bvh loaded from files has no build tree "
+                                     "(bvh.tree); rebuild it")
     if not isinstance(tree, CanonicalTree):
         raise ParameterError("tree", f"expected the build tree (a CanonicalTree, bvh.tree), "
                                      f"got {type(tree).__name__}")

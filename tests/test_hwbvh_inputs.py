@@ -274,7 +274,24 @@ def test_load_checks_the_json_counts(tmp_path, bvh, key, value):
     assert e.value.source == prefix + ".json" and key in e.value.problem
 
 
+def test_load_refuses_json_that_is_not_an_object(tmp_path, bvh):
+    prefix = str(tmp_path / "t")
+    hwbvh.save(bvh, prefix)
+    with open(prefix + ".json", "w") as f:
+        json.dump([64], f)
+    with pytest.raises(InputError, match="expected a JSON object, got list"):
+        hwbvh.load(prefix)
+
+
 # --- triangle arrays ---------------------------------------------------------------------
+def test_a_bytes_source_is_a_path(tmp_path):
+    missing = str(tmp_path / "none.ply")
+    with pytest.raises(InputError, match="no such file") as e:
+        hwbvh.build(missing.encode())
+    assert e.value.source == missing
+
+
+
 def test_complex_bool_and_string_coordinates_are_refused(tris):
     with pytest.raises(InputError, match="^<array>: triangles must be real numbers, got complex64$"):
         hwbvh.build(tris.astype(np.complex64) + 5j)
@@ -338,8 +355,8 @@ def test_simulate_names_a_wrong_tree_or_params(tmp_path, tris, bvh):
     hwbvh.save(bvh, str(tmp_path / "t"))
     with pytest.raises(ParameterError, match="^tree: .*loaded from files"):
         simulate(hwbvh.load(str(tmp_path / "t")), p)
-    with pytest.raises(ParameterError, match="^tree: "):
-        simulate(None, p)
+    with pytest.raises(ParameterError, match="^tree: got None: a Bvh loaded from files"):
+        simulate(hwbvh.load(str(tmp_path / "t")).tree, p)
     with pytest.raises(ParameterError, match="^tree: .*'sweep'"):
         simulate(hwbvh.build(tris, builder="sweep").tree, p)
     with pytest.raises(ParameterError, match="^params: .*HwParams"):
