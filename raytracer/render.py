@@ -34,9 +34,11 @@ import numpy as np
 
 from hwbvh.errors import ParameterError
 from traversal.camera import TILE, look_at_basis
+from traversal.config import F32_UNIT_MAX_PRODUCT
 from traversal.offset import STRATEGY_CODES
 from traversal.api import release_kept_bounds
 from traversal.tracers import run_as_tracer_allows
+from traversal.triangle_unit import f32_unit_reach
 from . import pcg64, stages
 from .config import BAND_PIXELS, BLOCK, MIN_BANDS
 from hwbvh.parallel import run_ranges
@@ -426,6 +428,9 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     _check_render_arguments(scene, tracer, seed, progress)
     if offset not in STRATEGY_CODES:
         raise ParameterError("offset", f"unknown strategy {offset!r} (choose from {', '.join(STRATEGY_CODES)})")
+    ray_dtype = np.dtype(getattr(tracer, "dtype", np.float32))
+    if ray_dtype == np.float32:
+        _check_float32_reach(scene)
     W, H, spp = scene.width, scene.height, scene.spp
     npix = W * H
     passes = scene_passes(scene)
@@ -440,7 +445,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
         sa=_scene_arrays(scene, scene.lights if n_lights else []),
         # rays go to the tracer in its own precision (float32 for the hardware units), so it
         # reads them as they are
-        ray_dtype=np.dtype(getattr(tracer, "dtype", np.float32)),
+        ray_dtype=ray_dtype,
         basis=(cu, cv, cw), eye=np.asarray(cam["eye"], np.float64),
         camera_terms=[stages.camera_terms(W, H, half, s % gx, s // gx, gx, gy)
                       for s in range(spp)],              # each sample pass's stratum
@@ -488,6 +493,19 @@ def _check_render_arguments(scene, tracer, seed, progress):
         raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
     if progress is not None and not callable(progress):
         raise ParameterError("progress", f"expected a callable or None, got {type(progress).__name__}")
+
+
+def _check_float32_reach(scene):
+    """A float32 tracer's unit computes t from a product of three lengths (edge x edge x
+    distance); a scene where that can pass float32's range would lose hits or shade from
+    t = inf (NaN shadow rays), so it is refused before any work."""
+    points = [scene.camera["eye"]] + [l["position"] for l in scene.lights if l["type"] == "point"]
+    reach = f32_unit_reach(scene.triangles, points)
+    if not reach <= F32_UNIT_MAX_PRODUCT:
+        raise ParameterError("scene", f"too large for the float32 units: edge x edge x distance "
+                                      f"reaches {reach:.3g}, beyond the {F32_UNIT_MAX_PRODUCT:.3g} "
+                                      f"their products stay within (scale the scene down, or trace "
+                                      f"with traversal.Tracer(precision='float64'))")
 
 
 def _checked_answers(tracer, n, n_triangles, hits=None, blocked=None):

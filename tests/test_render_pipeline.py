@@ -434,3 +434,24 @@ def test_make_tracer_checks_every_argument_before_building(kw, parameter, monkey
     with pytest.raises(ParameterError) as e:
         make_tracer(small("cornell", 8, 6, 1), **kw)
     assert e.value.parameter == parameter
+
+
+def test_a_scene_beyond_the_float32_units_range_is_refused_before_any_work():
+    """t = e2 . (s x e1) / det: at 1e13 the product of three lengths passes float32's range,
+    so a float32 render is refused naming the scene; float64 traces it, and 1e12 renders."""
+    import hwbvh
+    from hwbvh.errors import ParameterError
+    from scenes.loader import transform_scene
+    from traversal import Tracer
+
+    def scaled(s):
+        return compile_scene(transform_scene(load_scene("cornell", width=16, height=12, spp=1), s))
+    big = scaled(1e13)
+    with pytest.raises(ParameterError, match="too large for the float32 units") as e:
+        render(big, Tracer(hwbvh.build(big.triangles)))
+    assert e.value.parameter == "scene"
+    ref = render(scaled(1.0), Tracer(hwbvh.build(scaled(1.0).triangles), precision="float64"))
+    far = render(big, Tracer(hwbvh.build(big.triangles), precision="float64"))
+    assert (far.prim == ref.prim).mean() > 0.99
+    near = scaled(1e12)
+    assert np.isfinite(render(near, Tracer(hwbvh.build(near.triangles))).image).all()

@@ -158,3 +158,8 @@ KD_PARALLEL_MIN_TRIS = 4096
 # then trace on equal terms, down to the small queues of a render's later bounces. A call
 # costs about 2 us (measured), a 1024-ray chunk some 40 us or more of tracing.
 EMBREE_CHUNK_RAYS = 1 << 10
+# The float32 Moller-Trumbore unit's largest intermediate is t's numerator
+# e2 . ((o - v0) x e1), at most |e1| |e2| |o - v0| (each product and sum on the way is bounded by
+# it too). Below this bound, a quarter of float32's largest number, rounding cannot carry it
+# past the float32 range; beyond it a ray may miss or hit at t = inf (traversal.structure).
+F32_UNIT_MAX_PRODUCT = 2.0**126

@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit, types
 from numba.extending import overload
 
-from .config import BAND_K
+from .config import BAND_K, F32_UNIT_MAX_PRODUCT
 
 # A preprocessed triangle row: offsets of its words (x, y, z each) in the working float type.
 TRI_V0 = 0            # vertex 0
@@ -73,6 +73,29 @@ def preprocess(tris, dtype=np.float32):
     out[:, TRI_NORMS] = norms.astype(dtype)
     out[:, TRI_SCALE] = np.ldexp(1.0, -h).astype(dtype)
     return out
+
+
+def f32_unit_reach(triangles, points):
+    """The largest |e1| |e2| |o - v0| the float32 unit can meet on ``triangles`` (n, 3, 3) with
+    ray origins anywhere in the box of the triangles and ``points`` (k, 3) (a camera, lights):
+    compare with ``config.F32_UNIT_MAX_PRODUCT``. A bound from the coordinates' magnitude comes
+    first (one pass); the edges are measured only where that bound is not small enough."""
+    t = np.asarray(triangles)
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    # from the largest magnitudes (one contiguous pass): an edge spans at most 2 sqrt(3) m
+    m = float(np.abs(t).max(initial=0))
+    far = max(m, float(np.abs(pts).max(initial=0)))
+    k = 2 * np.sqrt(3)
+    if (k * m) ** 2 * (k * far) <= F32_UNIT_MAX_PRODUCT:
+        return (k * m) ** 2 * (k * far)
+    flat = t.reshape(-1, 3)
+    lo = np.minimum(flat.min(axis=0), pts.min(axis=0, initial=np.inf))
+    hi = np.maximum(flat.max(axis=0), pts.max(axis=0, initial=-np.inf))
+    reach = float(np.linalg.norm(hi.astype(np.float64) - lo))   # any origin to any vertex
+    e1 = (t[:, 1] - t[:, 0]).astype(np.float64)
+    e2 = (t[:, 2] - t[:, 0]).astype(np.float64)
+    edges = float(np.sqrt(((e1 * e1).sum(1) * (e2 * e2).sum(1)).max()))
+    return edges * reach
 
 
 def band_eps2(dtype):
