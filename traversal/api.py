@@ -15,7 +15,7 @@ from hwbvh.config import LEAF_FLAG
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.format import (BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, check_nodes, node_views,
                           pack_indices, tree_stats)
-from hwbvh.primitives import checked_coordinates, primitive_boxes
+from hwbvh.primitives import checked_coordinates
 from .aabb_unit import GAMMA3_F32, GAMMA3_F64
 from hwbvh.parallel import run_ranges
 from .config import CHUNK_RAYS, KEPT_BOUND_RAYS
@@ -181,10 +181,12 @@ def _checked_triangles(tris, source):
 
 
 @njit(cache=True)
-def _first_leaf_not_holding(u, f, entries, boxes):
-    """The first leaf reached from the root whose box does not contain the box of a primitive
-    it lists, or -1. The topology must be checked (``check_nodes`` with the index list's
-    length): each node is then pushed once and every leaf range lies inside ``entries``."""
+def _first_leaf_not_holding(u, f, rows):
+    """The first leaf reached from the root whose box does not contain, in float32 (as the
+    builder boxed them), the vertices of the triangles it lists, or -1. ``rows``: the
+    triangles in index-list order (a leaf's rows side by side, read in one sweep). The
+    topology must be checked (``check_nodes`` with the index list's length): each node is
+    then pushed once and every leaf range lies inside ``rows``."""
     stack = np.empty(u.shape[0], np.int64)
     stack[0] = 0
     sp = 1
@@ -194,11 +196,11 @@ def _first_leaf_not_holding(u, f, entries, boxes):
         if u[i, WORD_FLAGS] & LEAF_FLAG:
             a = np.int64(u[i, WORD_A])
             for p in range(a, a + np.int64(u[i, WORD_B])):
-                j = entries[p]
-                for k in range(3):
-                    if boxes[j, k] < f[i, WORD_BOX + k] or \
-                            boxes[j, 3 + k] > f[i, WORD_BOX + BOX_MAX + k]:
-                        return i
+                for v in range(3):
+                    for k in range(3):
+                        x = np.float32(rows[p, v, k])
+                        if x < f[i, WORD_BOX + k] or x > f[i, WORD_BOX + BOX_MAX + k]:
+                            return i
         else:
             stack[sp] = u[i, WORD_A]
             stack[sp + 1] = u[i, WORD_B]
@@ -277,11 +279,10 @@ class Tracer(PacketCount):
         # cannot walk before any of them reads it
         self.nodes = check_nodes(bvh.nodes, n_positions=n, source="bvh.nodes")
         self.u, self.f = node_views(self.nodes)
-        # the boxes the builder saw (it boxes the float32 triangles); a leaf that does not
-        # hold its triangles' boxes means other triangles than the tree's: every ray would
-        # miss them
-        bad = _first_leaf_not_holding(self.u, self.f, order.astype(np.uint32),
-                                      primitive_boxes(np.asarray(tris, np.float32)))
+        # a leaf whose box does not hold its triangles (as the builder boxed them, in float32)
+        # means other triangles than the tree's: every ray would miss them
+        rows = np.ascontiguousarray(tris[order])
+        bad = _first_leaf_not_holding(self.u, self.f, rows)
         if bad >= 0:
             raise InputError(source, f"a triangle lies outside its leaf's box (node {bad}): "
                                      "not the triangles the tree was built over")
@@ -289,7 +290,7 @@ class Tracer(PacketCount):
         self._u1 = self.u.reshape(-1)
         self._f1 = self.f.reshape(-1)
         self.index_bytes = np.frombuffer(pack_indices(order), dtype=np.uint8)
-        self.tris = preprocess(tris[order], self.dtype)
+        self.tris = preprocess(rows, self.dtype)
         self._tris1 = self.tris.reshape(-1)
         # the watertight test (accuracy study) needs the original vertices, not v0 + e1
         self.watertight = bool(watertight)
