@@ -79,7 +79,7 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     check_params(leaf_size, bins)
     check_task_prims(task_prims)
     check_threading()
-    ranges = dict(config.LAYOUT_KNOB_RANGES, subtree_builders=config.KNOB_RANGES["subtree_builders"])
+    ranges = config.LAYOUT_KNOB_RANGES
     for name, v in (("capacity", capacity), ("subtree_builders", subtree_builders),
                     ("block_nodes", block_nodes)):
         lo, hi = ranges[name]
@@ -87,6 +87,11 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
             span = "a positive integer below 2^63" if hi == 2**63 - 1 else f"an integer in {lo}..{hi}"
             raise ParameterError(name, f"must be {span}, got {v!r}")
     tris, src = _triangles(source, source_name)
+    if (1 + subtree_builders) * block_nodes + 2 * len(tris) - 1 > config.MAX_NODE_SLOTS:
+        raise ParameterError("block_nodes", f"{block_nodes} nodes per block for "
+                                            f"{subtree_builders} subtree builders and "
+                                            f"{len(tris)} triangles could place nodes beyond the "
+                                            f"format's 32-bit child pointers")
     t0 = time.perf_counter()
     boxes = primitive_boxes(tris)
     if builder == "hwbvh":

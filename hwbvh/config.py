@@ -26,13 +26,16 @@ DEFAULT_BLOCK_NODES = 256  # nodes per block handed out by the upper builder's p
 
 # Ranges of the layout knobs of ``hwbvh.build`` (checked before any allocation). A capacity at
 # or above the primitive count puts the whole tree in one subtree, so only the layout kernel's
-# int64 bounds it. A block never holds more nodes than a tree of MAX_PRIMITIVES has (2N - 1), and
-# with at most 1 + 64 output streams each holding a block, node slots stay below
-# 66 * 2^25 < 2^32, so every slot fits the format's 32-bit child pointers.
+# int64 bounds it. A block never holds more nodes than a tree of MAX_PRIMITIVES has (2N - 1).
+# The subtree builders only place nodes (the layout keeps a few words per builder), so their
+# range is generous, far beyond any hardware instance (KNOB_RANGES); ``build`` also keeps every
+# node slot, at most (1 + builders) * block_nodes + 2N - 1, below the format's 32-bit pointers.
 LAYOUT_KNOB_RANGES = {
     "capacity": (1, 2**63 - 1),
+    "subtree_builders": (1, 1 << 16),
     "block_nodes": (1, 2 * MAX_PRIMITIVES),
 }
+MAX_NODE_SLOTS = 2**32 - 1
 
 # --- Output format (thesis 3.3.5, SPEC 4) -----------------------------------------------
 NODE_BYTES = 48          # 384 bits = two 192-bit words

@@ -810,6 +810,7 @@ def _version():
 def make_parser():
     from hwbvh import config
     from raytracer.render import ACCELS, TRAVERSALS
+    from traversal.verify import RAY_KINDS
     p = _Parser(prog="hwrt", description=DESCRIPTION, epilog=EPILOG)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -925,7 +926,7 @@ def make_parser():
     v.add_argument("scene", type=_path, help="built-in scene name, scene file, or mesh file")
     v.add_argument("--rays", type=_int_at_least(1, MAX_RAYS),
                    help=f"rays to trace; exactly these many (default: {VERIFY_RAYS})")
-    v.add_argument("--kind", choices=["primary", "random", "bounces", "shadow"],
+    v.add_argument("--kind", choices=RAY_KINDS,
                    help=f"the ray set (default: {VERIFY_KIND})")
     v.add_argument("--mismatches", metavar="F.npz", type=_path,
                    help="where mismatching rays are written (default: "
@@ -1068,7 +1069,12 @@ def _input_message(parser, args, e):
     with or without --height, set it."""
     from hwbvh.errors import ParameterError
     if isinstance(e, ParameterError):
-        return f"{_option_of(parser, args, e.parameter) or e.parameter}: {e.problem}"
+        # an option that sets the parameter, else a positional argument of its name (the
+        # scene, the mesh): what the user typed
+        given = getattr(args, e.parameter, None) if e.parameter in ("scene", "mesh") else None
+        named = _option_of(parser, args, e.parameter) or \
+            (given if isinstance(given, str) else e.parameter)
+        return f"{named}: {e.problem}"
     key, _, problem = e.problem.partition(": ")
     if key == "key 'film.width'" and getattr(args, "width", None) is not None:
         given = [d for d in ("width", "height") if getattr(args, d, None) is not None]

@@ -44,15 +44,23 @@ def exr_writer(path, result, metadata=None, layers=True):
         raise ParameterError("metadata", f"expected a dict, got {type(metadata).__name__}")
     image = _check_image("result.image", result.image, (None, None, 3))
     H, W, _ = image.shape
-    if layers:
-        _check_image("result.depth", result.depth, (H, W))
-        _check_image("result.normal", result.normal, (H, W, 3))
-        _check_image("result.prim", result.prim, (H, W))
-    chans = [result.image[..., 0], result.image[..., 1], result.image[..., 2]]
+    chans = [image[..., 0], image[..., 1], image[..., 2]]
     names = ["R", "G", "B"]
     if layers:
-        chans += [result.depth, result.normal[..., 0], result.normal[..., 1], result.normal[..., 2],
-                  result.prim.astype(np.float32)]
+        normal = _check_image("result.normal", result.normal, (H, W, 3))
+        chans += [_check_image("result.depth", result.depth, (H, W)), normal[..., 0],
+                  normal[..., 1], normal[..., 2],
+                  _check_image("result.prim", result.prim, (H, W)).astype(np.float32)]
+        names += ["Z", "N.X", "N.Y", "N.Z", "prim.id"]
+    image = _check_image("result.image", result.image, (None, None, 3))
+    H, W, _ = image.shape
+    chans = [image[..., 0], image[..., 1], image[..., 2]]
+    names = ["R", "G", "B"]
+    if layers:
+        normal = _check_image("result.normal", result.normal, (H, W, 3))
+        chans += [_check_image("result.depth", result.depth, (H, W)), normal[..., 0],
+                  normal[..., 1], normal[..., 2],
+                  _check_image("result.prim", result.prim, (H, W)).astype(np.float32)]
         names += ["Z", "N.X", "N.Y", "N.Z", "prim.id"]
     pixels = np.ascontiguousarray(np.stack(chans, axis=-1), dtype=np.float32)
 

@@ -32,11 +32,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hwbvh.config import DEFAULT_BINS, DEFAULT_LEAF_SIZE
 from hwbvh.errors import ParameterError
 from traversal.camera import TILE, look_at_basis
 from traversal.config import F32_UNIT_MAX_PRODUCT
 from traversal.offset import STRATEGY_CODES
-from traversal.api import release_kept_bounds
+from traversal.api import ACCELS, PRECISIONS, release_kept_bounds  # noqa: F401 (ACCELS: accel=)
 from traversal.tracers import run_as_tracer_allows
 from traversal.triangle_unit import f32_unit_reach
 from . import pcg64, stages
@@ -177,11 +178,11 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
     return time.perf_counter() - t
 
 
-ACCELS = ("bvh", "grid", "kdtree")      # the acceleration structures make_tracer builds (accel=)
 TRAVERSALS = ("numba", "embree")        # who traverses a BVH (traversal=): our units or Embree
 
 
-def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
+def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=DEFAULT_LEAF_SIZE,
+                bins=DEFAULT_BINS,
                 precision="float32", watertight=False, accel="bvh"):
     """(tracer, build_seconds, build_info). ``accel``: "bvh" (builders hwbvh, sweep, embree),
     "grid" (``traversal.grid.GridTracer``) or "kdtree" (``traversal.kdtree.KdTreeTracer``); the
@@ -195,13 +196,19 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
                                           f"(choose from {', '.join(TRAVERSALS)})")
     if not isinstance(watertight, (bool, np.bool_)):
         raise ParameterError("watertight", f"expected True or False, got {watertight!r}")
+    if precision not in PRECISIONS:
+        raise ParameterError("precision", f"must be one of {', '.join(PRECISIONS)}, got "
+                                          f"{precision!r}")
     if not hasattr(scene, "triangles"):
         raise ParameterError("scene", f"expected a compiled scene (scenes.compile_scene), got "
                                       f"{type(scene).__name__}")
-    if (accel != "bvh" or builder == "embree") and (leaf_size, bins) != (4, 16):
-        raise ParameterError("leaf_size" if leaf_size != 4 else "bins",
+    if (accel != "bvh" or builder == "embree") and \
+            (leaf_size, bins) != (DEFAULT_LEAF_SIZE, DEFAULT_BINS):
+        raise ParameterError("leaf_size" if leaf_size != DEFAULT_LEAF_SIZE else "bins",
                              "applies to our BVH builders only (accel 'bvh', builder 'hwbvh' "
                              "or 'sweep')")
+    if precision == "float32":              # every structure but the float64 BVH
+        check_float32_reach(scene)
     if accel in ("grid", "kdtree"):
         if builder != "hwbvh" or traversal != "numba":
             raise ParameterError("accel", f"the {accel} has its own build and traversal "
@@ -236,7 +243,7 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=4, bins=16,
     secs = time.perf_counter() - t
     info = {"builder": builder, "nodes": bvh.meta["nodes"], "sah_cost": bvh.meta["sah_cost"],
             "build_seconds_core": bvh.meta["build_seconds"]}
-    if builder == "hwbvh" and leaf_size == 4 and bins == 16:
+    if builder == "hwbvh" and leaf_size == DEFAULT_LEAF_SIZE and bins == DEFAULT_BINS:
         # the simulated hardware build time of the thesis' instantiations (Table 4.1)
         from hwbvh.cycle_model import PRESETS, simulate
         info["simulated_build_seconds"] = {name: simulate(bvh.tree, p)["seconds"]
@@ -430,7 +437,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
         raise ParameterError("offset", f"unknown strategy {offset!r} (choose from {', '.join(STRATEGY_CODES)})")
     ray_dtype = np.dtype(getattr(tracer, "dtype", np.float32))
     if ray_dtype == np.float32:
-        _check_float32_reach(scene)
+        check_float32_reach(scene)
     W, H, spp = scene.width, scene.height, scene.spp
     npix = W * H
     passes = scene_passes(scene)
@@ -489,29 +496,40 @@ def _check_render_arguments(scene, tracer, seed, progress):
             callable(getattr(tracer, "occluded", None))):
         raise ParameterError("tracer", f"expected a tracer with intersect and occluded, got "
                                        f"{type(tracer).__name__}")
+    known = getattr(tracer, "n_triangles", None)
+    if known is not None and known != len(scene.triangles):
+        raise ParameterError("tracer", f"{type(tracer).__name__} traces {known} triangles, the "
+                                       f"scene has {len(scene.triangles)}: not built over the "
+                                       f"scene's triangles")
     if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
     if progress is not None and not callable(progress):
         raise ParameterError("progress", f"expected a callable or None, got {type(progress).__name__}")
 
 
-def _check_float32_reach(scene):
+def check_float32_reach(scene):
     """A float32 tracer's unit computes t from a product of three lengths (edge x edge x
     distance); a scene where that can pass float32's range would lose hits or shade from
-    t = inf (NaN shadow rays), so it is refused before any work."""
-    points = [scene.camera["eye"]] + [l["position"] for l in scene.lights if l["type"] == "point"]
+    t = inf (NaN shadow rays), so it is refused before any work (``make_tracer``, ``render``)."""
+    camera = getattr(scene, "camera", None)         # a bare mesh (benchmarks) has none
+    points = ([camera["eye"]] if camera else []) + \
+        [l["position"] for l in getattr(scene, "lights", ()) if l["type"] == "point"]
     reach = f32_unit_reach(scene.triangles, points)
     if not reach <= F32_UNIT_MAX_PRODUCT:
         raise ParameterError("scene", f"too large for the float32 units: edge x edge x distance "
                                       f"reaches {reach:.3g}, beyond the {F32_UNIT_MAX_PRODUCT:.3g} "
-                                      f"their products stay within (scale the scene down, or trace "
-                                      f"with traversal.Tracer(precision='float64'))")
+                                      f"their products stay within (scale it down, or trace it "
+                                      f"with the float64 units)")
 
 
 def _checked_answers(tracer, n, n_triangles, hits=None, blocked=None):
     """A tracer's answers, checked before the shading kernels index with them: one per ray,
-    and primitive ids in [-1, n_triangles) (a tracer built over other triangles, or one that
-    is not ours, would otherwise make shading read past the scene's arrays)."""
+    and primitive ids in [-1, n_triangles) (a tracer built over other triangles would
+    otherwise make shading read past the scene's arrays). A tracer that states its
+    ``n_triangles`` (``traversal.tracers``), checked once against the scene, is taken at its
+    word: this check costs about 1% of a render."""
+    if getattr(tracer, "n_triangles", None) is not None:
+        return
     answers = {"blocked": blocked} if hits is None else \
         {k: getattr(hits, k, None) for k in ("prim", "t", "u", "v")}
     for key, got in answers.items():

@@ -336,7 +336,7 @@ class Animation:
     """
 
     def __init__(self, name, base, parts, frames, fps=DEFAULT_FPS, camera=None, info=None,
-                 inputs=(), source=None, max_frames=None):
+                 inputs=(), source=None, max_frames=None, frames_key=None):
         self.name = name
         self.base = base
         self.parts = parts
@@ -347,6 +347,7 @@ class Animation:
         self.inputs = [os.path.abspath(p) for p in inputs]
         self.source = source or name
         self.max_frames = max_frames        # a frame sequence has only so many frames
+        self.frames_key = frames_key        # the scene key the default frame count came from
 
     def time(self, i):
         return i / self.fps
@@ -356,6 +357,10 @@ class Animation:
         them all, none has NaN vertices, no keyframed shape moves beyond the coordinate bound,
         and the camera can be placed at every frame)."""
         if frames > MAX_FRAMES:
+            if self.frames_key is not None and frames == self.frames:
+                raise InputError(self.source, f"key '{self.frames_key}': the sequence has "
+                                              f"{frames} files: {too_many_frames(frames)} (give "
+                                              f"a frame count)")
             raise ParameterError("frames", too_many_frames(frames))
         if self.max_frames is not None and frames > self.max_frames:
             raise InputError(self.source, f"{frames} frames asked for, but the sequence has "
@@ -557,13 +562,13 @@ def from_scene_dict(d, source=None, fps=None):
                             base.camera, source)
     f = fps if fps is not None else _number(source, anim.get("fps", DEFAULT_FPS), "animation.fps",
                                             lo=MIN_FPS, hi=MAX_FPS)
+    frames_key = None
     if frames is None:
-        if max_frames is not None and max_frames > MAX_FRAMES:
-            _fail(source, shortest, f"the sequence has {max_frames} files: "
-                                    f"{too_many_frames(max_frames)} (give a frame count)")
+        # a frame count given later (--frames) replaces this one; check() judges the final one
         frames = max_frames if max_frames is not None else int(round(4 * f))
+        frames_key = shortest
     return Animation(str(d.get("name", "scene")), base, parts, frames, f, camera,
-                     inputs=inputs, source=source, max_frames=max_frames)
+                     inputs=inputs, source=source, max_frames=max_frames, frames_key=frames_key)
 
 
 def pattern_scene(pattern, smooth=False):

@@ -199,7 +199,7 @@ def with_frame(d, width=None, height=None, spp=None, max_depth=None):
     scene's). A film or integrator that is not an object is left for ``compile_scene`` to
     report."""
     if not isinstance(d, dict):
-        raise ParameterError("scene", f"expected a scene dict, got {type(d).__name__}")
+        raise ParameterError("d", f"expected a scene dict, got {type(d).__name__}")
     d = dict(d)
     film, integ = d.get("film", {}), d.get("integrator", {"type": "whitted"})
     if not isinstance(film, dict) or not isinstance(integ, dict):
@@ -618,6 +618,11 @@ def _light(ctx, obj, key, path, default=None):
     return v
 
 
+# a number as JSON, TOML or NumPy gives it; true and false are not numbers
+_is_number = np.frompyfunc(lambda x: isinstance(x, (int, float, np.integer, np.floating))
+                           and not isinstance(x, (bool, np.bool_)), 1, 1)
+
+
 def _triangle_data(ctx, data, key):
     """A ``triangles`` shape's data as (n, 3, 3) float64: a non-empty list of triangles of 3
     points of 3 numbers, nested as written (a flat list of numbers is refused, not reshaped);
@@ -629,9 +634,8 @@ def _triangle_data(ctx, data, key):
     if items is not None and items.ndim == 1 and items.shape[0] == 0:
         ctx.fail(key, "expected at least one triangle, got an empty list")
     ok = items is not None and items.ndim == 3 and items.shape[1:] == (3, 3)
-    if ok:
-        kinds = np.frompyfunc(type, 1, 1)(items)     # numbers as JSON and TOML give them
-        ok = bool(((kinds == int) | (kinds == float)).all())
+    if ok and not (isinstance(data, np.ndarray) and data.dtype.kind in "fiu"):
+        ok = bool(_is_number(items).all())
     if ok:
         try:
             return np.asarray(items, np.float64)

@@ -517,3 +517,9 @@ def test_frame_sequence_errors_name_the_pattern_key(tmp_path, capsys, monkeypatc
     rc, _, err = _run_cli(capsys, "animate", p, "-o", tmp_path / "out")
     assert rc == 2 and "key 'shapes[0].pattern'" in err and "3 files" in err, err
     assert "--frames" not in err and not (tmp_path / "out").exists()
+    # a frame count within the limit renders the sequence's first frames
+    rc, _, err = _run_cli(capsys, "animate", p, "--frames", 2, "--width", 8, "--height", 6,
+                          "-o", tmp_path / "out")
+    assert rc == 0, err
+    assert sorted(f.name for f in (tmp_path / "out").glob("*.exr")) == ["frame_0000.exr",
+                                                                      "frame_0001.exr"]

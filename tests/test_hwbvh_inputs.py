@@ -202,7 +202,7 @@ def test_the_tree_does_not_depend_on_task_prims(tris):
 
 
 @pytest.mark.parametrize("knob,value", [
-    ("subtree_builders", 65), ("capacity", 2**70), ("capacity", 0),
+    ("subtree_builders", 2**16 + 1), ("capacity", 2**70), ("capacity", 0),
     ("block_nodes", 2**30), ("block_nodes", 1.5),
 ])
 def test_layout_knobs_are_bounded_before_any_allocation(tris, knob, value):
@@ -390,3 +390,14 @@ def test_cost_of_a_string_knob_names_it():
         resources.cost(HwParams(w="4"))
     assert e.value.parameter == "w"
     assert resources.cost("HWBVH-C") == resources.cost(PRESETS["HWBVH-C"])
+
+
+def test_many_subtree_builders_only_place_nodes(tris):
+    """Subtree builders beyond any hardware instance are a placement choice, not an error;
+    only a layout whose node slots could pass the 32-bit pointers is refused."""
+    ref = hwbvh.build(tris)
+    many = hwbvh.build(tris, subtree_builders=100, capacity=16)
+    assert many.meta["sah_cost"] == ref.meta["sah_cost"]
+    with pytest.raises(ParameterError) as e:
+        hwbvh.build(tris, subtree_builders=2**16, block_nodes=2**17)
+    assert e.value.parameter == "block_nodes"

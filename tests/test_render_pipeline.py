@@ -364,7 +364,18 @@ def test_render_refuses_bad_arguments_and_answers_before_shading_reads_them():
         def occluded(self, *a, **kw):
             return ours.occluded(*a, **kw)
 
-    cases = [((scene, more), {}, "tracer", "outside the scene's"),
+    class Foreign:                      # states no n_triangles: checked query by query
+        def __init__(self, inner):
+            self.inner = inner
+
+        def intersect(self, *a, **kw):
+            return self.inner.intersect(*a, **kw)
+
+        def occluded(self, *a, **kw):
+            return self.inner.occluded(*a, **kw)
+
+    cases = [((scene, more), {}, "tracer", "not built over the scene's triangles"),
+             ((scene, Foreign(more)), {}, "tracer", "outside the scene's"),
              ((scene, Short()), {}, "tracer", r"of shape \(3,\)"),
              ((load_scene("cornell"), ours), {}, "scene", "compiled scene"),
              ((scene, object()), {}, "tracer", "intersect and occluded"),
@@ -422,7 +433,7 @@ def test_a_failed_write_names_the_file_asked_for_not_its_temporary_file(tmp_path
     ({"traversal": "bogus"}, "traversal"), ({"accel": "octree"}, "accel"),
     ({"accel": "grid", "leaf_size": 8}, "leaf_size"), ({"builder": "embree", "traversal": "embree",
                                                         "bins": 32}, "bins"),
-    ({"watertight": "no"}, "watertight")])
+    ({"watertight": "no"}, "watertight"), ({"precision": "float16"}, "precision")])
 def test_make_tracer_checks_every_argument_before_building(kw, parameter, monkeypatch):
     """An argument that cannot apply is refused before the build, not ignored or after it."""
     import hwbvh
@@ -455,3 +466,19 @@ def test_a_scene_beyond_the_float32_units_range_is_refused_before_any_work():
     assert (far.prim == ref.prim).mean() > 0.99
     near = scaled(1e12)
     assert np.isfinite(render(near, Tracer(hwbvh.build(near.triangles))).image).all()
+
+
+def test_the_cli_names_the_scene_file_too_large_for_the_float32_units(tmp_path, capsys):
+    import json
+    from hwrt.cli import main
+
+    big = {"camera": {"eye": [0, 3e13, 4e13], "target": [0, 0, 0]},
+           "film": {"width": 8, "height": 6, "spp": 1}, "materials": {"w": {"type": "diffuse"}},
+           "shapes": [{"type": "quad", "material": "w", "corners": [[-2e13, 0, -2e13],
+                       [2e13, 0, -2e13], [2e13, 0, 2e13], [-2e13, 0, 2e13]]}]}
+    p = tmp_path / "big.json"
+    p.write_text(json.dumps(big))
+    assert main(["render", str(p), "-o", str(tmp_path / "big.exr")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"hwrt: error: {p}: too large for the float32 units"), err
+    assert not (tmp_path / "big.exr").exists()

@@ -277,6 +277,11 @@ def test_python_callers_get_errors_naming_what_they_passed():
             with_frame(bad, width=4)
     d = load_scene("cornell")
     assert compile_scene(with_frame(d, width=np.int64(8), height=np.int32(6))).width == 8
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)
+    listed = [[list(point) for point in t] for t in tri]        # NumPy numbers in lists
+    shape = {"type": "triangles", "data": listed, "material": "white"}
+    assert len(compile_scene(dict(d, shapes=d["shapes"] + [shape])).triangles) == \
+        len(compile_scene(d).triangles) + 1
     with pytest.raises(InputError) as e:
         compile_scene(with_frame(d, width=3 ** 2000))
     assert "film.width" in str(e.value) and len(str(e.value)) < 200

@@ -135,17 +135,21 @@ def test_timed_cells_run_one_at_a_time_on_one_host_of_a_larger_cluster():
     assert all(a[1] <= b[0] for a, b in zip(ordered, ordered[1:])), ordered
 
 
-def test_a_scheduler_without_workers_is_blamed_on_where_its_address_came_from():
-    from distributed import Client, LocalCluster
+def test_a_scheduler_without_workers_is_blamed_on_where_its_address_came_from(monkeypatch):
+    """The timed cells of a study need a worker: a scheduler without any is blamed on the
+    option, or on $HWRT_SCHEDULER when the address came from there."""
+    from distributed import LocalCluster
     from hwbvh.errors import ParameterError
-    from hwrt.cluster import address_source, timing_host
+    from hwrt.study import _timing
 
     with LocalCluster(n_workers=0, processes=False, dashboard_address=None,
-                      silence_logs=50) as cluster, Client(cluster) as client:
+                      silence_logs=50) as cluster:
+        monkeypatch.setenv("HWRT_SCHEDULER", cluster.scheduler_address)
         for scheduler, named in ((cluster.scheduler_address, "scheduler"),
                                  (None, "$HWRT_SCHEDULER")):
             with pytest.raises(ParameterError, match="has no workers") as e:
-                timing_host(client, address_source(scheduler))
+                with _timing(scheduler, True, None):
+                    pass
             assert e.value.parameter == named
 
 

@@ -140,8 +140,8 @@ def _wrapped(tracers):
 
 @pytest.mark.parametrize("query", ["intersect", "occluded"])
 def test_none_and_nan_bounds_are_refused_by_every_tracer(tracers, query):
-    """None converts to NaN, and a NaN bound made every ray miss (a NaN tmin also got past
-    the negative-tmin check)."""
+    """None converts to NaN, and a NaN bound fails every comparison: each ray would miss,
+    and a NaN tmin would pass a plain negative-tmin check."""
     nan_last = np.r_[np.zeros(15), np.nan]
     for name, tracer in _wrapped(tracers).items():
         ask = getattr(tracer, query)

@@ -24,6 +24,10 @@ from .triangle_unit import band_eps2, preprocess
 from .config import EDGE_EPS_F32, EDGE_EPS_F64   # the valid check's slack, with its reason
 
 
+PRECISIONS = ("float32", "float64")     # the units' working precision: the hardware's, or wider
+ACCELS = ("bvh", "grid", "kdtree")      # the structures traced on the triangle unit
+
+
 @dataclass
 class Hits:
     """Closest hits of a batch. t: (n,) with inf for a miss; prim: (n,) int32, -1 for a miss;
@@ -131,21 +135,23 @@ def _interval(x, n, dtype, name, nonnegative=False):
     return a
 
 
-def ray_arrays(origins, dirs, dtype):
+def ray_arrays(origins, dirs, dtype, names=("origins", "dirs")):
     """(origins, dirs) as C-contiguous, writable (n, 3) arrays of ``dtype``; ParameterError
-    naming the argument on data that are not real numbers or on a bad shape. Writable even
-    when the caller's arrays are read-only views, since Numba compiles (and caches) a separate
-    copy of every kernel for read-only arguments (twice the first render's compile time)."""
+    naming the argument (``names``: as the caller spells its parameters) on data that are not
+    real numbers or on a bad shape. Writable even when the caller's arrays are read-only views,
+    since Numba compiles (and caches) a separate copy of every kernel for read-only arguments
+    (twice the first render's compile time)."""
+    o_name, d_name = names
     o = _ready(origins, dtype)
     if o is None:
-        o = np.require(real_array(origins, "origins", dtype), requirements=("C", "W"))
+        o = np.require(real_array(origins, o_name, dtype), requirements=("C", "W"))
     d = _ready(dirs, dtype)
     if d is None:
-        d = np.require(real_array(dirs, "dirs", dtype), requirements=("C", "W"))
+        d = np.require(real_array(dirs, d_name, dtype), requirements=("C", "W"))
     if o.ndim != 2 or o.shape[1] != 3:
-        raise ParameterError("origins", f"must be (n, 3), got shape {o.shape}")
+        raise ParameterError(o_name, f"must be (n, 3), got shape {o.shape}")
     if d.shape != o.shape:
-        raise ParameterError("dirs", f"must be (n, 3) with one row per origin {o.shape}, "
+        raise ParameterError(d_name, f"must be (n, 3) with one row per origin {o.shape}, "
                                      f"got shape {d.shape}")
     return o, d
 
@@ -243,7 +249,7 @@ class Tracer(PacketCount):
 
     def __init__(self, bvh, triangles=None, precision="float32", edge_eps=None, watertight=False,
                  packets=True):
-        if precision not in ("float32", "float64"):
+        if precision not in PRECISIONS:
             raise ParameterError("precision", f"must be 'float32' or 'float64', got {precision!r}")
         self.dtype = np.float32 if precision == "float32" else np.float64
         f32 = self.dtype == np.float32
@@ -269,6 +275,7 @@ class Tracer(PacketCount):
         if order.ndim != 1 or len(order) != n:
             raise InputError(source, f"{n} triangles, but the tree has {len(order)} primitives "
                                      "(bvh.indices): not the triangles it was built over")
+        self.n_triangles = n
         self.row_of = np.full(n, -1, np.int32)
         in_range = n == 0 or (order.min() >= 0 and order.max() < n)
         if in_range:

@@ -166,6 +166,7 @@ class EmbreeTracer:
 
     def __init__(self, vertices, faces, robust=True):
         self.scene = embree_scene(vertices, faces, robust)
+        self.n_triangles = len(faces)           # embree_scene checked them: (m, 3) indices
 
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
         from .api import Hits

@@ -62,6 +62,7 @@ class TriangleStructure:
     dtype = np.float32
 
     def _set_unit(self, tris):
+        self.n_triangles = len(tris)
         self.tris = preprocess(tris, np.float32)
         self._tris1 = self.tris.reshape(-1)
         self.eps2 = band_eps2(np.float32)

@@ -11,6 +11,10 @@ is a ParameterError, and so are a bound that is None or NaN and rays or bounds t
 numbers or not one per ray. An empty interval (``tmin > tmax``) is a miss / not blocked. A zero
 direction, or a NaN or infinite origin or direction, misses.
 
+Every tracer also has ``n_triangles``: its answers' primitive ids lie in [-1, n_triangles), so
+a caller that indexes its own arrays with them (the renderer) checks one number, not every
+answer. A tracer without it has its answers checked query by query.
+
 A tracer may also declare ``concurrent = True``: it answers queries from several threads at
 once, so the renderer traces each band of rows on its own thread (``raytracer.render``);
 without it, queries come one at a time, each spread over the threads.
@@ -41,7 +45,15 @@ from hwbvh.parallel import run_ranges
 from .api import _rays
 
 
-class _Tally:
+class _Wrapper:
+    """What a wrapper shares with the tracer it wraps (``inner``)."""
+
+    @property
+    def n_triangles(self):
+        return getattr(self.inner, "n_triangles", None)
+
+
+class _Tally(_Wrapper):
     """Running totals that queries from several threads at once may add to: a wrapper of a
     ``concurrent`` tracer is ``concurrent`` too, and its sums do not depend on the order in
     which the threads add."""
@@ -179,7 +191,7 @@ class CountingTracer(_Tally):
                 "rays": r}
 
 
-class RecordingTracer:
+class RecordingTracer(_Wrapper):
     """Passes queries to ``inner`` and keeps a copy of each, so that :meth:`replay_seconds` can
     time tracing exactly the same rays again, alone (no shading, no ray generation). Not
     ``concurrent``: the record keeps the queries in the order a render asks them."""

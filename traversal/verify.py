@@ -19,7 +19,7 @@ from numba import njit
 from hwbvh.errors import ParameterError
 from hwbvh.parallel import run_ranges
 
-from .api import _interval, ray_arrays, real_array
+from .api import ACCELS, _interval, ray_arrays, real_array
 from .config import BARY_TOL, BEHIND_TOL_REL, T_TOL_REL
 
 BEHIND = BEHIND_TOL_REL / T_TOL_REL    # the slack before t_min, as a share of the t tolerance
@@ -97,7 +97,7 @@ def _checked_triangles(tris):
 def _checked_rays(O, D, tmin, tmax):
     """The rays as both tracers saw them (float32, held in float64) and their (n,) bounds,
     checked as ``traversal.Tracer`` checks them."""
-    O, D = ray_arrays(O, D, np.float32)
+    O, D = ray_arrays(O, D, np.float32, names=("O", "D"))
     n = len(O)
     return (O.astype(np.float64), D.astype(np.float64),
             _interval(tmin, n, np.float64, "tmin", nonnegative=True),
@@ -227,8 +227,7 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None):
     return counts, labels, h, (te, pe)
 
 
-RAY_KINDS = ("primary", "random", "bounces", "shadow")
-ACCELS = ("bvh", "grid", "kdtree")
+RAY_KINDS = ("primary", "random", "bounces", "shadow")      # the ray sets verify_mesh traces
 
 
 def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=0, accel="bvh",
