@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import config
-from .builder import build_canonical, check_params, check_task_prims, is_integer
-from .errors import InputError, ParameterError
+from .builder import build_canonical, check_params, check_task_prims
+from .errors import InputError, ParameterError, is_integer, shown
 from .files import json_text, made_as_written, write_files
 from .format import NODE_DTYPE, pack_indices, tree_stats, unpack_indices, validate
 from .layout import lay_out
@@ -225,6 +225,5 @@ def _json_count(meta, keys, hi, source):
             raise InputError(source, f"missing {name!r}")
         v = v[k]
     if not is_integer(v) or not 1 <= v <= hi:
-        shown = repr(v) if len(repr(v)) <= 40 else repr(v)[:37] + "..."
-        raise InputError(source, f"{name!r} must be an integer in 1..{hi}, got {shown}")
+        raise InputError(source, f"{name!r} must be an integer in 1..{hi}, got {shown(v)}")
     return int(v)

@@ -27,7 +27,7 @@ from numba import njit, prange, get_num_threads
 
 from . import config
 from .binning_unit import bin_range, bin_range_parallel
-from .errors import InputError, ParameterError
+from .errors import InputError, ParameterError, is_integer
 from .parallel import check_threading
 from .partitioning_unit import (partition_range, partition_range_parallel, range_bounds,
                                 range_bounds_parallel)
@@ -188,12 +188,6 @@ def build_tasks(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
 # --------------------------------------------------------------------------------------
 # Public API
 # --------------------------------------------------------------------------------------
-def is_integer(v):
-    """Whether ``v`` is an integer knob value: a Python or NumPy integer, never a bool (True
-    would silently mean 1)."""
-    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
-
-
 def check_params(leaf_size, bins):
     if not (is_integer(leaf_size) and 1 <= leaf_size <= config.MAX_LEAF_SIZE):
         raise ParameterError("leaf_size", f"leaf size must be an integer in 1..{config.MAX_LEAF_SIZE}, "

@@ -41,8 +41,7 @@ from . import config
 from .config import (AABB_BYTES, CONTROL_LATENCY, LAT_BINNING, LAT_PARTITION, LAT_PRIM_BUFFER,
                      LAT_SAH, NODE_BYTES, THREAD_SWITCH, WORD_BYTES)
 from .config import PRIMITIVE_RECORD_BYTES as RECORD_BYTES
-from .builder import is_integer
-from .errors import ParameterError
+from .errors import ParameterError, is_integer
 from .resources import cost
 
 

@@ -1,4 +1,6 @@
-"""Errors that name the input and the problem; the CLI turns them into exit status 2."""
+"""Errors that name the input and the problem; the CLI turns them into exit status 2. With
+the two checks every message uses: what counts as an integer, and a value shown cut short."""
+import numpy as np
 
 
 class InputError(ValueError):
@@ -20,3 +22,18 @@ class ParameterError(InputError):
     def __init__(self, parameter, problem):
         self.parameter = str(parameter)
         super().__init__(parameter, problem)
+
+
+def is_integer(v):
+    """Whether ``v`` is an integer argument: a Python or NumPy integer, never a bool (True
+    would silently mean 1)."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def shown(v, limit=40):
+    """``repr(v)`` for a message, cut short: a 400-digit number is not worth printing."""
+    try:
+        text = repr(v)
+    except ValueError:                  # an int beyond Python's digit limit for str()
+        return f"an integer of about {int(v.bit_length() * 0.30103)} digits"
+    return text if len(text) <= limit else text[:limit - 3] + "..."

@@ -163,7 +163,7 @@ def validate(nodes, entries, n_prims, max_leaf, prim_boxes=None, source="<tree>"
     (:func:`hwbvh.primitive_boxes`), which the leaf boxes must contain.
     Returns the number of reachable nodes.
     """
-    from .builder import is_integer
+    from .errors import is_integer
     from .config import MAX_PRIMITIVES
     from .errors import InputError, ParameterError
 
@@ -254,13 +254,12 @@ def check_nodes(nodes, n_positions=None, source="nodes"):
     range [a, a + b) must also lie within it. O(n); the boxes are not checked (see
     :func:`validate` for every invariant).
     """
-    from .errors import InputError, ParameterError
+    from .errors import InputError, ParameterError, is_integer
 
     nodes = _node_array(nodes, source)
     if n_positions is None:
         limit = -1
-    elif isinstance(n_positions, (bool, np.bool_)) or not isinstance(n_positions, (int, np.integer)) \
-            or n_positions < 0:
+    elif not is_integer(n_positions) or n_positions < 0:
         raise ParameterError("n_positions", f"must be an integer >= 0, got {n_positions!r}")
     else:
         # a leaf range ends below 2^33 (two uint32 words), so a larger limit changes nothing

@@ -207,7 +207,7 @@ def refit_cost(n_prims, n_nodes, max_depth, params):
 
     params : hwbvh.cycle_model.HwParams (its clock and RAM pairs). Returns a dict.
     """
-    from .builder import is_integer
+    from .errors import is_integer
     from .config import WORD_BYTES
     from .cycle_model import as_params
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hwbvh.config import DEFAULT_BINS, DEFAULT_LEAF_SIZE
-from hwbvh.errors import ParameterError
+from hwbvh.errors import ParameterError, is_integer
 from traversal.camera import TILE, look_at_basis
 from traversal.config import F32_UNIT_MAX_PRODUCT
 from traversal.offset import STRATEGY_CODES
@@ -490,7 +490,7 @@ def _check_render_arguments(scene, tracer, seed, progress):
         raise ParameterError("scene", "has no triangles to render")
     for key in ("width", "height", "spp"):
         v = getattr(scene, key)
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 1:
+        if not is_integer(v) or v < 1:
             raise ParameterError(f"scene.{key}", f"must be a positive integer, got {v!r}")
     if not (callable(getattr(tracer, "intersect", None)) and
             callable(getattr(tracer, "occluded", None))):
@@ -501,7 +501,7 @@ def _check_render_arguments(scene, tracer, seed, progress):
         raise ParameterError("tracer", f"{type(tracer).__name__} traces {known} triangles, the "
                                        f"scene has {len(scene.triangles)}: not built over the "
                                        f"scene's triangles")
-    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+    if not is_integer(seed) or seed < 0:
         raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
     if progress is not None and not callable(progress):
         raise ParameterError("progress", f"expected a callable or None, got {type(progress).__name__}")

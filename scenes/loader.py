@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
-from hwbvh.errors import InputError, ParameterError
+from hwbvh.errors import InputError, ParameterError, is_integer, shown
 from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
                               load_mesh_arrays, within_bound)
 from .builtin import BUILTIN
@@ -127,18 +127,9 @@ def _builtin_overrides(name, overrides):
         if key not in known:
             raise ParameterError(key, f"not a parameter of the built-in scene {name!r} "
                                       f"(it takes {', '.join(known)})")
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 0:
-            raise ParameterError(key, f"expected a non-negative integer, got {_shown(v)}")
+        if not is_integer(v) or v < 0:
+            raise ParameterError(key, f"expected a non-negative integer, got {shown(v)}")
     return {k: int(v) for k, v in overrides.items()}
-
-
-def _shown(v, limit=40):
-    """``repr(v)`` for a message, cut short: a 400-digit number is not worth printing."""
-    try:
-        text = repr(v)
-    except ValueError:                  # an int beyond Python's digit limit for str()
-        return f"an integer of about {int(v.bit_length() * 0.30103)} digits"
-    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def scene_inputs(spec):
@@ -383,16 +374,16 @@ class _Ctx:
         # numbers as JSON and TOML give them, and NumPy's (a dict built in Python)
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
             self.fail(f"{path}.{key}", f"expected {'an integer' if integer else 'a number'}, "
-                                       f"got {_shown(v)}")
+                                       f"got {shown(v)}")
         if not finite(v):
-            self.fail(f"{path}.{key}", f"expected a finite number, got {_shown(v)}")
+            self.fail(f"{path}.{key}", f"expected a finite number, got {shown(v)}")
         if integer and int(v) != v:
-            self.fail(f"{path}.{key}", f"expected an integer, got {_shown(v)}")
+            self.fail(f"{path}.{key}", f"expected an integer, got {shown(v)}")
         if (lo is not None and v < lo) or (hi is not None and v > hi):
             if wanted is None:
                 wanted = f"at least {lo}" if hi is None else \
                     (f"at most {hi}" if lo is None else f"in [{lo}, {hi}]")
-            self.fail(f"{path}.{key}", f"{_shown(v)} is out of range (must be {wanted})")
+            self.fail(f"{path}.{key}", f"{shown(v)} is out of range (must be {wanted})")
         return int(v) if integer else float(v)
 
 

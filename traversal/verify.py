@@ -16,7 +16,7 @@ The tolerances ``T_TOL_REL``, ``BEHIND_TOL_REL`` and ``BARY_TOL`` live in ``trav
 import numpy as np
 from numba import njit
 
-from hwbvh.errors import ParameterError
+from hwbvh.errors import ParameterError, is_integer
 from hwbvh.parallel import run_ranges
 
 from .api import ACCELS, _interval, ray_arrays, real_array
@@ -242,7 +242,7 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
     from .embree_ref import embree_scene
 
     # every argument before the build: a structure over a large mesh takes seconds
-    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 1:
+    if not is_integer(n) or n < 1:
         raise ParameterError("n", f"must be a positive integer (rays), got {n!r}")
     if kind not in RAY_KINDS:
         raise ParameterError("kind", f"must be one of {', '.join(map(repr, RAY_KINDS))}, "
