@@ -52,16 +52,6 @@ def exr_writer(path, result, metadata=None, layers=True):
                   normal[..., 1], normal[..., 2],
                   _check_image("result.prim", result.prim, (H, W)).astype(np.float32)]
         names += ["Z", "N.X", "N.Y", "N.Z", "prim.id"]
-    image = _check_image("result.image", result.image, (None, None, 3))
-    H, W, _ = image.shape
-    chans = [image[..., 0], image[..., 1], image[..., 2]]
-    names = ["R", "G", "B"]
-    if layers:
-        normal = _check_image("result.normal", result.normal, (H, W, 3))
-        chans += [_check_image("result.depth", result.depth, (H, W)), normal[..., 0],
-                  normal[..., 1], normal[..., 2],
-                  _check_image("result.prim", result.prim, (H, W)).astype(np.float32)]
-        names += ["Z", "N.X", "N.Y", "N.Z", "prim.id"]
     pixels = np.ascontiguousarray(np.stack(chans, axis=-1), dtype=np.float32)
 
     def write(tmp):
