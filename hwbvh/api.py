@@ -16,7 +16,7 @@ from . import config
 from .builder import build_canonical, check_params, check_task_prims
 from .errors import InputError, ParameterError, is_integer, shown
 from .files import json_text, made_as_written, write_files
-from .format import NODE_DTYPE, pack_indices, tree_stats, unpack_indices, validate
+from .format import NODE_DTYPE, check_nodes, pack_indices, tree_stats, unpack_indices, validate
 from .layout import lay_out
 from .parallel import check_threading
 from .primitives import as_triangles, load_triangles, primitive_boxes
@@ -56,10 +56,19 @@ class Bvh:
         return order, counts
 
 
+def _path_of(path, parameter):
+    """``path`` (str, bytes or os.PathLike) as a str, else ParameterError naming it."""
+    if isinstance(path, bytes):                     # a path in the file system's encoding
+        return os.fsdecode(path)
+    if not isinstance(path, (str, os.PathLike)):
+        raise ParameterError(parameter, f"expected a path, got {type(path).__name__}")
+    return os.fspath(path)
+
+
 def _triangles(source, name=None):
-    if isinstance(source, bytes):                   # a path in the file system's encoding
-        source = os.fsdecode(source)
-    if isinstance(source, (str, os.PathLike)):
+    if isinstance(source, (bytes, str, os.PathLike)):
+        source = _path_of(source, "source")
+    if isinstance(source, str):
         return load_triangles(source), os.fspath(source)
     return as_triangles(source, source=name or "<array>"), name or "<array>"
 
@@ -166,7 +175,12 @@ def tree_files(bvh, prefix):
 
 
 def save(bvh, prefix):
-    """Write PREFIX.nodes, PREFIX.indices and PREFIX.json (SPEC 4)."""
+    """Write PREFIX.nodes, PREFIX.indices and PREFIX.json (SPEC 4): a tree ``load`` reads back,
+    so its nodes are checked first (a tree changed after its build may not be one)."""
+    if not all(hasattr(bvh, a) for a in ("nodes", "indices", "meta")):
+        raise ParameterError("bvh", f"expected an hwbvh.Bvh, got {type(bvh).__name__}")
+    prefix = _path_of(prefix, "prefix")
+    check_nodes(bvh.nodes, n_positions=len(bvh.indices), source="bvh.nodes")
     files = tree_files(bvh, prefix)
     write_files(files)
     return [path for path, _ in files]
@@ -175,7 +189,7 @@ def save(bvh, prefix):
 def load(prefix, triangles=None):
     """Read PREFIX.nodes / .indices / .json and validate every invariant. ``triangles``
     (optional (N, 3, 3)) also checks that leaf boxes contain their primitives."""
-    prefix = os.fspath(prefix)
+    prefix = _path_of(prefix, "prefix")
     try:
         with open(prefix + ".json") as f:
             meta = json.load(f)

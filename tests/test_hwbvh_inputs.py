@@ -401,3 +401,21 @@ def test_many_subtree_builders_only_place_nodes(tris):
     with pytest.raises(ParameterError) as e:
         hwbvh.build(tris, subtree_builders=2**16, block_nodes=2**17)
     assert e.value.parameter == "block_nodes"
+
+
+def test_save_and_load_name_a_bad_argument_and_never_write_a_broken_tree(tris, tmp_path):
+    import os
+    with pytest.raises(ParameterError) as e:
+        hwbvh.load(None)
+    assert e.value.parameter == "prefix"
+    with pytest.raises(ParameterError) as e:
+        hwbvh.save(object(), tmp_path / "t")
+    assert e.value.parameter == "bvh"
+    b = hwbvh.build(tris)
+    b.nodes["a"][0] = 10**6
+    with pytest.raises(InputError, match="bvh.nodes: invalid tree"):
+        hwbvh.save(b, tmp_path / "t")
+    assert os.listdir(tmp_path) == []
+    good = hwbvh.build(tris)
+    hwbvh.save(good, os.fsencode(tmp_path / "g"))
+    assert hwbvh.load(tmp_path / "g").nodes.tobytes() == good.nodes.tobytes()
