@@ -90,13 +90,21 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
     origin (the eye) and the weight (1) of camera rays as given, so O and wgt are not
     written.
 
-    The tile loops are written out here, not read from the tile order: placing pixels from a
-    list of indices made this stage 20-30% slower. A test keeps the two orders in step."""
+    Two loops: the tile loops place each ray's screen point (parked in D), then one flat loop
+    over the rays turns the points into unit directions, in SIMD lanes (with the arrays seen
+    flat, so that a row is 3 words on from the last: a 2D index's run-time row length keeps
+    LLVM from vectorising); 30% faster than one loop doing both. The tile loops are written
+    out here, not read from the tile order: placing pixels from a list of indices made this
+    stage 20-30% slower. A test keeps the two orders in step."""
     off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
     ex = np.float32(eye[0])
     ey = np.float32(eye[1])
     ez = np.float32(eye[2])
     base = y0 * width
+    Df = D.reshape(-1)
+    Of = Ot.reshape(-1)
+    Dtf = Dt.reshape(-1)
+    # (1) in tile order, each ray's screen point, parked in D's first two columns
     k = 0
     for ty in range(y0, y1, tile):
         for tx in range(0, width, tile):
@@ -109,21 +117,34 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
                     else:
                         px = np.float64(x) + 0.5
                         py = np.float64(y) + 0.5
-                    sx = px * kx - bx
-                    sy = by - py * ky
-                    dx = sx * cu[0] + sy * cv[0] + cw[0]
-                    dy = sx * cu[1] + sy * cv[1] + cw[1]
-                    dz = sx * cu[2] + sy * cv[2] + cw[2]
-                    inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-                    dx *= inv
-                    dy *= inv
-                    dz *= inv
-                    _put_origin_dir(Ot, Dt, k, ex, ey, ez, dx, dy, dz)
-                    D[k, 0] = dx                    # O and wgt are implied (eye, 1)
-                    D[k, 1] = dy
-                    D[k, 2] = dz
+                    Df[3 * k] = px * kx - bx
+                    Df[3 * k + 1] = by - py * ky
                     pix[k] = p
                     k += 1
+    # (2) the unit directions, ray by ray (SIMD: the square root and the divider in lanes)
+    ux = cu[0]; uy = cu[1]; uz = cu[2]
+    vx = cv[0]; vy = cv[1]; vz = cv[2]
+    wx = cw[0]; wy = cw[1]; wz = cw[2]
+    n = k
+    for k in range(n):
+        sx = Df[3 * k]
+        sy = Df[3 * k + 1]
+        dx = sx * ux + sy * vx + wx
+        dy = sx * uy + sy * vy + wy
+        dz = sx * uz + sy * vz + wz
+        inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+        dx *= inv
+        dy *= inv
+        dz *= inv
+        Of[3 * k] = ex
+        Of[3 * k + 1] = ey
+        Of[3 * k + 2] = ez
+        Dtf[3 * k] = dx
+        Dtf[3 * k + 1] = dy
+        Dtf[3 * k + 2] = dz
+        Df[3 * k] = dx                  # O and wgt are implied (eye, 1)
+        Df[3 * k + 1] = dy
+        Df[3 * k + 2] = dz
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
