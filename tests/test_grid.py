@@ -327,6 +327,29 @@ def test_packets_on_huge_and_tiny_coordinates(scale, offset):
     assert (grid.intersect(o, d).prim >= 0).mean() > 0.2
 
 
+@pytest.mark.parametrize("distance", [1e15, 1e20])
+def test_axis_parallel_rays_from_distant_origins(distance):
+    """Rays along each axis, both ways, from origins ``distance`` away from a unit-sized
+    scene: each enters the grid through a face, whatever o + t d rounds to (from 1e15 the sum
+    is off by more than a cell), and answers as the BVH does, in packets and ray by ray."""
+    tris = np.concatenate([tessellated_cube(3), soup(300, 5)])
+    grid = GridTracer(tris)
+    bvh = bvh_tracer(tris)
+    rng = np.random.default_rng(11)
+    O, D = [], []
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            o = rng.uniform(0.05, 0.95, (32, 3))
+            o[:, axis] = 0.5 + sign * distance
+            d = np.zeros((32, 3))
+            d[:, axis] = -sign
+            O.append(o)
+            D.append(d)
+    o, d = np.concatenate(O).astype(np.float32), np.concatenate(D).astype(np.float32)
+    assert packets_as_single_rays(grid, bvh, o, d) == len(o) // 16
+    assert (grid.intersect(o, d).prim >= 0).all()          # every ray meets the cube
+
+
 def test_shadow_packets_match_the_bvh():
     """Shadow rays toward a point light, as the renderer traces them: packets of rays from
     nearby surface points, any hit within each lane's own distance to the light."""

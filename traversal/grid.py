@@ -116,10 +116,18 @@ def _fill(ranges, res, offsets, refs):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _axis_setup(o, d, gmin, cs, inv, n, t0):
-    """Entry cell of one axis at ray parameter t0 and the t of its next cell boundary."""
+def _axis_setup(o, d, gmin, gmax, cs, inv, n, t0):
+    """Entry cell of one axis at ray parameter t0 and the t of its next cell boundary.
+
+    Where the ray enters the grid through this axis' face (its slab's near t is t0), the cell
+    is the first along d, whatever o + t0 d rounds to: for a distant origin that sum loses
+    more than a cell to cancellation (|o| 1e15 against a unit-sized grid: 0.1 in float64), and
+    the clamp would send the walk to the far end of the axis."""
+    near = ((gmin if d > 0 else gmax) - o) / d          # as _slab computes it
     c = np.int64(np.floor((o + t0 * d - gmin) * inv))
     c = min(max(c, 0), n - 1)
+    if d != 0 and near == t0:
+        c = 0 if d > 0 else n - 1
     if d > 0:
         return c, 1, (gmin + (c + 1) * cs - o) / d
     if d < 0:
@@ -159,9 +167,9 @@ def trace_grid_ray(tris, offsets, refs, gmin, gmax, cs, inv, res, ox, oy, oz, dx
     if not t0 <= t1:
         return prim, best_t, bu, bv
     scale = max(abs(fx), max(abs(fy), abs(fz))) / max(abs(gx), max(abs(gy), abs(gz)))
-    cx, sx, nx = _axis_setup(fx, gx, gmin[0], cs[0], inv[0], res[0], t0)
-    cy, sy, ny = _axis_setup(fy, gy, gmin[1], cs[1], inv[1], res[1], t0)
-    cz, sz, nz = _axis_setup(fz, gz, gmin[2], cs[2], inv[2], res[2], t0)
+    cx, sx, nx = _axis_setup(fx, gx, gmin[0], gmax[0], cs[0], inv[0], res[0], t0)
+    cy, sy, ny = _axis_setup(fy, gy, gmin[1], gmax[1], cs[1], inv[1], res[1], t0)
+    cz, sz, nz = _axis_setup(fz, gz, gmin[2], gmax[2], cs[2], inv[2], res[2], t0)
     wx = cs[0] / abs(gx)                  # t-width of a cell along each axis (inf if d_a = 0)
     wy = cs[1] / abs(gy)
     wz = cs[2] / abs(gz)
@@ -318,7 +326,7 @@ def _major_axis(axes, inv, M, W):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _lane_slices(K, step, gmin, inv, nk, M, W, S):
+def _lane_slices(K, step, gmin, gmax, inv, nk, M, W, S):
     """Each live lane's first and last slice along K (where it enters and leaves the box),
     stored as steps from the packet's first slice, which is returned; the lanes' rows on K, U,
     V are copied to fixed offsets for the slice loop."""
@@ -337,6 +345,12 @@ def _lane_slices(K, step, gmin, inv, nk, M, W, S):
         live = M[ALIVE + k] != 0
         c_in = min(max(np.int64(np.floor((oK + W[W_T0 + k] * dK - gmin[K]) * inv[K])), 0), nk - 1)
         c_out = min(max(np.int64(np.floor((oK + W[W_T1 + k] * dK - gmin[K]) * inv[K])), 0), nk - 1)
+        # a lane that enters (leaves) through a face across K starts (ends) in the first (last)
+        # slice, whatever o + t d rounds to (as the single-ray walk's _axis_setup)
+        lo_t = (gmin[K] - oK) * W[W_IK + k]             # the faces' t as _clip computes them
+        hi_t = (gmax[K] - oK) * W[W_IK + k]
+        c_in = (0 if step > 0 else nk - 1) if min(lo_t, hi_t) == W[W_T0 + k] else c_in
+        c_out = (nk - 1 if step > 0 else 0) if max(lo_t, hi_t) == W[W_T1 + k] else c_out
         S[S_IN + k] = c_in if live else 0
         S[S_OUT + k] = c_out if live else 0
         if live:
@@ -473,7 +487,7 @@ def trace_grid_range(c0, c1, tris, offsets, refs, gmin, gmax, cs, inv, res, O, D
                 V = (K + 2) % 3
                 nk = res[K]
                 step = 1 if D[lo, K] > 0 else -1
-                c = _lane_slices(K, step, gmin, inv, nk, M, W, S)
+                c = _lane_slices(K, step, gmin, gmax, inv, nk, M, W, S)
                 near = 1 if step < 0 else 0        # plane offsets of a slice's near, far faces
                 sK = _stride(res, K)
                 sU = _stride(res, U)
