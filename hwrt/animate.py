@@ -304,6 +304,24 @@ def _preview(out_dir, frames, fps):
                        duration=max(20, int(round(1000 / fps))), loop=0)
 
 
+def _check_float32_reach(anim, frames, tri_mag, eye_mag):
+    """Every frame within the float32 units' reach (``raytracer.render.check_float32_reach``,
+    which every frame's render applies), before the first frame is made: the bound from the
+    frame's coordinate magnitudes (``Animation.check``), and the frame's own triangles where
+    that bound is not small enough."""
+    from raytracer.render import check_float32_reach
+    from traversal.config import F32_UNIT_MAX_PRODUCT
+    from traversal.triangle_unit import f32_reach_bound
+    lights = [float(np.abs(l["position"]).max()) for l in anim.base.lights if l["type"] == "point"]
+    bound = f32_reach_bound(tri_mag, np.maximum(eye_mag, max(lights, default=0.0)))
+    for i in np.flatnonzero(~(bound <= F32_UNIT_MAX_PRODUCT)):
+        try:
+            check_float32_reach(anim.scene(int(i)), remedy="scale the scene down")
+        except ParameterError as e:
+            raise InputError(anim.source, f"frame {i} (time {anim.time(int(i)):g}) is "
+                                          f"{e.problem}") from None
+
+
 def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_THRESHOLD,
         verify=False, progress=None, seed=0, inspect=None, accel="bvh", on_start=None,
         commit=write_files):
@@ -323,7 +341,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     if verify and strategy == "embree":
         raise ParameterError("verify", "checks our traversal against Embree; choose a strategy "
                                    "that uses the hardware's tree")
-    anim.check(frames)
+    _check_float32_reach(anim, frames, *anim.check(frames))
     t = time.perf_counter()
     first = anim.scene(0)
     first_scene_s = time.perf_counter() - t

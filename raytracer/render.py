@@ -507,10 +507,11 @@ def _check_render_arguments(scene, tracer, seed, progress):
         raise ParameterError("progress", f"expected a callable or None, got {type(progress).__name__}")
 
 
-def check_float32_reach(scene):
+def check_float32_reach(scene, remedy="scale it down, or trace it with the float64 units"):
     """A float32 tracer's unit computes t from a product of three lengths (edge x edge x
     distance); a scene where that can pass float32's range would lose hits or shade from
-    t = inf (NaN shadow rays), so it is refused before any work (``make_tracer``, ``render``)."""
+    t = inf (NaN shadow rays), so it is refused before any work (``make_tracer``, ``render``).
+    ``remedy``: what the message tells the user to do."""
     camera = getattr(scene, "camera", None)         # a bare mesh (benchmarks) has none
     points = ([camera["eye"]] if camera else []) + \
         [l["position"] for l in getattr(scene, "lights", ()) if l["type"] == "point"]
@@ -518,8 +519,7 @@ def check_float32_reach(scene):
     if not reach <= F32_UNIT_MAX_PRODUCT:
         raise ParameterError("scene", f"too large for the float32 units: edge x edge x distance "
                                       f"reaches {reach:.3g}, beyond the {F32_UNIT_MAX_PRODUCT:.3g} "
-                                      f"their products stay within (scale it down, or trace it "
-                                      f"with the float64 units)")
+                                      f"their products stay within ({remedy})")
 
 
 def _checked_answers(tracer, n, n_triangles, hits=None, blocked=None):

@@ -355,7 +355,10 @@ class Animation:
     def check(self, frames):
         """Check, before any output, that ``frames`` frames can be produced (a sequence has
         them all, none has NaN vertices, no keyframed shape moves beyond the coordinate bound,
-        and the camera can be placed at every frame)."""
+        and the camera can be placed at every frame). Returns, per frame, a bound on the
+        magnitude of every coordinate of the shapes a scene file places (still, keyframed or
+        read from a sequence) and of the camera's eye; a built-in simulation's parts, made at
+        the scale of the scene around them, are not in it."""
         if frames > MAX_FRAMES:
             if self.frames_key is not None and frames == self.frames:
                 raise InputError(self.source, f"key '{self.frames_key}': the sequence has "
@@ -365,14 +368,25 @@ class Animation:
         if self.max_frames is not None and frames > self.max_frames:
             raise InputError(self.source, f"{frames} frames asked for, but the sequence has "
                                           f"only {self.max_frames}")
+        times = np.arange(frames) / self.fps
+        tri_mag = np.zeros(frames)
         for p in self.parts:
             if isinstance(p.motion, FrameSequence):
-                p.motion.check(frames)
+                tri_mag = np.maximum(tri_mag, p.motion.check(frames))
             elif isinstance(p.motion, RigidMotion):
-                p.motion.check(np.arange(frames) / self.fps, self.source)
+                tri_mag = np.maximum(tri_mag, p.motion.check(times, self.source))
+            elif p.motion is None:
+                tri_mag = np.maximum(tri_mag, float(np.abs(p.tris).max(initial=0)))
         check_camera = getattr(self.camera, "check", None)      # a scene file's camera track
         if check_camera is not None:                            # (built-in paths are fixed)
-            check_camera(np.arange(frames) / self.fps)
+            check_camera(times)
+        if self.camera is None:
+            eye_mag = np.full(frames, float(np.abs(self.base.camera["eye"]).max()))
+        elif hasattr(self.camera, "eyes"):
+            eye_mag = np.abs(self.camera.eyes(times)).max(axis=1)
+        else:                                   # a built-in path: placed frame by frame
+            eye_mag = np.array([float(np.abs(self.camera(t)["eye"]).max()) for t in times])
+        return tri_mag, eye_mag
 
     def geometry(self, i):
         """(triangles float32 (n, 3, 3), normals float32 (n, 3, 3), material int32 (n,))."""
@@ -413,17 +427,12 @@ class RigidMotion:
         carries a vertex beyond MAX_COORDINATE at any of ``times``, before any frame is made.
         The transformed corners of the shape's box bound it at every time in one vectorised
         pass; only the times where they come near the bound (a rotated box's corners reach
-        farther than its shape) are decided vertex by vertex, as ``__call__`` places them."""
+        farther than its shape) are decided vertex by vertex, as ``__call__`` places them.
+        Returns the bound per time (``reach``)."""
         k = self.track.at_times(times)
-        lo, hi = self.tris.reshape(-1, 3).min(axis=0), self.tris.reshape(-1, 3).max(axis=0)
-        corners = np.array(np.meshgrid(*zip(lo, hi), indexing="ij")).reshape(3, 8).T
-        A = euler_matrices(k["rotate"]) * k["scale"][:, None, :]          # R diag(scale)
-        placed = np.einsum("fij,cj->fci", A, corners) + k["translate"][:, None, :]
-        # float64 rounding of the corners against the vertices: a few ulps of the terms summed
-        terms = np.abs(A) @ np.abs(corners).max(axis=0) + np.abs(k["translate"])
-        reach = np.abs(placed).max(axis=(1, 2)) + CORNER_ROUNDING * terms.max(axis=1)
+        reach = self.reach(times, k)
         if within_bound(reach):
-            return
+            return reach
         near = np.flatnonzero(~(reach <= MAX_COORDINATE))
         # a shape holding still (before the first key, after the last) is placed once
         held = np.concatenate([k["rotate"], k["scale"], k["translate"]], axis=1)[near]
@@ -433,6 +442,19 @@ class RigidMotion:
                 _fail(source, self.key, f"at time {times[f]:g} the shape reaches a coordinate of "
                                         f"magnitude {beyond_bound_text(np.abs(v).max())}, "
                                         f"beyond {MAX_COORDINATE:.0e}")
+        return reach
+
+    def reach(self, times, k=None):
+        """Per time of ``times``, a bound on the magnitude of every coordinate the shape
+        reaches: its box's transformed corners, plus their float64 rounding against the
+        vertices' (a few ulps of the terms summed). ``k``: the track at ``times``, if known."""
+        k = self.track.at_times(times) if k is None else k
+        lo, hi = self.tris.reshape(-1, 3).min(axis=0), self.tris.reshape(-1, 3).max(axis=0)
+        corners = np.array(np.meshgrid(*zip(lo, hi), indexing="ij")).reshape(3, 8).T
+        A = euler_matrices(k["rotate"]) * k["scale"][:, None, :]          # R diag(scale)
+        placed = np.einsum("fij,cj->fci", A, corners) + k["translate"][:, None, :]
+        terms = np.abs(A) @ np.abs(corners).max(axis=0) + np.abs(k["translate"])
+        return np.abs(placed).max(axis=(1, 2)) + CORNER_ROUNDING * terms.max(axis=1)
 
     def _placed(self, k):
         """The triangles under the channel values ``k`` of one time."""
@@ -454,8 +476,10 @@ class FrameSequence:
         self.smooth = smooth
 
     def check(self, frames):
-        for f in self.files[:frames]:
-            load_frame_mesh(f, self.smooth)
+        """Load the first ``frames`` files (each is refused on its own); returns the largest
+        coordinate magnitude of each."""
+        return np.array([float(np.abs(load_frame_mesh(f, self.smooth)[0]).max(initial=0))
+                         for f in self.files[:frames]])
 
     def __call__(self, i, t):
         if i >= len(self.files):
@@ -491,6 +515,7 @@ def _camera_fn(track, base, source):
         k = track.at_times(times)
         _check_camera(source, times, k["eye"], k["target"], k["up"])
     cam.check = check
+    cam.eyes = lambda times: track.at_times(times)["eye"]
     return cam
 
 

@@ -254,6 +254,24 @@ def test_keyframes_beyond_the_coordinate_bound_are_refused_before_any_frame(tmp_
     assert not out_dir.exists() or not any(out_dir.iterdir())
 
 
+def test_a_frame_beyond_the_float32_units_reach_is_refused_before_any_frame(tmp_path, capsys):
+    """A unit triangle scaled to 1e13 at its last key (time 2) stays within the coordinate bound, but
+    its edges and its distance to the eye (1e13 each) multiply past what the float32 units'
+    products hold: refused before frame 0 is written, naming the file and the frame."""
+    keys = [{"time": 0}, {"time": 1}, {"time": 2, "scale": 1e13}]
+    p = _scene_file(tmp_path, [dict(UNIT_TRIANGLE, keyframes=keys)], {"frames": 3, "fps": 1})
+    out_dir = tmp_path / "out"
+    rc, out, err = _run_cli(capsys, "animate", p, "-o", out_dir)
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert str(p) in err and "frame 2 (time 2) is too large for the float32 units" in err
+    assert "scale the scene down" in err
+    assert not out_dir.exists() or not any(out_dir.iterdir())
+    # the frames before it are within reach: a run of two renders them
+    rc, out, err = _run_cli(capsys, "animate", p, "--frames", 2, "--width", 8, "--height", 6,
+                            "-o", out_dir)
+    assert rc == 0, err
+
+
 @pytest.mark.parametrize("rotate, ok", [(45, True), (-30, False)])
 def test_keyframe_bound_check_decides_rotated_shapes_by_their_vertices(tmp_path, rotate, ok):
     """The triangle (1e15, 0, 0), (0, 1e15, 0), (0, 0, 0) turning 45 degrees about z keeps

@@ -75,6 +75,15 @@ def preprocess(tris, dtype=np.float32):
     return out
 
 
+def f32_reach_bound(tri_mag, point_mag):
+    """A bound on ``f32_unit_reach`` from magnitudes alone: triangles whose coordinates are at
+    most ``tri_mag`` in magnitude, origins at most max(tri_mag, ``point_mag``) (NumPy arrays
+    work element by element). An edge spans at most 2 sqrt(3) tri_mag, an origin lies at most
+    2 sqrt(3) of the larger magnitude from a vertex."""
+    k = 2 * np.sqrt(3)
+    return (k * tri_mag) ** 2 * (k * np.maximum(tri_mag, point_mag))
+
+
 def f32_unit_reach(triangles, points):
     """The largest |e1| |e2| |o - v0| the float32 unit can meet on ``triangles`` (n, 3, 3) with
     ray origins anywhere in the box of the triangles and ``points`` (k, 3) (a camera, lights):
@@ -82,12 +91,11 @@ def f32_unit_reach(triangles, points):
     first (one pass); the edges are measured only where that bound is not small enough."""
     t = np.asarray(triangles)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
-    # from the largest magnitudes (one contiguous pass): an edge spans at most 2 sqrt(3) m
+    # from the largest magnitudes (one contiguous pass)
     m = float(np.abs(t).max(initial=0))
-    far = max(m, float(np.abs(pts).max(initial=0)))
-    k = 2 * np.sqrt(3)
-    if (k * m) ** 2 * (k * far) <= F32_UNIT_MAX_PRODUCT:
-        return (k * m) ** 2 * (k * far)
+    bound = f32_reach_bound(m, float(np.abs(pts).max(initial=0)))
+    if bound <= F32_UNIT_MAX_PRODUCT:
+        return bound
     flat = t.reshape(-1, 3)
     lo = np.minimum(flat.min(axis=0), pts.min(axis=0, initial=np.inf))
     hi = np.maximum(flat.max(axis=0), pts.max(axis=0, initial=-np.inf))
