@@ -1076,7 +1076,8 @@ def _input_message(parser, args, e):
             (given if isinstance(given, str) else e.parameter)
         return f"{named}: {e.problem}"
     key, _, problem = e.problem.partition(": ")
-    if key == "key 'film.width'" and getattr(args, "width", None) is not None:
+    if key == "key 'film.width'" and problem.endswith("a film may hold") and \
+            getattr(args, "width", None) is not None:
         given = [d for d in ("width", "height") if getattr(args, d, None) is not None]
         return " ".join(f"--{d} {getattr(args, d)}" for d in given) + f": {problem}"
     option = _option_valued(parser, args, e.source)

@@ -196,6 +196,14 @@ def with_frame(d, width=None, height=None, spp=None, max_depth=None):
     if not isinstance(film, dict) or not isinstance(integ, dict):
         return d
     given = {"width": width, "height": height, "spp": spp}
+    # the values replaced are checked as written, so a bad file is refused whatever the
+    # options (the others are checked with the scene)
+    ctx = _Ctx(d.get("_source", "<scene>"))
+    for key, hi in (("width", MAX_FILM_SIDE), ("height", MAX_FILM_SIDE), ("spp", MAX_SPP)):
+        if given[key] is not None and key in film:
+            ctx.num(film, key, "film", lo=1, hi=hi, integer=True)
+    if max_depth is not None and "max_depth" in integ:
+        ctx.num(integ, "max_depth", "integrator", lo=1, hi=MAX_DEPTH, integer=True)
     d["film"] = dict(film, **{k: v for k, v in given.items() if v is not None})
     if max_depth is not None:
         d["integrator"] = dict(integ, max_depth=max_depth)

@@ -910,6 +910,29 @@ def test_a_film_too_large_names_the_options_that_set_it(capsys, tmp_path):
         "pixels a film may hold")
 
 
+@pytest.mark.parametrize("film, integrator, argv, key, problem", [
+    ({"width": "wide"}, {}, ["--width", 16], "film.width", "expected an integer, got 'wide'"),
+    ({"width": 64.5}, {}, ["--width", 16], "film.width", "expected an integer, got 64.5"),
+    ({"height": True}, {}, ["--height", 12], "film.height", "expected an integer, got True"),
+    ({"spp": 0}, {}, ["--spp", 1], "film.spp", "0 is out of range"),
+    ({}, {"max_depth": 999}, ["--max-depth", 2], "integrator.max_depth", "999 is out of range"),
+])
+def test_a_bad_film_value_is_refused_though_an_option_replaces_it(capsys, tmp_path, film,
+                                                                  integrator, argv, key, problem):
+    """The scene file is checked as written: an option that sets the same value does not
+    hide the file's error."""
+    d = {"camera": {"eye": [0, 0, 3], "target": [0, 0, 0]}, "film": film,
+         "integrator": integrator, "materials": {"white": {"type": "diffuse"}},
+         "shapes": [{"type": "triangles", "material": "white",
+                     "data": [[[-1, -1, 0], [1, -1, 0], [0, 1, 0]]]}]}
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(d))
+    out = tmp_path / "o.exr"
+    rc, _, err = call(capsys, "render", p, *argv, "-o", out)
+    assert rc == 2 and one_line_error(err).startswith(f"hwrt: error: {p}: key '{key}': {problem}")
+    assert not out.exists()
+
+
 def test_an_output_directory_that_is_a_file_is_named_by_its_option(capsys, tmp_path):
     f = tmp_path / "afile"
     f.write_text("x")
