@@ -40,9 +40,7 @@ def _succeeded(args):
     From here until ``main`` returns, SIGINT and SIGTERM are ignored, so that a signal arriving
     this late cannot turn the success into exit status 130 or 143."""
     if getattr(args, "signals_owned", False):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            if signal.getsignal(sig) is not None:     # a handler set outside Python stays
-                signal.signal(sig, signal.SIG_IGN)
+        _ignore_signals()
 
 
 def _commit(args, files):
@@ -1035,7 +1033,23 @@ class Terminated(KeyboardInterrupt):
     progress remove their temporary files."""
 
 
+def _ignore_signals():
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(sig) is not None:         # a handler set outside Python stays
+            signal.signal(sig, signal.SIG_IGN)
+
+
+def _raise_interrupted(signum, frame):
+    """SIGINT: the run stops. The signals are ignored from here on, so that a second Ctrl-C
+    (or a SIGTERM from a supervisor) cannot break into the clean-up of temporary files with
+    a traceback; ``main`` puts the handlers back as it returns."""
+    _ignore_signals()
+    raise KeyboardInterrupt()
+
+
 def _raise_terminated(signum, frame):
+    """SIGTERM: as SIGINT (``_raise_interrupted``), raising Terminated."""
+    _ignore_signals()
     raise Terminated()
 
 
@@ -1109,7 +1123,7 @@ def _run(argv, signals_owned):
 def _main(argv, last_act):
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        previous = {signal.SIGINT: signal.getsignal(signal.SIGINT),
+        previous = {signal.SIGINT: signal.signal(signal.SIGINT, _raise_interrupted),
                     signal.SIGTERM: signal.signal(signal.SIGTERM, _raise_terminated)}
     except ValueError:                        # not the main thread: leave signals alone
         previous = None
@@ -1118,15 +1132,18 @@ def _main(argv, last_act):
         status = _run(argv, signals_owned=previous is not None)
         return status
     except Terminated:
+        status = EXIT_SIGTERM
         print("hwrt: terminated", file=sys.stderr)
-        return EXIT_SIGTERM
+        return status
     except KeyboardInterrupt:
+        status = EXIT_SIGINT
         print("hwrt: interrupted", file=sys.stderr)
-        return EXIT_SIGINT
+        return status
     finally:
-        # a run that succeeded ignores the signals from _succeeded on; as the process's last
-        # act it goes on ignoring them through the interpreter's exit
-        if not (last_act and status == 0):
+        # a run that succeeded ignores the signals from _succeeded on, one that was stopped
+        # from the signal on; as the process's last act it goes on ignoring them through the
+        # interpreter's exit (a signal then would end it with a traceback from its shutdown)
+        if not (last_act and status in (0, EXIT_SIGINT, EXIT_SIGTERM)):
             for sig, handler in (previous or {}).items():
                 if handler is not None:        # None: set outside Python, never changed here
                     signal.signal(sig, handler)

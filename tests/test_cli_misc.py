@@ -426,6 +426,33 @@ def test_main_in_process_puts_the_handlers_back_after_a_success(tmp_path, capsys
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
 
 
+def test_a_second_signal_during_the_clean_up_is_ignored(tmp_path):
+    """Ctrl-C pressed twice: the first stops the run as its output is written, the second
+    lands while the temporary file is removed, and is ignored: one line, 130, no file left
+    (it used to break into the clean-up with a traceback, leaving the temporary file)."""
+    setup = """
+_chmod, _unlink = os.chmod, os.unlink
+def chmod(path, mode, **kw):
+    if os.path.basename(str(path)).startswith(".tmp-"):     # a written temporary file
+        os.chmod = _chmod
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.5)
+    return _chmod(path, mode, **kw)
+def unlink(path, **kw):
+    if os.path.basename(str(path)).startswith(".tmp-"):     # its removal, unwinding
+        print("again", file=sys.stderr)
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.5)
+    return _unlink(path, **kw)
+os.chmod, os.unlink = chmod, unlink
+"""
+    mesh = tmp_path / "tetra.obj"
+    mesh.write_text(TETRA_OBJ)
+    r = _console(setup, "build", mesh, "--out", tmp_path / "tree")
+    assert r.stderr == "again\nhwrt: interrupted\n" and r.returncode == 130, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tetra.obj"]
+
+
 def test_a_signal_while_trimesh_is_imported_is_acted_on(tmp_path):
     """trimesh catches BaseException around some of its imports: a Ctrl-C landing in one of
     them still interrupts the run, with no output written."""
