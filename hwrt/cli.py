@@ -823,8 +823,9 @@ def make_parser():
     b.add_argument("--leaf-size", type=_positive,
                    help=f"primitives per leaf, hwbvh only (default: {config.DEFAULT_LEAF_SIZE})")
     b.add_argument("--bins", type=_positive,
-                   help=f"SAH bins per axis, hwbvh only; the hardware has at most 16 (default: "
-                        f"{config.DEFAULT_BINS})")
+                   help=f"SAH bins per axis, hwbvh only: 2..{config.MAX_SOFTWARE_BINS} (the "
+                        f"hardware has at most {config.MAX_HARDWARE_BINS}, so a tree built with more "
+                        f"cannot be simulated; default: {config.DEFAULT_BINS})")
     b.add_argument("--capacity", type=_positive,
                    help=f"subtree capacity w*Psize, placement only (the tree never changes); "
                         f"hwbvh and sweep (default: {config.DEFAULT_CAPACITY})")

@@ -171,7 +171,7 @@ def describe(client):
     """Where ``client`` runs cells, in words."""
     n = len(client.scheduler_info().get("workers", {}))
     if client.cluster is not None:
-        return f"a local Dask cluster of {n} worker processes"
+        return f"a local Dask cluster of {n} worker process{'' if n == 1 else 'es'}"
     return f"the Dask scheduler at {client.scheduler.address} ({n} workers)"
 
 
