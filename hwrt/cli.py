@@ -40,7 +40,7 @@ def _succeeded(args):
     From here until ``main`` returns, SIGINT and SIGTERM are ignored, so that a signal arriving
     this late cannot turn the success into exit status 130 or 143."""
     if getattr(args, "signals_owned", False):
-        _ignore_signals()
+        _set_handlers(signal.SIG_IGN, signal.SIG_IGN)
 
 
 def _commit(args, files):
@@ -1034,23 +1034,31 @@ class Terminated(KeyboardInterrupt):
     progress remove their temporary files."""
 
 
-def _ignore_signals():
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        if signal.getsignal(sig) is not None:         # a handler set outside Python stays
-            signal.signal(sig, signal.SIG_IGN)
+def _set_handlers(interrupt, terminate):
+    """SIGINT's and SIGTERM's handlers, where Python set them (a handler set outside Python
+    stays)."""
+    for sig, handler in ((signal.SIGINT, interrupt), (signal.SIGTERM, terminate)):
+        if signal.getsignal(sig) is not None:
+            signal.signal(sig, handler)
+
+
+def _drop_one(signum, frame):
+    """The signal after the one that stopped the run: dropped, since it lands while temporary
+    files are removed or the interpreter exits, where it would leave a file behind or a
+    traceback. The one after it stops the process again (a clean-up that hangs, a library
+    that swallowed the first)."""
+    _set_handlers(_raise_interrupted, _raise_terminated)
 
 
 def _raise_interrupted(signum, frame):
-    """SIGINT: the run stops. The signals are ignored from here on, so that a second Ctrl-C
-    (or a SIGTERM from a supervisor) cannot break into the clean-up of temporary files with
-    a traceback; ``main`` puts the handlers back as it returns."""
-    _ignore_signals()
+    """SIGINT: the run stops (KeyboardInterrupt); the next signal is dropped (``_drop_one``)."""
+    _set_handlers(_drop_one, _drop_one)
     raise KeyboardInterrupt()
 
 
 def _raise_terminated(signum, frame):
     """SIGTERM: as SIGINT (``_raise_interrupted``), raising Terminated."""
-    _ignore_signals()
+    _set_handlers(_drop_one, _drop_one)
     raise Terminated()
 
 
@@ -1124,8 +1132,8 @@ def _run(argv, signals_owned):
 def _main(argv, last_act):
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        previous = {signal.SIGINT: signal.signal(signal.SIGINT, _raise_interrupted),
-                    signal.SIGTERM: signal.signal(signal.SIGTERM, _raise_terminated)}
+        previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+        _set_handlers(_raise_interrupted, _raise_terminated)
     except ValueError:                        # not the main thread: leave signals alone
         previous = None
     status = None
@@ -1142,7 +1150,7 @@ def _main(argv, last_act):
         return status
     finally:
         # a run that succeeded ignores the signals from _succeeded on, one that was stopped
-        # from the signal on; as the process's last act it goes on ignoring them through the
+        # drops the next (_drop_one); as the process's last act it keeps doing so through the
         # interpreter's exit (a signal then would end it with a traceback from its shutdown)
         if not (last_act and status in (0, EXIT_SIGINT, EXIT_SIGTERM)):
             for sig, handler in (previous or {}).items():
@@ -1161,7 +1169,8 @@ def run():
     """The console script ``hwrt`` (and ``python -m hwrt``): :func:`main` as the process's last
     act. Once the run has succeeded, SIGINT and SIGTERM stay ignored until the interpreter has
     exited (flushing stdout and unloading the libraries takes tenths of a second), so that a
-    signal then cannot turn the success into 130 or 143."""
+    signal then cannot turn the success into 130 or 143; once a signal has stopped it, the next
+    one is dropped until then (``_drop_one``)."""
     sys.exit(_main(None, last_act=True))
 
 

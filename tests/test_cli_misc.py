@@ -4,6 +4,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -426,22 +427,25 @@ def test_main_in_process_puts_the_handlers_back_after_a_success(tmp_path, capsys
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
 
 
-def test_a_second_signal_during_the_clean_up_is_ignored(tmp_path):
-    """Ctrl-C pressed twice: the first stops the run as its output is written, the second
-    lands while the temporary file is removed, and is ignored: one line, 130, no file left
-    (it used to break into the clean-up with a traceback, leaving the temporary file)."""
-    setup = """
+@pytest.mark.parametrize("first, second, code, word", [
+    ("SIGINT", "SIGINT", 130, "interrupted"), ("SIGTERM", "SIGINT", 143, "terminated")])
+def test_a_second_signal_during_the_clean_up_is_dropped(tmp_path, first, second, code, word):
+    """Ctrl-C pressed twice (or a supervisor's SIGTERM, then Ctrl-C): the first stops the run
+    as its output is written, the second lands while the temporary file is removed, and is
+    dropped: one line, 130 or 143, no file left (breaking into the clean-up, it would leave
+    the temporary file and a traceback)."""
+    setup = f"""
 _chmod, _unlink = os.chmod, os.unlink
 def chmod(path, mode, **kw):
     if os.path.basename(str(path)).startswith(".tmp-"):     # a written temporary file
         os.chmod = _chmod
-        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.{first})
         time.sleep(0.5)
     return _chmod(path, mode, **kw)
 def unlink(path, **kw):
     if os.path.basename(str(path)).startswith(".tmp-"):     # its removal, unwinding
         print("again", file=sys.stderr)
-        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.{second})
         time.sleep(0.5)
     return _unlink(path, **kw)
 os.chmod, os.unlink = chmod, unlink
@@ -449,8 +453,49 @@ os.chmod, os.unlink = chmod, unlink
     mesh = tmp_path / "tetra.obj"
     mesh.write_text(TETRA_OBJ)
     r = _console(setup, "build", mesh, "--out", tmp_path / "tree")
-    assert r.stderr == "again\nhwrt: interrupted\n" and r.returncode == 130, r.stderr
+    assert r.stderr == f"again\nhwrt: {word}\n" and r.returncode == code, r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tetra.obj"]
+
+
+def test_a_third_signal_stops_a_run_that_swallowed_the_first(tmp_path):
+    """A library that catches BaseException swallows the first Ctrl-C; the second is dropped
+    (as during a clean-up); the third stops the run."""
+    setup = """
+import hwrt.cli as cli
+real = cli.make_parser
+def make_parser():
+    try:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.5)
+    except BaseException:
+        pass                                # swallowed, as some libraries do
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(0.5)
+    print("still running", file=sys.stderr)
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(0.5)
+    return real()
+cli.make_parser = make_parser
+"""
+    r = _console(setup, "build", "x.obj", "--out", tmp_path / "t")
+    assert r.stderr == "still running\nhwrt: interrupted\n" and r.returncode == 130, r.stderr
+
+
+@pytest.mark.parametrize("sig, code", [("SIGINT", 130), ("SIGTERM", 143)])
+def test_main_in_process_puts_the_handlers_back_after_an_interrupt(tmp_path, capsys,
+                                                                   monkeypatch, sig, code):
+    import signal
+    import hwrt.cli as cli
+    real = cli.make_parser
+
+    def make_parser():
+        os.kill(os.getpid(), getattr(signal, sig))
+        time.sleep(1)                           # Python acts on the signal here
+        return real()
+    monkeypatch.setattr(cli, "make_parser", make_parser)
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    assert cli.main(["build", str(tmp_path / "x.obj")]) == code
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
 
 
 def test_a_signal_while_trimesh_is_imported_is_acted_on(tmp_path):
