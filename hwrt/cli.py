@@ -1149,10 +1149,13 @@ def _main(argv, last_act):
         print("hwrt: interrupted", file=sys.stderr)
         return status
     finally:
-        # a run that succeeded ignores the signals from _succeeded on, one that was stopped
-        # drops the next (_drop_one); as the process's last act it keeps doing so through the
-        # interpreter's exit (a signal then would end it with a traceback from its shutdown)
-        if not (last_act and status in (0, EXIT_SIGINT, EXIT_SIGTERM)):
+        # a run that succeeded ignores the signals from _succeeded on; as the process's last
+        # act, a run that ended at all ignores them through the interpreter's exit (a signal
+        # then would end it with a traceback from its shutdown, or by the signal itself once
+        # Python has given the default actions back)
+        if last_act and status is not None and previous is not None:
+            _set_handlers(signal.SIG_IGN, signal.SIG_IGN)
+        else:
             for sig, handler in (previous or {}).items():
                 if handler is not None:        # None: set outside Python, never changed here
                     signal.signal(sig, handler)
@@ -1169,8 +1172,8 @@ def run():
     """The console script ``hwrt`` (and ``python -m hwrt``): :func:`main` as the process's last
     act. Once the run has succeeded, SIGINT and SIGTERM stay ignored until the interpreter has
     exited (flushing stdout and unloading the libraries takes tenths of a second), so that a
-    signal then cannot turn the success into 130 or 143; once a signal has stopped it, the next
-    one is dropped until then (``_drop_one``)."""
+    signal then cannot turn the success into 130 or 143; a run that a signal stopped, or that
+    failed, ignores them from its last line on too."""
     sys.exit(_main(None, last_act=True))
 
 
