@@ -192,8 +192,9 @@ def check_params(leaf_size, bins):
     if not (is_integer(leaf_size) and 1 <= leaf_size <= config.MAX_LEAF_SIZE):
         raise ParameterError("leaf_size", f"leaf size must be an integer in 1..{config.MAX_LEAF_SIZE}, "
                                           f"got {leaf_size!r}")
-    if not (is_integer(bins) and 2 <= bins <= config.MAX_SOFTWARE_BINS):
-        raise ParameterError("bins", f"bins must be an integer in 2..{config.MAX_SOFTWARE_BINS} "
+    if not (is_integer(bins) and config.MIN_BINS <= bins <= config.MAX_SOFTWARE_BINS):
+        raise ParameterError("bins", f"bins must be an integer in {config.MIN_BINS}.."
+                                     f"{config.MAX_SOFTWARE_BINS} "
                                  f"(the hardware has at most {config.MAX_HARDWARE_BINS}), got {bins!r}")
 
 

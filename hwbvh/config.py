@@ -15,6 +15,7 @@ MAX_COORDINATE = 1.0e15
 
 # --- Binned SAH (thesis 3.3.3-3.3.4, SPEC 2) --------------------------------------------
 DEFAULT_BINS = 16        # Table 4.1: both instantiations use 16 bins (hardware maximum)
+MIN_BINS = 2             # a split needs two bins to fall between
 MAX_HARDWARE_BINS = 16   # the hardware supports at most 16 bins
 MAX_SOFTWARE_BINS = 64   # software allows more, for the accuracy studies
 DEFAULT_LEAF_SIZE = 4    # Table 4.1: leaf size 4
@@ -125,7 +126,7 @@ ACTIVE_W_PER_GATE_HZ = 1.8292e-15
 # span 2..16; 64 bounds how far the cost model is asked to extrapolate. A split needs 2 bins.
 # The clock fit rests on 250 and 500 MHz in 90 nm; 1 GHz bounds its extrapolation.
 KNOB_RANGES = {
-    "bins": (2, MAX_HARDWARE_BINS),
+    "bins": (MIN_BINS, MAX_HARDWARE_BINS),
     "leaf_size": (1, MAX_LEAF_SIZE),
     "w": (1, 64),
     "tsize": (1, 64),

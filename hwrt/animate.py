@@ -305,10 +305,11 @@ def _preview(out_dir, frames, fps):
 
 
 def _check_float32_reach(anim, frames, tri_mag, eye_mag):
-    """Every frame within the float32 units' reach (``raytracer.render.check_float32_reach``,
-    which every frame's render applies), before the first frame is made: the bound from the
-    frame's coordinate magnitudes (``Animation.check``), and the frame's own triangles where
-    that bound is not small enough."""
+    """The float32 units' reach (``raytracer.render.check_float32_reach``, which every
+    frame's render applies) checked for every frame before the first is made, as far as the
+    shapes a scene file places go (the bounds of ``Animation.check``): the bound from the
+    frame's coordinate magnitudes, and the frame's own triangles where that bound is not
+    small enough."""
     from raytracer.render import check_float32_reach
     from traversal.config import F32_UNIT_MAX_PRODUCT
     from traversal.triangle_unit import f32_reach_bound

@@ -823,7 +823,7 @@ def make_parser():
     b.add_argument("--leaf-size", type=_positive,
                    help=f"primitives per leaf, hwbvh only (default: {config.DEFAULT_LEAF_SIZE})")
     b.add_argument("--bins", type=_positive,
-                   help=f"SAH bins per axis, hwbvh only: 2..{config.MAX_SOFTWARE_BINS} (the "
+                   help=f"SAH bins per axis, hwbvh only: {config.MIN_BINS}..{config.MAX_SOFTWARE_BINS} (the "
                         f"hardware has at most {config.MAX_HARDWARE_BINS}, so a tree built with more "
                         f"cannot be simulated; default: {config.DEFAULT_BINS})")
     b.add_argument("--capacity", type=_positive,
@@ -1099,7 +1099,8 @@ def _input_message(parser, args, e):
             (given if isinstance(given, str) else e.parameter)
         return f"{named}: {e.problem}"
     key, _, problem = e.problem.partition(": ")
-    if key == "key 'film.width'" and problem.endswith("a film may hold") and \
+    from scenes.loader import FILM_TOO_LARGE
+    if key == "key 'film.width'" and problem.endswith(FILM_TOO_LARGE) and \
             getattr(args, "width", None) is not None:
         given = [d for d in ("width", "height") if getattr(args, d, None) is not None]
         return " ".join(f"--{d} {getattr(args, d)}" for d in given) + f": {problem}"

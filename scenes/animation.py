@@ -355,10 +355,10 @@ class Animation:
     def check(self, frames):
         """Check, before any output, that ``frames`` frames can be produced (a sequence has
         them all, none has NaN vertices, no keyframed shape moves beyond the coordinate bound,
-        and the camera can be placed at every frame). Returns, per frame, a bound on the
-        magnitude of every coordinate of the shapes a scene file places (still, keyframed or
-        read from a sequence) and of the camera's eye; a built-in simulation's parts, made at
-        the scale of the scene around them, are not in it."""
+        and the camera can be placed at every frame). Returns (tri_mag, eye_mag), per frame
+        (frames,) bounds on the magnitude of every coordinate of the shapes a scene file
+        places (still, keyframed or read from a sequence) and of the camera's eye; a built-in
+        simulation's parts, made at the scale of the scene around them, are not in tri_mag."""
         if frames > MAX_FRAMES:
             if self.frames_key is not None and frames == self.frames:
                 raise InputError(self.source, f"key '{self.frames_key}': the sequence has "

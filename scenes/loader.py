@@ -185,6 +185,17 @@ def vector_ok(v, a, bound=MAX_COORDINATE):
     return not any(isinstance(x, bool) for x in items) and within_bound(a, bound)
 
 
+# The film and depth settings: (default, largest); each is an integer from 1.
+FRAME_SETTINGS = {"width": (640, MAX_FILM_SIDE), "height": (480, MAX_FILM_SIDE),
+                  "spp": (1, MAX_SPP), "max_depth": (5, MAX_DEPTH)}
+FILM_TOO_LARGE = "pixels a film may hold"       # the end of the message for a film too large
+
+
+def _film_setting(ctx, obj, path, key):
+    default, hi = FRAME_SETTINGS[key]
+    return ctx.num(obj, key, path, default=default, lo=1, hi=hi, integer=True)
+
+
 def with_frame(d, width=None, height=None, spp=None, max_depth=None):
     """A copy of scene dict ``d`` with the given film and depth settings (None keeps the
     scene's). A film or integrator that is not an object is left for ``compile_scene`` to
@@ -199,11 +210,11 @@ def with_frame(d, width=None, height=None, spp=None, max_depth=None):
     # the values replaced are checked as written, so a bad file is refused whatever the
     # options (the others are checked with the scene)
     ctx = _Ctx(d.get("_source", "<scene>"))
-    for key, hi in (("width", MAX_FILM_SIDE), ("height", MAX_FILM_SIDE), ("spp", MAX_SPP)):
+    for key in given:
         if given[key] is not None and key in film:
-            ctx.num(film, key, "film", lo=1, hi=hi, integer=True)
+            _film_setting(ctx, film, "film", key)
     if max_depth is not None and "max_depth" in integ:
-        ctx.num(integ, "max_depth", "integrator", lo=1, hi=MAX_DEPTH, integer=True)
+        _film_setting(ctx, integ, "integrator", "max_depth")
     d["film"] = dict(film, **{k: v for k, v in given.items() if v is not None})
     if max_depth is not None:
         d["integrator"] = dict(integ, max_depth=max_depth)
@@ -739,19 +750,19 @@ def compile_scene(d, source=None, first_shape=0):
             lights.append({"type": "directional", "direction": dv / np.linalg.norm(dv),
                            "irradiance": _light(ctx, L, "irradiance", p)})
     V = tris.reshape(-1, 3)
-    width = ctx.num(film, "width", "film", default=640, lo=1, hi=MAX_FILM_SIDE, integer=True)
-    height = ctx.num(film, "height", "film", default=480, lo=1, hi=MAX_FILM_SIDE, integer=True)
+    width = _film_setting(ctx, film, "film", "width")
+    height = _film_setting(ctx, film, "film", "height")
     if width * height > MAX_FILM_PIXELS:
-        ctx.fail("film.width", f"{width} x {height} is more than the {MAX_FILM_PIXELS} pixels "
-                               "a film may hold")
+        ctx.fail("film.width", f"{width} x {height} is more than the {MAX_FILM_PIXELS} "
+                               f"{FILM_TOO_LARGE}")
     return CompiledScene(
         name=str(d.get("name", "scene")), triangles=tris,
         normals=np.concatenate(all_n).astype(np.float32), material=np.concatenate(all_m),
         mat_names=names, kd=kd, ks=ks, shininess=sh_, kr=kr, ior=ior, lights=lights,
         camera=camera,
         width=width, height=height,
-        spp=ctx.num(film, "spp", "film", default=1, lo=1, hi=MAX_SPP, integer=True),
-        max_depth=ctx.num(integ, "max_depth", "integrator", default=5, lo=1, hi=MAX_DEPTH, integer=True),
+        spp=_film_setting(ctx, film, "film", "spp"),
+        max_depth=_film_setting(ctx, integ, "integrator", "max_depth"),
         ambient=_light(ctx, integ, "ambient", "integrator", default=[0.03] * 3),
         background=_light(ctx, d, "background", "scene", default=[0, 0, 0]),
         cutoff=ctx.num(integ, "cutoff", "integrator", default=1e-3, lo=0, hi=1),

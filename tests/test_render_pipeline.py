@@ -307,6 +307,37 @@ def test_a_bands_camera_rays_are_its_slots_of_the_tile_order():
         assert np.array_equal(pix, order[y0 * W:y1 * W])
 
 
+def test_camera_rays_are_the_pinhole_formula_bit_for_bit():
+    """The directions (float64 and the tracer's float32 copy) and origins of one band, with
+    and without jitter, against the formula evaluated ray by ray in NumPy in the kernel's
+    order of operations."""
+    W, H, y0, y1 = 37, 30, 8, 16
+    eye = np.array([0.3, 1.1, 4.0])
+    cu, cv, cw = np.array([0.8, 0.0, -0.6]), np.array([0.0, 1.0, 0.0]), np.array([-0.6, 0.0, -0.8])
+    n = (y1 - y0) * W
+    rng = np.random.default_rng(5)
+    for jitter in (False, True):
+        jx, jy = (rng.random(n), rng.random(n)) if jitter else (np.zeros(0), np.zeros(0))
+        terms = stages.camera_terms(W, H, 0.7, 1, 0, 2, 2)
+        D = np.empty((n, 3))
+        Ot, Dt = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+        pix = np.empty(n, np.int64)
+        stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, jitter, terms, eye, cu, cv, cw,
+                                    D, pix, Ot, Dt)
+        off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
+        x, y = pix % W, pix // W
+        if jitter:
+            px = x + (off_x + jx[pix - y0 * W]) * inv_gx
+            py = y + (off_y + jy[pix - y0 * W]) * inv_gy
+        else:
+            px, py = x + 0.5, y + 0.5
+        sx, sy = px * kx - bx, by - py * ky
+        d = sx[:, None] * cu + sy[:, None] * cv + cw
+        d = d * (1.0 / np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]))[:, None]
+        assert np.array_equal(D, d) and np.array_equal(Dt, d.astype(np.float32))
+        assert np.array_equal(Ot, np.tile(eye.astype(np.float32), (n, 1)))
+
+
 @pytest.mark.parametrize("seed,sample", [(0, 0), (3, 1), (2 ** 40, 9)])
 def test_pixel_offsets_are_numpys_stream_bit_for_bit(seed, sample):
     ref = np.random.default_rng([seed, sample]).random(5000)

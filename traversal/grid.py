@@ -122,7 +122,9 @@ def _axis_setup(o, d, gmin, gmax, cs, inv, n, t0):
     Where the ray enters the grid through this axis' face (its slab's near t is t0), the cell
     is the first along d, whatever o + t0 d rounds to: for a distant origin that sum loses
     more than a cell to cancellation (|o| 1e15 against a unit-sized grid: 0.1 in float64), and
-    the clamp would send the walk to the far end of the axis."""
+    the clamp would send the walk to the far end of the axis. That settles axis-parallel rays
+    from any distance; on the other axes of an oblique ray the cancellation stays (a ray from
+    that far is ill-conditioned anyway: the float32 unit's o - v0 has lost as much)."""
     near = ((gmin if d > 0 else gmax) - o) / d          # as _slab computes it
     c = np.int64(np.floor((o + t0 * d - gmin) * inv))
     c = min(max(c, 0), n - 1)
