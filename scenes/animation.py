@@ -136,7 +136,9 @@ def euler_matrices(deg):
 
 
 def flat_normals(tris):
-    """(n, 3, 3) per-vertex shading normals equal to each face's unit normal."""
+    """(n, 3, 3) per-vertex shading normals equal to each face's unit normal (in float64: a
+    float32 mesh of large coordinates would overflow the squared lengths)."""
+    tris = np.asarray(tris, np.float64)
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     ln = np.linalg.norm(n, axis=1, keepdims=True)
     n = np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0)
@@ -144,7 +146,9 @@ def flat_normals(tris):
 
 
 def smooth_normals(verts, faces):
-    """(f, 3, 3) area-weighted vertex normals of an indexed mesh, per face corner."""
+    """(f, 3, 3) area-weighted vertex normals of an indexed mesh, per face corner (in
+    float64, as ``flat_normals``)."""
+    verts = np.asarray(verts, np.float64)
     fn = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
     vn = np.zeros_like(verts)
     for c in range(3):

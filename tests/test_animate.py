@@ -272,6 +272,25 @@ def test_a_frame_beyond_the_float32_units_reach_is_refused_before_any_frame(tmp_
     assert rc == 0, err
 
 
+def test_float32_reach_covers_sequences_and_the_eye(tmp_path, capsys):
+    """The check before the first frame takes a sequence's files (the third scaled by 1e13)
+    and a moving eye (1e15 away from triangles of 3e11 at the last key) into account."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, k in enumerate((1.0, 1.0, 1e13)):
+        _ply(frames / f"ball_{i:04d}.ply", sphere(4, 8) * k)
+    out_dir = tmp_path / "out"
+    rc, _, err = _run_cli(capsys, "animate", frames / "ball_%04d.ply", "-o", out_dir)
+    assert rc == 2 and "frame 2 (time " in err and "too large for the float32 units" in err, err
+    assert not out_dir.exists() or not any(out_dir.iterdir())
+    big = dict(UNIT_TRIANGLE, data=[[[0, 0, -1], [3e11, 0, -1], [0, 3e11, -1]]])
+    camera = [{"time": 0, "eye": [0, 1, 4]}, {"time": 1, "eye": [0, 1, 1e15]}]
+    p = _scene_file(tmp_path, [big], {"frames": 3, "fps": 2, "camera": camera})
+    rc, _, err = _run_cli(capsys, "animate", p, "-o", out_dir)
+    assert rc == 2 and str(p) in err and "frame 2 (time 1) is too large" in err, err
+    assert not out_dir.exists() or not any(out_dir.iterdir())
+
+
 @pytest.mark.parametrize("rotate, ok", [(45, True), (-30, False)])
 def test_keyframe_bound_check_decides_rotated_shapes_by_their_vertices(tmp_path, rotate, ok):
     """The triangle (1e15, 0, 0), (0, 1e15, 0), (0, 0, 0) turning 45 degrees about z keeps
