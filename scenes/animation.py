@@ -47,8 +47,8 @@ from hwbvh.config import MAX_COORDINATE
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
-from .loader import (FOV_RANGE, MAX_FRAMES, check_scale, compile_scene, finite, load_scene,
-                     mesh_scene, vector_ok, with_frame)
+from .loader import (FOV_RANGE, MAX_FRAMES, check_scale, compile_scene, finite, flat_normals,
+                     load_scene, mesh_scene, vector_ok, with_frame)
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
@@ -133,16 +133,6 @@ def euler_matrices(deg):
     Ry = np.stack([cy, zero, sy, zero, one, zero, -sy, zero, cy], -1).reshape(-1, 3, 3)
     Rz = np.stack([cz, -sz, zero, sz, cz, zero, zero, zero, one], -1).reshape(-1, 3, 3)
     return Rz @ Ry @ Rx
-
-
-def flat_normals(tris):
-    """(n, 3, 3) per-vertex shading normals equal to each face's unit normal (in float64: a
-    float32 mesh of large coordinates would overflow the squared lengths)."""
-    tris = np.asarray(tris, np.float64)
-    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    n = np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0)
-    return np.repeat(n[:, None, :], 3, axis=1)
 
 
 def smooth_normals(verts, faces):

@@ -411,7 +411,10 @@ def _unit_rows(v):
     return np.where(ln > 0, v / np.where(ln > 0, ln, 1), 0)
 
 
-def _flat_normals(tris):
+def flat_normals(tris):
+    """(n, 3, 3) per-corner shading normals equal to each face's unit normal (in float64: a
+    float32 mesh of large coordinates would overflow the squared lengths)."""
+    tris = np.asarray(tris, np.float64)
     n = _unit_rows(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]))
     return np.repeat(n[:, None, :], 3, axis=1)
 
@@ -429,7 +432,7 @@ def smooth_normals(verts, faces):
     for corner in range(3):
         np.add.at(summed, f[:, corner], area_n)
     corner_n = _unit_rows(summed)[f]
-    flat = _flat_normals(tris)
+    flat = flat_normals(tris)
     return np.where(np.linalg.norm(corner_n, axis=-1, keepdims=True) > 0, corner_n, flat)
 
 
@@ -524,14 +527,14 @@ def _shape(ctx, sh, i, scene_dir):
             ctx.fail(f"{path}.corners", f"expected 4 corners of 3 finite numbers of magnitude at "
                                         f"most {MAX_COORDINATE:g}")
         tris = _quad(c)
-        normals = _flat_normals(tris)
+        normals = flat_normals(tris)
     elif typ == "box":
         lo, hi = ctx.vec(sh, "min", path), ctx.vec(sh, "max", path)
         if not (lo <= hi).all():
             ctx.fail(f"{path}.min", "min must not exceed max")
         tris = _box(lo, hi, ctx.num(sh, "rotate_y", path, default=0.0))
         _bounded(ctx, tris, f"{path}.rotate_y", "rotated, the box")
-        normals = _flat_normals(tris)
+        normals = flat_normals(tris)
     elif typ == "sphere":
         c = ctx.vec(sh, "center", path)
         r = ctx.num(sh, "radius", path, lo=1e-30)
@@ -565,13 +568,13 @@ def _shape(ctx, sh, i, scene_dir):
         tris[:, :, 1] += height
         _bounded(ctx, tris, f"{path}.{'height' if abs(height) >= abs(wave) else 'wave'}",
                  "with its height and wave, the sheet")
-        normals = _flat_normals(tris)
+        normals = flat_normals(tris)
     elif typ == "triangles":
         tris = _triangle_data(ctx, sh.get("data"), f"{path}.data")
         if not within_bound(tris):
             ctx.fail(f"{path}.data", f"expected finite coordinates of magnitude at most "
                                      f"{MAX_COORDINATE:g}")
-        normals = _flat_normals(tris)
+        normals = flat_normals(tris)
     else:  # mesh
         fn = sh.get("filename")
         if not isinstance(fn, str):
@@ -592,7 +595,7 @@ def _shape(ctx, sh, i, scene_dir):
         except InputError as e:                 # names the mesh file; add the scene's key
             ctx.fail(f"{path}.filename", str(e))
         tris = verts[faces]
-        normals = smooth_normals(verts, faces) if smooth else _flat_normals(tris)
+        normals = smooth_normals(verts, faces) if smooth else flat_normals(tris)
         if tf:
             R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
             scaled = (tris * s) @ R.T
