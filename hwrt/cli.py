@@ -823,9 +823,10 @@ def make_parser():
     b.add_argument("--leaf-size", type=_positive,
                    help=f"primitives per leaf, hwbvh only (default: {config.DEFAULT_LEAF_SIZE})")
     b.add_argument("--bins", type=_positive,
-                   help=f"SAH bins per axis, hwbvh only: {config.MIN_BINS}..{config.MAX_SOFTWARE_BINS} (the "
-                        f"hardware has at most {config.MAX_HARDWARE_BINS}, so a tree built with more "
-                        f"cannot be simulated; default: {config.DEFAULT_BINS})")
+                   help=f"SAH bins per axis, hwbvh only: {config.MIN_BINS}.."
+                        f"{config.MAX_SOFTWARE_BINS} (the hardware has at most "
+                        f"{config.MAX_HARDWARE_BINS}, so a tree built with more cannot be "
+                        f"simulated; default: {config.DEFAULT_BINS})")
     b.add_argument("--capacity", type=_positive,
                    help=f"subtree capacity w*Psize, placement only (the tree never changes); "
                         f"hwbvh and sweep (default: {config.DEFAULT_CAPACITY})")
@@ -1043,8 +1044,8 @@ def _set_handlers(interrupt, terminate):
 
 
 def _drop_one(signum, frame):
-    """The signal after the one that stopped the run: dropped, since it lands while temporary
-    files are removed or the interpreter exits, where it would leave a file behind or a
+    """The signal after the one that stopped the run: dropped, since it lands while the run
+    unwinds and removes its temporary files, where it would leave a file behind and a
     traceback. The one after it stops the process again (a clean-up that hangs, a library
     that swallowed the first)."""
     _set_handlers(_raise_interrupted, _raise_terminated)

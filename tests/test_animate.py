@@ -255,9 +255,10 @@ def test_keyframes_beyond_the_coordinate_bound_are_refused_before_any_frame(tmp_
 
 
 def test_a_frame_beyond_the_float32_units_reach_is_refused_before_any_frame(tmp_path, capsys):
-    """A unit triangle scaled to 1e13 at its last key (time 2) stays within the coordinate bound, but
-    its edges and its distance to the eye (1e13 each) multiply past what the float32 units'
-    products hold: refused before frame 0 is written, naming the file and the frame."""
+    """A unit triangle scaled to 1e13 at its last key (time 2) stays within the coordinate
+    bound, but its edges and its distance to the eye (1e13 each) multiply past what the
+    float32 units' products hold: refused before frame 0 is written, naming the file and the
+    frame."""
     keys = [{"time": 0}, {"time": 1}, {"time": 2, "scale": 1e13}]
     p = _scene_file(tmp_path, [dict(UNIT_TRIANGLE, keyframes=keys)], {"frames": 3, "fps": 1})
     out_dir = tmp_path / "out"
