@@ -310,11 +310,11 @@ def _check_float32_reach(anim, frames, tri_mag, eye_mag):
     shapes a scene file places go (the bounds of ``Animation.check``): the bound from the
     frame's coordinate magnitudes, and the frame's own triangles where that bound is not
     small enough."""
-    from raytracer.render import check_float32_reach
+    from raytracer.render import check_float32_reach, point_light_positions
     from traversal.config import F32_UNIT_MAX_PRODUCT
     from traversal.triangle_unit import f32_reach_bound
-    lights = [float(np.abs(l["position"]).max()) for l in anim.base.lights if l["type"] == "point"]
-    bound = f32_reach_bound(tri_mag, np.maximum(eye_mag, max(lights, default=0.0)))
+    lights = float(np.abs(point_light_positions(anim.base.lights)).max(initial=0))
+    bound = f32_reach_bound(tri_mag, np.maximum(eye_mag, lights))
     for i in np.flatnonzero(~(bound <= F32_UNIT_MAX_PRODUCT)):
         try:
             check_float32_reach(anim.scene(int(i)), remedy="scale the scene down")

@@ -507,6 +507,11 @@ def _check_render_arguments(scene, tracer, seed, progress):
         raise ParameterError("progress", f"expected a callable or None, got {type(progress).__name__}")
 
 
+def point_light_positions(lights):
+    """The positions of the point lights among ``lights`` (where rays start or end)."""
+    return [l["position"] for l in lights if l["type"] == "point"]
+
+
 def check_float32_reach(scene, remedy="scale it down, or trace it with the float64 units"):
     """A float32 tracer's unit computes t from a product of three lengths (edge x edge x
     distance); a scene where that can pass float32's range would lose hits or shade from
@@ -514,7 +519,7 @@ def check_float32_reach(scene, remedy="scale it down, or trace it with the float
     ``remedy``: what the message tells the user to do."""
     camera = getattr(scene, "camera", None)         # a bare mesh (benchmarks) has none
     points = ([camera["eye"]] if camera else []) + \
-        [l["position"] for l in getattr(scene, "lights", ()) if l["type"] == "point"]
+        point_light_positions(getattr(scene, "lights", ()))
     reach = f32_unit_reach(scene.triangles, points)
     if not reach <= F32_UNIT_MAX_PRODUCT:
         raise ParameterError("scene", f"too large for the float32 units: edge x edge x distance "

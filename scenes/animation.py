@@ -424,7 +424,7 @@ class RigidMotion:
         farther than its shape) are decided vertex by vertex, as ``__call__`` places them.
         Returns the bound per time (``reach``)."""
         k = self.track.at_times(times)
-        reach = self.reach(times, k)
+        reach = self.reach(k)
         if within_bound(reach):
             return reach
         near = np.flatnonzero(~(reach <= MAX_COORDINATE))
@@ -438,11 +438,10 @@ class RigidMotion:
                                         f"beyond {MAX_COORDINATE:.0e}")
         return reach
 
-    def reach(self, times, k=None):
-        """Per time of ``times``, a bound on the magnitude of every coordinate the shape
-        reaches: its box's transformed corners, plus their float64 rounding against the
-        vertices' (a few ulps of the terms summed). ``k``: the track at ``times``, if known."""
-        k = self.track.at_times(times) if k is None else k
+    def reach(self, k):
+        """Per time of the track's values ``k`` (``Track.at_times``), a bound on the magnitude
+        of every coordinate the shape reaches: its box's transformed corners, plus their
+        float64 rounding against the vertices' (a few ulps of the terms summed)."""
         lo, hi = self.tris.reshape(-1, 3).min(axis=0), self.tris.reshape(-1, 3).max(axis=0)
         corners = np.array(np.meshgrid(*zip(lo, hi), indexing="ij")).reshape(3, 8).T
         A = euler_matrices(k["rotate"]) * k["scale"][:, None, :]          # R diag(scale)
