@@ -351,7 +351,7 @@ def _shade(*args):
     scratch = getattr(kept, "scratch", None)
     if scratch is None:
         scratch = kept.scratch = stages.shade_scratch()
-    stages.shade(*args, *scratch)
+    return stages.shade(*args, *scratch)
 
 
 def release_buffers():
@@ -562,7 +562,8 @@ def _one_at_a_time(callback):
 
 
 RAY_KINDS = ("primary", "shadow", "reflection", "refraction")
-STAGES = ("generate", "intersect", "shade", "join", "occluded", "accumulate")
+STAGES = ("generate", "queues", "intersect", "shade", "occluded", "accumulate")
+NONE_BLOCKED = np.zeros(0, np.bool_)        # the shadow answers of a scene without lights
 
 
 @dataclass
@@ -635,31 +636,28 @@ def _render_band(fr, band):
             O, D, wgt, pix, Ot, Dt = buf.cur
             qO, qD, qT, sh_C, sh_pix, sh_cnt = buf.sh
             sp_O, sp_D, sp_W, sp_pix, sp_cnt = buf.sp
-            lap("join")
+            lap("queues")
             h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
             _checked_answers(tracer, n, ntri, hits=h)
             lap("intersect")
-            _shade(n, O, D, wgt, pix, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
-                   bounce == 0, eye, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
-                   fr.aov_prim, film, buf.contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, buf.cap,
-                   *buf.nxt, sp_O, sp_D, sp_W, sp_pix, sp_cnt)
+            m = _shade(n, O, D, wgt, pix, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
+                       bounce == 0, eye, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
+                       fr.aov_prim, film, buf.contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, buf.cap,
+                       *buf.nxt, sp_O, sp_D, sp_W, sp_pix, sp_cnt)
             lap("shade")
-            m = int(stages.join_light_queues(qO, qD, qT, sh_cnt, buf.cap)) if n_lights else 0
-            if spawn:
-                refl, refr = int(sp_cnt[0]), int(sp_cnt[1])
-                stages.append_refractions(sp_O, sp_D, sp_W, sp_pix, refr, *buf.nxt, refl)
-            lap("join")
+            blocked = NONE_BLOCKED
             if n_lights:
                 blocked = np.ascontiguousarray(tracer.occluded(qO[:m], qD[:m], 0.0, qT[:m]))
                 _checked_answers(tracer, m, ntri, blocked=blocked)
                 lap("occluded")
-                stages.accumulate_unblocked(sh_cnt, buf.cap, sh_C, sh_pix, blocked, film)
                 rays["shadow"] += m
-            if bounce > 0:                          # the camera wavefront added its own
-                stages.accumulate(film, pix, buf.contrib, n)
+            # the camera wavefront added its own contributions
+            stages.accumulate(film, sh_cnt, buf.cap, sh_C, sh_pix, blocked, pix, buf.contrib,
+                              n if bounce > 0 else 0)
             lap("accumulate")
             if not spawn:
                 break
+            refl, refr = int(sp_cnt[0]), int(sp_cnt[1])
             rays["reflection"] += refl
             rays["refraction"] += refr
             buf.cur, buf.nxt = buf.nxt, buf.cur

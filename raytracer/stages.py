@@ -14,12 +14,16 @@ thread (``raytracer.render``); per bounce of a band:
    (mirror reflection, dielectric reflection and refraction) with their weights. Each output
    goes densely, in ray order, to its queue: the shadow rays of each light straight into the
    tracer's shadow queue and the reflections straight into the next wavefront, so a light's
-   shadow rays and each kind of secondary ray stay in tile order (coherent packets);
-4. ``join_light_queues`` (more than one light) and ``append_refractions``: the other lights'
-   shadow rays behind the first's, and the refractions behind the reflections;
-5. the tracer's ``occluded`` on the shadow queue;
-6. ``accumulate_unblocked`` / ``accumulate``: the light of the unblocked shadow rays and the
-   other contributions into the film, in queue order, a fixed order per pixel.
+   shadow rays and each kind of secondary ray stay in tile order (coherent packets). Before it
+   returns it joins the queues (``join_light_queues``: the other lights' shadow rays behind the
+   first's; ``append_refractions``: the refractions behind the reflections);
+4. the tracer's ``occluded`` on the shadow queue;
+5. ``accumulate``: the light of the unblocked shadow rays and the other contributions into the
+   film, in queue order, a fixed order per pixel.
+
+Each stage is one call from Python per bounce (each call releases the interpreter lock and
+takes it back, which another band's thread may hold): so the joins run inside ``shade``, and
+both kinds of contribution go to the film in one ``accumulate``.
 
 A band's pixels are its own and its queues come in ray order, so the image does not depend on
 the thread count.
@@ -262,7 +266,8 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     spawn; (3) per light, the shadow ray of every ray of the block, then, in ray order, the
     records of the rays that take direct light and leave toward the light; (4) in ray order,
     the secondary rays. Every value is the float64 formula of a ray-by-ray loop, so the passes
-    do not change a bit of the result."""
+    do not change a bit of the result. Then the queues are joined (module text). Returns the
+    length of the joined shadow queue."""
     n_lights = light_kind.shape[0]
     for l in range(n_lights):
         sh_cnt[l] = 0
@@ -536,6 +541,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                     n_refr += 1
     sp_cnt[0] = n_refl
     sp_cnt[1] = n_refr
+    if do_spawn:
+        append_refractions(sp_O, sp_D, sp_W, sp_pix, n_refr, nO, nD, nW, npix, nOt, nDt, n_refl)
+    return join_light_queues(qO, qD, qT, sh_cnt, stride) if n_lights > 0 else 0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -569,21 +577,12 @@ def append_refractions(sp_O, sp_D, sp_W, sp_pix, f, O, D, wgt, pix, Ot, Dt, r):
         pix[r + k] = sp_pix[k]
 
 
-@njit(cache=True, error_model="numpy")
-def accumulate(film, pix, contrib, n):
-    """film[pix[k]] += contrib[k] for k < n, in order."""
-    for k in range(n):
-        q = pix[k]
-        film[q, 0] += contrib[k, 0]
-        film[q, 1] += contrib[k, 1]
-        film[q, 2] += contrib[k, 2]
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
-def accumulate_unblocked(sh_cnt, stride, sh_C, sh_pix, blocked, film):
-    """film[pixel] += the light brought by each shadow ray that reached its light, light by
-    light in queue order (``blocked``: the joined queue's answers; the rays of light l at
-    l * stride onward in ``sh_C``/``sh_pix``): a fixed order per pixel."""
+def accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, n):
+    """Into the film, in a fixed order per pixel: the light brought by each shadow ray that
+    reached its light, light by light in queue order (``blocked``: the joined queue's answers;
+    the rays of light l at l * stride onward in ``sh_C``/``sh_pix``, ``sh_cnt[l]`` of them),
+    then film[pix[k]] += contrib[k] for k < n, in order."""
     start = 0
     for l in range(sh_cnt.shape[0]):
         src = l * stride
@@ -594,3 +593,8 @@ def accumulate_unblocked(sh_cnt, stride, sh_C, sh_pix, blocked, film):
                 film[q, 1] += sh_C[src + k, 1]
                 film[q, 2] += sh_C[src + k, 2]
         start += sh_cnt[l]
+    for k in range(n):
+        q = pix[k]
+        film[q, 0] += contrib[k, 0]
+        film[q, 1] += contrib[k, 1]
+        film[q, 2] += contrib[k, 2]
