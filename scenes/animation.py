@@ -48,7 +48,7 @@ from hwbvh.errors import InputError, ParameterError
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
 from .loader import (FOV_RANGE, MAX_FRAMES, check_scale, compile_scene, finite, flat_normals,
-                     load_scene, mesh_scene, vector_ok, with_frame)
+                     load_scene, mesh_scene, smooth_normals, vector_ok, with_frame)
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
@@ -133,19 +133,6 @@ def euler_matrices(deg):
     Ry = np.stack([cy, zero, sy, zero, one, zero, -sy, zero, cy], -1).reshape(-1, 3, 3)
     Rz = np.stack([cz, -sz, zero, sz, cz, zero, zero, zero, one], -1).reshape(-1, 3, 3)
     return Rz @ Ry @ Rx
-
-
-def smooth_normals(verts, faces):
-    """(f, 3, 3) area-weighted vertex normals of an indexed mesh, per face corner (in
-    float64, as ``flat_normals``)."""
-    verts = np.asarray(verts, np.float64)
-    fn = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
-    vn = np.zeros_like(verts)
-    for c in range(3):
-        for k in range(3):
-            vn[:, k] += np.bincount(faces[:, c], weights=fn[:, k], minlength=len(verts))
-    vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-30)
-    return vn[faces]
 
 
 # --------------------------------------------------------------------------------------

@@ -420,17 +420,19 @@ def flat_normals(tris):
 
 
 def smooth_normals(verts, faces):
-    """Per-corner shading normals ``(f, 3, 3)`` of an indexed mesh: at each vertex, the sum of
-    the normals of the faces around it, each weighted by its area (the cross product's length
-    is twice the area), normalised. A corner whose vertex sum vanishes (a degenerate fan) keeps
-    its face's own normal."""
+    """Per-corner shading normals ``(f, 3, 3)`` of an indexed mesh, in float64: at each vertex,
+    the sum of the normals of the faces around it in face order, each weighted by its area (the
+    cross product's length is twice the area), normalised. A corner whose vertex sum vanishes
+    (a degenerate fan) keeps its face's own normal (zero for a face without area: shading then
+    takes the geometric normal). Still meshes and every frame of an animation use this one."""
     v = np.asarray(verts, np.float64)
     f = np.asarray(faces, np.int64)
     tris = v[f]
     area_n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-    summed = np.zeros_like(v)
-    for corner in range(3):
-        np.add.at(summed, f[:, corner], area_n)
+    corners = f.reshape(-1)                  # face by face, so each vertex sums in face order
+    weights = np.repeat(area_n, 3, axis=0)
+    summed = np.stack([np.bincount(corners, weights=weights[:, k], minlength=len(v))
+                       for k in range(3)], axis=1)
     corner_n = _unit_rows(summed)[f]
     flat = flat_normals(tris)
     return np.where(np.linalg.norm(corner_n, axis=-1, keepdims=True) > 0, corner_n, flat)
