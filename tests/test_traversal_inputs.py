@@ -131,6 +131,31 @@ def test_classify_still_judges_right_answers(bvh):
     assert counts["agree"] == 16
 
 
+def test_classify_judges_the_reported_t_not_only_the_primitive():
+    """Two triangles sharing the edge x = 0 at z = 0; rays straight down hit at t = 3. The right
+    primitive at a wrong t is a mismatch, whichever side reports it and however wrong (three
+    times, infinite, NaN); the two triangles of the edge at the right t stay a tie."""
+    tris = np.array([[[-1, -1, 0], [0, -1, 0], [0, 1, 0]],
+                     [[0, -1, 0], [1, -1, 0], [0, 1, 0]]], np.float32)
+    o = np.array([[-0.5, -0.5, 3], [0, -0.5, 3]], np.float32)
+    d = np.array([[0, 0, -1], [0, 0, -1]], np.float32)
+    right_t = np.array([3.0, 3.0])
+    on_edge_prims = np.array([0, 1])
+
+    def label(ours_prim, ours_t, ref_prim, ref_t):
+        return classify(tris, o, d, 0.0, np.inf, np.asarray(ours_prim), np.asarray(ours_t, float),
+                        np.asarray(ref_prim), np.asarray(ref_t, float))[1].tolist()
+
+    assert label([0, 0], right_t, [0, 1], right_t) == [0, 1]
+    for wrong in (9.0, np.inf, np.nan, 3.1):
+        assert label([0, 0], [wrong, 3.0], [0, 0], right_t) == [2, 0], wrong
+        assert label([0, 0], right_t, [0, 0], [wrong, 3.0]) == [2, 0], wrong
+        assert label([0, 0], [3.0, wrong], [0, 1], right_t) == [0, 2], wrong
+        assert label(on_edge_prims, right_t, [0, 0], [3.0, wrong]) == [0, 2], wrong
+    # within the tolerance (1e-5 of t + |o|/|d|) a t still agrees
+    assert label([0, 0], [3.0 + 2e-5, 3.0], [0, 0], right_t) == [0, 0]
+
+
 def _wrapped(tracers):
     """Every tracer, and the wrappers in front of ours."""
     inner = tracers["bvh"]

@@ -5,7 +5,8 @@ Each ray is classified:
 * ``agree``: same primitive and |t_ours - t_embree| <= tol_t, or both miss;
 * ``tie``: the answers differ but both are right to within the stated tolerances, judged by a
   float64 brute-force re-test of the ray against every triangle: each answer's triangle
-  contains its hit point (barycentrics within ``BARY_TOL`` of the triangle) at that t, and no
+  contains its hit point (barycentrics within ``BARY_TOL`` of the triangle), the point at the t
+  it reports lies within tol_t (times |d|) of that triangle's plane, and no
   triangle that contains the ray strictly (by more than ``BARY_TOL``) is hit closer. These are
   the rays through shared edges and vertices (two triangles, one t) and rays grazing an edge
   within the tolerance (one answer a hit on the edge, the other a miss);
@@ -47,6 +48,20 @@ def _mt64(tri, o, d):
 
 
 @njit(cache=True, error_model="numpy")
+def _cosine(tri, d):
+    """|cos| of the angle between d and the triangle's normal. A reported t is judged by how far
+    its point lies off the triangle's plane, |t - t64| |cos|: a float32 t on a ray at angle a to
+    the plane is off by ~eps (|o| + t) / sin(a) however right the unit is."""
+    e1 = tri[1] - tri[0]
+    e2 = tri[2] - tri[0]
+    nx = e1[1] * e2[2] - e1[2] * e2[1]
+    ny = e1[2] * e2[0] - e1[0] * e2[2]
+    nz = e1[0] * e2[1] - e1[1] * e2[0]
+    return abs(nx * d[0] + ny * d[1] + nz * d[2]) / \
+        np.sqrt((nx * nx + ny * ny + nz * nz) * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]))
+
+
+@njit(cache=True, error_model="numpy")
 def _margin(u, v):
     """Signed distance inside the triangle in barycentric units (>0 inside)."""
     return min(u, min(v, 1.0 - u - v))
@@ -56,18 +71,20 @@ def _margin(u, v):
 # loop: a verifying tracer re-tests from every band's thread at once, and Numba's workqueue
 # layer aborts when two threads enter its parallel loops together.
 @njit(cache=True, nogil=True, error_model="numpy")
-def _reference(lo, hi, tris, O, D, tmin, tmax, tol_t, pa, pb, out):
-    """For disputed rays lo..hi: closest strict hit t; and for answers pa/pb whether they hold.
-    out[i] = (t_strict, ok_a, ok_b)."""
+def _reference(lo, hi, tris, O, D, tmin, tmax, scale, pa, ta, pb, tb, out):
+    """For disputed rays lo..hi: closest strict hit t; and for answers (pa, ta) / (pb, tb)
+    (primitive, reported t) whether they hold. out[i] = (t_strict, ok_a, ok_b). Every t is
+    judged with the tolerance of its float64 value, T_TOL_REL * (|t| + scale)."""
     for i in range(lo, hi):
         o = O[i]
         d = D[i]
         best = np.inf
         for j in range(tris.shape[0]):
             t, u, v = _mt64(tris[j], o, d)
+            tol = T_TOL_REL * (abs(t) + scale[i])
             # strict hits clearly inside the ray interval (ones within tol of t_min are
             # neither required nor forbidden: the origin may sit on that surface)
-            if _margin(u, v) > BARY_TOL and t > tmin[i] + tol_t[i] and t < tmax[i] - tol_t[i]:
+            if _margin(u, v) > BARY_TOL and t > tmin[i] + tol and t < tmax[i] - tol:
                 if t < best:
                     best = t
         out[i, 0] = best
@@ -77,14 +94,21 @@ def _reference(lo, hi, tris, O, D, tmin, tmax, tol_t, pa, pb, out):
                 ok = best == np.inf
             else:
                 t, u, v = _mt64(tris[p], o, d)
-                ok = _margin(u, v) >= -BARY_TOL and t >= tmin[i] - tol_t[i] * BEHIND and \
-                    t <= tmax[i] + tol_t[i] and not (best < t - tol_t[i])
+                tol = T_TOL_REL * (abs(t) + scale[i])
+                reported = ta[i] if k == 0 else tb[i]
+                ok = _margin(u, v) >= -BARY_TOL and t >= tmin[i] - tol * BEHIND and \
+                    t <= tmax[i] + tol and not (best < t - tol) and \
+                    abs(reported - t) * _cosine(tris[p], d) <= tol
             out[i, 1 + k] = 1.0 if ok else 0.0
 
 
+def _scale(O, D):
+    """|o|_max / |d| per ray: the t-equivalent of the origin's own rounding."""
+    return np.abs(O).max(axis=1) / np.linalg.norm(D, axis=1)
+
+
 def t_tolerance(O, D, t):
-    scale = np.abs(O).max(axis=1) / np.linalg.norm(D, axis=1)
-    return T_TOL_REL * (np.where(np.isfinite(t), np.abs(t), 0) + scale)
+    return T_TOL_REL * (np.where(np.isfinite(t), np.abs(t), 0) + _scale(O, D))
 
 
 def _checked_triangles(tris):
@@ -136,7 +160,10 @@ def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
     ref_prim = _primitive_ids(ref_prim, n, len(tris), "ref_prim")
     ours_t = _per_ray(ours_t, n, "ours_t").astype(np.float64)
     ref_t = _per_ray(ref_t, n, "ref_t").astype(np.float64)
-    tol = t_tolerance(O, D, np.where(ours_prim >= 0, ours_t, ref_t))
+    # the smaller of the two finite answers sets the tolerance: an infinite or absurd t
+    # cannot widen it
+    finite_t = lambda t: np.where(np.isfinite(t), np.abs(t), np.inf)
+    tol = t_tolerance(O, D, np.minimum(finite_t(ours_t), finite_t(ref_t)))
     both_miss = (ours_prim < 0) & (ref_prim < 0)
     with np.errstate(invalid="ignore"):
         same = (ours_prim == ref_prim) & (ours_prim >= 0) & (np.abs(ours_t - ref_t) <= tol)
@@ -148,9 +175,11 @@ def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
         run_ranges(_reference, len(disputed), t64, np.ascontiguousarray(O[disputed]),
                    np.ascontiguousarray(D[disputed]),
                    np.ascontiguousarray(tmin[disputed]), np.ascontiguousarray(tmax[disputed]),
-                   np.ascontiguousarray(tol[disputed]),
+                   _scale(O[disputed], D[disputed]),
                    np.ascontiguousarray(ours_prim[disputed], np.int64),
-                   np.ascontiguousarray(ref_prim[disputed], np.int64), out)
+                   np.ascontiguousarray(ours_t[disputed]),
+                   np.ascontiguousarray(ref_prim[disputed], np.int64),
+                   np.ascontiguousarray(ref_t[disputed]), out)
         ok = (out[:, 1] > 0) & (out[:, 2] > 0)
         labels[disputed[ok]] = 1
     counts = {"rays": int(n), "agree": int((labels == 0).sum()), "tie": int((labels == 1).sum()),
@@ -201,7 +230,7 @@ def classify_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
     if len(disputed):
         Od = np.ascontiguousarray(O[disputed])
         Dd = np.ascontiguousarray(D[disputed])
-        scale = np.abs(Od).max(axis=1) / np.linalg.norm(Dd, axis=1)
+        scale = _scale(Od, Dd)
         out = np.empty((len(disputed), 2))
         run_ranges(_reference_any, len(disputed), np.ascontiguousarray(tris, np.float64), Od, Dd,
                    np.ascontiguousarray(tmin[disputed]), np.ascontiguousarray(tmax[disputed]),
