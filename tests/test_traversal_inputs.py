@@ -291,6 +291,22 @@ def test_a_tracer_takes_the_triangles_its_tree_was_built_over(bvh):
     assert (h.prim >= 0).all()
 
 
+def test_float64_triangles_past_their_float32_boxes_are_still_hit():
+    """A float64 triangle sticks out of the box the builder made from its float32 rounding (here
+    1e6 + 1.03 rounds to 1e6 + 1): the float64 units still hit it out there, at its own t and
+    barycentrics, and nothing beyond it."""
+    tri = np.array([[[1e6, 0, 0], [1e6 + 1.03, 0, 0], [1e6, 1, 0]]])
+    assert np.float32(tri[0, 1, 0]) < tri[0, 1, 0]
+    tracer = Tracer(hwbvh.build(tri), triangles=tri, precision="float64")
+    o = np.array([[1e6 + 1.01, 0.001, 1.0], [1e6 + 1.02, 0.0001, 1.0], [1e6 + 1.04, 0.0001, 1.0]])
+    h = tracer.intersect(o, np.array([[0.0, 0.0, -1.0]] * 3))
+    assert h.prim.tolist() == [0, 0, -1]
+    assert h.t[:2].tolist() == [1.0, 1.0]
+    np.testing.assert_allclose(h.u[:2], [1.01 / 1.03, 1.02 / 1.03], rtol=1e-9)
+    # the tree's own node buffer is left as the builder wrote it
+    np.testing.assert_array_equal(tracer.nodes, hwbvh.build(tri).nodes)
+
+
 def test_edge_eps_must_be_a_finite_number_at_least_zero(bvh):
     for bad in (-1.0, np.nan, np.inf, "x", True):
         with pytest.raises(ParameterError, match="^edge_eps: must be a finite number >= 0, got") as e:

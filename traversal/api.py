@@ -214,6 +214,18 @@ def _first_leaf_not_holding(u, f, rows):
     return -1
 
 
+def _boxes_widened_by_an_ulp(nodes):
+    """A copy of ``nodes`` whose every box reaches one float32 ulp further out on each side.
+    Widening every node alike keeps each child's box inside its parent's."""
+    wide = nodes.copy()
+    _, f = node_views(wide)
+    box_min = f[:, WORD_BOX:WORD_BOX + 3]
+    box_max = f[:, WORD_BOX + BOX_MAX:WORD_BOX + BOX_MAX + 3]
+    box_min[:] = np.nextafter(box_min, np.float32(-np.inf))
+    box_max[:] = np.nextafter(box_max, np.float32(np.inf))
+    return wide
+
+
 class PacketCount:
     """``last_packets``: the packets the calling thread's last query traced (the rest went ray
     by ray). Per thread, since a ``concurrent`` tracer takes queries from several at once."""
@@ -293,6 +305,12 @@ class Tracer(PacketCount):
         if bad >= 0:
             raise InputError(source, f"a triangle lies outside its leaf's box (node {bad}): "
                                      "not the triangles the tree was built over")
+        if not f32 and not np.array_equal(rows, rows.astype(np.float32)):
+            # the builder boxed these triangles' float32 roundings, which can lie up to half a
+            # float32 ulp inside the triangles themselves: the wider units trace them in boxes
+            # widened outward by one ulp, or a ray near a box face would miss a triangle the
+            # box was built to hold
+            self.u, self.f = node_views(_boxes_widened_by_an_ulp(self.nodes))
         # flat word views of the same bytes for the kernels (no copy, no other layout)
         self._u1 = self.u.reshape(-1)
         self._f1 = self.f.reshape(-1)

@@ -14,9 +14,14 @@ GAMMA3_F32 = 3 * 2.0**-24 / (1 - 3 * 2.0**-24)
 GAMMA3_F64 = 3 * 2.0**-53 / (1 - 3 * 2.0**-53)
 
 # --- Moller-Trumbore unit (triangle_unit) -----------------------------------------------
-# The parallel band is relative: det^2 <= (BAND_K*eps)^2 |e1|^2 |e2|^2 |d|^2 rejects rays
-# closer than ~2.4e-7 rad (float32) / ~4.4e-16 rad (float64) to the triangle's plane, whatever
-# the triangle's size (an absolute epsilon would drop every hit on a 1e-4-sized triangle).
+# The parallel band is relative: det^2 <= (BAND_K*eps)^2 |e1|^2 |e2|^2 |d|^2, eps the machine
+# epsilon (2^-23 float32, 2^-52 float64). det = -d.(e1 x e2) = |d||e1||e2| sin(a) sin(theta), a
+# the ray's angle to the plane and theta the triangle's angle at v0, and |d||e1||e2| eps is the
+# rounding noise of det itself. So the band rejects rays with sin(a) sin(theta) <= BAND_K*eps:
+# ~4.8e-7 rad (float32) / ~8.9e-16 rad (float64) for well-shaped triangles, whatever their size
+# (an absolute epsilon would drop every hit on a 1e-4-sized triangle), and k eps / sin(theta) for
+# slivers, where a det below that noise floor could not be told from zero. Measuring against
+# |e1 x e2| instead would let that noise through as hits with t and barycentrics of any size.
 # The unit evaluates it on terms scaled by powers of two (triangle_unit), so it holds wherever
 # the datapath's own values stay in the float range, not only where those squares do.
 BAND_K = 4.0

@@ -4,8 +4,11 @@ One ray against one triangle per call, with the unit's valid check: ``det`` outs
 band, ``u >= 0``, ``v >= 0``, ``u + v <= 1``, ``t`` in ``[t_min, t_max]``.
 
 The parallel band is *relative*: ``det^2 <= (k*eps)^2 |e1|^2 |e2|^2 |d|^2``. ``det = -d . (e1 x
-e2)``, so this rejects rays within about ``k*eps`` radians of the triangle's plane whatever the
-triangle's size; an absolute epsilon would drop every hit on a 1e-4-sized triangle (det ~ 1e-8).
+e2)`` = ``|d| |e1| |e2| sin(a) sin(theta)`` (``a`` the ray's angle to the plane, ``theta`` the
+angle at ``v0``), so this rejects rays with ``sin(a) sin(theta) <= k*eps``: within ``k*eps``
+radians of a well-shaped triangle's plane whatever its size, more on slivers, where ``det`` is
+below its own rounding noise (``~eps |d| |e1| |e2|``). An absolute epsilon would drop every hit
+on a 1e-4-sized triangle (det ~ 1e-8).
 
 Evaluated as written, its squares leave the float range long before the datapath does. In
 float32 with ``|d|`` near 1: ``|e1|^2 |e2|^2`` and ``det^2`` overflow for edges above ~4e9, so
