@@ -545,7 +545,7 @@ def _render_scene(spec, scene, variants, peer_info, repeat):
         agreement[v] = mp.image_agreement(ours_image, peers[v])
     # timed rounds: every path once per round, the order rotating round by round
     order = list(RENDER_PATHS) + list(peers)
-    runs = {k: {"build": [], "render": [], "trace": []} for k in order}
+    runs = {k: {"build": [], "render": [], "trace": [], "stages": []} for k in order}
     for i in range(repeat):
         for k in order[i % len(order):] + order[:i % len(order)]:
             r = runs[k]
@@ -556,8 +556,9 @@ def _render_scene(spec, scene, variants, peer_info, repeat):
                 continue
             tracer, b, _ = make_tracer(scene, *k)
             t0 = time.perf_counter()
-            render(scene, tracer, seed=0)
+            res = render(scene, tracer, seed=0)
             r["render"].append(time.perf_counter() - t0)
+            r["stages"].append(res.stats["stage_seconds"])
             r["build"].append(b)
             r["trace"].append(recorded[k][0].replay_seconds(tracer))
             del tracer
@@ -577,6 +578,10 @@ def _render_scene(spec, scene, variants, peer_info, repeat):
                      # each round's render over the same round's trace-only run, min and max
                      "render_over_trace_only_spread": _spread(np.divide(r["render"], r["trace"]))
                      if min(r["trace"]) > 0 else None,
+                     # where the render's time goes: each stage's seconds summed over the
+                     # threads, the median over the rounds
+                     "stage_seconds": {st: med([x[st] for x in r["stages"]])
+                                       for st in r["stages"][0]},
                      "rays": rays, "mrays_per_second": total_rays / render_s / 1e6})
     out = {"scene": scene.name, "source": spec, "triangles": int(len(scene.triangles)),
            "width": scene.width, "height": scene.height, "spp": scene.spp,
@@ -635,6 +640,9 @@ def _render_human(r):
                          f"{m['mrays_per_second']:>9.2f}{m['trace_only_seconds']:>9.3f}"
                          f"  {_ratio_text(m)}")
         lines.append(f"ratio (ours / embree): {s['ratio']:.2f}")
+        for m in s["rows"]:
+            lines.append(f"  stages, {m['builder'] + '+' + m['traversal']} (s over all threads): "
+                         + ", ".join(f"{k} {v:.3f}" for k, v in m["stage_seconds"].items()))
         peer = s.get("mitsuba")
         if peer is None:
             continue
@@ -685,7 +693,15 @@ def _render_markdown(r, args=None):
                          f"{row['build_seconds']:.4f} | {row['render_seconds']:.3f} | "
                          f"{row['total_seconds']:.3f} | {row['mrays_per_second']:.2f} | "
                          f"{row['trace_only_seconds']:.3f} | {_ratio_text(row)} |")
-        lines += ["", f"Ours / Embree (total): {s['ratio']:.2f}.", ""]
+        stages = list(s["rows"][0]["stage_seconds"])
+        lines += ["", f"Ours / Embree (total): {s['ratio']:.2f}.", "",
+                  "Where the render's time goes: seconds per stage, summed over the threads "
+                  "(medians over the rounds; intersect and occluded are the tracer's queries).", "",
+                  "| path | " + " | ".join(stages) + " |", "|---|" + "---:|" * len(stages)]
+        for row in s["rows"]:
+            lines.append(f"| {row['builder']} + {row['traversal']} | "
+                         + " | ".join(f"{row['stage_seconds'][k]:.4f}" for k in stages) + " |")
+        lines.append("")
         peer = s.get("mitsuba")
         if not peer:
             continue

@@ -470,7 +470,8 @@ BENCHMARKS = {
               "the same primary, incoherent and shadow rays, per mesh", "minutes"),
     "render": ("time to image (build + render) of the hardware's tree and our traversal "
                "against Embree's build and traversal through the same renderer, and against "
-               "Mitsuba 3 on mesh scenes", "minutes"),
+               "Mitsuba 3 on mesh scenes; the render against tracing its rays alone, and its "
+               "seconds per stage", "minutes"),
     "tti": ("time to image per scene of every path (simulated HWBVH-C and HWBVH-HP builds, the "
             "builder in software, the full-SAH sweep tree, grid, kd-tree) against Embree's, "
             "with the ray budgets up to which a hardware build stays ahead",

@@ -281,7 +281,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         lo = b * BLOCK
         hi = min(n, lo + BLOCK)
         nr = hi - lo
-        # -- pass 1a (SIMD: contiguous reads of the queue only): direction, hit point and
+        # -- pass 1a (branch-free, contiguous reads of the queue only): direction, hit point and
         #    weight; the camera's rays start at the eye with weight 1 --
         if camera:
             for j in range(nr):

@@ -143,9 +143,14 @@ def test_bench_render_honours_the_frame_flags(tmp_path):
         assert m["render_over_trace_only"] == pytest.approx(m["render_seconds"] / m["trace_only_seconds"])
         lo, hi = m["render_over_trace_only_spread"]     # the rounds' own ratios
         assert 0 < lo <= hi and lo <= m["render_spread"][1] / m["trace_only_seconds"]
+        st = m["stage_seconds"]                          # per stage, summed over the threads
+        assert set(st) == {"generate", "queues", "intersect", "shade", "occluded", "accumulate"}
+        assert all(v >= 0 for v in st.values()) and st["intersect"] > 0 and st["shade"] > 0
     assert (tmp_path / "out" / "render.md").read_text().count("| hwbvh build") == 1
     assert json.loads((tmp_path / "out" / "render.json").read_text())["scenes"][0]["width"] == 24
     assert "ratio (ours / embree)" in human("render")(r)
+    assert "stages, hwbvh+numba (s over all threads): generate" in human("render")(r)
+    assert (tmp_path / "out" / "render.md").read_text().count("| hwbvh + numba | ") == 1
 
 
 def test_bench_render_rejects_a_bad_flag(tmp_path):
