@@ -283,38 +283,22 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         nr = hi - lo
         # -- pass 1a (branch-free, contiguous reads of the queue only): direction, hit point and
         #    weight; the camera's rays start at the eye with weight 1 --
-        if camera:
-            for j in range(nr):
-                i = lo + j
-                t = np.float64(hit_t[i])
-                dx = D[i, 0]
-                dy = D[i, 1]
-                dz = D[i, 2]
-                S[_DX + j] = dx
-                S[_DY + j] = dy
-                S[_DZ + j] = dz
-                S[_PX + j] = eye[0] + dx * t
-                S[_PY + j] = eye[1] + dy * t
-                S[_PZ + j] = eye[2] + dz * t
-                S[_W0 + j] = 1.0
-                S[_W1 + j] = 1.0
-                S[_W2 + j] = 1.0
-        else:
-            for j in range(nr):
-                i = lo + j
-                t = np.float64(hit_t[i])
-                dx = D[i, 0]
-                dy = D[i, 1]
-                dz = D[i, 2]
-                S[_DX + j] = dx
-                S[_DY + j] = dy
-                S[_DZ + j] = dz
-                S[_PX + j] = O[i, 0] + dx * t
-                S[_PY + j] = O[i, 1] + dy * t
-                S[_PZ + j] = O[i, 2] + dz * t
-                S[_W0 + j] = wgt[i, 0]
-                S[_W1 + j] = wgt[i, 1]
-                S[_W2 + j] = wgt[i, 2]
+        for j in range(nr):
+            i = lo + j
+            t = np.float64(hit_t[i])
+            dx = D[i, 0]
+            dy = D[i, 1]
+            dz = D[i, 2]
+            S[_DX + j] = dx
+            S[_DY + j] = dy
+            S[_DZ + j] = dz
+            # camera is the same for the whole loop: as fast as a loop per case (measured)
+            S[_PX + j] = (eye[0] if camera else O[i, 0]) + dx * t
+            S[_PY + j] = (eye[1] if camera else O[i, 1]) + dy * t
+            S[_PZ + j] = (eye[2] if camera else O[i, 2]) + dz * t
+            S[_W0 + j] = 1.0 if camera else wgt[i, 0]
+            S[_W1 + j] = 1.0 if camera else wgt[i, 1]
+            S[_W2 + j] = 1.0 if camera else wgt[i, 2]
         # -- pass 1b (scalar: gathers from the hit triangles): the unit geometric normal (per
         #    face), the interpolated shading normal, the coordinate magnitude and material; a
         #    miss reads triangle 0 (render() refuses a scene without triangles), unused --
