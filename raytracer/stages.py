@@ -269,9 +269,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     misses, first-hit layers, ambient light and which rays take direct light or spawn; (2) the
     unit normals, turned toward the ray; (3) per light, the shadow ray of every ray of the
     block, then, in ray order, the records of the rays that take direct light and leave toward
-    the light; (4) in ray order, the secondary rays. Every value is the float64 formula of a ray-by-ray loop, so the passes
-    do not change a bit of the result. Then the queues are joined (module text). Returns the
-    length of the joined shadow queue."""
+    the light; (4) in ray order, the secondary rays. Every value is the float64 formula of a
+    ray-by-ray loop, so the passes do not change a bit of the result. Then the queues are
+    joined (module text). Returns the length of the joined shadow queue."""
     n_lights = light_kind.shape[0]
     for l in range(n_lights):
         sh_cnt[l] = 0

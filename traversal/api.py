@@ -219,8 +219,8 @@ def _boxes_widened_by_an_ulp(nodes):
     Widening every node alike keeps each child's box inside its parent's."""
     wide = nodes.copy()
     _, f = node_views(wide)
-    box_min = f[:, WORD_BOX:WORD_BOX + 3]
-    box_max = f[:, WORD_BOX + BOX_MAX:WORD_BOX + BOX_MAX + 3]
+    box_min = f[:, WORD_BOX:WORD_BOX + BOX_MAX]
+    box_max = f[:, WORD_BOX + BOX_MAX:WORD_BOX + 2 * BOX_MAX]
     box_min[:] = np.nextafter(box_min, np.float32(-np.inf))
     box_max[:] = np.nextafter(box_max, np.float32(np.inf))
     return wide
