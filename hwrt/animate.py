@@ -309,15 +309,18 @@ def _check_float32_reach(anim, frames, tri_mag, eye_mag):
     frame's render applies) checked for every frame before the first is made, as far as the
     shapes a scene file places go (the bounds of ``Animation.check``): the bound from the
     frame's coordinate magnitudes, and the frame's own triangles where that bound is not
-    small enough."""
+    small enough; and the first frame in full, which also refuses a scene too small for the
+    units (a scene in the wrong units; keyframes that shrink it later are caught when that
+    frame renders)."""
     from raytracer.render import check_float32_reach, point_light_positions
     from traversal.config import F32_UNIT_MAX_PRODUCT
     from traversal.triangle_unit import f32_reach_bound
     lights = float(np.abs(point_light_positions(anim.base.lights)).max(initial=0))
     bound = f32_reach_bound(tri_mag, np.maximum(eye_mag, lights))
-    for i in np.flatnonzero(~(bound <= F32_UNIT_MAX_PRODUCT)):
+    first = {0} if frames else set()
+    for i in sorted(first | set(np.flatnonzero(~(bound <= F32_UNIT_MAX_PRODUCT)).tolist())):
         try:
-            check_float32_reach(anim.scene(int(i)), remedy="scale the scene down")
+            check_float32_reach(anim.scene(int(i)), float64_remedy=False)
         except ParameterError as e:
             raise InputError(anim.source, f"frame {i} (time {anim.time(int(i)):g}) is "
                                           f"{e.problem}") from None

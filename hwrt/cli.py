@@ -369,9 +369,9 @@ def cmd_explore(args):
 
 def cmd_render(args):
     import time
-    from hwbvh.errors import InputError
+    from hwbvh.errors import InputError, ParameterError
     from hwbvh.files import check_outputs
-    from raytracer.render import make_tracer, render, warm_up
+    from raytracer.render import check_float32_reach, make_tracer, render, warm_up
     from raytracer.output import exr_writer, png_writer
     from scenes import compile_scene, load_scene, with_frame
     from scenes.loader import scene_inputs
@@ -395,6 +395,10 @@ def cmd_render(args):
     if args.verify and embree:
         raise InputError("--verify", "checks our traversal against Embree; it takes no --builder "
                                      "embree or --traversal embree")
+    if args.precision != "float32" and (embree or args.accel != "bvh"):
+        raise InputError("--precision", f"{args.precision} is a precision of our BVH traversal's "
+                                        f"units; {'Embree' if embree else f'the {args.accel}'} "
+                                        f"traces in float32")
     d = with_frame(load_scene(args.scene), args.width, args.height, args.spp, args.max_depth)
     out = args.output or os.path.join("renders", f"{d.get('name', 'scene')}.exr")
     if not out.lower().endswith(".exr"):
@@ -402,6 +406,12 @@ def cmd_render(args):
     png = os.path.splitext(out)[0] + ".png" if args.png else None
     check_outputs([out, png], inputs=scene_inputs(args.scene))
     scene = compile_scene(d)
+    if args.verify and args.precision != "float32":
+        try:                            # the reference must reach the scene too
+            check_float32_reach(scene, float64_remedy=False)
+        except ParameterError as e:
+            raise InputError("--verify", f"checks against Embree, which traces in float32, and "
+                                         f"the scene is {e.problem}") from None
     startup_s = warm_up(args.builder, args.traversal)
     if args.accel == "grid":
         from traversal.grid import warm_up_grid
@@ -409,7 +419,8 @@ def cmd_render(args):
     elif args.accel == "kdtree":
         from traversal.kdtree import warm_up_kdtree
         startup_s += warm_up_kdtree()
-    tracer, build_s, info = make_tracer(scene, args.builder, args.traversal, accel=args.accel)
+    tracer, build_s, info = make_tracer(scene, args.builder, args.traversal,
+                                        precision=args.precision, accel=args.accel)
     checked = None
     if args.verify:
         from traversal.tracers import VerifyingTracer
@@ -422,6 +433,7 @@ def cmd_render(args):
     bvh = args.accel == "bvh"              # another structure has its own build and traversal
     result = {"output": out, "scene": scene.name, "accel": args.accel,
               "builder": args.builder if bvh else None, "traversal": args.traversal if bvh else None,
+              "precision": args.precision,
               "triangles": int(len(scene.triangles)), "width": scene.width, "height": scene.height,
               "spp": scene.spp, "max_depth": scene.max_depth,
               "build_seconds": build_s, "render_seconds": render_s,
@@ -808,7 +820,7 @@ def _version():
 
 def make_parser():
     from hwbvh import config
-    from raytracer.render import ACCELS, TRAVERSALS
+    from raytracer.render import ACCELS, PRECISIONS, TRAVERSALS
     from traversal.verify import RAY_KINDS
     p = _Parser(prog="hwrt", description=DESCRIPTION, epilog=EPILOG)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
@@ -910,6 +922,9 @@ def make_parser():
     r.add_argument("--accel", choices=ACCELS, default="bvh",
                    help="acceleration structure: bvh (built by --builder), grid (uniform grid) "
                         "or kdtree (SAH kd-tree)")
+    r.add_argument("--precision", choices=PRECISIONS, default="float32",
+                   help="working precision of our traversal's units: float32 (the hardware's) "
+                        "or float64 (for a scene too large or too small for float32)")
     r.add_argument("--verify", action="store_true", help="check every ray against Embree")
     r.add_argument("--png", action="store_true",
                    help="also write a tone-mapped PNG preview beside the EXR")

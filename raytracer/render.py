@@ -35,11 +35,11 @@ import numpy as np
 from hwbvh.config import DEFAULT_BINS, DEFAULT_LEAF_SIZE
 from hwbvh.errors import ParameterError, is_integer
 from traversal.camera import TILE, look_at_basis
-from traversal.config import F32_UNIT_MAX_PRODUCT
+from traversal.config import F32_UNIT_MAX_PRODUCT, F32_UNIT_MIN_SPAN
 from traversal.offset import STRATEGY_CODES
 from traversal.api import ACCELS, PRECISIONS, release_kept_bounds  # noqa: F401 (ACCELS: accel=)
 from traversal.tracers import run_as_tracer_allows
-from traversal.triangle_unit import f32_unit_reach
+from traversal.triangle_unit import coordinate_box, f32_unit_reach, span_of
 from . import pcg64, stages
 from .config import BAND_PIXELS, BLOCK, MIN_BANDS
 from hwbvh.parallel import run_ranges
@@ -512,19 +512,31 @@ def point_light_positions(lights):
     return [l["position"] for l in lights if l["type"] == "point"]
 
 
-def check_float32_reach(scene, remedy="scale it down, or trace it with the float64 units"):
+def check_float32_reach(scene, float64_remedy=True):
     """A float32 tracer's unit computes t from a product of three lengths (edge x edge x
     distance); a scene where that can pass float32's range would lose hits or shade from
-    t = inf (NaN shadow rays), so it is refused before any work (``make_tracer``, ``render``).
-    ``remedy``: what the message tells the user to do."""
+    t = inf (NaN shadow rays), and one whose triangles span too little for it to stay a normal
+    number would lose hits and shadows to rounding, so either is refused before any work
+    (``make_tracer``, ``render``). The message tells the user to scale the scene, and with
+    ``float64_remedy`` to trace it with the float64 units instead."""
+    def remedy(way):
+        return f"scale it {way}" + (", or trace it with the float64 units" if float64_remedy else "")
+
     camera = getattr(scene, "camera", None)         # a bare mesh (benchmarks) has none
     points = ([camera["eye"]] if camera else []) + \
         point_light_positions(getattr(scene, "lights", ()))
-    reach = f32_unit_reach(scene.triangles, points)
+    box = coordinate_box(scene.triangles)
+    reach = f32_unit_reach(scene.triangles, points, box)
     if not reach <= F32_UNIT_MAX_PRODUCT:
         raise ParameterError("scene", f"too large for the float32 units: edge x edge x distance "
                                       f"reaches {reach:.3g}, beyond the {F32_UNIT_MAX_PRODUCT:.3g} "
-                                      f"their products stay within ({remedy})")
+                                      f"their products stay within ({remedy('down')})")
+    span = span_of(box)
+    if 0 < span < F32_UNIT_MIN_SPAN:          # all triangles at one point: nothing to lose
+        raise ParameterError("scene", f"too small for the float32 units: its triangles span "
+                                      f"{span:.3g}, below the {F32_UNIT_MIN_SPAN:.3g} their products "
+                                      f"of three lengths need to stay normal numbers "
+                                      f"({remedy('up')})")
 
 
 def _checked_answers(tracer, n, n_triangles, hits=None, blocked=None):

@@ -265,12 +265,26 @@ def test_a_frame_beyond_the_float32_units_reach_is_refused_before_any_frame(tmp_
     rc, out, err = _run_cli(capsys, "animate", p, "-o", out_dir)
     assert rc == 2 and len(err.strip().splitlines()) == 1, err
     assert str(p) in err and "frame 2 (time 2) is too large for the float32 units" in err
-    assert "scale the scene down" in err
+    assert "scale it down" in err
     assert not out_dir.exists() or not any(out_dir.iterdir())
     # the frames before it are within reach: a run of two renders them
     rc, out, err = _run_cli(capsys, "animate", p, "--frames", 2, "--width", 8, "--height", 6,
                             "-o", out_dir)
     assert rc == 0, err
+
+
+def test_a_scene_too_small_for_the_float32_units_is_refused_before_any_frame(tmp_path, capsys):
+    """A triangle of 1e-14 (a scene in the wrong units): the float32 units' products of three
+    lengths would be subnormal, so the run is refused naming the file and frame 0."""
+    tiny = dict(UNIT_TRIANGLE, data=[[[0, 0, 0], [1e-14, 0, 0], [0, 1e-14, 0]]])
+    p = _scene_file(tmp_path, [dict(tiny, keyframes=[{"time": 0}, {"time": 1}])],
+                    {"frames": 2, "fps": 1})
+    out_dir = tmp_path / "out"
+    rc, out, err = _run_cli(capsys, "animate", p, "-o", out_dir)
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert str(p) in err and "frame 0 (time 0) is too small for the float32 units" in err
+    assert "scale it up" in err and "float64" not in err
+    assert not out_dir.exists() or not any(out_dir.iterdir())
 
 
 def test_float32_reach_covers_sequences_and_the_eye(tmp_path, capsys):

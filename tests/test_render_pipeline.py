@@ -499,6 +499,35 @@ def test_a_scene_beyond_the_float32_units_range_is_refused_before_any_work():
     assert np.isfinite(render(near, Tracer(hwbvh.build(near.triangles))).image).all()
 
 
+def test_a_scene_too_small_for_the_float32_units_is_refused_before_any_work():
+    """Scaled down to a span of 3.5e-14, the default scene's products of three lengths (t's
+    numerator) fall below float32's normal numbers and a quarter of its pixels came out wrong:
+    a float32 render or tracer is refused naming the scene, float64 traces it as at scale 1,
+    and a span of 3.5e-10 renders. A scene whose triangles all lie at one point is not
+    refused (there is nothing to lose)."""
+    import hwbvh
+    from hwbvh.errors import ParameterError
+    from scenes.loader import transform_scene
+    from traversal import Tracer
+
+    def scaled(s):
+        return compile_scene(transform_scene(load_scene("cornell", width=16, height=12, spp=1), s))
+    tiny = scaled(1e-14)
+    with pytest.raises(ParameterError, match="too small for the float32 units.*scale it up") as e:
+        render(tiny, Tracer(hwbvh.build(tiny.triangles)))
+    assert e.value.parameter == "scene"
+    with pytest.raises(ParameterError, match="too small for the float32 units"):
+        make_tracer(tiny)
+    ref = render(scaled(1.0), Tracer(hwbvh.build(scaled(1.0).triangles), precision="float64"))
+    small = render(tiny, Tracer(hwbvh.build(tiny.triangles), precision="float64"))
+    assert (small.prim == ref.prim).mean() > 0.99
+    near = scaled(1e-10)
+    assert (render(near, make_tracer(near)[0]).prim == ref.prim).mean() > 0.99
+    point = scaled(1.0)
+    point.triangles = np.zeros_like(point.triangles)
+    assert (render(point, make_tracer(point)[0]).prim == -1).all()
+
+
 def test_the_cli_names_the_scene_file_too_large_for_the_float32_units(tmp_path, capsys):
     import json
     from hwrt.cli import main
@@ -513,3 +542,57 @@ def test_the_cli_names_the_scene_file_too_large_for_the_float32_units(tmp_path, 
     err = capsys.readouterr().err
     assert err.startswith(f"hwrt: error: {p}: too large for the float32 units"), err
     assert not (tmp_path / "big.exr").exists()
+
+
+def test_the_cli_names_the_scene_file_too_small_for_the_float32_units(tmp_path, capsys):
+    import json
+    from hwrt.cli import main
+
+    tiny = {"camera": {"eye": [0, 3e-14, 4e-14], "target": [0, 0, 0]},
+            "film": {"width": 8, "height": 6, "spp": 1}, "materials": {"w": {"type": "diffuse"}},
+            "shapes": [{"type": "quad", "material": "w", "corners": [[-2e-14, 0, -2e-14],
+                        [2e-14, 0, -2e-14], [2e-14, 0, 2e-14], [-2e-14, 0, 2e-14]]}]}
+    p = tmp_path / "tiny.json"
+    p.write_text(json.dumps(tiny))
+    assert main(["render", str(p), "-o", str(tmp_path / "tiny.exr")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"hwrt: error: {p}: too small for the float32 units"), err
+    assert not (tmp_path / "tiny.exr").exists()
+
+
+def test_the_cli_renders_a_tiny_scene_with_the_float64_units(tmp_path, capsys):
+    """``--precision float64`` renders what the float32 units refuse, as the same scene at
+    scale 1 renders; it applies to our BVH traversal only, and --verify refuses a scene beyond
+    Embree's float32 reach (the reference would be the one wrong)."""
+    import json
+    from hwrt.cli import main
+    from raytracer.output import read_exr
+
+    def scene(s):
+        return {"camera": {"eye": [0, 3 * s, 4 * s], "target": [0, 0, 0]},
+                "film": {"width": 8, "height": 6, "spp": 1},
+                "materials": {"w": {"type": "diffuse"}},
+                "lights": [{"type": "directional", "direction": [0, -1, 0], "irradiance": [1] * 3}],
+                "shapes": [{"type": "quad", "material": "w", "corners": [
+                    [-2 * s, 0, -2 * s], [2 * s, 0, -2 * s], [2 * s, 0, 2 * s], [-2 * s, 0, 2 * s]]}]}
+    images = {}
+    for s in (1.0, 1e-14):
+        p = tmp_path / f"quad{s:g}.json"
+        p.write_text(json.dumps(scene(s)))
+        out = tmp_path / f"quad{s:g}.exr"
+        assert main(["render", str(p), "-o", str(out), "--precision", "float64", "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["precision"] == "float64"
+        images[s] = read_exr(str(out))[0]
+    np.testing.assert_allclose(images[1e-14][..., :3], images[1.0][..., :3], rtol=1e-5)
+    assert images[1.0][..., :3].max() > 0
+    tiny = str(tmp_path / "quad1e-14.json")
+    for extra in (["--accel", "grid"], ["--builder", "embree"]):
+        assert main(["render", tiny, "-o", str(tmp_path / "x.exr"), "--precision", "float64",
+                     *extra]) == 2
+        assert capsys.readouterr().err.startswith("hwrt: error: --precision: float64 is a precision")
+    assert main(["render", tiny, "-o", str(tmp_path / "x.exr"), "--precision", "float64",
+                 "--verify"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("hwrt: error: --verify: checks against Embree, which traces in float32, "
+                          "and the scene is too small for the float32 units"), err
+    assert not (tmp_path / "x.exr").exists()

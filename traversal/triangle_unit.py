@@ -87,26 +87,65 @@ def f32_reach_bound(tri_mag, point_mag):
     return (k * tri_mag) ** 2 * (k * np.maximum(tri_mag, point_mag))
 
 
-def f32_unit_reach(triangles, points):
+def f32_unit_reach(triangles, points, box=None):
     """The largest |e1| |e2| |o - v0| the float32 unit can meet on ``triangles`` (n, 3, 3) with
     ray origins anywhere in the box of the triangles and ``points`` (k, 3) (a camera, lights):
     compare with ``config.F32_UNIT_MAX_PRODUCT``. A bound from the coordinates' magnitude comes
-    first (one pass); the edges are measured only where that bound is not small enough."""
+    first (one pass; ``box``: the triangles' ``coordinate_box``, if the caller has it); the
+    edges are measured only where that bound is not small enough."""
     t = np.asarray(triangles)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
-    # from the largest magnitudes (one contiguous pass)
-    m = float(np.abs(t).max(initial=0))
+    lo, hi, m = coordinate_box(t) if box is None else box
+    # from the largest magnitudes
     bound = f32_reach_bound(m, float(np.abs(pts).max(initial=0)))
     if bound <= F32_UNIT_MAX_PRODUCT:
         return bound
-    flat = t.reshape(-1, 3)
-    lo = np.minimum(flat.min(axis=0), pts.min(axis=0, initial=np.inf))
-    hi = np.maximum(flat.max(axis=0), pts.max(axis=0, initial=-np.inf))
-    reach = float(np.linalg.norm(hi.astype(np.float64) - lo))   # any origin to any vertex
+    lo = np.minimum(lo, pts.min(axis=0, initial=np.inf))
+    hi = np.maximum(hi, pts.max(axis=0, initial=-np.inf))
+    reach = float(np.linalg.norm(hi - lo))   # any origin to any vertex
     e1 = (t[:, 1] - t[:, 0]).astype(np.float64)
     e2 = (t[:, 2] - t[:, 0]).astype(np.float64)
     edges = float(np.sqrt(((e1 * e1).sum(1) * (e2 * e2).sum(1)).max()))
     return edges * reach
+
+
+@njit(cache=True)
+def _box_of_coordinates(f):
+    """(lo x, y, z, hi x, y, z, any NaN) of the points whose coordinates ``f`` lists (x, y, z,
+    x, ...), in float64, in one pass: NumPy's min over axis 0 of an (m, 3) array is some 50
+    times slower, and np.abs(...).max() a pass of its own."""
+    lo0 = lo1 = lo2 = np.inf
+    hi0 = hi1 = hi2 = -np.inf
+    nan = False
+    for i in range(0, f.shape[0] - 2, 3):
+        x = np.float64(f[i])
+        y = np.float64(f[i + 1])
+        z = np.float64(f[i + 2])
+        nan |= (x != x) | (y != y) | (z != z)
+        lo0 = min(lo0, x)
+        lo1 = min(lo1, y)
+        lo2 = min(lo2, z)
+        hi0 = max(hi0, x)
+        hi1 = max(hi1, y)
+        hi2 = max(hi2, z)
+    return lo0, lo1, lo2, hi0, hi1, hi2, nan
+
+
+def coordinate_box(triangles):
+    """(lo, hi, m): the box of ``triangles`` (n, 3, 3) (float64 (3,) each; +inf / -inf for
+    none) and their largest |coordinate| (NaN if any coordinate is NaN, 0 for none)."""
+    t = np.asarray(triangles)
+    if t.size == 0:
+        return np.full(3, np.inf), np.full(3, -np.inf), 0.0
+    *box, nan = _box_of_coordinates(np.ascontiguousarray(t).reshape(-1))
+    lo, hi = np.array(box[:3]), np.array(box[3:])
+    return lo, hi, np.nan if nan else float(max(np.abs(lo).max(), np.abs(hi).max()))
+
+
+def span_of(box):
+    """The diagonal of a ``coordinate_box``; 0 for an empty one."""
+    lo, hi, _ = box
+    return float(np.linalg.norm(hi - lo)) if np.all(hi >= lo) else 0.0
 
 
 def band_eps2(dtype):
