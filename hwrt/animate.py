@@ -304,26 +304,30 @@ def _preview(out_dir, frames, fps):
                        duration=max(20, int(round(1000 / fps))), loop=0)
 
 
+def _check_frame_reach(anim, i, scene):
+    """``raytracer.render.check_float32_reach`` for frame ``i``, naming the file and the
+    frame."""
+    from raytracer.render import check_float32_reach
+    try:
+        check_float32_reach(scene)
+    except ParameterError as e:
+        raise InputError(anim.source, f"frame {i} (time {anim.time(i):g}) is {e.problem}") from None
+
+
 def _check_float32_reach(anim, frames, tri_mag, eye_mag):
     """The float32 units' reach (``raytracer.render.check_float32_reach``, which every
     frame's render applies) checked for every frame before the first is made, as far as the
     shapes a scene file places go (the bounds of ``Animation.check``): the bound from the
     frame's coordinate magnitudes, and the frame's own triangles where that bound is not
-    small enough; and the first frame in full, which also refuses a scene too small for the
-    units (a scene in the wrong units; keyframes that shrink it later are caught when that
-    frame renders)."""
-    from raytracer.render import check_float32_reach, point_light_positions
+    small enough. (A scene too small for the units is found frame by frame, before each
+    frame's render: magnitudes do not bound a scene's span from below.)"""
+    from raytracer.render import point_light_positions
     from traversal.config import F32_UNIT_MAX_PRODUCT
     from traversal.triangle_unit import f32_reach_bound
     lights = float(np.abs(point_light_positions(anim.base.lights)).max(initial=0))
     bound = f32_reach_bound(tri_mag, np.maximum(eye_mag, lights))
-    first = {0} if frames else set()
-    for i in sorted(first | set(np.flatnonzero(~(bound <= F32_UNIT_MAX_PRODUCT)).tolist())):
-        try:
-            check_float32_reach(anim.scene(int(i)), float64_remedy=False)
-        except ParameterError as e:
-            raise InputError(anim.source, f"frame {i} (time {anim.time(int(i)):g}) is "
-                                          f"{e.problem}") from None
+    for i in np.flatnonzero(~(bound <= F32_UNIT_MAX_PRODUCT)):
+        _check_frame_reach(anim, int(i), anim.scene(int(i)))
 
 
 def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_THRESHOLD,
@@ -349,6 +353,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     t = time.perf_counter()
     first = anim.scene(0)
     first_scene_s = time.perf_counter() - t
+    _check_frame_reach(anim, 0, first)          # before any output
     params = _run_params(anim, strategy, updater.threshold, first, accel)
     rows = {}
     if out_dir is not None:
@@ -371,6 +376,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         t = time.perf_counter()
         scene = first if i == 0 else anim.scene(i)
         scene_s = first_scene_s if i == 0 else time.perf_counter() - t
+        _check_frame_reach(anim, i, scene)
         tracer, row = updater.update(scene)
         bvh = row.pop("bvh", None)
         if verify:

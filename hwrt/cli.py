@@ -408,10 +408,13 @@ def cmd_render(args):
     scene = compile_scene(d)
     if args.verify and args.precision != "float32":
         try:                            # the reference must reach the scene too
-            check_float32_reach(scene, float64_remedy=False)
+            check_float32_reach(scene)
         except ParameterError as e:
             raise InputError("--verify", f"checks against Embree, which traces in float32, and "
                                          f"the scene is {e.problem}") from None
+    if args.precision == "float32":     # with the remedy this command takes
+        wider = args.accel == "bvh" and not embree and not args.verify
+        check_float32_reach(scene, float64="add --precision float64" if wider else None)
     startup_s = warm_up(args.builder, args.traversal)
     if args.accel == "grid":
         from traversal.grid import warm_up_grid
@@ -449,7 +452,8 @@ def cmd_render(args):
         result["time_to_image_simulated_seconds"] = {k: v + render_s for k, v in sim.items()}
     if checked is not None:
         result["verify"] = checked.summary()
-    meta = {"scene": scene.name, "accel": args.accel, "build_seconds": build_s,
+    meta = {"scene": scene.name, "accel": args.accel, "precision": args.precision,
+            "build_seconds": build_s,
             "render_seconds": render_s, "spp": scene.spp, "max_depth": scene.max_depth}
     if bvh:
         meta.update(builder=args.builder, traversal=args.traversal)

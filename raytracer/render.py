@@ -512,15 +512,16 @@ def point_light_positions(lights):
     return [l["position"] for l in lights if l["type"] == "point"]
 
 
-def check_float32_reach(scene, float64_remedy=True):
+def check_float32_reach(scene, float64=None):
     """A float32 tracer's unit computes t from a product of three lengths (edge x edge x
     distance); a scene where that can pass float32's range would lose hits or shade from
     t = inf (NaN shadow rays), and one whose triangles span too little for it to stay a normal
     number would lose hits and shadows to rounding, so either is refused before any work
-    (``make_tracer``, ``render``). The message tells the user to scale the scene, and with
-    ``float64_remedy`` to trace it with the float64 units instead."""
+    (``make_tracer``, ``render``). The message tells the user to scale the scene, and, given
+    ``float64`` (how the caller traces with the float64 units, e.g. an option to add), that
+    too."""
     def remedy(way):
-        return f"scale it {way}" + (", or trace it with the float64 units" if float64_remedy else "")
+        return f"scale it {way}" + (f", or {float64}" if float64 else "")
 
     camera = getattr(scene, "camera", None)         # a bare mesh (benchmarks) has none
     points = ([camera["eye"]] if camera else []) + \

@@ -289,9 +289,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         nr = hi - lo
         # -- pass 1a (branch-free, contiguous reads of the queue only): direction, hit point and
         #    weight; the camera's rays start at the eye with weight 1. A loop per case, over
-        #    the arrays seen flat (3 words a row): LLVM then runs them in SIMD lanes, where one
-        #    loop choosing its origin array per ray, or 2D indexing with its run-time row
-        #    length, stayed scalar (5% of the shading time) --
+        #    the (C-contiguous) arrays seen flat, 3 words a row, so that LLVM runs them in SIMD
+        #    lanes: a per-ray choice of origin array, or 2D indexing with its run-time row
+        #    length, keeps a loop scalar --
         if camera:
             for j in range(nr):
                 i = lo + j

@@ -287,6 +287,20 @@ def test_a_scene_too_small_for_the_float32_units_is_refused_before_any_frame(tmp
     assert not out_dir.exists() or not any(out_dir.iterdir())
 
 
+def test_a_frame_shrunk_too_small_for_the_float32_units_is_refused_before_its_render(tmp_path,
+                                                                                     capsys):
+    """Scaled to 1e-14 at its last key, the unit triangle leaves the float32 units' reach at
+    frame 1: the frames before it are written, that one is refused naming the file and
+    frame."""
+    keys = [{"time": 0}, {"time": 1, "scale": 1e-14}]
+    p = _scene_file(tmp_path, [dict(UNIT_TRIANGLE, keyframes=keys)], {"frames": 2, "fps": 1})
+    out_dir = tmp_path / "out"
+    rc, out, err = _run_cli(capsys, "animate", p, "--width", 8, "--height", 6, "-o", out_dir)
+    assert rc == 2 and str(p) in err and "frame 1 (time 1) is too small for the float32 units" in err
+    assert err.rstrip().endswith("(scale it up)"), err
+    assert (out_dir / "frame_0000.exr").exists() and not (out_dir / "frame_0001.exr").exists()
+
+
 def test_float32_reach_covers_sequences_and_the_eye(tmp_path, capsys):
     """The check before the first frame takes a sequence's files (the third scaled by 1e13)
     and a moving eye (1e15 away from triangles of 3e11 at the last key) into account."""

@@ -501,7 +501,7 @@ def test_a_scene_beyond_the_float32_units_range_is_refused_before_any_work():
 
 def test_a_scene_too_small_for_the_float32_units_is_refused_before_any_work():
     """Scaled down to a span of 3.5e-14, the default scene's products of three lengths (t's
-    numerator) fall below float32's normal numbers and a quarter of its pixels came out wrong:
+    numerator) fall below float32's normal numbers and a quarter of its pixels are wrong:
     a float32 render or tracer is refused naming the scene, float64 traces it as at scale 1,
     and a span of 3.5e-10 renders. A scene whose triangles all lie at one point is not
     refused (there is nothing to lose)."""
@@ -557,7 +557,13 @@ def test_the_cli_names_the_scene_file_too_small_for_the_float32_units(tmp_path, 
     assert main(["render", str(p), "-o", str(tmp_path / "tiny.exr")]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"hwrt: error: {p}: too small for the float32 units"), err
+    assert err.rstrip().endswith("(scale it up, or add --precision float64)"), err
     assert not (tmp_path / "tiny.exr").exists()
+    # where the command cannot trace it wider, the advice is to scale it only
+    for extra in (["--accel", "grid"], ["--builder", "embree"], ["--verify"]):
+        assert main(["render", str(p), "-o", str(tmp_path / "tiny.exr"), *extra]) == 2
+        err = capsys.readouterr().err
+        assert "too small for the float32 units" in err and err.rstrip().endswith("(scale it up)"), err
 
 
 def test_the_cli_renders_a_tiny_scene_with_the_float64_units(tmp_path, capsys):
