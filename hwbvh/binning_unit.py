@@ -74,25 +74,35 @@ def bin_range(boxes, start, end, nodebox, nbins, binbox, bincnt):
 
 
 @njit(cache=True, parallel=True)
-def bin_range_parallel(boxes, start, end, nodebox, nbins, nchunks):
-    """Data-parallel binning for the upper levels: each chunk bins into private collectors
-    (one SAH bin collector per binning unit group, 3.3.4), then the collectors are merged
-    (the SAH bin merge units). Returns (binbox, bincnt, chunk_counts (nchunks, 3, S))."""
-    n = end - start
-    part_box = np.empty((nchunks, 3, nbins, 6), dtype=np.float32)
-    part_cnt = np.empty((nchunks, 3, nbins), dtype=np.int64)
-    for c in prange(nchunks):
-        lo = start + (n * c) // nchunks
-        hi = start + (n * (c + 1)) // nchunks
-        bin_range(boxes, lo, hi, nodebox, nbins, part_box[c], part_cnt[c])
-    binbox = np.empty((3, nbins, 6), dtype=np.float32)
-    bincnt = np.zeros((3, nbins), dtype=np.int64)
-    clear_bins(binbox, bincnt)
-    for c in range(nchunks):
-        for a in range(3):
-            for b in range(nbins):
-                bincnt[a, b] += part_cnt[c, a, b]
-                for k in range(3):
-                    binbox[a, b, k] = min(binbox[a, b, k], part_box[c, a, b, k])
-                    binbox[a, b, 3 + k] = max(binbox[a, b, 3 + k], part_box[c, a, b, 3 + k])
+def bin_level(bb, starts, counts, bufs, nodeboxes, nbins, nchunks):
+    """Data-parallel binning of every node of one upper level at once: node k's records
+    [starts[k], starts[k] + counts[k]) of buffer ``bufs[k]`` of the pair ``bb`` (2, N, 6), in
+    ``nchunks`` chunks, each into private collectors (one SAH bin collector per binning unit
+    group, 3.3.4); then each node's collectors are merged in chunk order (the SAH bin merge
+    units), so that of equal bounds (+0 and -0) the first record's stays, as in one pass.
+    Every (node, chunk) pair is one work item of a single parallel region: a region per node
+    cost more in thread wake-ups than the binning itself. Returns (binbox (K, 3, S, 6),
+    bincnt (K, 3, S), chunk counts (K, nchunks, 3, S))."""
+    nodes = starts.shape[0]
+    part_box = np.empty((nodes, nchunks, 3, nbins, 6), dtype=np.float32)
+    part_cnt = np.empty((nodes, nchunks, 3, nbins), dtype=np.int64)
+    for w in prange(nodes * nchunks):
+        k = w // nchunks
+        c = w - k * nchunks
+        n = counts[k]
+        lo = starts[k] + (n * c) // nchunks
+        hi = starts[k] + (n * (c + 1)) // nchunks
+        bin_range(bb[bufs[k]], lo, hi, nodeboxes[k], nbins, part_box[k, c], part_cnt[k, c])
+    binbox = np.empty((nodes, 3, nbins, 6), dtype=np.float32)
+    bincnt = np.empty((nodes, 3, nbins), dtype=np.int64)
+    for k in range(nodes):
+        clear_bins(binbox[k], bincnt[k])
+        for c in range(nchunks):
+            for a in range(3):
+                for b in range(nbins):
+                    bincnt[k, a, b] += part_cnt[k, c, a, b]
+                    for j in range(3):
+                        binbox[k, a, b, j] = min(binbox[k, a, b, j], part_box[k, c, a, b, j])
+                        binbox[k, a, b, 3 + j] = max(binbox[k, a, b, 3 + j],
+                                                     part_box[k, c, a, b, 3 + j])
     return binbox, bincnt, part_cnt

@@ -12,7 +12,8 @@ the *tree* does not depend on the capacity; only node placement does, and that i
 the tree output logic in :mod:`hwbvh.layout`. This module therefore builds one canonical tree,
 in software-friendly parallel phases that mirror the hardware:
 
-1. large nodes (the upper levels) are binned and partitioned data-parallel over chunks;
+1. large nodes (the upper levels) are binned and partitioned data-parallel over chunks, every
+   node of a level in the same parallel pass;
 2. the remaining subtrees are independent tasks, built in parallel, one per thread at a time,
    exactly like subtree builders working side by side.
 
@@ -26,10 +27,10 @@ import numpy as np
 from numba import njit, prange, get_num_threads
 
 from . import config
-from .binning_unit import bin_range, bin_range_parallel
+from .binning_unit import bin_level, bin_range
 from .errors import InputError, ParameterError, is_integer
 from .parallel import check_threading
-from .partitioning_unit import (partition_range, partition_range_parallel, range_bounds,
+from .partitioning_unit import (partition_level, partition_range, range_bounds,
                                 range_bounds_parallel)
 from .sah_calculator import best_split
 
@@ -250,48 +251,61 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
                    "fallback_splits": int(stats[2]), "max_depth": int(stats[3]),
                    "upper_phase_nodes": 0, "tasks": 1})
 
-    # ---- upper levels: one node at a time, each data-parallel over chunks ----
+    # ---- upper levels: level by level, every node of a level binned, then partitioned, in
+    #      one data-parallel region over (node, chunk) pairs ----
     top = []            # [box, axis, start, count, left_ref, right_ref]; refs resolved below
     tasks = []          # (start, count, buf, box, depth)
     fallback = 0
-    # stack entries: (start, count, buf, box, depth, parent_top_index, side)
-    stack = [(0, n, 0, rootbox, 0, -1, 0)]
-    while stack:
-        s, cnt, buf, box, depth, parent, side = stack.pop()
-        if cnt <= task_prims:
-            tasks.append((s, cnt, buf, box, depth))
-            ref = ("task", s)
-        else:
-            ref = ("top", len(top))
-        if parent >= 0:
-            top[parent][4 + side] = ref
-        if ref[0] == "task":
-            continue
-        k = len(top)
-        node = [box, 0, s, cnt, None, None]
-        top.append(node)
-        binbox, bincnt, chunk_cnt = bin_range_parallel(bb[buf], s, s + cnt, box, bins, nchunks)
-        lbox = np.empty(6, np.float32)
-        rbox = np.empty(6, np.float32)
-        axis, boundary, nl, nr, _ = best_split(binbox, bincnt, bins, lbox, rbox,
-                                               np.empty(bins, np.float32), np.empty(bins, np.int64))
-        if axis < 0:
-            nl = cnt // 2
-            nr = cnt - nl
-            lbox = range_bounds_parallel(bb[buf], s, s + nl, nchunks)
-            rbox = range_bounds_parallel(bb[buf], s + nl, s + cnt, nchunks)
-            node[1] = AXIS_FALLBACK
-            fallback += 1
-            cbuf = buf
-        else:
-            chunk_left = chunk_cnt[:, axis, :boundary].sum(axis=1)
-            partition_range_parallel(bb[buf], bi[buf], bb[1 - buf], bi[1 - buf], s, s + cnt,
-                                     axis, boundary, box, bins, chunk_left)
-            node[1] = axis
-            cbuf = 1 - buf
-        # push right first so the left child is processed next (pre-order, S4)
-        stack.append((s + nl, nr, cbuf, rbox, depth + 1, k, 1))
-        stack.append((s, nl, cbuf, lbox, depth + 1, k, 0))
+    # a level's nodes: (start, count, buf, box, depth, parent_top_index, side)
+    level = [(0, n, 0, rootbox, 0, -1, 0)]
+    while level:
+        split = []      # (top index, start, count, buf, box, depth) of the nodes to split
+        for s, cnt, buf, box, depth, parent, side in level:
+            if cnt <= task_prims:
+                tasks.append((s, cnt, buf, box, depth))
+                ref = ("task", s)
+            else:
+                ref = ("top", len(top))
+                split.append((len(top), s, cnt, buf, box, depth))
+                top.append([box, 0, s, cnt, None, None])
+            if parent >= 0:
+                top[parent][4 + side] = ref
+        if not split:
+            break
+        starts = np.array([x[1] for x in split], dtype=np.int64)
+        counts = np.array([x[2] for x in split], dtype=np.int64)
+        bufs = np.array([x[3] for x in split], dtype=np.int64)
+        nodeboxes = np.array([x[4] for x in split], dtype=np.float32).reshape(-1, 6)
+        binbox, bincnt, chunk_cnt = bin_level(bb, starts, counts, bufs, nodeboxes, bins, nchunks)
+        axes = np.empty(len(split), dtype=np.int64)
+        boundaries = np.zeros(len(split), dtype=np.int64)
+        children = []
+        left_sa = np.empty(bins, np.float32)
+        left_n = np.empty(bins, np.int64)
+        for k, (t, s, cnt, buf, box, depth) in enumerate(split):
+            lbox = np.empty(6, np.float32)
+            rbox = np.empty(6, np.float32)
+            axis, boundary, nl, nr, _ = best_split(binbox[k], bincnt[k], bins, lbox, rbox,
+                                                   left_sa, left_n)
+            axes[k] = axis
+            if axis < 0:
+                # no valid candidate on any axis: midpoint of the list, in buffer order
+                nl = cnt // 2
+                nr = cnt - nl
+                lbox = range_bounds_parallel(bb[buf], s, s + nl, nchunks)
+                rbox = range_bounds_parallel(bb[buf], s + nl, s + cnt, nchunks)
+                top[t][1] = AXIS_FALLBACK
+                fallback += 1
+                cbuf = buf
+            else:
+                boundaries[k] = boundary
+                top[t][1] = axis
+                cbuf = 1 - buf
+            children.append((s, nl, cbuf, lbox, depth + 1, t, 0))
+            children.append((s + nl, nr, cbuf, rbox, depth + 1, t, 1))
+        partition_level(bb, bi, starts, counts, bufs, axes, boundaries, nodeboxes, bins,
+                        chunk_cnt)
+        level = children
 
     # ---- canonical arrays: task slots [0, 2N), upper nodes at 2N + k ----
     cbox, cleft, cright, cstart, ccount, caxis = alloc_canonical(2 * n + len(top))

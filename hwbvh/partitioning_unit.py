@@ -40,31 +40,46 @@ def partition_range(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, node
 
 
 @njit(cache=True, parallel=True)
-def partition_range_parallel(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, nodebox,
-                             nbins, chunk_left):
-    """Data-parallel stable partition for the upper levels. ``chunk_left[c]`` is the number of
-    left-going records in chunk c (known from that chunk's bin counts), so every chunk knows
-    where to write without a second counting pass."""
-    n = end - start
-    nchunks = chunk_left.shape[0]
-    left_off = np.empty(nchunks, dtype=np.int64)
-    right_off = np.empty(nchunks, dtype=np.int64)
-    total_left = 0
-    for c in range(nchunks):
-        total_left += chunk_left[c]
-    acc_l = 0
-    acc_r = 0
-    for c in range(nchunks):
-        left_off[c] = start + acc_l
-        right_off[c] = start + total_left + acc_r
-        size = (n * (c + 1)) // nchunks - (n * c) // nchunks
-        acc_l += chunk_left[c]
-        acc_r += size - chunk_left[c]
-    for c in prange(nchunks):
-        _partition_chunk(src_b, src_i, dst_b, dst_i, start + (n * c) // nchunks,
-                         start + (n * (c + 1)) // nchunks, left_off[c], right_off[c], axis,
-                         boundary, nodebox, nbins)
-    return total_left
+def partition_level(bb, bi, starts, counts, bufs, axes, boundaries, nodeboxes, nbins,
+                    chunk_counts):
+    """Data-parallel stable partition of every node of one upper level at once (as
+    ``binning_unit.bin_level`` bins them): node k's records, in the same ``nchunks`` chunks,
+    from buffer ``bufs[k]`` of the pair (``bb`` boxes, ``bi`` indices) into the other, split
+    at ``boundaries[k]`` on ``axes[k]`` (a node with axis < 0 is skipped). ``chunk_counts``
+    (K, nchunks, 3, S): each chunk's bin counts, from which every chunk knows where its
+    left-going and right-going records start without a counting pass. Nodes of one level
+    hold disjoint ranges, so their chunks write apart."""
+    nodes, nchunks = chunk_counts.shape[0], chunk_counts.shape[1]
+    left_off = np.empty((nodes, nchunks), dtype=np.int64)
+    right_off = np.empty((nodes, nchunks), dtype=np.int64)
+    for k in range(nodes):
+        if axes[k] < 0:
+            continue
+        n = counts[k]
+        chunk_left = np.zeros(nchunks, dtype=np.int64)
+        for c in range(nchunks):
+            for b in range(boundaries[k]):
+                chunk_left[c] += chunk_counts[k, c, axes[k], b]
+        total_left = chunk_left.sum()
+        acc_l = 0
+        acc_r = 0
+        for c in range(nchunks):
+            left_off[k, c] = starts[k] + acc_l
+            right_off[k, c] = starts[k] + total_left + acc_r
+            size = (n * (c + 1)) // nchunks - (n * c) // nchunks
+            acc_l += chunk_left[c]
+            acc_r += size - chunk_left[c]
+    for w in prange(nodes * nchunks):
+        k = w // nchunks
+        c = w - k * nchunks
+        if axes[k] < 0:
+            continue
+        n = counts[k]
+        src = bufs[k]
+        _partition_chunk(bb[src], bi[src], bb[1 - src], bi[1 - src],
+                         starts[k] + (n * c) // nchunks, starts[k] + (n * (c + 1)) // nchunks,
+                         left_off[k, c], right_off[k, c], axes[k], boundaries[k], nodeboxes[k],
+                         nbins)
 
 
 @njit(cache=True)
