@@ -1,8 +1,8 @@
 """How the compiled kernels share the machine: Numba's threading layer and its wait policy.
 
 Every ``prange`` loop runs on a pool of threads, and each parallel region ends when its slowest
-thread ends (a build is one or two dozen: two per level of its upper nodes, one for its subtrees). OpenMP's default wait policy keeps idle threads
-spinning between regions:
+thread ends (a build is one or two dozen regions: two per level of its upper nodes, one for
+its subtrees). OpenMP's default wait policy keeps idle threads spinning between regions:
 alone on the machine that saves a wake-up, but beside another busy process the spinning
 threads take the cores the working threads need, and every region can wait a scheduler time
 slice. ``hwrt bench contention`` measures each set-up with a busy competitor on every core
