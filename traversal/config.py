@@ -172,6 +172,7 @@ F32_UNIT_MAX_PRODUCT = 2.0**126
 # 10 of its 24), and t's numerator and det with them, so a scene too small is refused too: one
 # whose triangles span (the diagonal of their box) less than this. The default scene scaled
 # down renders as at scale 1 (0.2-0.4% of pixels off by float32 rounding of its coordinates)
-# down to a span of 3.5e-12, where the products of its smaller triangles near 2^-126; 1.2% of
-# pixels are off at 3.5e-12, 25% at 3.5e-14, most below. 2^-33 (~1.2e-10) keeps 30 times that.
+# down to a span of 1e-11; below, the products of its smaller triangles near 2^-126: 1.2% of
+# pixels are off at 3.5e-12, 25% at 3.5e-14, most below. 2^-33 (~1.2e-10) stays ten times
+# above the smallest span that rendered cleanly.
 F32_UNIT_MIN_SPAN = 2.0**-33
