@@ -485,7 +485,7 @@ def bench_render(args, commit=write_files):
     line's also marks the run done)."""
     import json
     from hwbvh.files import check_output_dir, jsonable
-    from raytracer.render import warm_up
+    from raytracer.render import check_float32_reach, warm_up
     from scenes import compile_scene, is_scene, load_scene
     from . import mitsuba_peer as mp
 
@@ -496,6 +496,11 @@ def bench_render(args, commit=write_files):
     if out_dir:
         check_output_dir(out_dir, ["render.json", "render.md"], inputs=specs)
     scenes = [(spec, compile_scene(_render_setting(load_scene(spec), args))) for spec in specs]
+    for spec, scene in scenes:          # every path traces in float32: refused before any work
+        try:
+            check_float32_reach(scene)
+        except ParameterError as e:
+            raise InputError(spec, e.problem) from None
     for builder, traversal in RENDER_PATHS:
         warm_up(builder, traversal, parallel_build=True)
     variants = _peer_variants(specs)

@@ -564,6 +564,11 @@ def test_the_cli_names_the_scene_file_too_small_for_the_float32_units(tmp_path, 
         assert main(["render", str(p), "-o", str(tmp_path / "tiny.exr"), *extra]) == 2
         err = capsys.readouterr().err
         assert "too small for the float32 units" in err and err.rstrip().endswith("(scale it up)"), err
+    # and the render benchmark, whose paths all trace in float32, names the scene file
+    assert main(["bench", "render", str(p), "--repeat", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"hwrt: error: {p}: too small for the float32 units"), err
+    assert err.rstrip().endswith("(scale it up)"), err
 
 
 def test_the_cli_renders_a_tiny_scene_with_the_float64_units(tmp_path, capsys):
