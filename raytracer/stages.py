@@ -228,6 +228,24 @@ _ROW = BLOCK + 8
  _OX, _OY, _OZ, _LX, _LY, _LZ, _TMAX, _COS, _E0, _E1, _E2) = range(0, _ROWS * _ROW, _ROW)
 
 
+@njit(cache=True, inline="always")
+def _put_hit_row(S, j, Df, i, t, ox, oy, oz, w0, w1, w2):
+    """Column j of the scratch from ray i (direction in ``Df``, seen flat): its direction, its
+    hit point at t from origin (ox, oy, oz), and its weight."""
+    dx = Df[3 * i]
+    dy = Df[3 * i + 1]
+    dz = Df[3 * i + 2]
+    S[_DX + j] = dx
+    S[_DY + j] = dy
+    S[_DZ + j] = dz
+    S[_PX + j] = ox + dx * t
+    S[_PY + j] = oy + dy * t
+    S[_PZ + j] = oz + dz * t
+    S[_W0 + j] = w0
+    S[_W1 + j] = w1
+    S[_W2 + j] = w2
+
+
 def shade_scratch():
     """The working arrays of one ``shade`` call (its last four arguments): the scratch ``S``
     (``_ROWS`` rows of ``_ROW``), and per ray of a block, its material, whether it takes direct
@@ -295,35 +313,12 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         if camera:
             for j in range(nr):
                 i = lo + j
-                t = np.float64(hit_t[i])
-                dx = Df[3 * i]
-                dy = Df[3 * i + 1]
-                dz = Df[3 * i + 2]
-                S[_DX + j] = dx
-                S[_DY + j] = dy
-                S[_DZ + j] = dz
-                S[_PX + j] = ex + dx * t
-                S[_PY + j] = ey + dy * t
-                S[_PZ + j] = ez + dz * t
-                S[_W0 + j] = 1.0
-                S[_W1 + j] = 1.0
-                S[_W2 + j] = 1.0
+                _put_hit_row(S, j, Df, i, np.float64(hit_t[i]), ex, ey, ez, 1.0, 1.0, 1.0)
         else:
             for j in range(nr):
                 i = lo + j
-                t = np.float64(hit_t[i])
-                dx = Df[3 * i]
-                dy = Df[3 * i + 1]
-                dz = Df[3 * i + 2]
-                S[_DX + j] = dx
-                S[_DY + j] = dy
-                S[_DZ + j] = dz
-                S[_PX + j] = Of[3 * i] + dx * t
-                S[_PY + j] = Of[3 * i + 1] + dy * t
-                S[_PZ + j] = Of[3 * i + 2] + dz * t
-                S[_W0 + j] = Wf[3 * i]
-                S[_W1 + j] = Wf[3 * i + 1]
-                S[_W2 + j] = Wf[3 * i + 2]
+                _put_hit_row(S, j, Df, i, np.float64(hit_t[i]), Of[3 * i], Of[3 * i + 1],
+                             Of[3 * i + 2], Wf[3 * i], Wf[3 * i + 1], Wf[3 * i + 2])
         # -- pass 1b (scalar: gathers from the hit triangles): the unit geometric normal (per
         #    face), the interpolated shading normal, the coordinate magnitude and material; a
         #    miss reads triangle 0 (render() refuses a scene without triangles), unused --
