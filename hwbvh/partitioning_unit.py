@@ -39,6 +39,38 @@ def partition_range(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, node
                             boundary, nodebox, nbins) - start
 
 
+@njit(cache=True)
+def chunk_offsets(starts, counts, axes, boundaries, chunk_counts):
+    """Where each chunk of each node of a level writes: (left_off, right_off) (K, nchunks),
+    from the chunks' bin counts (``binning_unit.bin_level``); a node's left-going records
+    first, each side in chunk order. Apart from ``partition_level``, whose parallel
+    compilation would turn every array expression here into a parallel region of its own:
+    two thread meetings per node, most of a level's partition time."""
+    nodes, nchunks = chunk_counts.shape[0], chunk_counts.shape[1]
+    left_off = np.empty((nodes, nchunks), dtype=np.int64)
+    right_off = np.empty((nodes, nchunks), dtype=np.int64)
+    chunk_left = np.empty(nchunks, dtype=np.int64)
+    for k in range(nodes):
+        if axes[k] < 0:
+            continue
+        n = counts[k]
+        total_left = 0
+        for c in range(nchunks):
+            chunk_left[c] = 0
+            for b in range(boundaries[k]):
+                chunk_left[c] += chunk_counts[k, c, axes[k], b]
+            total_left += chunk_left[c]
+        acc_l = 0
+        acc_r = 0
+        for c in range(nchunks):
+            left_off[k, c] = starts[k] + acc_l
+            right_off[k, c] = starts[k] + total_left + acc_r
+            size = (n * (c + 1)) // nchunks - (n * c) // nchunks
+            acc_l += chunk_left[c]
+            acc_r += size - chunk_left[c]
+    return left_off, right_off
+
+
 @njit(cache=True, parallel=True)
 def partition_level(bb, bi, starts, counts, bufs, axes, boundaries, nodeboxes, nbins,
                     chunk_counts):
@@ -48,28 +80,11 @@ def partition_level(bb, bi, starts, counts, bufs, axes, boundaries, nodeboxes, n
     at ``boundaries[k]`` on ``axes[k]`` (a node with axis < 0 is skipped). ``chunk_counts``
     (K, nchunks, 3, S): each chunk's bin counts, from which every chunk knows where its
     left-going and right-going records start without a counting pass. Nodes of one level
-    hold disjoint ranges, so their chunks write apart."""
-    nodes, nchunks = chunk_counts.shape[0], chunk_counts.shape[1]
-    left_off = np.empty((nodes, nchunks), dtype=np.int64)
-    right_off = np.empty((nodes, nchunks), dtype=np.int64)
-    for k in range(nodes):
-        if axes[k] < 0:
-            continue
-        n = counts[k]
-        chunk_left = np.zeros(nchunks, dtype=np.int64)
-        for c in range(nchunks):
-            for b in range(boundaries[k]):
-                chunk_left[c] += chunk_counts[k, c, axes[k], b]
-        total_left = chunk_left.sum()
-        acc_l = 0
-        acc_r = 0
-        for c in range(nchunks):
-            left_off[k, c] = starts[k] + acc_l
-            right_off[k, c] = starts[k] + total_left + acc_r
-            size = (n * (c + 1)) // nchunks - (n * c) // nchunks
-            acc_l += chunk_left[c]
-            acc_r += size - chunk_left[c]
-    for w in prange(nodes * nchunks):
+    hold disjoint ranges, so their chunks write apart. One parallel region: nothing but the
+    ``prange`` loop may be an array expression here (see ``chunk_offsets``)."""
+    nchunks = chunk_counts.shape[1]
+    left_off, right_off = chunk_offsets(starts, counts, axes, boundaries, chunk_counts)
+    for w in prange(starts.shape[0] * nchunks):
         k = w // nchunks
         c = w - k * nchunks
         if axes[k] < 0:
@@ -102,8 +117,8 @@ def range_bounds_parallel(boxes, start, end, nchunks):
     part = np.empty((nchunks, 6), dtype=np.float32)
     for c in prange(nchunks):
         range_bounds(boxes, start + (n * c) // nchunks, start + (n * (c + 1)) // nchunks, part[c])
+    # merged in chunk order with loops: as an array expression, each min and max would be a
+    # parallel region of its own, with its own order of equal bounds (+0 and -0)
     out = np.empty(6, dtype=np.float32)
-    for k in range(3):
-        out[k] = part[:, k].min()
-        out[3 + k] = part[:, 3 + k].max()
+    range_bounds(part, 0, nchunks, out)
     return out

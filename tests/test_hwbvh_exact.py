@@ -176,3 +176,36 @@ def test_property_invariants_and_exactness(tris, leaf, bins):
     if ref is not None:
         assert pa == ref
     assert a.meta["nodes"] <= 2 * len(tris) - 1
+
+
+def test_fast_box_unions_keep_numpys_bits():
+    """The builder's root box and the primitive boxes, taken column by column for speed, are
+    bit for bit NumPy's (n, 3) forms, signed zeros and NaN included."""
+    from hwbvh.builder import union_box
+    rng = np.random.default_rng(3)
+    values = np.array([-0.0, 0.0, 1.0, -1.0, np.nan], np.float32)
+    for _ in range(2000):
+        b = rng.choice(values, p=[.3, .3, .17, .17, .06], size=(int(rng.integers(1, 60)), 6))
+        want = np.concatenate([b[:, :3].min(axis=0), b[:, 3:].max(axis=0)])
+        assert union_box(b).tobytes() == want.tobytes()
+    t = rng.choice(values, size=(3000, 3, 3))
+    want = np.concatenate([np.minimum(np.minimum(t[:, 0], t[:, 1]), t[:, 2]),
+                           np.maximum(np.maximum(t[:, 0], t[:, 1]), t[:, 2])], axis=1)
+    assert primitive_boxes(t).tobytes() == want.astype(np.float32).tobytes()
+
+
+def test_upper_phase_fallback_is_the_one_task_tree():
+    """Above the sequential size the upper levels run in parallel chunks; a pile of identical
+    triangles (signed zeros among the coordinates) splits by the fallback at every level, whose
+    bounds the chunks merge. The tree is the one a single subtree builder makes."""
+    n = 12_000
+    tris = np.zeros((n, 3, 3), np.float32)
+    tris[:, 1, 0] = 1.0
+    tris[:, 2, 1] = 1.0
+    tris[::3, 0, 2] = -0.0
+    one_task = hwbvh.build(tris, task_prims=n)
+    for kw in ({}, {"task_prims": 2048}):
+        bvh = hwbvh.build(tris, **kw)
+        assert bvh.tree.stats["upper_phase_nodes"] > 0
+        assert bvh.meta["fallback_splits"] == one_task.meta["fallback_splits"] > 0
+        assert preorder(bvh.nodes, bvh.indices) == preorder(one_task.nodes, one_task.indices)

@@ -13,7 +13,7 @@ from traversal.config import GAMMA3_F32
 from traversal.embree_ref import embree_occluded, embree_scene
 from traversal.triangle_unit import TRI_WORDS, band_eps2, mt_valid_at, preprocess
 from traversal.verify import t_tolerance, verify_mesh
-from scenes.meshes import grid_sheet, random_soup, uv_sphere
+from scenes.meshes import grid_sheet, random_soup, sphere, uv_sphere
 
 from .naive import ray_triangle_f64
 
@@ -685,3 +685,11 @@ def test_a_tree_whose_index_list_misses_a_triangle_is_refused():
     bvh.indices[3] = bvh.indices[4]                 # one triangle twice, another never
     with pytest.raises(ValueError, match="bvh.indices"):
         Tracer(bvh)
+
+
+def test_tracer_sizes_its_stack_from_the_trees_depth():
+    """The set-up takes the depth in the walk that checks the leaves; it is the tree's."""
+    for tris, kw in ((random_soup(3000, seed=2), {}), (sphere(40, 80), {"leaf_size": 1}),
+                     (grid_sheet(20, 20), {"builder": "sweep"})):
+        bvh = hwbvh.build(tris, **kw)
+        assert Tracer(bvh).depth == hwbvh.tree_stats(bvh.nodes)["max_depth"] > 0

@@ -14,7 +14,7 @@ from numba import njit
 from hwbvh.config import LEAF_FLAG
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.format import (BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, check_nodes, node_views,
-                          pack_indices, tree_stats)
+                          pack_indices)
 from hwbvh.primitives import checked_coordinates
 from .aabb_unit import GAMMA3_F32, GAMMA3_F64
 from hwbvh.parallel import run_ranges
@@ -187,18 +187,25 @@ def _checked_triangles(tris, source):
 
 
 @njit(cache=True)
-def _first_leaf_not_holding(u, f, rows):
-    """The first leaf reached from the root whose box does not contain, in float32 (as the
-    builder boxed them), the vertices of the triangles it lists, or -1. ``rows``: the
-    triangles in index-list order (a leaf's rows side by side, read in one sweep). The
-    topology must be checked (``check_nodes`` with the index list's length): each node is
-    then pushed once and every leaf range lies inside ``rows``."""
+def _leaf_check_and_depth(u, f, rows):
+    """(leaf, depth): the first leaf reached from the root whose box does not contain, in
+    float32 (as the builder boxed them), the vertices of the triangles it lists, or -1; and
+    the tree's depth (its longest root-to-leaf path, in edges), which sizes the traversal
+    stack, taken in the same walk. ``rows``: the triangles in index-list order (a leaf's rows
+    side by side, read in one sweep). The topology must be checked (``check_nodes`` with the
+    index list's length): each node is then pushed once and every leaf range lies inside
+    ``rows``."""
     stack = np.empty(u.shape[0], np.int64)
+    dstack = np.empty(u.shape[0], np.int64)
     stack[0] = 0
+    dstack[0] = 0
     sp = 1
+    depth = 0
     while sp > 0:
         sp -= 1
         i = stack[sp]
+        d = dstack[sp]
+        depth = max(depth, d)
         if u[i, WORD_FLAGS] & LEAF_FLAG:
             a = np.int64(u[i, WORD_A])
             for p in range(a, a + np.int64(u[i, WORD_B])):
@@ -206,12 +213,14 @@ def _first_leaf_not_holding(u, f, rows):
                     for k in range(3):
                         x = np.float32(rows[p, v, k])
                         if x < f[i, WORD_BOX + k] or x > f[i, WORD_BOX + BOX_MAX + k]:
-                            return i
+                            return i, depth
         else:
             stack[sp] = u[i, WORD_A]
             stack[sp + 1] = u[i, WORD_B]
+            dstack[sp] = d + 1
+            dstack[sp + 1] = d + 1
             sp += 2
-    return -1
+    return -1, depth
 
 
 def _boxes_widened_by_an_ulp(nodes):
@@ -301,7 +310,7 @@ class Tracer(PacketCount):
         # a leaf whose box does not hold its triangles (as the builder boxed them, in float32)
         # means other triangles than the tree's: every ray would miss them
         rows = np.ascontiguousarray(tris[order])
-        bad = _first_leaf_not_holding(self.u, self.f, rows)
+        bad, self.depth = _leaf_check_and_depth(self.u, self.f, rows)
         if bad >= 0:
             raise InputError(source, f"a triangle lies outside its leaf's box (node {bad}): "
                                      "not the triangles the tree was built over")
@@ -321,7 +330,6 @@ class Tracer(PacketCount):
         self.watertight = bool(watertight)
         self.raw = np.ascontiguousarray(np.asarray(tris, self.dtype).reshape(len(tris), 9)) \
             if watertight else None
-        self.depth = tree_stats(self.nodes)["max_depth"]
         self.eps2 = band_eps2(self.dtype)
         self.one = self.dtype(1)
         self.widen = self.dtype(1.0 + 2.0 * (GAMMA3_F32 if f32 else GAMMA3_F64))
