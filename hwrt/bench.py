@@ -686,7 +686,9 @@ def _render_markdown(r, args=None):
              f"the paths alternating run by run. {m.get('cpu', '')}, {m.get('cores')} cores, "
              f"{m.get('numba_threads')} Numba threads. Render / trace-only: the medians' ratio, "
              f"and in brackets the lowest and highest of the rounds' own ratios (each round "
-             f"renders, then traces the same rays alone).", ""]
+             f"renders, then traces the same rays alone). Build: up to a tracer ready to "
+             f"trace (ours: the BVH build and the tracer's set-up, its triangle rows and "
+             f"checks; Embree: building its scene).", ""]
     for s in r["scenes"]:
         lines += [f"### {s['scene']} ({s['triangles']} triangles, {s['width']}x{s['height']}, "
                   f"{s['spp']} spp, depth {s['max_depth']})", "",

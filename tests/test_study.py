@@ -9,7 +9,8 @@ from argparse import Namespace
 import numpy as np
 import pytest
 
-TIMINGS = {"build_seconds", "build_spread", "render_seconds", "render_spread", "total_seconds"}
+TIMINGS = {"build_seconds", "build_spread", "render_seconds", "render_spread", "total_seconds",
+           "tracer_setup_seconds"}
 
 
 def run(*args):
