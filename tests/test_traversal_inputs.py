@@ -397,3 +397,17 @@ def test_the_float32_units_domain_is_as_documented():
     assert finite_hits(Tracer(hwbvh.build(t), precision="float64"), o, d) == 64
     t, o, d = _mesh_at(9.9e14 / 1.06)
     assert finite_hits(Tracer(hwbvh.build(t), precision="float64"), o, d) == 64
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("side", ["min", "max"])
+def test_a_vertex_one_ulp_outside_its_leaf_is_refused(bvh, axis, side):
+    """Each bound of each leaf is checked: the scene's outermost vertex on one side of one axis,
+    moved one float32 ulp further out, leaves its leaf's box (and the root's)."""
+    moved = TRIS.copy()
+    flat = moved.reshape(-1, 3)
+    k = int(np.argmin(flat[:, axis]) if side == "min" else np.argmax(flat[:, axis]))
+    flat[k, axis] = np.nextafter(flat[k, axis], np.float32(-np.inf if side == "min" else np.inf))
+    with pytest.raises(InputError, match=r"^triangles: a triangle lies outside its leaf's box"):
+        Tracer(bvh, triangles=moved)
+    Tracer(bvh, triangles=TRIS)

@@ -207,13 +207,26 @@ def _leaf_check_and_depth(u, f, rows):
         d = dstack[sp]
         depth = max(depth, d)
         if u[i, WORD_FLAGS] & LEAF_FLAG:
+            # the box of the leaf's vertices first (no branch per coordinate), then one test
             a = np.int64(u[i, WORD_A])
+            lx = ly = lz = np.float32(np.inf)
+            hx = hy = hz = np.float32(-np.inf)
             for p in range(a, a + np.int64(u[i, WORD_B])):
                 for v in range(3):
-                    for k in range(3):
-                        x = np.float32(rows[p, v, k])
-                        if x < f[i, WORD_BOX + k] or x > f[i, WORD_BOX + BOX_MAX + k]:
-                            return i, depth
+                    x = np.float32(rows[p, v, 0])
+                    y = np.float32(rows[p, v, 1])
+                    z = np.float32(rows[p, v, 2])
+                    lx = min(lx, x)
+                    ly = min(ly, y)
+                    lz = min(lz, z)
+                    hx = max(hx, x)
+                    hy = max(hy, y)
+                    hz = max(hz, z)
+            b = WORD_BOX
+            c = WORD_BOX + BOX_MAX
+            if lx < f[i, b] or ly < f[i, b + 1] or lz < f[i, b + 2] or \
+                    hx > f[i, c] or hy > f[i, c + 1] or hz > f[i, c + 2]:
+                return i, depth
         else:
             stack[sp] = u[i, WORD_A]
             stack[sp + 1] = u[i, WORD_B]
@@ -309,7 +322,8 @@ class Tracer(PacketCount):
         self.u, self.f = node_views(self.nodes)
         # a leaf whose box does not hold its triangles (as the builder boxed them, in float32)
         # means other triangles than the tree's: every ray would miss them
-        rows = np.ascontiguousarray(tris[order])
+        # (n, 9) rows taken by index: NumPy gathers those some 4 times faster than (3, 3) ones
+        rows = np.take(tris.reshape(n, 9), order, axis=0).reshape(n, 3, 3)
         bad, self.depth = _leaf_check_and_depth(self.u, self.f, rows)
         if bad >= 0:
             raise InputError(source, f"a triangle lies outside its leaf's box (node {bad}): "
