@@ -29,7 +29,7 @@ from numba import njit, prange, get_num_threads
 from . import config
 from .binning_unit import bin_level, bin_range
 from .errors import InputError, ParameterError, is_integer
-from .parallel import check_threading
+from .parallel import check_threading, fetch_add
 from .partitioning_unit import (partition_level, partition_range, range_bounds,
                                 range_bounds_parallel)
 from .sah_calculator import best_split
@@ -188,14 +188,22 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
 @njit(cache=True, parallel=True)
 def build_tasks(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
                 t_start, t_count, t_buf, t_box, t_depth, leaf_size, nbins, nthreads):
-    """Build every task subtree; thread k takes tasks k, k+T, ... of the list, which the caller
-    sorts largest first (a greedy balance, like handing subtrees to the first idle builder)."""
+    """Build every task subtree. The caller sorts the tasks largest first; each thread takes
+    the next task from a shared counter as soon as it is free, as subtrees go to the first
+    idle subtree builder (a greedy balance; a thread slowed by another process on its core
+    simply takes fewer). Each task writes its own slots, so the tree does not depend on who
+    built what."""
     ntasks = t_start.shape[0]
     stats = np.empty((nthreads, 4), dtype=np.int64)
+    taken = np.empty(1, dtype=np.int64)
+    taken[0] = 0
     for k in prange(nthreads):
         for j in range(4):          # a loop, not np.zeros: that would be a parallel region too
             stats[k, j] = 0
-        for t in range(k, ntasks, nthreads):
+        while True:
+            t = fetch_add(taken, 0, 1)
+            if t >= ntasks:
+                break
             build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
                           2 * t_start[t], t_start[t], t_count[t], t_buf[t], t_box[t],
                           t_depth[t], leaf_size, nbins, stats[k])

@@ -40,6 +40,8 @@ import queue
 import threading
 
 import numba
+from numba import types
+from numba.extending import intrinsic
 
 from .config import RANGES_PER_THREAD
 from .errors import InputError, ParameterError
@@ -193,3 +195,22 @@ def run_ranges(kernel, n, *args, min_items=1, parts=None):
         raise
     if errors:
         raise errors[0]
+
+
+@intrinsic
+def fetch_add(typingctx, arr, idx, value):
+    """Atomically add ``value`` to ``arr[idx]`` (a 1-D C-contiguous int64 array) and return the
+    element's value before the add: a shared counter from which the threads of a ``prange``
+    loop take work items in order, each thread as soon as it is free."""
+    if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.layout == "C"
+            and arr.dtype == types.int64 and isinstance(idx, types.Integer)
+            and isinstance(value, types.Integer)):
+        return None
+
+    def codegen(context, builder, sig, args):
+        ary = context.make_array(sig.args[0])(context, builder, args[0])
+        ptr = builder.gep(ary.data, [args[1]])
+        v = context.cast(builder, args[2], sig.args[2], types.int64)
+        return builder.atomic_rmw("add", ptr, v, "seq_cst")
+
+    return types.int64(arr, idx, value), codegen

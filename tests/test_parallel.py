@@ -127,3 +127,25 @@ def test_an_interrupt_while_waiting_lets_running_ranges_end_first():
     sender.join(30)
     time.sleep(0.2)
     assert np.array_equal(written, after)
+
+
+def test_a_shared_counter_hands_out_every_item_once():
+    """``fetch_add`` from every thread of a parallel loop: each item is taken exactly once."""
+    from numba import njit, prange
+    from hwbvh.parallel import fetch_add
+
+    @njit(parallel=True)
+    def take_all(n, threads, counter, taken_by):
+        for k in prange(threads):
+            while True:
+                t = fetch_add(counter, 0, 1)
+                if t >= n:
+                    break
+                taken_by[t] += 1
+
+    threads = max(2, numba.get_num_threads())
+    taken_by = np.zeros(100_000, np.int64)
+    counter = np.zeros(1, np.int64)
+    take_all(len(taken_by), threads, counter, taken_by)
+    assert (taken_by == 1).all()
+    assert counter[0] == len(taken_by) + threads        # and one take past the end per thread
