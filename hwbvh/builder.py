@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange, get_num_threads
 
 from . import config
-from .binning_unit import bin_level, bin_range
+from .binning_unit import bin_level, bin_range, bin_scratch
 from .errors import InputError, ParameterError, is_integer
 from .parallel import check_threading, fetch_add
 from .partitioning_unit import (partition_level, partition_range, range_bounds,
@@ -98,6 +98,7 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
     ``stats`` (int64 (4,)) accumulates nodes, leaves, fallback splits, max depth."""
     binbox = np.empty((3, nbins, 6), dtype=np.float32)
     bincnt = np.empty((3, nbins), dtype=np.int64)
+    slots, bin_words, bin_counts = bin_scratch(nbins, count)
     lbox = np.empty(6, dtype=np.float32)
     rbox = np.empty(6, dtype=np.float32)
     left_sa = np.empty(nbins, dtype=np.float32)
@@ -149,7 +150,7 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
             continue
         # -- binning units + SAH calculator --
         src_b = bb[cur_buf]
-        bin_range(src_b, s, s + n, curbox, nbins, binbox, bincnt)
+        bin_range(src_b, s, s + n, curbox, nbins, binbox, bincnt, slots, bin_words, bin_counts)
         axis, boundary, nl, nr, cost = best_split(binbox, bincnt, nbins, lbox, rbox, left_sa, left_n)
         if axis < 0:
             # -- no valid candidate on any axis: midpoint of the list, in buffer order --
