@@ -164,7 +164,7 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
         else:
             # -- partitioning unit: into the opposite buffer of the pair --
             partition_range(src_b, bi[cur_buf], bb[1 - cur_buf], bi[1 - cur_buf],
-                            s, s + n, axis, boundary, curbox, nbins, nl)
+                            s, s + n, axis, boundary, curbox, nbins, nl, slots)
             caxis[slot] = axis
             child_buf = 1 - cur_buf
         # -- state S4: push right, continue left (pre-order output) --
