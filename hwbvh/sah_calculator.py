@@ -22,7 +22,7 @@ def surface_half_area(lox, loy, loz, hix, hiy, hiz):
     return dx * dy + dy * dz + dz * dx
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def best_split(binbox, bincnt, nbins, out_lbox, out_rbox, left_sa, left_n):
     """Choose the split. Returns (axis, boundary, n_left, n_right, cost); axis -1 when no
     axis has a valid candidate. Fills out_lbox / out_rbox (f32 (6,)) with the child AABBs.
@@ -30,33 +30,36 @@ def best_split(binbox, bincnt, nbins, out_lbox, out_rbox, left_sa, left_n):
     best_axis = -1
     best_b = 0
     best_cost = np.float32(0.0)
+    # float32 accumulators: the bounds are float32, so their min and max are the same in
+    # either width, and the SAH is taken in float32 without conversions
+    inf = np.float32(np.inf)
     for a in range(3):
-        # forward sweep: SA(V_L) * N_L for boundaries 1..S-1 (the FIFO of Fig. 3.11)
-        lx = np.inf; ly = np.inf; lz = np.inf
-        hx = -np.inf; hy = -np.inf; hz = -np.inf
+        # forward sweep: SA(V_L) * N_L for boundaries 1..S-1 (the FIFO of Fig. 3.11); an
+        # entry with no primitive on the left is never read
+        lx = inf; ly = inf; lz = inf
+        hx = -inf; hy = -inf; hz = -inf
         n = 0
         for b in range(nbins - 1):
-            if bincnt[a, b] > 0:
-                n += bincnt[a, b]
+            c = bincnt[a, b]
+            if c > 0:
+                n += c
                 lx = min(lx, binbox[a, b, 0]); ly = min(ly, binbox[a, b, 1]); lz = min(lz, binbox[a, b, 2])
                 hx = max(hx, binbox[a, b, 3]); hy = max(hy, binbox[a, b, 4]); hz = max(hz, binbox[a, b, 5])
             left_n[b + 1] = n
-            if n > 0:
-                left_sa[b + 1] = surface_half_area(np.float32(lx), np.float32(ly), np.float32(lz),
-                                                   np.float32(hx), np.float32(hy), np.float32(hz))
+            left_sa[b + 1] = surface_half_area(lx, ly, lz, hx, hy, hz)
         # backward sweep: SA(V_R) * N_R, and the total cost per boundary (the LIFOs)
-        lx = np.inf; ly = np.inf; lz = np.inf
-        hx = -np.inf; hy = -np.inf; hz = -np.inf
+        lx = inf; ly = inf; lz = inf
+        hx = -inf; hy = -inf; hz = -inf
         n = 0
         for b in range(nbins - 1, 0, -1):
-            if bincnt[a, b] > 0:
-                n += bincnt[a, b]
+            c = bincnt[a, b]
+            if c > 0:
+                n += c
                 lx = min(lx, binbox[a, b, 0]); ly = min(ly, binbox[a, b, 1]); lz = min(lz, binbox[a, b, 2])
                 hx = max(hx, binbox[a, b, 3]); hy = max(hy, binbox[a, b, 4]); hz = max(hz, binbox[a, b, 5])
             if n == 0 or left_n[b] == 0:
                 continue
-            sa_r = surface_half_area(np.float32(lx), np.float32(ly), np.float32(lz),
-                                     np.float32(hx), np.float32(hy), np.float32(hz))
+            sa_r = surface_half_area(lx, ly, lz, hx, hy, hz)
             cost = left_sa[b] * np.float32(left_n[b]) + sa_r * np.float32(n)
             # ties: lower axis, then lower boundary (we sweep b downwards, so <= on the same axis)
             if best_axis < 0 or cost < best_cost or (a == best_axis and cost == best_cost):
