@@ -64,11 +64,14 @@ def union_box(boxes):
     can change which of +0 and -0 stays, so a bound that comes out zero is taken again the
     slow way."""
     out = np.empty(6, dtype=np.float32)
+    slow = [None, None]                     # NumPy's own mins and maxes, taken once if needed
     for c in range(6):
-        col = boxes[:, c]
-        out[c] = col.min() if c < 3 else col.max()
+        out[c] = boxes[:, c].min() if c < 3 else boxes[:, c].max()
         if out[c] == 0:
-            out[c] = boxes[:, :3].min(axis=0)[c] if c < 3 else boxes[:, 3:].max(axis=0)[c - 3]
+            half = c // 3
+            if slow[half] is None:
+                slow[half] = boxes[:, :3].min(axis=0) if half == 0 else boxes[:, 3:].max(axis=0)
+            out[c] = slow[half][c % 3]
     return out
 
 

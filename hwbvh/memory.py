@@ -9,9 +9,10 @@ tracer, ``MALLOC_MMAP_THRESHOLD`` and ``MALLOC_TRIM_THRESHOLD`` in ``config``). 
 thresholds raised, freed memory stays in the heap for the next build.
 
 For the whole process, like the threading set-up (``parallel``): the peers timed beside our
-build (Embree, Mitsuba) allocate from the same heap. A threshold the user set in the
-environment (``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``) is left as set, and a C
-library without ``mallopt`` (not glibc) as it is.
+build (Embree, Mitsuba) allocate from the same heap. Where the user tunes glibc's allocator in
+the environment (``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``, or these thresholds
+in ``GLIBC_TUNABLES``), neither threshold is touched; a C library without ``mallopt`` (not
+glibc) is left as it is.
 """
 import ctypes
 import os
@@ -22,19 +23,27 @@ from .config import MALLOC_MMAP_THRESHOLD, MALLOC_TRIM_THRESHOLD
 M_TRIM_THRESHOLD = -1           # glibc's mallopt parameters
 M_MMAP_THRESHOLD = -3
 USER_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+USER_TUNABLES = ("glibc.malloc.mmap_threshold", "glibc.malloc.trim_threshold")
+
+
+def user_tunes_malloc(environ=None):
+    """Whether the environment sets either threshold itself."""
+    env = os.environ if environ is None else environ
+    return any(k in env for k in USER_SETTINGS) or \
+        any(t in env.get("GLIBC_TUNABLES", "") for t in USER_TUNABLES)
 
 
 def keep_freed_memory():
     """Raise glibc's mmap and trim thresholds (see the module text). Returns whether both
     were set."""
-    if not sys.platform.startswith("linux") or any(k in os.environ for k in USER_SETTINGS):
+    if not sys.platform.startswith("linux") or user_tunes_malloc():
         return False
     try:
         mallopt = ctypes.CDLL(None).mallopt         # the process' own C library
     except (OSError, AttributeError):
         return False
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
-    return bool(mallopt(M_MMAP_THRESHOLD, MALLOC_MMAP_THRESHOLD)) & \
+    return bool(mallopt(M_MMAP_THRESHOLD, MALLOC_MMAP_THRESHOLD)) and \
         bool(mallopt(M_TRIM_THRESHOLD, MALLOC_TRIM_THRESHOLD))
 
 

@@ -17,10 +17,10 @@ def _partition_chunk(src_b, src_i, dst_b, dst_i, lo, hi, li, ri, axis, boundary,
     """Records [lo, hi): left-going ones to dst from li up, the rest from ri up (in order).
     Returns the next free left position. ``sides`` (int32, at least hi - lo): scratch.
 
-    Two loops: each record's side first (Eq. 3.1 on the split axis, branch-free, so that the
-    divisions run in SIMD lanes), then the moves, each record's destination chosen without a
-    branch: below the upper levels a record's side is as good as random, and a mispredicted
-    branch per record cost more than the rest of the move."""
+    Two loops: each record's side first (Eq. 3.1 on the split axis, without a branch, so that
+    the divisions of successive records overlap), then the moves, each record's destination
+    chosen without a branch: below the upper levels a record's side is as good as random, and
+    a mispredicted branch per record cost more than the rest of the move."""
     lo_ax = nodebox[axis]
     hi_ax = nodebox[3 + axis]
     s_f32 = np.float32(nbins)

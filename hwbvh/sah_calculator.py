@@ -22,7 +22,7 @@ def surface_half_area(lox, loy, loz, hix, hiy, hiz):
     return dx * dy + dy * dz + dz * dx
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True)
 def best_split(binbox, bincnt, nbins, out_lbox, out_rbox, left_sa, left_n):
     """Choose the split. Returns (axis, boundary, n_left, n_right, cost); axis -1 when no
     axis has a valid candidate. Fills out_lbox / out_rbox (f32 (6,)) with the child AABBs.

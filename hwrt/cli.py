@@ -371,7 +371,8 @@ def cmd_render(args):
     import time
     from hwbvh.errors import InputError, ParameterError
     from hwbvh.files import check_outputs
-    from raytracer.render import check_float32_reach, make_tracer, render, warm_up
+    from raytracer.render import (check_float32_reach, make_tracer, render,
+                                   simulated_ready_seconds, warm_up)
     from raytracer.output import exr_writer, png_writer
     from scenes import compile_scene, load_scene, with_frame
     from scenes.loader import scene_inputs
@@ -447,9 +448,9 @@ def cmd_render(args):
               "passes": res.stats["passes"]}
     result.update({k: v for k, v in info.items() if k in ("nodes", "sah_cost", "memory_bytes",
                                                            "references_per_triangle")})
-    sim = info.get("simulated_build_seconds")
-    if sim:
-        result["time_to_image_simulated_seconds"] = {k: v + render_s for k, v in sim.items()}
+    ready = simulated_ready_seconds(info)
+    if ready:
+        result["time_to_image_simulated_seconds"] = {k: v + render_s for k, v in ready.items()}
     if checked is not None:
         result["verify"] = checked.summary()
     meta = {"scene": scene.name, "accel": args.accel, "precision": args.precision,

@@ -235,6 +235,12 @@ def _tti_key(name, builder, W, H, spp, depth, repeat):
     return json.dumps([name, builder, W, H, spp, depth, repeat])
 
 
+def _tti_cell_done(cell):
+    """The cell if it is a result of the current timing: a cell saved before builds were timed
+    up to a tracer ready to trace has no ``tracer_setup_seconds`` and is computed again."""
+    return cell if cell and "tracer_setup_seconds" in cell else None
+
+
 def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat, accel="bvh"):
     """One scene and tree (``accel`` "bvh") or other structure (``accel``, its own build; the
     builder is then the default): ``repeat`` timed builds and renders, then (our traversal)
@@ -253,7 +259,7 @@ def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat, accel="bvh"):
         res = render(scene, tracer)
         renders.append(time.perf_counter() - t0)
         builds.append(b)
-        setups.append(info.get("tracer_setup_seconds", 0.0))
+        setups.append(info.get("tracer_setup_seconds"))
     figures = structure_figures(tracer, len(scene.triangles)) if traversal == "numba" else {}
     clean = None
     if traversal == "numba":        # --verify at a small size: every ray vs Embree
@@ -270,7 +276,10 @@ def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat, accel="bvh"):
             "rays": int(sum(res.stats["rays"].values())), "ray_kinds": res.stats["rays"],
             "sah_cost": info.get("sah_cost"), "verify_clean": clean,
             "simulated_build_seconds": info.get("simulated_build_seconds"),
-            "tracer_setup_seconds": _median(setups)[0], **figures}
+            # our BVH's set-up (inside build_seconds); None for the other structures, whose
+            # set-up their build includes
+            "tracer_setup_seconds": None if None in setups else _median(setups)[0],
+            **figures}
     if accel != "bvh":
         record["accel"] = accel
     return record
@@ -293,7 +302,7 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
     for spec in specs:
         for builder, traversal, accel, tree in trees:
             key = _tti_key(spec[0], tree, W, H, spp, depth, repeat)
-            if not cells.get(key):
+            if not _tti_cell_done(cells.get(key)):
                 keys[f"tti-{run}-{len(jobs)}"] = key
                 jobs.append((f"tti-{run}-{len(jobs)}", tti_cell,
                              (spec, builder, traversal, W, H, spp, depth, repeat, accel)))
@@ -312,16 +321,18 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
 
 
 def _tti_rows(cells, specs, W, H, spp, depth, repeat, structures=()):
+    from raytracer.render import simulated_ready_seconds
     rows, summary = [], []
     for name, _, _ in specs:
-        got = {b: cells.get(_tti_key(name, b, W, H, spp, depth, repeat)) for b, _ in TTI_TREES}
+        got = {b: _tti_cell_done(cells.get(_tti_key(name, b, W, H, spp, depth, repeat)))
+               for b, _ in TTI_TREES}
         if not all(got.values()):
             continue
-        others = {a: cells.get(_tti_key(name, a, W, H, spp, depth, repeat)) for a in structures}
+        others = {a: _tti_cell_done(cells.get(_tti_key(name, a, W, H, spp, depth, repeat)))
+                  for a in structures}
         hw = got["hwbvh"]
         # a simulated hardware build still leaves our tracer's set-up to software
-        sim = {k: v + hw.get("tracer_setup_seconds", 0.0)
-               for k, v in (hw["simulated_build_seconds"] or {}).items()}
+        sim = simulated_ready_seconds(hw) or {}
         for path, build, src in (("hwbvh-C", sim.get("HWBVH-C"), hw), ("hwbvh-HP", sim.get("HWBVH-HP"), hw),
                                  ("hwbvh-sw", hw["build_seconds"], hw), ("sweep", got["sweep"]["build_seconds"], got["sweep"]),
                                  ("embree", got["embree"]["build_seconds"], got["embree"])):

@@ -244,18 +244,28 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=DEFAULT_LEA
     bvh = hwbvh.build(scene.triangles, builder=builder, leaf_size=leaf_size, bins=bins)
     built = time.perf_counter()
     tracer = Tracer(bvh, precision=precision, watertight=watertight)
-    secs = time.perf_counter() - t
+    ready = time.perf_counter()
     info = {"builder": builder, "nodes": bvh.meta["nodes"], "sah_cost": bvh.meta["sah_cost"],
             "build_seconds_core": bvh.meta["build_seconds"],
             # the software work between a built tree and tracing (the triangle rows in index
             # order, the checks), which a hardware build would leave to do too
-            "tracer_setup_seconds": t + secs - built}
+            "tracer_setup_seconds": ready - built}
     if builder == "hwbvh" and leaf_size == DEFAULT_LEAF_SIZE and bins == DEFAULT_BINS:
         # the simulated hardware build time of the thesis' instantiations (Table 4.1)
         from hwbvh.cycle_model import PRESETS, simulate
         info["simulated_build_seconds"] = {name: simulate(bvh.tree, p)["seconds"]
                                            for name, p in PRESETS.items()}
-    return tracer, secs, info
+    return tracer, ready - t, info
+
+
+def simulated_ready_seconds(info):
+    """{preset: seconds} from a tree to a tracer ready to trace with a simulated hardware build
+    (``make_tracer``'s info): each preset's build time plus our tracer's set-up in software;
+    None where the info has no simulated builds."""
+    sim = info.get("simulated_build_seconds")
+    if not sim:
+        return None
+    return {k: v + (info.get("tracer_setup_seconds") or 0.0) for k, v in sim.items()}
 
 
 def scene_passes(scene):

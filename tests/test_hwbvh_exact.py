@@ -208,7 +208,9 @@ def test_upper_phase_fallback_is_the_one_task_tree():
         bvh = hwbvh.build(tris, **kw)
         assert bvh.tree.stats["upper_phase_nodes"] > 0
         assert bvh.meta["fallback_splits"] == one_task.meta["fallback_splits"] > 0
-        assert preorder(bvh.nodes, bvh.indices) == preorder(one_task.nodes, one_task.indices)
+        # bytes, not values: -0.0 == 0.0 (the placement does not depend on the task grain)
+        assert bvh.nodes.tobytes() == one_task.nodes.tobytes()
+        assert np.array_equal(bvh.indices, one_task.indices)
 
 
 def test_binning_unit_is_eq_3_1_and_the_collectors_bit_for_bit():
@@ -222,7 +224,8 @@ def test_binning_unit_is_eq_3_1_and_the_collectors_bit_for_bit():
         n = int(rng.integers(1, 400))
         lo = rng.uniform(-1, 1, (n, 3)).astype(np.float32)
         boxes = np.concatenate([lo, lo + rng.uniform(0, 0.3, (n, 3)).astype(np.float32)], 1)
-        boxes[rng.random((n, 6)) < 0.1] = rng.choice(zeros)
+        signed = rng.random((n, 6)) < 0.1
+        boxes[signed] = rng.choice(zeros, size=int(signed.sum()))     # both signs in one bin
         boxes[:, 3:] = np.maximum(boxes[:, 3:], boxes[:, :3])
         node = np.concatenate([boxes[:, :3].min(0), boxes[:, 3:].max(0)]).astype(np.float32)
         if trial % 5 == 0:

@@ -607,3 +607,26 @@ def test_the_cli_renders_a_tiny_scene_with_the_float64_units(tmp_path, capsys):
     assert err.startswith("hwrt: error: --verify: checks against Embree, which traces in float32, "
                           "and the scene is too small for the float32 units"), err
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_simulated_time_to_image_counts_the_tracers_set_up(capsys, tmp_path):
+    """A simulated hardware build leaves our tracer's set-up to software: ``hwrt render``'s
+    simulated time to image is the preset's build + that set-up + the render, as bench tti
+    counts it; and a tti cell saved before set-ups were timed is computed again."""
+    import json
+    from hwrt.cli import main
+    from hwrt.study import _tti_cell_done
+    from raytracer.render import simulated_ready_seconds
+
+    assert simulated_ready_seconds({"simulated_build_seconds": {"HP": 0.25},
+                                    "tracer_setup_seconds": 0.5}) == {"HP": 0.75}
+    assert simulated_ready_seconds({"builder": "embree"}) is None
+    assert _tti_cell_done({"key": "k", "build_seconds": 1.0}) is None
+    assert _tti_cell_done({"key": "k", "tracer_setup_seconds": None})
+    rc = main(["render", "cornell", "-o", str(tmp_path / "c.exr"), "--width", "32", "--height",
+               "24", "--spp", "1", "--json"])
+    got = json.loads(capsys.readouterr().out)
+    assert rc == 0
+    for preset, sim in got["simulated_build_seconds"].items():
+        tti = got["time_to_image_simulated_seconds"][preset]
+        assert sim + got["render_seconds"] < tti < got["time_to_image_seconds"] + sim
