@@ -416,7 +416,7 @@ def cmd_render(args):
     if args.precision == "float32":     # with the remedy this command takes
         wider = args.accel == "bvh" and not embree and not args.verify
         check_float32_reach(scene, float64="add --precision float64" if wider else None)
-    startup_s = warm_up(args.builder, args.traversal)
+    startup_s = warm_up(args.builder, args.traversal, precision=args.precision)
     if args.accel == "grid":
         from traversal.grid import warm_up_grid
         startup_s += warm_up_grid()

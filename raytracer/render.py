@@ -141,11 +141,12 @@ def _compile_in_child(parent):
 CHILD_COMPILE_TIMEOUT = 600     # seconds; a child that takes longer is stuck (the parent compiles)
 
 
-def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
+def warm_up(builder="hwbvh", traversal="numba", parallel_build=False, precision="float32"):
     """Load (or, the first time ever, compile) the Numba kernels a render uses, on a tiny
     input, so that build and render timings measure work, not JIT start-up. Returns seconds.
     ``parallel_build`` also loads the data-parallel builder kernels that meshes above
-    SEQUENTIAL_MAX_PRIMS use (benchmarks want them; a first render of a small scene does not).
+    SEQUENTIAL_MAX_PRIMS use (benchmarks want them; a first render of a small scene does not);
+    ``precision`` "float64" also the wider units' kernels, which compile on their own.
     The first time, the traversal kernel compiles in a child process meanwhile
     (``_compile_traversal_beside``), and the shading stages compile on a render through
     Embree, whose hits have the same types as ours."""
@@ -171,6 +172,8 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False):
             except subprocess.TimeoutExpired:
                 pass                                # killed below; the render compiles it
         render(indexed, tracer)
+        if precision != "float32" and builder != "embree" and traversal == "numba":
+            render(indexed, make_tracer(indexed, builder, traversal, precision=precision)[0])
     finally:
         if beside is not None and beside.poll() is None:
             beside.kill()

@@ -630,3 +630,15 @@ def test_simulated_time_to_image_counts_the_tracers_set_up(capsys, tmp_path):
     for preset, sim in got["simulated_build_seconds"].items():
         tti = got["time_to_image_simulated_seconds"][preset]
         assert sim + got["render_seconds"] < tti < got["time_to_image_seconds"] + sim
+
+
+def test_warm_up_loads_the_wider_units_when_asked():
+    """``hwrt render --precision float64`` warms up the float64 traversal before timing, so
+    that its first render's time is the render, not the compilation."""
+    from numba import types
+    from raytracer.render import warm_up
+    from traversal.traverse import trace_chunks
+
+    warm_up(precision="float64")
+    assert any(getattr(t, "dtype", None) == types.float64
+               for sig in trace_chunks.signatures for t in sig)
