@@ -54,12 +54,18 @@ SLOT_WORDS = 8
 
 
 @njit(cache=True)
+def collector_scratch(nbins):
+    """The collectors' words (float32) and counts (int64) of ``bin_range``."""
+    return (np.empty(3 * nbins * SLOT_WORDS, dtype=np.float32),
+            np.empty(3 * nbins, dtype=np.int64))
+
+
+@njit(cache=True)
 def bin_scratch(nbins, records):
     """Working arrays of ``bin_range`` for nodes of up to ``records`` primitives: each
     record's three slots (int32), the collectors' words (float32) and counts (int64)."""
-    return (np.empty(3 * max(records, 1), dtype=np.int32),
-            np.empty(3 * nbins * SLOT_WORDS, dtype=np.float32),
-            np.empty(3 * nbins, dtype=np.int64))
+    F, C = collector_scratch(nbins)
+    return np.empty(3 * max(records, 1), dtype=np.int32), F, C
 
 
 @njit(cache=True)
@@ -125,15 +131,17 @@ def bin_range(boxes, start, end, nodebox, nbins, binbox, bincnt, slots, F, C):
 
 
 @njit(cache=True, parallel=True)
-def bin_level(bb, starts, counts, bufs, nodeboxes, nbins, nchunks):
+def bin_level(bb, starts, counts, bufs, nodeboxes, nbins, nchunks, slots):
     """Data-parallel binning of every node of one upper level at once: node k's records
     [starts[k], starts[k] + counts[k]) of buffer ``bufs[k]`` of the pair ``bb`` (2, N, 6), in
     ``nchunks`` chunks, each into private collectors (one SAH bin collector per binning unit
     group, 3.3.4); then each node's collectors are merged in chunk order (the SAH bin merge
     units), so that of equal bounds (+0 and -0) the first record's stays, as in one pass.
     Every (node, chunk) pair is one work item of a single parallel region: a region per node
-    cost more in thread wake-ups than the binning itself. Returns (binbox (K, 3, S, 6),
-    bincnt (K, 3, S), chunk counts (K, nchunks, 3, S))."""
+    cost more in thread wake-ups than the binning itself. Each record's slots go to
+    ``slots`` (3N int32: the record at position i at 3i onward), where the partitioning
+    reads its side. Returns (binbox (K, 3, S, 6), bincnt (K, 3, S), chunk counts
+    (K, nchunks, 3, S))."""
     nodes = starts.shape[0]
     part_box = np.empty((nodes, nchunks, 3, nbins, 6), dtype=np.float32)
     part_cnt = np.empty((nodes, nchunks, 3, nbins), dtype=np.int64)
@@ -143,9 +151,9 @@ def bin_level(bb, starts, counts, bufs, nodeboxes, nbins, nchunks):
         n = counts[k]
         lo = starts[k] + (n * c) // nchunks
         hi = starts[k] + (n * (c + 1)) // nchunks
-        slots, F, C = bin_scratch(nbins, hi - lo)
+        F, C = collector_scratch(nbins)
         bin_range(bb[bufs[k]], lo, hi, nodeboxes[k], nbins, part_box[k, c], part_cnt[k, c],
-                  slots, F, C)
+                  slots[3 * lo:3 * hi], F, C)
     binbox = np.empty((nodes, 3, nbins, 6), dtype=np.float32)
     bincnt = np.empty((nodes, 3, nbins), dtype=np.int64)
     for k in range(nodes):

@@ -30,7 +30,7 @@ from . import config
 from .binning_unit import bin_level, bin_range, bin_scratch
 from .errors import InputError, ParameterError, is_integer
 from .parallel import check_threading, fetch_add
-from .partitioning_unit import (partition_level, partition_range, range_bounds,
+from .partitioning_unit import (partition_binned, partition_level, range_bounds,
                                 range_bounds_parallel)
 from .sah_calculator import best_split
 
@@ -166,8 +166,8 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
             child_buf = cur_buf
         else:
             # -- partitioning unit: into the opposite buffer of the pair --
-            partition_range(src_b, bi[cur_buf], bb[1 - cur_buf], bi[1 - cur_buf],
-                            s, s + n, axis, boundary, curbox, nbins, nl, slots)
+            partition_binned(src_b, bi[cur_buf], bb[1 - cur_buf], bi[1 - cur_buf],
+                             s, s + n, axis, boundary, nbins, nl, slots)
             caxis[slot] = axis
             child_buf = 1 - cur_buf
         # -- state S4: push right, continue left (pre-order output) --
@@ -286,6 +286,7 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
     fallback = 0
     # a level's nodes: (start, count, buf, box, depth, parent_top_index, side)
     level = [(0, n, 0, rootbox, 0, -1, 0)]
+    level_slots = np.empty(3 * n, dtype=np.int32)     # each record's bins, for its partition
     while level:
         split = []      # (top index, start, count, buf, box, depth) of the nodes to split
         for s, cnt, buf, box, depth, parent, side in level:
@@ -304,7 +305,8 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
         counts = np.array([x[2] for x in split], dtype=np.int64)
         bufs = np.array([x[3] for x in split], dtype=np.int64)
         nodeboxes = np.array([x[4] for x in split], dtype=np.float32).reshape(-1, 6)
-        binbox, bincnt, chunk_cnt = bin_level(bb, starts, counts, bufs, nodeboxes, bins, nchunks)
+        binbox, bincnt, chunk_cnt = bin_level(bb, starts, counts, bufs, nodeboxes, bins, nchunks,
+                                              level_slots)
         axes = np.empty(len(split), dtype=np.int64)
         boundaries = np.zeros(len(split), dtype=np.int64)
         children = []
@@ -331,8 +333,8 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
                 cbuf = 1 - buf
             children.append((s, nl, cbuf, lbox, depth + 1, t, 0))
             children.append((s + nl, nr, cbuf, rbox, depth + 1, t, 1))
-        partition_level(bb, bi, starts, counts, bufs, axes, boundaries, nodeboxes, bins,
-                        chunk_cnt)
+        partition_level(bb, bi, starts, counts, bufs, axes, boundaries, bins, chunk_cnt,
+                        level_slots)
         level = children
 
     # ---- canonical arrays: task slots [0, 2N), upper nodes at 2N + k ----

@@ -3,35 +3,25 @@
 Reads a node's primitive records from one buffer of its pair and writes them, split by the
 chosen bin boundary (bin ``< boundary`` goes left), into the opposite buffer. The functional
 model keeps both sides in their input order (a stable partition), so the buffer order - which
-the no-split fallback depends on - is one canonical order for every instantiation.
+the no-split fallback depends on - is one canonical order for every instantiation. A record's
+bin on the split axis is Eq. 3.1 on the node's box, which the binning units have just
+evaluated for the same record: the model reads it back from their pass (``slots``) rather
+than dividing again.
 """
 import numpy as np
 from numba import njit, prange
 
-from .binning_unit import bin_index, centre
 
-
-@njit(cache=True, error_model="numpy")
-def _partition_chunk(src_b, src_i, dst_b, dst_i, lo, hi, li, ri, axis, boundary, nodebox, nbins,
-                     sides):
-    """Records [lo, hi): left-going ones to dst from li up, the rest from ri up (in order).
-    Returns the next free left position. ``sides`` (int32, at least hi - lo): scratch.
-
-    Two loops: each record's side first (Eq. 3.1 on the split axis, without a branch, so that
-    the divisions of successive records overlap), then the moves, each record's destination
-    chosen without a branch: below the upper levels a record's side is as good as random, and
-    a mispredicted branch per record cost more than the rest of the move."""
-    lo_ax = nodebox[axis]
-    hi_ax = nodebox[3 + axis]
-    s_f32 = np.float32(nbins)
-    bf = src_b.reshape(-1)
-    for q in range(hi - lo):
-        j = 6 * (lo + q)
-        sides[q] = 1 if bin_index(centre(bf[j + axis], bf[j + 3 + axis]), lo_ax, hi_ax, s_f32,
-                                  nbins) < boundary else 0
+@njit(cache=True)
+def _move_records(src_b, src_i, dst_b, dst_i, lo, hi, li, ri, sides, stride, offset, limit):
+    """Records [lo, hi) from src to dst: record lo + q goes left (to li onward) when
+    ``sides[stride * q + offset] < limit``, else right (to ri onward), each side in order.
+    Returns the next free left position. The destination is chosen without a branch: below
+    the upper levels a record's side is as good as random, and a mispredicted branch per record
+    cost more than the rest of the move."""
     for q in range(hi - lo):
         i = lo + q
-        left = sides[q]
+        left = 1 if sides[stride * q + offset] < limit else 0
         j = li if left else ri
         li += left
         ri += 1 - left
@@ -42,13 +32,14 @@ def _partition_chunk(src_b, src_i, dst_b, dst_i, lo, hi, li, ri, axis, boundary,
 
 
 @njit(cache=True)
-def partition_range(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, nodebox, nbins, nl,
-                    sides):
+def partition_binned(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, nbins, nl, slots):
     """Stable partition of records [start, end) from src into dst; ``nl`` records go left
-    (the SAH calculator's count). Returns the number that did. ``sides``: scratch of at
-    least end - start int32."""
-    return _partition_chunk(src_b, src_i, dst_b, dst_i, start, end, start, start + nl, axis,
-                            boundary, nodebox, nbins, sides) - start
+    (the SAH calculator's count). Returns the number that did. The records are those that
+    ``binning_unit.bin_range`` has just binned, in order, into ``slots`` (record q's slot on
+    axis a at 3q + a, numbered a * S + bin): a record's side is its bin's, read back instead
+    of a second Eq. 3.1 (the same bin: the same node box, the same records)."""
+    return _move_records(src_b, src_i, dst_b, dst_i, start, end, start, start + nl, slots, 3,
+                         axis, axis * nbins + boundary) - start
 
 
 @njit(cache=True)
@@ -84,16 +75,16 @@ def chunk_offsets(starts, counts, axes, boundaries, chunk_counts):
 
 
 @njit(cache=True, parallel=True)
-def partition_level(bb, bi, starts, counts, bufs, axes, boundaries, nodeboxes, nbins,
-                    chunk_counts):
+def partition_level(bb, bi, starts, counts, bufs, axes, boundaries, nbins, chunk_counts, slots):
     """Data-parallel stable partition of every node of one upper level at once (as
     ``binning_unit.bin_level`` bins them): node k's records, in the same ``nchunks`` chunks,
     from buffer ``bufs[k]`` of the pair (``bb`` boxes, ``bi`` indices) into the other, split
-    at ``boundaries[k]`` on ``axes[k]`` (a node with axis < 0 is skipped). ``chunk_counts``
-    (K, nchunks, 3, S): each chunk's bin counts, from which every chunk knows where its
-    left-going and right-going records start without a counting pass. Nodes of one level
-    hold disjoint ranges, so their chunks write apart. One parallel region: nothing but the
-    ``prange`` loop may be an array expression here (see ``chunk_offsets``)."""
+    at ``boundaries[k]`` on ``axes[k]`` (a node with axis < 0 is skipped), each record's side
+    read from the slot ``bin_level`` left in ``slots``. ``chunk_counts`` (K, nchunks, 3, S):
+    each chunk's bin counts, from which every chunk knows where its left-going and
+    right-going records start without a counting pass. Nodes of one level hold disjoint
+    ranges, so their chunks write apart. One parallel region: nothing but the ``prange`` loop
+    may be an array expression here (see ``chunk_offsets``)."""
     nchunks = chunk_counts.shape[1]
     left_off, right_off = chunk_offsets(starts, counts, axes, boundaries, chunk_counts)
     for w in prange(starts.shape[0] * nchunks):
@@ -105,9 +96,9 @@ def partition_level(bb, bi, starts, counts, bufs, axes, boundaries, nodeboxes, n
         src = bufs[k]
         lo = starts[k] + (n * c) // nchunks
         hi = starts[k] + (n * (c + 1)) // nchunks
-        _partition_chunk(bb[src], bi[src], bb[1 - src], bi[1 - src], lo, hi, left_off[k, c],
-                         right_off[k, c], axes[k], boundaries[k], nodeboxes[k], nbins,
-                         np.empty(max(hi - lo, 1), dtype=np.int32))
+        _move_records(bb[src], bi[src], bb[1 - src], bi[1 - src], lo, hi, left_off[k, c],
+                      right_off[k, c], slots[3 * lo:3 * hi], 3, axes[k],
+                      axes[k] * nbins + boundaries[k])
 
 
 @njit(cache=True)
