@@ -192,6 +192,10 @@ def human(what):
                              f"{m['embree_seconds']*1e3:>11.1f}{m['ratio']:>8.2f}{m['sah_cost']:>9.2f}")
             lines.append(f"times: medians of {r['repeat']} runs each, the two builders alternating "
                          "run by run; ratio: the median of the runs' hwbvh / embree")
+            lines.append("hwbvh: the tree as the hardware writes it (nodes and index list); embree: "
+                         "its scene built and committed, ready to trace (our tracer's set-up, the "
+                         "rest of our way to tracing, counts in bench render's and bench tti's "
+                         "build)")
             return "\n".join(lines)
         if what in ("tti", "accuracy"):
             from .study import human_accuracy, human_tti
