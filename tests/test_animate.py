@@ -121,6 +121,13 @@ def test_strategies_produce_valid_trees(name, strategy):
         if strategy == "rebuild":
             assert set(f["simulated_build_seconds"]) == {"HWBVH-C", "HWBVH-HP"}
             assert f["simulated_energy_joules"]["HWBVH-C"] > 0
+        if strategy != "embree":
+            # build runs up to a tracer ready to trace; a simulated build leaves the set-up
+            setup = f["tracer_setup_seconds"]
+            assert 0 < setup < f["build_seconds"]
+            for k, sim in f["simulated_build_seconds"].items():
+                assert f["time_to_image_simulated_seconds"][k] == \
+                    pytest.approx(sim + setup + f["render_seconds"])
 
 
 def test_exploding_refit_degrades_and_adaptive_rebuilds():
