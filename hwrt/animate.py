@@ -374,7 +374,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         last = max(k for k, r in rows.items() if r["rebuilt"])
         updater.restore(anim.scene(last).triangles)
         updater.sah_at_rebuild = rows[last]["sah_cost"]
-    from raytracer.render import render
+    from raytracer.render import render, simulated_ready_seconds
     for i in range(start, frames):
         t = time.perf_counter()
         scene = first if i == 0 else anim.scene(i)
@@ -388,13 +388,12 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         t = time.perf_counter()
         res = render(scene, tracer, seed=seed + i)
         render_s = time.perf_counter() - t
-        sim = row["simulated_build_seconds"]
-        setup_s = row.get("tracer_setup_seconds") or 0.0
+        ready = simulated_ready_seconds(row)
         out = {"frame": i, "time": anim.time(i), "triangles": int(len(scene.triangles)), **row,
                "render_seconds": render_s,
                "time_to_image_seconds": row["build_seconds"] + render_s,
                "time_to_image_simulated_seconds":
-                   None if sim is None else {k: v + setup_s + render_s for k, v in sim.items()},
+                   None if ready is None else {k: v + render_s for k, v in ready.items()},
                "scene_seconds": scene_s, "rays": res.stats["rays"]}
         if verify:
             c = tracer.counts
@@ -574,6 +573,7 @@ def _per_frame(frames):
 
 
 def _bench_summary(runs, structures):
+    from raytracer.render import simulated_ready_seconds
     out = []
     for name in dict.fromkeys(a for a, _ in runs):
         per = {s: runs[(name, s)] for s in STRATEGIES}
@@ -598,7 +598,7 @@ def _bench_summary(runs, structures):
             row[f"simulated_build_per_frame_{k}_seconds"] = float(np.mean([f["simulated_build_seconds"][k] for f in reb]))
             # the hardware's build and our tracer's set-up after it, up to a tracer ready to trace
             row[f"simulated_ready_per_frame_{k}_seconds"] = float(np.mean(
-                [f["simulated_build_seconds"][k] + (f.get("tracer_setup_seconds") or 0.0) for f in reb]))
+                [simulated_ready_seconds(f)[k] for f in reb]))
         row["refit_seconds_per_frame"] = float(np.mean([f.get("refit_seconds") or f["build_seconds"] for f in ref]))
         row["rebuild_seconds_per_frame"] = float(np.mean([f["build_seconds"] for f in reb]))
         row["simulation_seconds_per_frame"] = float(np.mean([f["simulation_seconds"] for f in reb]))
