@@ -34,22 +34,12 @@ def bin_index(c, bb_lo, bb_hi, s_f32, nbins):
     return b if b < nbins else nbins - 1
 
 
-@njit(cache=True)
-def clear_bins(binbox, bincnt):
-    """Empty every bin: box (+inf, -inf), count 0. binbox (3, S, 6) f32, bincnt (3, S) i64."""
-    for a in range(3):
-        for b in range(binbox.shape[1]):
-            for k in range(3):
-                binbox[a, b, k] = np.inf
-                binbox[a, b, 3 + k] = -np.inf
-            bincnt[a, b] = 0
-
-
 # Software layout of the collectors (``bin_scratch``): per (axis, bin) slot a = axis * S + bin,
 # eight float32 words ``min x, y, z, -max x, y, z`` and two unused (32 bytes: a slot never
 # straddles a cache line), every update a min (max x = -min(-x), exactly, and of equal
-# bounds, +0 or -0, the one already held stays in both forms); the counts apart.
-# ``bin_range`` hands the bins out in the unit's (3, S, 6) form.
+# bounds, +0 or -0, the one already held stays in both forms); the counts apart. An empty
+# bin's words are +inf. The SAH calculator reads the bins in this form; ``collector_bins`` /
+# ``collector_words`` convert from and to the unit's (3, S, 6) form.
 SLOT_WORDS = 8
 
 
@@ -83,11 +73,12 @@ def _collect(F, C, slot, r0, r1, r2, r3, r4, r5):
 
 
 @njit(cache=True, error_model="numpy")
-def bin_range(boxes, start, end, nodebox, nbins, binbox, bincnt, slots, F, C):
-    """Bin primitives ``boxes[start:end]`` (f32 (n, 6)) into ``binbox`` (3, S, 6) and
-    ``bincnt`` (3, S) (every bin written). Axes with zero node extent are left empty. The
-    three binning units of a group see each record at the same time, so one pass serves all
-    axes. ``slots``, ``F``, ``C``: ``bin_scratch`` arrays.
+def bin_records(boxes, start, end, nodebox, nbins, slots, F, C):
+    """Bin primitives ``boxes[start:end]`` (f32 (n, 6)) into the collectors ``F``, ``C`` (every
+    bin written, in the layout above); each record's three slots go to ``slots`` (record q's
+    at 3q onward). Axes with zero node extent are left empty. The three binning units of a
+    group see each record at the same time, so one pass serves all axes. ``slots``, ``F``,
+    ``C``: ``bin_scratch`` arrays.
 
     Two loops: Eq. 3.1 for every record and axis first, without a branch, so that the
     divisions of successive records overlap; then the collectors, record by record in order,
@@ -121,13 +112,23 @@ def bin_range(boxes, start, end, nodebox, nbins, binbox, bincnt, slots, F, C):
             _collect(F, C, slots[3 * q + 1], a0, a1, a2, b0, b1, b2)
         if uz:
             _collect(F, C, slots[3 * q + 2], a0, a1, a2, b0, b1, b2)
-    for a in range(3):
-        for b in range(nbins):
-            o = SLOT_WORDS * (a * nbins + b)
-            bincnt[a, b] = C[a * nbins + b]
-            for k in range(3):
-                binbox[a, b, k] = F[o + k]
-                binbox[a, b, 3 + k] = -F[o + 3 + k]
+
+
+def collector_bins(F, C, nbins):
+    """The collectors' bins in the unit's form: (binbox (3, S, 6) f32, bincnt (3, S) i64)."""
+    w = np.asarray(F, np.float32).reshape(3, nbins, SLOT_WORDS)
+    return (np.concatenate([w[..., :3], -w[..., 3:6]], axis=-1),
+            np.asarray(C, np.int64).reshape(3, nbins).copy())
+
+
+def collector_words(binbox, bincnt):
+    """Bins given in the unit's form (binbox (3, S, 6), an empty bin (+inf, -inf); bincnt
+    (3, S)) as the collectors hold them: (F, C)."""
+    binbox = np.asarray(binbox, np.float32)
+    w = np.full(binbox.shape[:2] + (SLOT_WORDS,), np.inf, np.float32)
+    w[..., :3] = binbox[..., :3]
+    w[..., 3:6] = -binbox[..., 3:]
+    return w.reshape(-1), np.ascontiguousarray(bincnt, np.int64).reshape(-1)
 
 
 @njit(cache=True, parallel=True)
@@ -140,30 +141,30 @@ def bin_level(bb, starts, counts, bufs, nodeboxes, nbins, nchunks, slots):
     Every (node, chunk) pair is one work item of a single parallel region: a region per node
     cost more in thread wake-ups than the binning itself. Each record's slots go to
     ``slots`` (3N int32: the record at position i at 3i onward), where the partitioning
-    reads its side. Returns (binbox (K, 3, S, 6), bincnt (K, 3, S), chunk counts
-    (K, nchunks, 3, S))."""
+    reads its side. Returns node k's merged collectors (words (K, 3 S SLOT_WORDS), counts
+    (K, 3 S)) and the chunks' counts (K, nchunks, 3, S)."""
     nodes = starts.shape[0]
-    part_box = np.empty((nodes, nchunks, 3, nbins, 6), dtype=np.float32)
-    part_cnt = np.empty((nodes, nchunks, 3, nbins), dtype=np.int64)
+    words = 3 * nbins * SLOT_WORDS
+    part_words = np.empty((nodes, nchunks, words), dtype=np.float32)
+    part_cnt = np.empty((nodes, nchunks, 3 * nbins), dtype=np.int64)
     for w in prange(nodes * nchunks):
         k = w // nchunks
         c = w - k * nchunks
         n = counts[k]
         lo = starts[k] + (n * c) // nchunks
         hi = starts[k] + (n * (c + 1)) // nchunks
-        F, C = collector_scratch(nbins)
-        bin_range(bb[bufs[k]], lo, hi, nodeboxes[k], nbins, part_box[k, c], part_cnt[k, c],
-                  slots[3 * lo:3 * hi], F, C)
-    binbox = np.empty((nodes, 3, nbins, 6), dtype=np.float32)
-    bincnt = np.empty((nodes, 3, nbins), dtype=np.int64)
+        bin_records(bb[bufs[k]], lo, hi, nodeboxes[k], nbins, slots[3 * lo:3 * hi],
+                    part_words[k, c], part_cnt[k, c])
+    merged = np.empty((nodes, words), dtype=np.float32)
+    merged_cnt = np.empty((nodes, 3 * nbins), dtype=np.int64)
     for k in range(nodes):
-        clear_bins(binbox[k], bincnt[k])
+        for q in range(words):
+            merged[k, q] = np.inf
+        for q in range(3 * nbins):
+            merged_cnt[k, q] = 0
         for c in range(nchunks):
-            for a in range(3):
-                for b in range(nbins):
-                    bincnt[k, a, b] += part_cnt[k, c, a, b]
-                    for j in range(3):
-                        binbox[k, a, b, j] = min(binbox[k, a, b, j], part_box[k, c, a, b, j])
-                        binbox[k, a, b, 3 + j] = max(binbox[k, a, b, 3 + j],
-                                                     part_box[k, c, a, b, 3 + j])
-    return binbox, bincnt, part_cnt
+            for q in range(words):
+                merged[k, q] = min(merged[k, q], part_words[k, c, q])
+            for q in range(3 * nbins):
+                merged_cnt[k, q] += part_cnt[k, c, q]
+    return merged, merged_cnt, part_cnt.reshape(nodes, nchunks, 3, nbins)

@@ -27,12 +27,12 @@ import numpy as np
 from numba import njit, prange, get_num_threads
 
 from . import config
-from .binning_unit import bin_level, bin_range, bin_scratch
+from .binning_unit import bin_level, bin_records, bin_scratch
 from .errors import InputError, ParameterError, is_integer
 from .parallel import check_threading, fetch_add
 from .partitioning_unit import (partition_binned, partition_level, range_bounds,
                                 range_bounds_parallel)
-from .sah_calculator import best_split
+from .sah_calculator import best_split, sah_scratch
 
 AXIS_LEAF = -1
 AXIS_FALLBACK = 3
@@ -99,13 +99,10 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
     """Build the subtree of records [start, start+count) held in buffer ``buf`` of the pair
     ``bb`` (2, N, 6) / ``bi`` (2, N). Nodes go to slots ``slot0, slot0+1, ...`` in pre-order.
     ``stats`` (int64 (4,)) accumulates nodes, leaves, fallback splits, max depth."""
-    binbox = np.empty((3, nbins, 6), dtype=np.float32)
-    bincnt = np.empty((3, nbins), dtype=np.int64)
     slots, bin_words, bin_counts = bin_scratch(nbins, count)
+    left_sa, left_n, occupied = sah_scratch(nbins)
     lbox = np.empty(6, dtype=np.float32)
     rbox = np.empty(6, dtype=np.float32)
-    left_sa = np.empty(nbins, dtype=np.float32)
-    left_n = np.empty(nbins, dtype=np.int64)
     cap = count + 2
     st_parent = np.empty(cap, dtype=np.int64)
     st_start = np.empty(cap, dtype=np.int64)
@@ -153,8 +150,9 @@ def build_subtree(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
             continue
         # -- binning units + SAH calculator --
         src_b = bb[cur_buf]
-        bin_range(src_b, s, s + n, curbox, nbins, binbox, bincnt, slots, bin_words, bin_counts)
-        axis, boundary, nl, nr, cost = best_split(binbox, bincnt, nbins, lbox, rbox, left_sa, left_n)
+        bin_records(src_b, s, s + n, curbox, nbins, slots, bin_words, bin_counts)
+        axis, boundary, nl, nr, cost = best_split(bin_words, bin_counts, nbins, lbox, rbox,
+                                                  left_sa, left_n, occupied)
         if axis < 0:
             # -- no valid candidate on any axis: midpoint of the list, in buffer order --
             nl = n // 2
@@ -305,18 +303,17 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
         counts = np.array([x[2] for x in split], dtype=np.int64)
         bufs = np.array([x[3] for x in split], dtype=np.int64)
         nodeboxes = np.array([x[4] for x in split], dtype=np.float32).reshape(-1, 6)
-        binbox, bincnt, chunk_cnt = bin_level(bb, starts, counts, bufs, nodeboxes, bins, nchunks,
-                                              level_slots)
+        words, word_cnt, chunk_cnt = bin_level(bb, starts, counts, bufs, nodeboxes, bins,
+                                               nchunks, level_slots)
         axes = np.empty(len(split), dtype=np.int64)
         boundaries = np.zeros(len(split), dtype=np.int64)
         children = []
-        left_sa = np.empty(bins, np.float32)
-        left_n = np.empty(bins, np.int64)
+        scratch = sah_scratch(bins)
         for k, (t, s, cnt, buf, box, depth) in enumerate(split):
             lbox = np.empty(6, np.float32)
             rbox = np.empty(6, np.float32)
-            axis, boundary, nl, nr, _ = best_split(binbox[k], bincnt[k], bins, lbox, rbox,
-                                                   left_sa, left_n)
+            axis, boundary, nl, nr, _ = best_split(words[k], word_cnt[k], bins, lbox, rbox,
+                                                   *scratch)
             axes[k] = axis
             if axis < 0:
                 # no valid candidate on any axis: midpoint of the list, in buffer order

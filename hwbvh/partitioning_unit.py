@@ -35,7 +35,7 @@ def _move_records(src_b, src_i, dst_b, dst_i, lo, hi, li, ri, sides, stride, off
 def partition_binned(src_b, src_i, dst_b, dst_i, start, end, axis, boundary, nbins, nl, slots):
     """Stable partition of records [start, end) from src into dst; ``nl`` records go left
     (the SAH calculator's count). Returns the number that did. The records are those that
-    ``binning_unit.bin_range`` has just binned, in order, into ``slots`` (record q's slot on
+    ``binning_unit.bin_records`` has just binned, in order, into ``slots`` (record q's slot on
     axis a at 3q + a, numbered a * S + bin): a record's side is its bin's, read back instead
     of a second Eq. 3.1 (the same bin: the same node box, the same records)."""
     return _move_records(src_b, src_i, dst_b, dst_i, start, end, start, start + nl, slots, 3,

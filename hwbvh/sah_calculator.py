@@ -11,6 +11,8 @@ and counts, which is what the partitioning units and the tree output consume.
 import numpy as np
 from numba import njit
 
+from .binning_unit import SLOT_WORDS
+
 
 @njit(cache=True)
 def surface_half_area(lox, loy, loz, hix, hiy, hiz):
@@ -23,70 +25,93 @@ def surface_half_area(lox, loy, loz, hix, hiy, hiz):
 
 
 @njit(cache=True)
-def best_split(binbox, bincnt, nbins, out_lbox, out_rbox, left_sa, left_n):
-    """Choose the split. Returns (axis, boundary, n_left, n_right, cost); axis -1 when no
-    axis has a valid candidate. Fills out_lbox / out_rbox (f32 (6,)) with the child AABBs.
-    Bins ``< boundary`` go left."""
+def sah_scratch(nbins):
+    """Working arrays of ``best_split`` for ``nbins`` bins: the left sides' areas (float32)
+    and counts (int64), and one axis' occupied bins (int64)."""
+    return (np.empty(nbins, dtype=np.float32), np.empty(nbins, dtype=np.int64),
+            np.empty(nbins, dtype=np.int64))
+
+
+@njit(cache=True, error_model="numpy")
+def best_split(F, C, nbins, out_lbox, out_rbox, left_sa, left_n, occupied):
+    """Choose the split from the bins as the collectors hold them (``binning_unit``: per
+    (axis, bin) slot the words min x, y, z, -max x, y, z and a count in ``C``). Returns (axis,
+    boundary, n_left, n_right, cost); axis -1 when no axis has a valid candidate. Fills
+    out_lbox / out_rbox (f32 (6,)) with the child AABBs. Bins ``< boundary`` go left.
+    ``left_sa``, ``left_n``, ``occupied``: ``sah_scratch`` arrays.
+
+    Every boundary between two occupied bins of an axis splits the same two sets, so has the
+    same cost; of those the rule keeps the lowest. Only the boundary just past each occupied
+    bin is therefore evaluated: a node of a few primitives has a few candidates per axis, not
+    S - 1. The sides' unions are the same min folds, in the same order, as over every bin
+    (an empty bin's words are +inf, which a min leaves as it was), so cost and choice are
+    those of the sweeps over all S - 1 boundaries, bit for bit."""
     best_axis = -1
     best_b = 0
-    best_cost = np.float32(0.0)
     # float32 accumulators: the bounds are float32, so their min and max are the same in
     # either width, and the SAH is taken in float32 without conversions
     inf = np.float32(np.inf)
+    best_cost = inf
     for a in range(3):
-        # forward sweep: SA(V_L) * N_L for boundaries 1..S-1 (the FIFO of Fig. 3.11); an
-        # entry with no primitive on the left is never read
-        lx = inf; ly = inf; lz = inf
-        hx = -inf; hy = -inf; hz = -inf
+        base = a * nbins
+        m = 0
+        for b in range(nbins):                  # the occupied bins, in order, without a branch
+            occupied[m] = b
+            m += np.int64(C[base + b] != 0)
+        # forward (the FIFO of Fig. 3.11): SA(V_L) and N_L past each occupied bin but the last
+        l0 = inf; l1 = inf; l2 = inf; l3 = inf; l4 = inf; l5 = inf
         n = 0
-        for b in range(nbins - 1):
-            c = bincnt[a, b]
-            if c > 0:
-                n += c
-                lx = min(lx, binbox[a, b, 0]); ly = min(ly, binbox[a, b, 1]); lz = min(lz, binbox[a, b, 2])
-                hx = max(hx, binbox[a, b, 3]); hy = max(hy, binbox[a, b, 4]); hz = max(hz, binbox[a, b, 5])
-            left_n[b + 1] = n
-            left_sa[b + 1] = surface_half_area(lx, ly, lz, hx, hy, hz)
-        # backward sweep: SA(V_R) * N_R, and the total cost per boundary (the LIFOs)
-        lx = inf; ly = inf; lz = inf
-        hx = -inf; hy = -inf; hz = -inf
+        for i in range(m - 1):
+            b = occupied[i]
+            o = SLOT_WORDS * (base + b)
+            l0 = min(l0, F[o]); l1 = min(l1, F[o + 1]); l2 = min(l2, F[o + 2])
+            l3 = min(l3, F[o + 3]); l4 = min(l4, F[o + 4]); l5 = min(l5, F[o + 5])
+            n += C[base + b]
+            left_n[i] = n
+            left_sa[i] = surface_half_area(l0, l1, l2, -l3, -l4, -l5)
+        # backward (the LIFOs): SA(V_R) * N_R from each occupied bin but the first, and the
+        # cost at the lowest boundary with these sides, one past the previous occupied bin
+        l0 = inf; l1 = inf; l2 = inf; l3 = inf; l4 = inf; l5 = inf
         n = 0
-        for b in range(nbins - 1, 0, -1):
-            c = bincnt[a, b]
-            if c > 0:
-                n += c
-                lx = min(lx, binbox[a, b, 0]); ly = min(ly, binbox[a, b, 1]); lz = min(lz, binbox[a, b, 2])
-                hx = max(hx, binbox[a, b, 3]); hy = max(hy, binbox[a, b, 4]); hz = max(hz, binbox[a, b, 5])
-            if n == 0 or left_n[b] == 0:
-                continue
-            sa_r = surface_half_area(lx, ly, lz, hx, hy, hz)
-            cost = left_sa[b] * np.float32(left_n[b]) + sa_r * np.float32(n)
-            # ties: lower axis, then lower boundary (we sweep b downwards, so <= on the same axis)
-            if best_axis < 0 or cost < best_cost or (a == best_axis and cost == best_cost):
+        for i in range(m - 1, 0, -1):
+            b = occupied[i]
+            o = SLOT_WORDS * (base + b)
+            l0 = min(l0, F[o]); l1 = min(l1, F[o + 1]); l2 = min(l2, F[o + 2])
+            l3 = min(l3, F[o + 3]); l4 = min(l4, F[o + 4]); l5 = min(l5, F[o + 5])
+            n += C[base + b]
+            sa_r = surface_half_area(l0, l1, l2, -l3, -l4, -l5)
+            cost = left_sa[i - 1] * np.float32(left_n[i - 1]) + sa_r * np.float32(n)
+            # ties: lower axis, then lower boundary (boundaries come downwards, so <= on the
+            # same axis). The first candidate taken stays if its cost is NaN (float32
+            # overflow), at the highest boundary of its run, where the sweep meets it first
+            if best_axis < 0:
                 best_axis = a
-                best_b = b
+                best_b = occupied[i - 1] + 1 if cost == cost else b
+                best_cost = cost
+            elif cost < best_cost or (a == best_axis and cost == best_cost):
+                best_axis = a
+                best_b = occupied[i - 1] + 1
                 best_cost = cost
     if best_axis < 0:
-        return -1, 0, 0, 0, np.float32(np.inf)
-    # child AABBs and counts: unions of the bins on each side
-    for k in range(3):
-        out_lbox[k] = np.inf
-        out_lbox[3 + k] = -np.inf
-        out_rbox[k] = np.inf
-        out_rbox[3 + k] = -np.inf
+        return -1, 0, 0, 0, inf
+    # child AABBs and counts: unions of the bins on each side, in bin order
+    base = best_axis * nbins
     nl = 0
+    l0 = inf; l1 = inf; l2 = inf; l3 = inf; l4 = inf; l5 = inf
+    for b in range(best_b):
+        o = SLOT_WORDS * (base + b)
+        l0 = min(l0, F[o]); l1 = min(l1, F[o + 1]); l2 = min(l2, F[o + 2])
+        l3 = min(l3, F[o + 3]); l4 = min(l4, F[o + 4]); l5 = min(l5, F[o + 5])
+        nl += C[base + b]
+    out_lbox[0] = l0; out_lbox[1] = l1; out_lbox[2] = l2
+    out_lbox[3] = -l3; out_lbox[4] = -l4; out_lbox[5] = -l5
     nr = 0
-    for b in range(nbins):
-        if bincnt[best_axis, b] == 0:
-            continue
-        if b < best_b:
-            nl += bincnt[best_axis, b]
-            for k in range(3):
-                out_lbox[k] = min(out_lbox[k], binbox[best_axis, b, k])
-                out_lbox[3 + k] = max(out_lbox[3 + k], binbox[best_axis, b, 3 + k])
-        else:
-            nr += bincnt[best_axis, b]
-            for k in range(3):
-                out_rbox[k] = min(out_rbox[k], binbox[best_axis, b, k])
-                out_rbox[3 + k] = max(out_rbox[3 + k], binbox[best_axis, b, 3 + k])
+    l0 = inf; l1 = inf; l2 = inf; l3 = inf; l4 = inf; l5 = inf
+    for b in range(best_b, nbins):
+        o = SLOT_WORDS * (base + b)
+        l0 = min(l0, F[o]); l1 = min(l1, F[o + 1]); l2 = min(l2, F[o + 2])
+        l3 = min(l3, F[o + 3]); l4 = min(l4, F[o + 4]); l5 = min(l5, F[o + 5])
+        nr += C[base + b]
+    out_rbox[0] = l0; out_rbox[1] = l1; out_rbox[2] = l2
+    out_rbox[3] = -l3; out_rbox[4] = -l4; out_rbox[5] = -l5
     return best_axis, best_b, nl, nr, best_cost

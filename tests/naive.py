@@ -1,6 +1,7 @@
 """Slow, literal reference implementations used only by the tests.
 
 ``naive_hwbvh`` follows SPEC section 2 line by line with NumPy float32 scalars and Python lists;
+``naive_best_split`` is the SAH choice of one node's bins over every boundary;
 ``naive_sweep_cost`` evaluates every split of a small set by brute force; ``ray_triangle_f64``
 is a float64 Moller-Trumbore for checking hits.
 """
@@ -64,6 +65,35 @@ def naive_hwbvh(boxes, leaf_size=4, S=16):
 
     rec(list(range(len(boxes))))
     return out, fallback[0]
+
+
+def naive_best_split(binbox, bincnt):
+    """SPEC 2's SAH choice from one node's bins (binbox (3, S, 6), bincnt (3, S)), every
+    boundary of every axis in turn, the first lowest cost kept (ties: lower axis, then lower
+    boundary). Sides are unions of their occupied bins in bin order (Python's min and max keep
+    the first of equal bounds, +0 or -0, as the hardware's comparators do). Returns (axis,
+    boundary, n_left, n_right, cost, left box, right box); axis -1 without a candidate."""
+    S = binbox.shape[1]
+
+    def union(a, bins):
+        box = [F(np.inf)] * 3 + [F(-np.inf)] * 3
+        for b in bins:
+            if bincnt[a, b]:
+                box = [min(box[k], binbox[a, b, k]) for k in range(3)] + \
+                      [max(box[3 + k], binbox[a, b, 3 + k]) for k in range(3)]
+        return np.array(box, np.float32)
+
+    best = (-1, 0, 0, 0, F(np.inf), None, None)
+    for a in range(3):
+        for k in range(1, S):
+            nl, nr = int(bincnt[a, :k].sum()), int(bincnt[a, k:].sum())
+            if nl == 0 or nr == 0:
+                continue
+            lb, rb = union(a, range(k)), union(a, range(k, S))
+            cost = _sa(lb) * F(nl) + _sa(rb) * F(nr)
+            if best[0] < 0 or cost < best[4]:
+                best = (a, k, nl, nr, cost, lb, rb)
+    return best
 
 
 def preorder(nodes, indices):

@@ -5,12 +5,12 @@ import pytest
 from hypothesis import given, settings, strategies as st, HealthCheck
 
 import hwbvh
-from hwbvh.binning_unit import bin_index
+from hwbvh.binning_unit import bin_index, collector_bins, collector_words
 from hwbvh.primitives import primitive_boxes
-from hwbvh.sah_calculator import best_split
+from hwbvh.sah_calculator import best_split, sah_scratch
 from scenes.meshes import grid_sheet, random_soup, sphere
 
-from .naive import naive_hwbvh, preorder
+from .naive import naive_best_split, naive_hwbvh, preorder
 
 
 def tree_of(tris, **kw):
@@ -47,8 +47,8 @@ def test_sah_ties_go_to_lower_axis_then_lower_boundary():
     box1 = np.array([5, 5, 0, 6, 6, 1], np.float32)
     binbox, bincnt = _bins_from({0: {0: box0, 15: box1}, 1: {0: box0, 15: box1}}, 1)
     l, r = np.empty(6, np.float32), np.empty(6, np.float32)
-    axis, b, nl, nr, cost = best_split(binbox, bincnt, 16, l, r, np.empty(16, np.float32),
-                                       np.empty(16, np.int64))
+    axis, b, nl, nr, cost = best_split(*collector_words(binbox, bincnt), 16, l, r,
+                                       *sah_scratch(16))
     assert (axis, b, nl, nr) == (0, 1, 1, 1)
     assert np.array_equal(l, box0) and np.array_equal(r, box1)
 
@@ -56,9 +56,33 @@ def test_sah_ties_go_to_lower_axis_then_lower_boundary():
 def test_sah_no_candidate_when_one_bin():
     box0 = np.array([0, 0, 0, 1, 1, 1], np.float32)
     binbox, bincnt = _bins_from({0: {3: box0}, 1: {7: box0}, 2: {0: box0}}, 5)
-    axis, *_ = best_split(binbox, bincnt, 16, np.empty(6, np.float32), np.empty(6, np.float32),
-                          np.empty(16, np.float32), np.empty(16, np.int64))
+    axis, *_ = best_split(*collector_words(binbox, bincnt), 16, np.empty(6, np.float32),
+                          np.empty(6, np.float32), *sah_scratch(16))
     assert axis == -1
+
+
+@pytest.mark.parametrize("nbins", [2, 3, 16, 64])
+def test_sah_calculator_against_every_boundary_literally(nbins):
+    """The calculator evaluates one boundary per run of empty bins; the rule's literal sweep
+    over every boundary of every axis picks the same split, cost and child boxes, bit for bit:
+    sparse and full bins, equal costs (small integer bounds) and signed zeros."""
+    rng = np.random.default_rng(nbins)
+    zeros = np.array([0.0, -0.0], np.float32)
+    for trial in range(150):
+        fill = [0.05, 0.3, 1.0][trial % 3]
+        bincnt = np.where(rng.random((3, nbins)) < fill, rng.integers(1, 4, (3, nbins)), 0)
+        lo = rng.integers(-3, 3, (3, nbins, 3)).astype(np.float32)
+        binbox = np.concatenate([lo, lo + rng.integers(0, 3, (3, nbins, 3))], -1).astype(np.float32)
+        signed = (binbox == 0) & (rng.random(binbox.shape) < 0.5)
+        binbox[signed] = rng.choice(zeros, size=int(signed.sum()))
+        binbox[bincnt == 0] = [np.inf] * 3 + [-np.inf] * 3
+        l, r = np.empty(6, np.float32), np.empty(6, np.float32)
+        got = best_split(*collector_words(binbox, bincnt), nbins, l, r, *sah_scratch(nbins))
+        want = naive_best_split(binbox, bincnt)
+        assert got[:4] == want[:4]
+        if want[0] >= 0:
+            assert np.float32(got[4]).tobytes() == np.float32(want[4]).tobytes()
+            assert l.tobytes() == want[5].tobytes() and r.tobytes() == want[6].tobytes()
 
 
 @pytest.mark.parametrize("make", [
@@ -214,10 +238,10 @@ def test_upper_phase_fallback_is_the_one_task_tree():
 
 
 def test_binning_unit_is_eq_3_1_and_the_collectors_bit_for_bit():
-    """``bin_range`` (indices in SIMD lanes, collectors keeping max as -min) against the unit
+    """``bin_records`` (indices in SIMD lanes, collectors keeping max as -min) against the unit
     written out record by record: the same bins, counts and bounds, signed zeros included,
     and nothing from an axis of zero extent."""
-    from hwbvh.binning_unit import bin_range, bin_scratch
+    from hwbvh.binning_unit import bin_records, bin_scratch
     rng = np.random.default_rng(4)
     zeros = np.array([0.0, -0.0], np.float32)
     for trial in range(60):
@@ -244,8 +268,8 @@ def test_binning_unit_is_eq_3_1_and_the_collectors_bit_for_bit():
                 for k in range(3):
                     want_box[a, b, k] = min(want_box[a, b, k], boxes[i, k])
                     want_box[a, b, 3 + k] = max(want_box[a, b, 3 + k], boxes[i, 3 + k])
-        got_box = np.empty_like(want_box)
-        got_cnt = np.empty_like(want_cnt)
-        bin_range(boxes, 0, n, node, nbins, got_box, got_cnt, *bin_scratch(nbins, n))
+        slots, F, C = bin_scratch(nbins, n)
+        bin_records(boxes, 0, n, node, nbins, slots, F, C)
+        got_box, got_cnt = collector_bins(F, C, nbins)
         assert np.array_equal(got_cnt, want_cnt)
         assert got_box.tobytes() == want_box.tobytes()
