@@ -7,6 +7,7 @@ raw ``(n, 3, 3)`` arrays. Both raise :class:`InputError` naming the source and t
 import io
 import os
 import re
+import warnings
 
 import numpy as np
 from numba import njit
@@ -452,7 +453,11 @@ def load_mesh_arrays(path):
     obj = path.lower().endswith(".obj")
     load_args = _obj_load_args(path) if obj else {"file_obj": path}
     try:
-        mesh = trimesh.load(**load_args, force="mesh", process=False)
+        # trimesh derives normals and the like on load, and warns of overflow there for a
+        # coordinate too large; the coordinates themselves are checked after, with one message
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            mesh = trimesh.load(**load_args, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files
         if obj:
             _check_obj_face_range(path)

@@ -267,6 +267,22 @@ def _load_state(out_dir, params):
     return rows
 
 
+def _frame_intact(out_dir, i, width, height):
+    """Whether frame i of a run being resumed is on disk and reads back as a whole image of the
+    run's size: a frame damaged or replaced since is rendered again, not carried into the
+    preview."""
+    from raytracer.output import read_exr
+
+    path = os.path.join(out_dir, FRAME_NAME.format(i))
+    if not os.path.exists(path):
+        return False
+    try:
+        px, _, _ = read_exr(path)
+    except Exception:                   # OpenImageIO's errors have no one type
+        return False
+    return px is not None and px.shape[:2] == (height, width)
+
+
 def _write_state(out_dir, params, rows):
     state = {"parameters": params, "frames": [rows[k] for k in sorted(rows)]}
     write_files([(os.path.join(out_dir, STATE_NAME),
@@ -364,7 +380,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         rows = {k: v for k, v in _load_state(out_dir, params).items() if k < frames}
     start = 0
     while start < frames and start in rows and \
-            (out_dir is None or os.path.exists(os.path.join(out_dir, FRAME_NAME.format(start)))):
+            (out_dir is None or _frame_intact(out_dir, start, first.width, first.height)):
         start += 1
     rows = {k: v for k, v in rows.items() if k < start}
     if on_start is not None:

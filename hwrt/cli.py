@@ -205,6 +205,20 @@ def _scene_geometry(name):
 REPLAY_ARRAYS = {"origins": (3,), "dirs": (3,), "tmax": ()}
 
 
+def _check_float32_values(path, key, a):
+    """The rays are traced in float32: a value that is not finite or that float32 cannot hold
+    is named, not cast to infinity."""
+    import numpy as np
+    from hwbvh.errors import InputError
+
+    if not np.isfinite(a).all():
+        raise InputError(path, f"key '{key}': not every value is finite")
+    big = np.abs(a.astype(np.float64)).max(initial=0.0)
+    if big > np.finfo(np.float32).max:
+        raise InputError(path, f"key '{key}': value {big:g} exceeds the float32 range "
+                               f"(+-{np.finfo(np.float32).max:.4g})")
+
+
 def _replay_rays(path):
     """(origins, dirs, tmax) of mismatch file ``path``, checked: InputError naming the file and
     the key for anything but finite float arrays of one length (tmax may be infinite) and
@@ -231,6 +245,8 @@ def _replay_rays(path):
                     raise InputError(path, f"key '{key}': expected a {want} array of numbers, got "
                                            + ("an object array" if a is None else
                                               f"{a.dtype} of shape {a.shape}"))
+                if key != "tmax":
+                    _check_float32_values(path, key, a)
                 arrays[key] = a.astype(np.float64 if key == "tmax" else np.float32)
     except InputError:                                # (a ValueError)
         raise
@@ -240,9 +256,6 @@ def _replay_rays(path):
     if not len(O) == len(D) == len(tmax):
         raise InputError(path, f"keys 'origins', 'dirs' and 'tmax' hold {len(O)}, {len(D)} and "
                                f"{len(tmax)} rays; expected one length")
-    for key, a in (("origins", O), ("dirs", D)):
-        if not np.isfinite(a).all():
-            raise InputError(path, f"key '{key}': not every value is finite")
     if np.isnan(tmax).any() or (tmax <= 0).any():
         raise InputError(path, "key 'tmax': expected positive numbers (inf for no bound)")
     if (~D.any(axis=1)).any():

@@ -46,6 +46,16 @@ def _alternating(rounds):
         yield from BUILDERS[::1 - 2 * (i % 2)]
 
 
+def _quotient(a, b):
+    """a / b, or None where b is 0 (a scene whose rays visit no node does no work to compare)."""
+    return a / b if b else None
+
+
+def _gap(ratio, work_ratio):
+    """How far a time ratio sits from the work ratio (ratio / work ratio - 1), or None."""
+    return None if work_ratio is None else ratio / work_ratio - 1
+
+
 def _paired_ratio(seconds):
     """The median over rounds of sweep / hwbvh, each round's two runs side by side: a drift in
     the machine's speed between rounds (a shared virtual machine's speed moves by tens of
@@ -78,7 +88,7 @@ def bench_trees(args):
                 render(scene, counting)
                 w = counting.work("all")
                 work[b] = dict(w, work_per_ray=w["nodes_per_ray"] + w["tris_per_ray"])
-            work_ratio = work["sweep"]["work_per_ray"] / work["hwbvh"]["work_per_ray"]
+            work_ratio = _quotient(work["sweep"]["work_per_ray"], work["hwbvh"]["work_per_ray"])
             recordings = {}
             for b in BUILDERS:
                 recordings[b] = RecordingTracer(tracers[b])
@@ -97,8 +107,8 @@ def bench_trees(args):
             row[mode] = {"work": work, "work_ratio": work_ratio,
                          "render_seconds": render_s, "trace_only_seconds": trace_only,
                          "render_ratio": render_ratio, "trace_ratio": trace_ratio,
-                         "render_vs_work": render_ratio / work_ratio - 1,
-                         "trace_vs_work": trace_ratio / work_ratio - 1}
+                         "render_vs_work": _gap(render_ratio, work_ratio),
+                         "trace_vs_work": _gap(trace_ratio, work_ratio)}
         rows.append(row)
     return {"rows": rows, "repeat": args.repeat}
 
@@ -263,7 +273,7 @@ def _by_path(tracers, recordings, repeat):
         work = {b: (nodes[b] + triangles[b]) / rays[b] for b in BUILDERS}
         trace_seconds = {b: statistics.median(seconds[b]) for b in BUILDERS}
         out.append({"kind": key[0], "path": key[1], "rays": rays["hwbvh"], "work_per_ray": work,
-                    "work_ratio": work["sweep"] / work["hwbvh"] if work["hwbvh"] else None,
+                    "work_ratio": _quotient(work["sweep"], work["hwbvh"]),
                     "trace_seconds": trace_seconds,
                     "trace_ratio": _paired_ratio(seconds),
                     "ns_per_unit": 1e9 * trace_seconds["hwbvh"] / (rays["hwbvh"] * work["hwbvh"])
@@ -297,6 +307,10 @@ def _ratio(x):
     return "-" if x is None else f"{x:.3f}"
 
 
+def _percent(x):
+    return "-" if x is None else f"{100 * x:+.1f}%"
+
+
 def human(r):
     lines = [f"{'scene':<10}{'SAH hw/sweep':>14}  {'path':<11}{'work/ray hw':>12}{'sweep':>7}"
              f"{'work':>7}{'render':>7}{'trace':>7}{'render vs':>10}{'trace vs':>9}",
@@ -309,8 +323,8 @@ def human(r):
                 if k == 0 else " " * 24
             lines.append(f"{head}  {mode.replace('_', '-'):<11}"
                          f"{m['work']['hwbvh']['work_per_ray']:>12.1f}{m['work']['sweep']['work_per_ray']:>7.1f}"
-                         f"{m['work_ratio']:>7.3f}{m['render_ratio']:>7.3f}{m['trace_ratio']:>7.3f}"
-                         f"{100 * m['render_vs_work']:>+9.1f}%{100 * m['trace_vs_work']:>+8.1f}%")
+                         f"{_ratio(m['work_ratio']):>7}{m['render_ratio']:>7.3f}{m['trace_ratio']:>7.3f}"
+                         f"{_percent(m['render_vs_work']):>10}{_percent(m['trace_vs_work']):>9}")
     lines.append("ratios are sweep / hwbvh; work = nodes visited + triangles tested per ray as the "
                  "path runs them (a packet's rays each count the packet's tests), over closest-hit "
                  "and shadow rays; trace = the render's rays traced again alone")

@@ -617,14 +617,18 @@ def _base_scene(name, shapes, camera, lights, width, height, spp, max_depth, bac
     return d, compile_scene(d, source=name)
 
 
-def _unit_height(tris):
-    """Scale to 1 unit tall, centred on the y axis, standing on y = 0."""
+def _unit_height(tris, source=None):
+    """Scale to 1 unit tall, centred on the y axis, standing on y = 0; a mesh more than twice
+    as wide as it is tall (a flat one included) to 2 units wide instead, so that it stays in
+    the frame and on the floor."""
     t = np.asarray(tris, np.float64)
     lo, hi = t.reshape(-1, 3).min(0), t.reshape(-1, 3).max(0)
-    s = 1.0 / max(hi[1] - lo[1], 1e-30)
+    size = max(hi[1] - lo[1], 0.5 * max(hi[0] - lo[0], hi[2] - lo[2]))
+    if not size > 0:
+        raise InputError(source or "mesh", "every vertex is at one point: nothing to explode")
     c = (lo + hi) / 2
     c[1] = lo[1]
-    return (t - c) * s
+    return (t - c) * (1.0 / size)
 
 
 class Explosion:
@@ -678,7 +682,7 @@ def exploding(width=320, height=240, spp=1, max_depth=3, mesh=None, triangles=GE
         n_lon = max(8, int(math.sqrt(triangles)))
         tris = sphere(max(4, triangles // (2 * n_lon) + 1), n_lon)
         what = f"generated sphere ({len(tris)} triangles)"
-    tris = _unit_height(tris)
+    tris = _unit_height(tris, src)
     cam = {"type": "perspective", "eye": [0.0, 1.6, 3.6], "target": [0.0, 0.35, 0.0], "fov": 45.0}
     lights = [{"type": "point", "position": [1.5, 3.0, 2.0], "intensity": [14, 14, 13]}]
     d, base = _base_scene("exploding", [_floor(3.0)], cam, lights, width, height, spp,

@@ -510,13 +510,21 @@ def _no_collapse(ctx, mesh, scaled, moved, path):
                                         f"lose their area in float32 {cause}")
 
 
+def _type_problem(obj, what, types):
+    """What is wrong with an object's 'type': missing, or not one of ``types``."""
+    choose = f"(choose from {', '.join(types)})"
+    if "type" not in obj:
+        return f"missing: every {what} names its type {choose}"
+    return f"unknown {what} type {obj['type']!r} {choose}"
+
+
 def _shape(ctx, sh, i, scene_dir):
     path = f"shapes[{i}]"
     if not isinstance(sh, dict):
         ctx.fail(path, "expected an object")
     typ = sh.get("type")
     if typ not in SHAPE_TYPES:
-        ctx.fail(f"{path}.type", f"unknown shape type {typ!r} (choose from {', '.join(SHAPE_TYPES)})")
+        ctx.fail(f"{path}.type", _type_problem(sh, "shape", SHAPE_TYPES))
     ctx.keys(sh, _SHAPE_COMMON + SHAPE_KEYS[typ], path, SHAPE_KEY_HINTS)
     if typ == "quad":
         c = sh.get("corners")
@@ -690,9 +698,10 @@ def compile_scene(d, source=None, first_shape=0):
     for k, name in enumerate(names):
         m = mats[name]
         p = f"materials.{name}"
-        if not isinstance(m, dict) or m.get("type") not in MATERIAL_TYPES:
-            ctx.fail(f"{p}.type", f"unknown material type {m.get('type') if isinstance(m, dict) else m!r} "
-                                  f"(choose from {', '.join(MATERIAL_TYPES)})")
+        if not isinstance(m, dict):
+            ctx.fail(p, f"expected an object, got {m!r}")
+        if m.get("type") not in MATERIAL_TYPES:
+            ctx.fail(f"{p}.type", _type_problem(m, "material", MATERIAL_TYPES))
         t = m["type"]
         ctx.keys(m, MATERIAL_KEYS[t], p)
         if t in ("diffuse", "plastic"):
@@ -742,8 +751,10 @@ def compile_scene(d, source=None, first_shape=0):
         ctx.fail("lights", "expected a list")
     for i, L in enumerate(d.get("lights", [])):
         p = f"lights[{i}]"
-        if not isinstance(L, dict) or L.get("type") not in tuple(LIGHT_KEYS):
-            ctx.fail(f"{p}.type", "expected 'point' or 'directional'")
+        if not isinstance(L, dict):
+            ctx.fail(p, "expected an object")
+        if L.get("type") not in tuple(LIGHT_KEYS):
+            ctx.fail(f"{p}.type", _type_problem(L, "light", tuple(LIGHT_KEYS)))
         ctx.keys(L, LIGHT_KEYS[L["type"]], p)
         if L["type"] == "point":
             lights.append({"type": "point", "position": ctx.vec(L, "position", p),

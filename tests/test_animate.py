@@ -470,6 +470,27 @@ def test_an_interrupted_run_resumes_at_the_first_missing_frame(tmp_path, capsys)
     assert rc == 2 and "holds frames of another run" in err
 
 
+def test_a_damaged_frame_is_rendered_again_on_resume(tmp_path, capsys):
+    """A frame cut short or replaced since its run (not a whole EXR of the run's size) is not
+    carried into the preview: the rerun resumes at it."""
+    from raytracer.output import read_exr
+    args = ["animate", "cloth", "--triangles", 300, "--frames", 4, "--width", 16, "--height", 12,
+            "--json", "-o", tmp_path / "run"]
+    rc, out, err = _run_cli(capsys, *args)
+    assert rc == 0, err
+    good = read_exr(tmp_path / "run" / "frame_0002.exr")[0]
+    cut = tmp_path / "run" / "frame_0002.exr"
+    cut.write_bytes(cut.read_bytes()[:200])
+    rc, out, err = _run_cli(capsys, *args)
+    assert rc == 0, err
+    r = json.loads(out)
+    assert r["resumed_from"] == 2 and len(r["frames"]) == 4
+    assert np.array_equal(read_exr(cut)[0], good)
+    (tmp_path / "run" / "frame_0001.exr").write_bytes(b"not an image")
+    rc, out, err = _run_cli(capsys, *args)
+    assert rc == 0 and json.loads(out)["resumed_from"] == 1, err
+
+
 def test_unknown_strategy_and_bad_output_exit_2_before_any_work(tmp_path, capsys):
     rc, _, err = _run_cli(capsys, "animate", "cloth", "--strategy", "bvh", "-o", tmp_path / "o")
     assert rc == 2 and "unknown strategy 'bvh'" in err and not (tmp_path / "o").exists()
@@ -569,6 +590,28 @@ def test_exploding_breaks_the_bunny_of_the_mesh_directory(tmp_path, monkeypatch,
     monkeypatch.setenv("HWRT_MESHES", str(tmp_path))
     assert open_animation("exploding").info["mesh"] == "bunny.ply"
     assert open_animation("exploding", triangles=500).info["mesh"].startswith("generated sphere")
+
+
+def test_exploding_takes_a_flat_mesh_and_names_a_mesh_with_no_extent(tmp_path, capsys):
+    """A mesh flat in y (a sheet lying on the floor) explodes like any other, scaled to the
+    frame by its width; a mesh whose vertices all coincide is a one-line error naming it."""
+    from hwrt.animate import open_animation
+    sheet = np.array([[[0, 0, 0], [4, 0, 0], [0, 0, 4]], [[4, 0, 0], [4, 0, 4], [0, 0, 4]]], float)
+    _ply(tmp_path / "sheet.ply", sheet)
+    anim = open_animation("exploding", mesh=str(tmp_path / "sheet.ply"))
+    tris = anim.parts[-1].tris
+    assert np.allclose(tris[..., 1], 0) and np.isclose(np.ptp(tris[..., 0]), 2.0)
+    assert np.isclose(tris[..., 0].min(), -1.0)
+    rc, _, err = _run_cli(capsys, "animate", "exploding", "--mesh", tmp_path / "sheet.ply",
+                          "--frames", 2, "--width", 8, "--height", 6, "-o", tmp_path / "ok")
+    assert rc == 0, err
+    _ply(tmp_path / "point.ply", np.ones((2, 3, 3)))
+    out = tmp_path / "point"
+    rc, _, err = _run_cli(capsys, "animate", "exploding", "--mesh", tmp_path / "point.ply",
+                          "--frames", 2, "--width", 8, "--height", 6, "-o", out)
+    assert rc == 2 and err.count("\n") == 1, err
+    assert "point.ply" in err and "every vertex is at one point" in err
+    assert not out.exists()
 
 
 def test_frame_sequence_errors_name_the_pattern_key(tmp_path, capsys, monkeypatch):

@@ -748,6 +748,31 @@ def test_bench_report_written_to_out_dir(tmp_path):
     assert all("cost_fit" in c and "nodes_ratio" in c for c in row["by_path"])
 
 
+def test_bench_trees_on_a_scene_whose_rays_do_no_work_gives_null_ratios(tmp_path, capsys):
+    """A scene every ray misses (the one triangle behind the camera) visits no node with either
+    tree: the work ratios have nothing to divide, so they are null in strict JSON and "-" on
+    the page, not a crash."""
+    from hwrt.cli import main
+    scene = tmp_path / "behind.json"
+    scene.write_text(json.dumps({
+        "camera": {"eye": [0, 0, 0], "target": [0, 0, -1]},
+        "film": {"width": 8, "height": 6, "spp": 1},
+        "lights": [{"type": "point", "position": [2, 3, 2], "intensity": [15, 15, 15]}],
+        "materials": {"floor": {"type": "diffuse"}},
+        "shapes": [{"type": "triangles", "material": "floor",
+                    "data": [[[0, 0, 10], [1, 0, 10], [0, 1, 10]]]}]}))
+    out = tmp_path / "docs"
+    assert main(["bench", "trees", str(scene), "--repeat", "1", "--out-dir", str(out),
+                 "--json"]) == 0
+    printed = capsys.readouterr().out
+    row = json.loads(printed, parse_constant=lambda c: pytest.fail(f"{c} in --json"))["rows"][0]
+    for mode in ("packets", "single_ray"):
+        assert row[mode]["work"]["hwbvh"]["work_per_ray"] == 0
+        assert row[mode]["work_ratio"] is None and row[mode]["render_vs_work"] is None
+        assert row[mode]["render_ratio"] > 0
+    assert " - " in (out / "trees.md").read_text()
+
+
 def test_unknown_threading_setup_is_a_one_line_input_error(tmp_path):
     """HWRT_THREADING is read when the packages load; a name it does not know is reported like
     any bad input: one line naming it, exit 2, no output."""
@@ -980,9 +1005,12 @@ def test_verify_refuses_mismatches_over_a_mesh_its_scene_reads(capsys, tmp_path,
     ({"origins": np.zeros((2, 3)), "dirs": np.ones((2, 3))}, "no key 'tmax'"),
     ({"origins": np.full((2, 3), np.nan), "dirs": np.ones((2, 3)), "tmax": np.ones(2)},
      "key 'origins': not every value is finite"),
+    ({"origins": np.full((2, 3), 1e300), "dirs": np.ones((2, 3)), "tmax": np.ones(2)},
+     "key 'origins': value 1e+300 exceeds the float32 range"),
     ({"origins": np.zeros((2, 3)), "dirs": np.zeros((2, 3)), "tmax": np.ones(2)},
      "key 'dirs': ray 0 has a zero direction"),
     (None, "not an .npz archive")])
+@pytest.mark.filterwarnings("error")            # a warning would print before the one line
 def test_replay_of_a_malformed_file_is_one_line_naming_the_file(capsys, tmp_path, tetra,
                                                                 arrays, problem):
     f = tmp_path / "m.npz"
@@ -994,6 +1022,18 @@ def test_replay_of_a_malformed_file_is_one_line_naming_the_file(capsys, tmp_path
     line = one_line_error(err)
     assert rc == 2 and out == "" and line.startswith(f"hwrt: error: --replay {f}: ") and problem in line
     assert "pickle" not in line
+
+
+@pytest.mark.filterwarnings("error")            # a warning would print before the one line
+@pytest.mark.parametrize("command", ["build", "render"])
+def test_a_mesh_coordinate_beyond_reach_is_one_line_without_warnings(capsys, tmp_path, command):
+    stl = tmp_path / "huge.stl"
+    stl.write_text("solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1e300 0 0\n"
+                   "vertex 0 1 0\nendloop\nendfacet\nendsolid t\n")
+    out = tmp_path / ("o" if command == "build" else "o.exr")
+    rc, _, err = call(capsys, command, stl, "--out" if command == "build" else "-o", out)
+    assert rc == 2 and "coordinate too large" in one_line_error(err) and str(stl) in err
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("argv", [["render", "--wid", "10"], ["build", "x.obj", "--leaf", "2"],

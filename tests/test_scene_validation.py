@@ -285,3 +285,23 @@ def test_python_callers_get_errors_naming_what_they_passed():
     with pytest.raises(InputError) as e:
         compile_scene(with_frame(d, width=3 ** 2000))
     assert "film.width" in str(e.value) and len(str(e.value)) < 200
+
+
+# --------------------------------------------------------------------------------------
+# a missing 'type' is named as missing
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("section, key, what", [
+    ("materials", "materials.white.type", "material"),
+    ("shapes", "shapes[0].type", "shape"),
+    ("lights", "lights[0].type", "light")])
+def test_a_missing_type_is_named_as_missing(tmp_path, capsys, monkeypatch, section, key, what):
+    d = scene_dict()
+    part = d[section]["white"] if section == "materials" else d[section][0]
+    del part["type"]
+    p = write_scene(tmp_path, d)
+    line = refused(capsys, tmp_path, monkeypatch, "render", p)
+    assert f"{p}: key '{key}': missing: every {what} names its type (choose from " in line
+    part["type"] = "bogus"
+    p = write_scene(tmp_path, d, name="t.json")
+    line = refused(capsys, tmp_path, monkeypatch, "render", p)
+    assert f"{p}: key '{key}': unknown {what} type 'bogus' (choose from " in line
