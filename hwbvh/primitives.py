@@ -462,6 +462,8 @@ def load_mesh_arrays(path):
         if obj:
             _check_obj_face_range(path)
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if isinstance(exc, KeyError):          # a reader looked up what the file does not hold
+            msg = f"it has no {msg}"
         ext = os.path.splitext(path)[1].lower()
         what = (f"not a readable {ext[1:].upper()} file" if ext in MESH_EXTENSIONS
                 else "cannot read mesh")

@@ -973,6 +973,11 @@ def test_an_unreadable_ply_says_so(capsys, tmp_path):
     p.write_text("ply\n")
     rc, _, err = call(capsys, "build", p)
     assert rc == 2 and one_line_error(err).startswith(f"hwrt: error: {p}: not a readable PLY file (")
+    # a vertex element without the y its reader looks up: the reader's bare key, explained
+    p.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n")
+    rc, _, err = call(capsys, "build", p)
+    assert rc == 2 and one_line_error(err) == \
+        f"hwrt: error: {p}: not a readable PLY file (it has no 'y')"
 
 
 def test_a_scene_given_to_build_or_simulate_is_said_to_be_one(capsys):
