@@ -32,6 +32,23 @@ def sah_scratch(nbins):
             np.empty(nbins, dtype=np.int64))
 
 
+@njit(cache=True, inline="always")
+def _bin_union(F, C, base, b0, b1, out_box):
+    """The union of bins b0..b1 of the axis at ``base`` into ``out_box`` (min xyz, max xyz);
+    returns their primitive count."""
+    inf = np.float32(np.inf)
+    l0 = inf; l1 = inf; l2 = inf; l3 = inf; l4 = inf; l5 = inf
+    count = 0
+    for b in range(b0, b1):
+        o = SLOT_WORDS * (base + b)
+        l0 = min(l0, F[o]); l1 = min(l1, F[o + 1]); l2 = min(l2, F[o + 2])
+        l3 = min(l3, F[o + 3]); l4 = min(l4, F[o + 4]); l5 = min(l5, F[o + 5])
+        count += C[base + b]
+    out_box[0] = l0; out_box[1] = l1; out_box[2] = l2
+    out_box[3] = -l3; out_box[4] = -l4; out_box[5] = -l5
+    return count
+
+
 @njit(cache=True, error_model="numpy")
 def best_split(F, C, nbins, out_lbox, out_rbox, left_sa, left_n, occupied):
     """Choose the split from the bins as the collectors hold them (``binning_unit``: per
@@ -96,22 +113,6 @@ def best_split(F, C, nbins, out_lbox, out_rbox, left_sa, left_n, occupied):
         return -1, 0, 0, 0, inf
     # child AABBs and counts: unions of the bins on each side, in bin order
     base = best_axis * nbins
-    nl = 0
-    l0 = inf; l1 = inf; l2 = inf; l3 = inf; l4 = inf; l5 = inf
-    for b in range(best_b):
-        o = SLOT_WORDS * (base + b)
-        l0 = min(l0, F[o]); l1 = min(l1, F[o + 1]); l2 = min(l2, F[o + 2])
-        l3 = min(l3, F[o + 3]); l4 = min(l4, F[o + 4]); l5 = min(l5, F[o + 5])
-        nl += C[base + b]
-    out_lbox[0] = l0; out_lbox[1] = l1; out_lbox[2] = l2
-    out_lbox[3] = -l3; out_lbox[4] = -l4; out_lbox[5] = -l5
-    nr = 0
-    l0 = inf; l1 = inf; l2 = inf; l3 = inf; l4 = inf; l5 = inf
-    for b in range(best_b, nbins):
-        o = SLOT_WORDS * (base + b)
-        l0 = min(l0, F[o]); l1 = min(l1, F[o + 1]); l2 = min(l2, F[o + 2])
-        l3 = min(l3, F[o + 3]); l4 = min(l4, F[o + 4]); l5 = min(l5, F[o + 5])
-        nr += C[base + b]
-    out_rbox[0] = l0; out_rbox[1] = l1; out_rbox[2] = l2
-    out_rbox[3] = -l3; out_rbox[4] = -l4; out_rbox[5] = -l5
+    nl = _bin_union(F, C, base, 0, best_b, out_lbox)
+    nr = _bin_union(F, C, base, best_b, nbins, out_rbox)
     return best_axis, best_b, nl, nr, best_cost
