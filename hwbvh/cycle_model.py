@@ -386,6 +386,11 @@ def check_params(p):
     if p.w * p.psize > config.MAX_PRIMITIVES:
         raise ParameterError("psize", f"w * psize = {p.w * p.psize} exceeds the 24-bit primitive index "
                                   f"({config.MAX_PRIMITIVES})")
+    if p.w * p.psize < p.leaf_size:
+        # the upper builder splits a node until its primitives fit a subtree builder; a leaf
+        # it may not split would never fit one
+        raise ParameterError("psize", f"w * psize = {p.w * p.psize} is below the leaf size "
+                                      f"{p.leaf_size}: a subtree builder must hold a leaf")
     v = p.control_latency
     if not is_integer(v) or not 0 <= v <= config.MAX_CONTROL_LATENCY:
         raise ParameterError("control_latency", f"must be a non-negative integer up to "

@@ -116,6 +116,17 @@ def address_source(scheduler):
     return "scheduler" if scheduler else f"${SCHEDULER_ENV}"
 
 
+def _require_workers(client, named):
+    """Wait up to ``CONNECT_TIMEOUT_S`` for a worker on ``client``'s scheduler (one started
+    beside it may still be joining), then raise ParameterError naming ``named``: cells sent to
+    a scheduler without workers would wait for ever."""
+    try:
+        client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+    except TimeoutError:
+        raise ParameterError(named, f"the Dask scheduler at {client.scheduler.address} has no "
+                                    f"workers (none joined within {CONNECT_TIMEOUT_S} s)") from None
+
+
 @contextmanager
 def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=None):
     """A ``distributed.Client``: on ``scheduler`` (else ``$HWRT_SCHEDULER``), else on an
@@ -142,6 +153,7 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
                     raise ParameterError(named, f"no Dask scheduler answers at {address!r} "
                                                 f"within {CONNECT_TIMEOUT_S} s ({problem})")
                 client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+                _require_workers(client, named)
             else:
                 n = workers or os.cpu_count() or 1
                 threads = str(max(1, int(threads_per_cell)))

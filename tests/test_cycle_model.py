@@ -201,3 +201,18 @@ def test_bench_model_compares_meshes_of_one_stem_with_their_thesis_scene(tmp_pat
     assert [(x["mesh"], x.get("thesis_scene")) for x in res["rows"]] == \
         [("ball", None)] * 2 + [(str(p), "Bunny") for p in paths[1:] for _ in ("HWBVH-C", "HWBVH-HP")]
     assert res["fill_share"]["mesh"] == str(paths[1])
+
+
+def test_a_subtree_builder_that_cannot_hold_a_leaf_is_refused():
+    """The upper builder splits a node until it fits a subtree builder, never below a leaf: a
+    builder holding fewer primitives than a leaf is no design."""
+    import hwbvh
+    from hwbvh.cycle_model import HwParams, simulate
+    from hwbvh.errors import ParameterError
+    tree = hwbvh.build(random_soup(200, seed=1)).tree
+    for w, psize, leaf in ((1, 1, 4), (1, 3, 4), (2, 2, 8)):
+        with pytest.raises(ParameterError, match=f"w \\* psize = {w * psize} is below the leaf "
+                                                 f"size {leaf}") as e:
+            simulate(tree, HwParams(w=w, psize=psize, leaf_size=leaf))
+        assert e.value.parameter == "psize"
+    assert simulate(tree, HwParams(w=1, psize=4, leaf_size=4))["cycles"] > 0

@@ -148,6 +148,8 @@ def test_meshes_are_named_as_the_benchmarks_name_them(tmp_path):
     (["--grid", "bogus=1"], "unknown knob 'bogus'"),
     (["--grid", "bins=17"], "--grid: bins: must be an integer within 2..16"),
     (["--grid", "w=0"], "--grid: w: must be an integer within 1..64"),
+    (["--grid", "w=1", "--grid", "psize=2"],
+     "--grid: psize: w * psize = 2 is below the leaf size 4: a subtree builder must hold a leaf"),
     (["--grid", "w=2", "--scheduler", "tcp://127.0.0.1:9"], "--scheduler: no Dask scheduler answers"),
 ])
 def test_cli_bad_input_one_line_exit_2_no_output(meshes, tmp_path, args, message):
@@ -158,6 +160,23 @@ def test_cli_bad_input_one_line_exit_2_no_output(meshes, tmp_path, args, message
     assert not out.exists()
     from hwrt.cluster import CONNECT_TIMEOUT_S
     assert seconds < CONNECT_TIMEOUT_S + 30           # fails fast: no wait for the work
+
+
+def test_a_scheduler_without_workers_is_a_one_line_error_not_a_wait(meshes, tmp_path):
+    """Cells sent to a scheduler that no worker has joined would wait for ever: explore waits
+    a few seconds for one, then names the option."""
+    from distributed import LocalCluster
+    from hwrt.cluster import CONNECT_TIMEOUT_S
+
+    with LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=None,
+                      silence_logs=50) as cluster:
+        out = tmp_path / "out"
+        r, seconds = run_cli(meshes[0], "--grid", "w=2", "--scheduler", cluster.scheduler_address,
+                             "--out-dir", out)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert f"--scheduler: the Dask scheduler at {cluster.scheduler_address} has no workers" \
+        in r.stderr
+    assert seconds < CONNECT_TIMEOUT_S + 30 and not out.exists()
 
 
 def test_cli_unwritable_out_dir(meshes, tmp_path):
