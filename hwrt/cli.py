@@ -1148,7 +1148,13 @@ def _run(argv, signals_owned):
     from hwbvh.errors import InputError
     from hwbvh.parallel import check_threading
     parser = make_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if args.command == "bench" and extra and not any(x.startswith("-") for x in extra):
+        # argparse gives a benchmark's meshes the empty list where options come between its
+        # name and them ("bench tti --quick MESH"); they are meshes all the same
+        args.meshes = args.meshes + [_path(x) for x in extra]
+    elif extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     args.argv = argv
     args.signals_owned = signals_owned
     try:

@@ -762,8 +762,9 @@ def test_bench_trees_on_a_scene_whose_rays_do_no_work_gives_null_ratios(tmp_path
         "shapes": [{"type": "triangles", "material": "floor",
                     "data": [[[0, 0, 10], [1, 0, 10], [0, 1, 10]]]}]}))
     out = tmp_path / "docs"
-    assert main(["bench", "trees", str(scene), "--repeat", "1", "--out-dir", str(out),
-                 "--json"]) == 0
+    # (the scene after the options: a benchmark's meshes may come anywhere after its name)
+    assert main(["bench", "trees", "--repeat", "1", "--out-dir", str(out), "--json",
+                 str(scene)]) == 0
     printed = capsys.readouterr().out
     row = json.loads(printed, parse_constant=lambda c: pytest.fail(f"{c} in --json"))["rows"][0]
     for mode in ("packets", "single_ray"):
