@@ -284,10 +284,6 @@ def _replay(path, tris, verts, faces):
     return dict(counts, replayed=rows, file=str(path))
 
 
-def _stem(spec):
-    return os.path.splitext(os.path.basename(str(spec)))[0]
-
-
 def cmd_verify(args):
     import io
     import numpy as np
@@ -310,9 +306,10 @@ def cmd_verify(args):
                      lambda r: "\n".join(json_text(x) for x in r["replayed"]))
     rays = VERIFY_RAYS if args.rays is None else args.rays
     kind = args.kind or VERIFY_KIND
-    out = args.mismatches or os.path.join("renders", f"verify-{_stem(args.scene)}-{kind}-mismatches.npz")
-    check_outputs([out], inputs=scene_inputs(args.scene))
     label, tris, verts, faces = _scene_geometry(args.scene)
+    # named by the scene's name, as render's image is
+    out = args.mismatches or os.path.join("renders", f"verify-{label}-{kind}-mismatches.npz")
+    check_outputs([out], inputs=scene_inputs(args.scene))
     tracer = None
     if args.accel == "grid":
         from traversal.grid import GridTracer, warm_up_grid

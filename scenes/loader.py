@@ -76,6 +76,23 @@ def is_scene(spec):
     return spec in BUILTIN or str(spec).lower().endswith(SCENE_EXTENSIONS)
 
 
+class _DuplicateKey(ValueError):
+    def __init__(self, key):
+        super().__init__(key)
+        self.key = key
+
+
+def _unique_keys(pairs):
+    """A JSON object's dict, refusing a key given twice (``json``'s own loader keeps the last,
+    so a scene would render without the value its author read first)."""
+    d = {}
+    for k, v in pairs:
+        if k in d:
+            raise _DuplicateKey(k)
+        d[k] = v
+    return d
+
+
 def load_scene(spec, **overrides):
     """A scene dict from a built-in name, a scene file or a mesh file."""
     spec = os.fspath(spec)
@@ -89,9 +106,11 @@ def load_scene(spec, **overrides):
     if low.endswith(".json"):
         try:
             with open(spec, encoding="utf-8") as f:
-                d = json.load(f)
+                d = json.load(f, object_pairs_hook=_unique_keys)
         except json.JSONDecodeError as e:
             raise InputError(spec, f"not valid JSON ({e.msg} at line {e.lineno})") from None
+        except _DuplicateKey as e:
+            raise InputError(spec, f"key '{e.key}' is given twice in one object") from None
         except (OSError, UnicodeDecodeError, RecursionError, ValueError) as e:
             raise InputError(spec, f"cannot read the scene ({_reason(e)})") from None
     elif low.endswith(".toml"):

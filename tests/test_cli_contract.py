@@ -994,6 +994,20 @@ def test_every_command_opens_its_help_with_a_description():
         assert sub.description, name
 
 
+def test_verify_names_its_default_mismatch_file_after_the_scene_name(capsys, tmp_path,
+                                                                     monkeypatch):
+    """As render names its image: the scene's 'name', not the file's."""
+    scene = tmp_path / "file.json"
+    scene.write_text(json.dumps(scene_dict(name="ball")))
+    monkeypatch.chdir(tmp_path)
+    taken = tmp_path / "renders" / "verify-ball-random-mismatches.npz"
+    taken.mkdir(parents=True)                   # where the file would go: refused up front
+    rc, _, err = call(capsys, "verify", scene, "--rays", 10)
+    assert rc == 2 and "verify-ball-random-mismatches.npz" in one_line_error(err)
+    rc, _, err = call(capsys, "render", scene, "--width", 8, "--height", 6)
+    assert rc == 0 and (tmp_path / "renders" / "ball.exr").exists(), err
+
+
 def test_verify_refuses_mismatches_over_a_mesh_its_scene_reads(capsys, tmp_path, tetra):
     scene = tmp_path / "s.json"
     scene.write_text(json.dumps(scene_dict(shapes=[{"type": "mesh", "filename": tetra.name, "material": "m"}])))

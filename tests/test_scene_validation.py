@@ -305,3 +305,18 @@ def test_a_missing_type_is_named_as_missing(tmp_path, capsys, monkeypatch, secti
     p = write_scene(tmp_path, d, name="t.json")
     line = refused(capsys, tmp_path, monkeypatch, "render", p)
     assert f"{p}: key '{key}': unknown {what} type 'bogus' (choose from " in line
+
+
+def test_a_key_given_twice_is_refused_not_overwritten(tmp_path, capsys, monkeypatch):
+    """JSON's own loader keeps the last of two equal keys; a scene file refuses it, as TOML
+    does, at any depth."""
+    good = json.dumps(scene_dict())
+    for text, key in ((good.replace('{"type": "scene",', '{"type": "scene", "type": "scene",'),
+                       "type"),
+                      (good.replace('"eye": [0, 1, 4],', '"eye": [0, 1, 4], "eye": [0, 1, 5],'),
+                       "eye")):
+        assert text != good
+        p = tmp_path / "dup.json"
+        p.write_text(text)
+        line = refused(capsys, tmp_path, monkeypatch, "render", p)
+        assert line == f"hwrt: error: {p}: key '{key}' is given twice in one object"
