@@ -50,6 +50,10 @@ def output_names(name):
     return [f"{name}{ext}" for ext in (".jsonl", ".csv", ".json", ".md", ".png")]
 
 
+def _not_ours(token):
+    raise ValueError(f"{token} is not a number our cells hold")
+
+
 class Cells:
     """Finished cells on disk, one JSON object per line, keyed by ``key``.
 
@@ -80,7 +84,9 @@ class Cells:
                 os.truncate(self.path, len(data) - len(last))
         for line in complete:
             try:
-                row = json.loads(line)
+                # our lines hold null for a number that is not finite: a NaN or Infinity
+                # token is a line edited since, not a result
+                row = json.loads(line, parse_constant=_not_ours)
             except ValueError:                          # damaged: that cell runs again
                 continue
             if isinstance(row, dict) and "key" in row:

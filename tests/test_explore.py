@@ -119,6 +119,16 @@ def test_cells_resume_after_an_interruption(meshes, tmp_path):
     cells.write_bytes(data[:-40])
     third = ex.explore(meshes, grid, out, use_dask=False, progress=False)
     assert third["computed"] == 1 and third["rows"] == first["rows"]
+    # a number edited to NaN (our lines write null): that cell runs again, not into the CSV
+    lines = cells.read_text().splitlines()
+    row = json.loads(lines[0])
+    assert isinstance(row["seconds"], float)
+    lines[0] = lines[0].replace(f'"seconds": {json.dumps(row["seconds"])}', '"seconds": NaN')
+    assert "NaN" in lines[0]
+    cells.write_text("\n".join(lines) + "\n")
+    fourth = ex.explore(meshes, grid, out, use_dask=False, progress=False)
+    assert fourth["computed"] == 1 and fourth["rows"] == first["rows"]
+    assert "nan" not in (out / "explore.csv").read_text().lower()
     fresh = ex.explore(meshes, grid, out, use_dask=False, progress=False, fresh=True)
     assert fresh["computed"] == fresh["cells"]
     assert len(cells.read_text().splitlines()) == fresh["cells"]
