@@ -526,8 +526,8 @@ def from_scene_dict(d, source=None, fps=None):
         if sh.get("type") == "frames":
             _check_keys(source, sh, FRAMES_SHAPE_KEYS, path)
             pat = sh.get("pattern")
-            if not isinstance(pat, str):
-                _fail(source, f"{path}.pattern", "missing or not a string")
+            if not isinstance(pat, str) or not pat:
+                _fail(source, f"{path}.pattern", "missing, empty or not a string")
             smooth = sh.get("smooth", False)
             if not isinstance(smooth, bool):
                 _fail(source, f"{path}.smooth", f"expected true or false, got {smooth!r}")

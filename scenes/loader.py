@@ -72,6 +72,18 @@ MAX_FRAMES = 100_000
 SCALE_RANGE = (1.0 / MAX_COORDINATE, MAX_COORDINATE)
 
 
+def written(v, limit=40):
+    """A scene file's value for a message, cut short: ``shown``, but true, false and null
+    and the lists that hold them as the file spells them (Python would say True, None)."""
+    if isinstance(v, (bool, list, tuple)) or v is None:
+        try:
+            text = json.dumps(v, allow_nan=False)
+        except (TypeError, ValueError):
+            return shown(v, limit)
+        return text if len(text) <= limit else text[:limit - 3] + "..."
+    return shown(v, limit)
+
+
 def is_scene(spec):
     return spec in BUILTIN or str(spec).lower().endswith(SCENE_EXTENSIONS)
 
@@ -389,16 +401,16 @@ class _Ctx:
             if default is None:
                 self.fail(f"{path}.{key}", "missing")
             return np.asarray(default, np.float64)
-        v = obj[key]
+        v = given = obj[key]
         if isinstance(v, (int, float)) and n == 3:
             v = [v, v, v]
         try:
             a = np.asarray(v, np.float64)
         except (TypeError, ValueError):
-            self.fail(f"{path}.{key}", f"expected {n} numbers, got {v!r}")
+            self.fail(f"{path}.{key}", f"expected {n} numbers, got {written(given)}")
         if a.shape != (n,) or not np.isfinite(a).all() or not vector_ok(v, a, bound):
             self.fail(f"{path}.{key}", f"expected {n} finite numbers of magnitude at most "
-                                       f"{bound:g}, got {v!r}")
+                                       f"{bound:g}, got {written(given)}")
         return a
 
     def num(self, obj, key, path, default=None, lo=None, hi=None, integer=False, wanted=None):
@@ -412,16 +424,16 @@ class _Ctx:
         # numbers as JSON and TOML give them, and NumPy's (a dict built in Python)
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
             self.fail(f"{path}.{key}", f"expected {'an integer' if integer else 'a number'}, "
-                                       f"got {shown(v)}")
+                                       f"got {written(v)}")
         if not finite(v):
-            self.fail(f"{path}.{key}", f"expected a finite number, got {shown(v)}")
+            self.fail(f"{path}.{key}", f"expected a finite number, got {written(v)}")
         if integer and int(v) != v:
-            self.fail(f"{path}.{key}", f"expected an integer, got {shown(v)}")
+            self.fail(f"{path}.{key}", f"expected an integer, got {written(v)}")
         if (lo is not None and v < lo) or (hi is not None and v > hi):
             if wanted is None:
                 wanted = f"at least {lo}" if hi is None else \
                     (f"at most {hi}" if lo is None else f"in [{lo}, {hi}]")
-            self.fail(f"{path}.{key}", f"{shown(v)} is out of range (must be {wanted})")
+            self.fail(f"{path}.{key}", f"{written(v)} is out of range (must be {wanted})")
         return int(v) if integer else float(v)
 
 
@@ -606,8 +618,8 @@ def _shape(ctx, sh, i, scene_dir):
         normals = flat_normals(tris)
     else:  # mesh
         fn = sh.get("filename")
-        if not isinstance(fn, str):
-            ctx.fail(f"{path}.filename", "missing or not a string")
+        if not isinstance(fn, str) or not fn:
+            ctx.fail(f"{path}.filename", "missing, empty or not a string")
         full = fn if os.path.isabs(fn) else os.path.join(scene_dir, fn)
         smooth = ctx.flag(sh, "smooth", path, False)
         tf = sh.get("transform", {})

@@ -939,7 +939,7 @@ def test_a_film_too_large_names_the_options_that_set_it(capsys, tmp_path):
 @pytest.mark.parametrize("film, integrator, argv, key, problem", [
     ({"width": "wide"}, {}, ["--width", 16], "film.width", "expected an integer, got 'wide'"),
     ({"width": 64.5}, {}, ["--width", 16], "film.width", "expected an integer, got 64.5"),
-    ({"height": True}, {}, ["--height", 12], "film.height", "expected an integer, got True"),
+    ({"height": True}, {}, ["--height", 12], "film.height", "expected an integer, got true"),
     ({"spp": 0}, {}, ["--spp", 1], "film.spp", "0 is out of range"),
     ({}, {"max_depth": 999}, ["--max-depth", 2], "integrator.max_depth", "999 is out of range"),
 ])

@@ -320,3 +320,19 @@ def test_a_key_given_twice_is_refused_not_overwritten(tmp_path, capsys, monkeypa
         p.write_text(text)
         line = refused(capsys, tmp_path, monkeypatch, "render", p)
         assert line == f"hwrt: error: {p}: key '{key}' is given twice in one object"
+
+
+def test_an_empty_mesh_filename_is_named_as_empty(tmp_path, capsys, monkeypatch):
+    """"" joined to the scene's directory is the directory: the key is named, not the folder."""
+    p = write_scene(tmp_path, scene_dict(shapes=[{"type": "mesh", "filename": "",
+                                                  "material": "white"}]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p)
+    assert line == f"hwrt: error: {p}: key 'shapes[0].filename': missing, empty or not a string"
+
+
+def test_a_value_is_quoted_as_the_scene_file_spells_it(tmp_path, capsys, monkeypatch):
+    p = write_scene(tmp_path, scene_dict(shapes=[{"type": "box", "min": [-0.5, 0, -0.5],
+                                                  "max": [0.5, 1, True], "material": "white"}]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p)
+    assert line.endswith("key 'shapes[0].max': expected 3 finite numbers of magnitude at most "
+                         "1e+15, got [0.5, 1, true]")
