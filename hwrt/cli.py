@@ -617,6 +617,9 @@ def _bench_options(args):
         if dest == "meshes":
             raise InputError(args.meshes[0], f"bench {args.what} takes no mesh files")
         raise InputError("--" + dest.replace("_", "-"), f"bench {args.what} does not read this option")
+    twice = [a for k, a in enumerate(args.accel or []) if a in args.accel[:k]]
+    if twice:
+        raise InputError("--accel", f"{twice[0]} given twice")
     if args.what == "contention" and len(args.meshes) > 1:     # it measures one scene
         raise InputError(args.meshes[1], "bench contention takes one scene or mesh file")
     defaults = dict(table, **(BENCH_QUICK.get(args.what, {}) if args.quick else {}))

@@ -627,6 +627,12 @@ def test_bench_options_a_benchmark_does_not_read_are_errors(capsys, argv, flag):
     assert rc == 2 and out == "" and flag in one_line_error(err) and "does not read" in err
 
 
+def test_bench_accel_named_twice_is_an_error(capsys):
+    rc, out, err = call(capsys, "bench", "trace", "--accel", "grid", "--accel", "kdtree",
+                        "--accel", "grid")
+    assert rc == 2 and out == "" and one_line_error(err) == "hwrt: error: --accel: grid given twice"
+
+
 def test_bench_contention_takes_one_scene(capsys):
     rc, out, err = call(capsys, "bench", "contention", "cornell", "marbles")
     assert rc == 2 and out == "" and one_line_error(err) == (
