@@ -462,14 +462,13 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 leaves[j] = (c > 0) & (gx * lx + gy * ly + gz * lz > 0)
             s = l * stride + sh_cnt[l]
             for j in range(nr):
-                # every ray writes the slot, and only a ray that takes the light moves on
-                # past it: no branch to mispredict where lit and unlit rays mix
-                take = lit[j] & leaves[j]
+                if not (lit[j] and leaves[j]):
+                    continue
                 i = lo + j
                 m = mat[j]
                 spec = 0.0
                 kspec = ks[m]
-                if take & (kspec > 0):                  # pow is the dearest step: only if used
+                if kspec > 0:                           # pow is the dearest step: only if used
                     shin = shininess[m]
                     norm_spec = (shin + 8) / (8 * np.pi)
                     hx, hy, hz = _unit(S[_LX + j] - S[_DX + j], S[_LY + j] - S[_DY + j],
@@ -488,7 +487,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 sh_C[s, 1] = S[_W1 + j] * (S[_E1 + j] * c * (kd_pi[m, 1] + spec))
                 sh_C[s, 2] = S[_W2 + j] * (S[_E2 + j] * c * (kd_pi[m, 2] + spec))
                 sh_pix[s] = pix[i]
-                s += np.int64(take)
+                s += 1
             sh_cnt[l] = s - l * stride
         # -- pass 4, in ray order: secondary rays (mirror reflection; dielectric reflection
         #    and refraction) --
