@@ -176,6 +176,7 @@ def _write_outputs(out_dir, name, rows, md, plot_files, extra, where=None, commi
              (os.path.join(out_dir, f"{name}.md"), md)] + plot_files
     commit(files)
     result["files"] = [f for f, _ in files]
+    result["cells_file"] = os.path.join(out_dir, f"{name}.jsonl")     # what a rerun resumes from
     return result
 
 

@@ -49,6 +49,7 @@ def test_tti_quick_outputs_and_resume(tti_quick, mesh_dir):
     assert {"cpu", "cores", "python", "numba", "embreex"} <= set(res["machine"])
     for name in ("tti.csv", "tti.json", "tti.md", "tti.png"):
         assert (out / name).exists()
+    assert res["cells_file"] == str(out / "tti.jsonl") and (out / "tti.jsonl").exists()
     assert res["break_even"] and all("break_even_rays" in b for b in res["break_even"])
     # resume: a second run measures nothing new
     lines = (out / "tti.jsonl").read_text().count("\n")
