@@ -9,6 +9,7 @@ import difflib
 import json
 import math
 import os
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -113,6 +114,9 @@ def load_scene(spec, **overrides):
         d.setdefault("_source", spec)
         return d
     if not os.path.exists(spec):
+        if re.search(r"%0?\d*d", os.path.basename(spec)):
+            raise InputError(spec, "a frame sequence (its %d numbers the frames): "
+                                   "render it with hwrt animate")
         raise InputError(spec, "no such scene or file (built-in scenes: " + ", ".join(BUILTIN) + ")")
     low = spec.lower()
     if low.endswith(".json"):

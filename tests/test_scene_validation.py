@@ -336,3 +336,11 @@ def test_a_value_is_quoted_as_the_scene_file_spells_it(tmp_path, capsys, monkeyp
     line = refused(capsys, tmp_path, monkeypatch, "render", p)
     assert line.endswith("key 'shapes[0].max': expected 3 finite numbers of magnitude at most "
                          "1e+15, got [0.5, 1, true]")
+
+
+@pytest.mark.parametrize("command", ["render", "verify"])
+def test_a_frame_pattern_given_to_a_still_command_points_to_animate(tmp_path, capsys,
+                                                                    monkeypatch, command):
+    line = refused(capsys, tmp_path, monkeypatch, command, "seq/b_%04d.ply")
+    assert line == ("hwrt: error: seq/b_%04d.ply: a frame sequence (its %d numbers the frames): "
+                    "render it with hwrt animate")
