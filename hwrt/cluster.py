@@ -61,6 +61,22 @@ def _quiet():
         logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
+def _address_problem(address):
+    """What makes ``address`` no address to connect to (no port, a port out of range), or
+    None: said at once, where a connection attempt would wait out its timeout first."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(address)
+        if scheme in ("tcp", "tls", "ws", "wss"):
+            port = parse_host_port(location)[1]
+            if not 1 <= port <= 65535:
+                return f"port {port} is not in 1..65535"
+    except (ValueError, TypeError) as e:
+        return (str(e).splitlines() or [""])[0] or type(e).__name__
+    return None
+
+
 def _probe(address):
     """Why ``address`` is not a Dask scheduler answering within ``CONNECT_TIMEOUT_S``, or None.
     Asked before a Client exists, so that a bad address (nothing listening, no route, a server
@@ -148,6 +164,10 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
                           "distributed.comm.timeouts.connect": f"{CONNECT_TIMEOUT_S}s"}):
         try:
             if address:
+                malformed = _address_problem(address)
+                if malformed:
+                    raise ParameterError(named, f"{address!r} is not a scheduler address "
+                                                f"({malformed}; e.g. tcp://HOST:8786)")
                 problem = _probe(address)
                 if problem:
                     raise ParameterError(named, f"no Dask scheduler answers at {address!r} "

@@ -161,6 +161,10 @@ def test_meshes_are_named_as_the_benchmarks_name_them(tmp_path):
     (["--grid", "w=1", "--grid", "psize=2"],
      "--grid: psize: w * psize = 2 is below the leaf size 4: a subtree builder must hold a leaf"),
     (["--grid", "w=2", "--scheduler", "tcp://127.0.0.1:9"], "--scheduler: no Dask scheduler answers"),
+    (["--grid", "w=2", "--scheduler", "garbage"],
+     "--scheduler: 'garbage' is not a scheduler address (missing port number"),
+    (["--grid", "w=2", "--scheduler", "tcp://127.0.0.1:99999"],
+     "is not a scheduler address (port 99999 is not in 1..65535; e.g. tcp://HOST:8786)"),
 ])
 def test_cli_bad_input_one_line_exit_2_no_output(meshes, tmp_path, args, message):
     out = tmp_path / "out"
