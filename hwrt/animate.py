@@ -354,7 +354,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         commit=write_files):
     """Render ``frames`` frames of ``anim`` (scenes.animation.Animation) under a tree update
     ``strategy`` (``accel`` other than "bvh": that structure, rebuilt every frame). With ``out_dir``: one EXR per frame (written atomically), the run state
-    (animation.json, also what a rerun resumes from, at the first missing frame), then a CSV
+    (animation.json, also what a rerun resumes from, at the first frame missing or damaged), then a CSV
     and a GIF preview, the last set, through ``commit(files)`` (the command line's also marks
     the run done). Without it nothing is written (benchmarks). ``inspect(i, scene, bvh)`` sees
     every frame's tree (None under embree). ``on_start(first)``: called once every input and

@@ -977,7 +977,7 @@ def make_parser():
                         description="Render an animated scene frame by frame, updating the tree "
                                     "each frame by the chosen strategy; one EXR per frame, a GIF "
                                     "preview and a CSV in the output directory. A rerun into the "
-                                    "same directory resumes at the first missing frame.")
+                                    "same directory resumes at the first frame missing or damaged.")
     an.add_argument("scene", type=_path, help="built-in animation (exploding, cloth, marbles, flythrough), "
                                   "scene file, or frame pattern of mesh files ('f_%%04d.ply' or a glob)")
     an.add_argument("--frames", type=_frames,
