@@ -45,14 +45,14 @@ SLOT_WORDS = 8
 
 @njit(cache=True)
 def collector_scratch(nbins):
-    """The collectors' words (float32) and counts (int64) of ``bin_range``."""
+    """The collectors' words (float32) and counts (int64) of ``bin_records``."""
     return (np.empty(3 * nbins * SLOT_WORDS, dtype=np.float32),
             np.empty(3 * nbins, dtype=np.int64))
 
 
 @njit(cache=True)
 def bin_scratch(nbins, records):
-    """Working arrays of ``bin_range`` for nodes of up to ``records`` primitives: each
+    """Working arrays of ``bin_records`` for nodes of up to ``records`` primitives: each
     record's three slots (int32), the collectors' words (float32) and counts (int64)."""
     F, C = collector_scratch(nbins)
     return np.empty(3 * max(records, 1), dtype=np.int32), F, C

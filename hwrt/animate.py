@@ -269,18 +269,18 @@ def _load_state(out_dir, params):
 
 def _frame_intact(out_dir, i, width, height):
     """Whether frame i of a run being resumed is on disk and reads back as a whole image of the
-    run's size: a frame damaged or replaced since is rendered again, not carried into the
-    preview."""
+    run's size that says it is frame i: a frame cut short or replaced since (another frame
+    copied over it) is rendered again, not carried into the preview."""
     from raytracer.output import read_exr
 
     path = os.path.join(out_dir, FRAME_NAME.format(i))
     if not os.path.exists(path):
         return False
     try:
-        px, _, _ = read_exr(path)
-    except Exception:                   # OpenImageIO's errors have no one type
+        px, _, meta = read_exr(path)
+    except (OSError, RuntimeError, ValueError):     # not a readable EXR
         return False
-    return px is not None and px.shape[:2] == (height, width)
+    return px is not None and px.shape[:2] == (height, width) and meta.get("frame") == i
 
 
 def _write_state(out_dir, params, rows):

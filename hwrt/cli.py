@@ -1143,16 +1143,28 @@ def _input_message(parser, args, e):
     return f"{option} {e.source}: {e.problem}" if option else str(e)
 
 
+def _late_meshes(parser, extra):
+    """A benchmark's mesh arguments that argparse left over (``extra``, after its options):
+    checked as the MESH argument checks them; an option among them is unrecognised."""
+    options = [x for x in extra if x.startswith("-") and x != "--"]
+    if options:
+        parser.error(f"unrecognized arguments: {' '.join(options)}")
+    try:
+        return [_path(x) for x in extra if x != "--"]
+    except argparse.ArgumentTypeError as e:
+        parser.error(f"argument MESH: {e}")
+
+
 def _run(argv, signals_owned):
     """Parse ``argv`` and run its command; the exit status. Interrupts go to the caller."""
     from hwbvh.errors import InputError
     from hwbvh.parallel import check_threading
     parser = make_parser()
     args, extra = parser.parse_known_args(argv)
-    if args.command == "bench" and extra and not any(x.startswith("-") for x in extra):
+    if args.command == "bench" and extra:
         # argparse gives a benchmark's meshes the empty list where options come between its
         # name and them ("bench tti --quick MESH"); they are meshes all the same
-        args.meshes = args.meshes + [_path(x) for x in extra]
+        args.meshes = args.meshes + _late_meshes(parser, extra)
     elif extra:
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
     args.argv = argv

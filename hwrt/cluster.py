@@ -69,6 +69,9 @@ def _address_problem(address):
     try:
         scheme, location = parse_address(address)
         if scheme in ("tcp", "tls", "ws", "wss"):
+            _, colon, text = location.rpartition(":")
+            if colon and text and not text.isdigit():       # int() would say it its own way
+                return f"port {text!r} is not a number"
             port = parse_host_port(location)[1]
             if not 1 <= port <= 65535:
                 return f"port {port} is not in 1..65535"
@@ -148,8 +151,9 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
     """A ``distributed.Client``: on ``scheduler`` (else ``$HWRT_SCHEDULER``), else on an
     embedded local cluster of ``workers`` processes (default: one per core) whose Numba kernels
     get ``threads_per_cell`` threads each. ``warm_up`` runs once per worker. Raises
-    ParameterError when the scheduler cannot be reached within ``CONNECT_TIMEOUT_S``, naming
-    "scheduler", or "$HWRT_SCHEDULER" when the address came from there."""
+    ParameterError, naming "scheduler", or "$HWRT_SCHEDULER" when the address came from there,
+    for an address that is none, a scheduler that does not answer within
+    ``CONNECT_TIMEOUT_S``, and one that no worker joins within that time."""
     import dask
     from distributed import Client, LocalCluster
 

@@ -176,7 +176,6 @@ def _write_outputs(out_dir, name, rows, md, plot_files, extra, where=None, commi
              (os.path.join(out_dir, f"{name}.md"), md)] + plot_files
     commit(files)
     result["files"] = [f for f, _ in files]
-    result["cells_file"] = os.path.join(out_dir, f"{name}.jsonl")     # what a rerun resumes from
     return result
 
 
@@ -322,9 +321,11 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
     rows, summary = _tti_rows(cells, specs, W, H, spp, depth, repeat, structures)
     md = "# hwrt bench tti\n\n" + made_by_block(command_of(args)) + _tti_markdown(rows, summary, W, H, spp, depth)
     plots = _tti_plot(rows, out_dir, TTI_PATHS + structures)
-    return _write_outputs(out_dir, "tti", rows, md, plots,
-                          {"setting": {"width": W, "height": H, "spp": spp, "max_depth": depth,
-                                       "repeat": repeat}, "break_even": summary}, where, commit)
+    result = _write_outputs(out_dir, "tti", rows, md, plots,
+                            {"setting": {"width": W, "height": H, "spp": spp, "max_depth": depth,
+                                         "repeat": repeat}, "break_even": summary}, where, commit)
+    result["cells_file"] = str(cells.path)          # what a rerun resumes from
+    return result
 
 
 def _tti_rows(cells, specs, W, H, spp, depth, repeat, structures=()):
@@ -619,9 +620,11 @@ def bench_accuracy(args, *, use_dask=True, progress=True, commit=write_files):
     rows = [r for r in rows if r]
     md = "# hwrt bench accuracy\n\n" + made_by_block(command_of(args)) + _accuracy_markdown(rows)
     plots = _accuracy_plots(rows, args.out_dir)
-    return _write_outputs(args.out_dir, "accuracy", rows, md, plots,
-                          {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE}},
-                          where, commit)
+    result = _write_outputs(args.out_dir, "accuracy", rows, md, plots,
+                            {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE}},
+                            where, commit)
+    result["cells_file"] = str(cells.path)          # what a rerun resumes from
+    return result
 
 
 def human_accuracy(result):

@@ -53,7 +53,7 @@ def _quotient(a, b):
 
 def _gap(ratio, work_ratio):
     """How far a time ratio sits from the work ratio (ratio / work ratio - 1), or None."""
-    return None if work_ratio is None else ratio / work_ratio - 1
+    return ratio / work_ratio - 1 if work_ratio else None
 
 
 def _paired_ratio(seconds):
@@ -337,8 +337,7 @@ def human(r):
     for head, c in _class_rows(r):
         share = "-" if c["time_share"] is None else f"{100 * c['time_share']:.0f}%"
         unit = "-" if c["ns_per_unit"] is None else f"{c['ns_per_unit']:.2f}"
-        gap = ("-" if not c["work_ratio"]
-               else f"{100 * (c['trace_ratio'] / c['work_ratio'] - 1):+.1f}%")
+        gap = _percent(_gap(c["trace_ratio"], c["work_ratio"]))
         lines.append(f"{head}{c['rays']:>9}{share:>10}{unit:>8}{c['work_per_ray']['hwbvh']:>12.1f}"
                      f"{c['work_per_ray']['sweep']:>7.1f}{_ratio(c['work_ratio']):>7}"
                      f"{c['trace_ratio']:>7.3f}{gap:>9}")

@@ -48,7 +48,7 @@ from hwbvh.errors import InputError, ParameterError
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
 from .loader import (FOV_RANGE, MAX_FRAMES, check_scale, compile_scene, finite, flat_normals,
-                     load_scene, mesh_scene, smooth_normals, vector_ok, with_frame)
+                     load_scene, mesh_scene, smooth_normals, vector_ok, with_frame, written)
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
@@ -96,13 +96,13 @@ def _check_keys(source, obj, allowed, path):
 
 def _number(source, v, path, lo=None, positive=False, hi=None):
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not finite(v):
-        _fail(source, path, f"expected a finite number, got {v!r}")
+        _fail(source, path, f"expected a finite number, got {written(v)}")
     if positive and not v > 0:
-        _fail(source, path, f"must be positive, got {v!r}")
+        _fail(source, path, f"must be positive, got {written(v)}")
     if lo is not None and v < lo:
-        _fail(source, path, f"must be at least {lo}, got {v!r}")
+        _fail(source, path, f"must be at least {lo}, got {written(v)}")
     if hi is not None and v > hi:
-        _fail(source, path, f"must be at most {hi}, got {v!r}")
+        _fail(source, path, f"must be at most {hi}, got {written(v)}")
     return float(v)
 
 
@@ -115,7 +115,7 @@ def _vec3(source, v, path):
         a = None
     if a is None or a.shape != (3,) or not np.isfinite(a).all() or not vector_ok(v, a):
         _fail(source, path, f"expected 3 finite numbers of magnitude at most "
-                            f"{MAX_COORDINATE:g}, got {v!r}")
+                            f"{MAX_COORDINATE:g}, got {written(v)}")
     return a
 
 
@@ -507,7 +507,7 @@ def from_scene_dict(d, source=None, fps=None):
     _check_keys(source, anim, ANIMATION_KEYS, "animation")
     frames = anim.get("frames")
     if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
-        _fail(source, "animation.frames", f"expected a positive integer, got {frames!r}")
+        _fail(source, "animation.frames", f"expected a positive integer, got {written(frames)}")
     if frames is not None and frames > MAX_FRAMES:
         _fail(source, "animation.frames", too_many_frames(frames))
     shapes = d.get("shapes")
@@ -530,7 +530,7 @@ def from_scene_dict(d, source=None, fps=None):
                 _fail(source, f"{path}.pattern", "missing, empty or not a string")
             smooth = sh.get("smooth", False)
             if not isinstance(smooth, bool):
-                _fail(source, f"{path}.smooth", f"expected true or false, got {smooth!r}")
+                _fail(source, f"{path}.smooth", f"expected true or false, got {written(smooth)}")
             full = pat if os.path.isabs(pat) else os.path.join(scene_dir, pat)
             files = expand_pattern(full, f"{source}: key '{path}.pattern'")
             inputs += files

@@ -9,7 +9,6 @@ import difflib
 import json
 import math
 import os
-import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -114,8 +113,9 @@ def load_scene(spec, **overrides):
         d.setdefault("_source", spec)
         return d
     if not os.path.exists(spec):
-        if re.search(r"%0?\d*d", os.path.basename(spec)):
-            raise InputError(spec, "a frame sequence (its %d numbers the frames): "
+        from .animation import is_pattern
+        if is_pattern(spec):
+            raise InputError(spec, "a frame sequence (a %d or glob pattern of mesh files): "
                                    "render it with hwrt animate")
         raise InputError(spec, "no such scene or file (built-in scenes: " + ", ".join(BUILTIN) + ")")
     low = spec.lower()
@@ -126,7 +126,7 @@ def load_scene(spec, **overrides):
         except json.JSONDecodeError as e:
             raise InputError(spec, f"not valid JSON ({e.msg} at line {e.lineno})") from None
         except _DuplicateKey as e:
-            raise InputError(spec, f"key '{e.key}' is given twice in one object") from None
+            raise InputError(spec, f"key {shown(e.key)} is given twice in one object") from None
         except (OSError, UnicodeDecodeError, RecursionError, ValueError) as e:
             raise InputError(spec, f"cannot read the scene ({_reason(e)})") from None
     elif low.endswith(".toml"):
@@ -202,9 +202,9 @@ def check_name(source, name):
     plain file name: the default outputs are named after it (renders/<name>.exr,
     renders/animate-<name>-<strategy>/), so a separator or a "." / ".." would write elsewhere."""
     if not isinstance(name, str) or not name:
-        problem = f"expected a non-empty string, got {name!r}"
+        problem = f"expected a non-empty string, got {written(name)}"
     elif name in (".", "..") or any(c in name for c in "/\\\0"):
-        problem = (f"{name!r} is not a plain file name (outputs are named after it: no '/', "
+        problem = (f"{written(name)} is not a plain file name (outputs are named after it: no '/', "
                    "'\\' or NUL, not '.' or '..')")
     else:
         return
@@ -397,7 +397,7 @@ class _Ctx:
     def flag(self, obj, key, path, default):
         v = obj.get(key, default)
         if not isinstance(v, bool):
-            self.fail(f"{path}.{key}", f"expected true or false, got {v!r}")
+            self.fail(f"{path}.{key}", f"expected true or false, got {written(v)}")
         return v
 
     def vec(self, obj, key, path, n=3, default=None, bound=MAX_COORDINATE):
@@ -550,7 +550,7 @@ def _type_problem(obj, what, types):
     choose = f"(choose from {', '.join(types)})"
     if "type" not in obj:
         return f"missing: every {what} names its type {choose}"
-    return f"unknown {what} type {obj['type']!r} {choose}"
+    return f"unknown {what} type {written(obj['type'])} {choose}"
 
 
 def _shape(ctx, sh, i, scene_dir):
@@ -586,9 +586,9 @@ def _shape(ctx, sh, i, scene_dir):
         sub = sh.get("subdiv", [32, 64])
         if not (isinstance(sub, (list, tuple)) and len(sub) == 2 and
                 all(isinstance(x, int) and not isinstance(x, bool) and x >= 3 for x in sub)):
-            ctx.fail(f"{path}.subdiv", f"expected [n_lat, n_lon] integers >= 3, got {sub!r}")
+            ctx.fail(f"{path}.subdiv", f"expected [n_lat, n_lon] integers >= 3, got {written(sub)}")
         if 2 * sub[0] * sub[1] > MAX_PRIMITIVES:
-            ctx.fail(f"{path}.subdiv", f"{sub!r} makes more than the 2^24 triangles a tree holds")
+            ctx.fail(f"{path}.subdiv", f"{written(sub)} makes more than the 2^24 triangles a tree holds")
         V, F = uv_sphere(sub[0], sub[1])
         tris = V[F] * r + c
         _bounded(ctx, tris, f"{path}.radius", "the sphere")
@@ -597,10 +597,10 @@ def _shape(ctx, sh, i, scene_dir):
         res = sh.get("resolution", [64, 64])
         if not (isinstance(res, (list, tuple)) and len(res) == 2 and
                 all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for x in res)):
-            ctx.fail(f"{path}.resolution", f"expected [nx, ny] positive integers, got {res!r}")
+            ctx.fail(f"{path}.resolution", f"expected [nx, ny] positive integers, got {written(res)}")
         if 2 * res[0] * res[1] > MAX_PRIMITIVES:
             ctx.fail(f"{path}.resolution",
-                     f"{res!r} makes more than the 2^24 triangles a tree holds")
+                     f"{written(res)} makes more than the 2^24 triangles a tree holds")
         # each within the coordinate bound before any arithmetic (which would overflow, with
         # numpy's warnings); the sheet's y is height plus up to |wave|, checked after
         big = MAX_COORDINATE
@@ -722,7 +722,7 @@ def compile_scene(d, source=None, first_shape=0):
         if key not in d:
             ctx.fail(key, "missing")
     if d.get("type", "scene") != "scene":
-        ctx.fail("type", f"expected 'scene', got {d.get('type')!r}")
+        ctx.fail("type", f"expected 'scene', got {written(d.get('type'))}")
     check_name(source, d.get("name", "scene"))
     mats = d["materials"]
     if not isinstance(mats, dict) or not mats:
@@ -734,7 +734,7 @@ def compile_scene(d, source=None, first_shape=0):
         m = mats[name]
         p = f"materials.{name}"
         if not isinstance(m, dict):
-            ctx.fail(p, f"expected an object, got {m!r}")
+            ctx.fail(p, f"expected an object, got {written(m)}")
         if m.get("type") not in MATERIAL_TYPES:
             ctx.fail(f"{p}.type", _type_problem(m, "material", MATERIAL_TYPES))
         t = m["type"]
@@ -759,7 +759,7 @@ def compile_scene(d, source=None, first_shape=0):
         tris, normals = _shape(ctx, sh, i, scene_dir)
         mname = sh.get("material")
         if not isinstance(mname, str) or mname not in mats:
-            ctx.fail(f"shapes[{i}].material", f"unknown material {mname!r} (defined: {', '.join(names)})")
+            ctx.fail(f"shapes[{i}].material", f"unknown material {written(mname)} (defined: {', '.join(names)})")
         all_t.append(tris)
         all_n.append(normals)
         all_m.append(np.full(len(tris), names.index(mname), np.int32))
@@ -767,7 +767,7 @@ def compile_scene(d, source=None, first_shape=0):
     cam = ctx.obj(d, "camera")
     ctx.keys(cam, CAMERA_KEYS, "camera")
     if cam.get("type", "perspective") != "perspective":
-        ctx.fail("camera.type", f"unknown camera type {cam['type']!r} (the camera is 'perspective')")
+        ctx.fail("camera.type", f"unknown camera type {written(cam['type'])} (the camera is 'perspective')")
     camera = {"eye": ctx.vec(cam, "eye", "camera"), "target": ctx.vec(cam, "target", "camera"),
               "up": ctx.vec(cam, "up", "camera", default=[0, 1, 0]),
               "fov": ctx.num(cam, "fov", "camera", default=40.0, lo=FOV_RANGE[0], hi=FOV_RANGE[1])}
@@ -780,7 +780,7 @@ def compile_scene(d, source=None, first_shape=0):
     integ = ctx.obj(d, "integrator", default={})
     ctx.keys(integ, INTEGRATOR_KEYS, "integrator")
     if integ.get("type", "whitted") != "whitted":
-        ctx.fail("integrator.type", f"unknown integrator {integ['type']!r} (the renderer is 'whitted')")
+        ctx.fail("integrator.type", f"unknown integrator {written(integ['type'])} (the renderer is 'whitted')")
     lights = []
     if not isinstance(d.get("lights", []), list):
         ctx.fail("lights", "expected a list")

@@ -69,10 +69,13 @@ def naive_hwbvh(boxes, leaf_size=4, S=16):
 
 def naive_best_split(binbox, bincnt):
     """SPEC 2's SAH choice from one node's bins (binbox (3, S, 6), bincnt (3, S)), every
-    boundary of every axis in turn, the first lowest cost kept (ties: lower axis, then lower
-    boundary). Sides are unions of their occupied bins in bin order (Python's min and max keep
-    the first of equal bounds, +0 or -0, as the hardware's comparators do). Returns (axis,
-    boundary, n_left, n_right, cost, left box, right box); axis -1 without a candidate."""
+    boundary of every axis in turn, the lowest cost kept (ties: lower axis, then lower
+    boundary). The boundaries of an axis come downwards, as the hardware's LIFOs give them:
+    with finite costs the order does not matter, but a cost that overflowed to NaN compares
+    false with everything, so the first candidate met stays. Sides are unions of their
+    occupied bins in bin order (Python's min and max keep the first of equal bounds, +0 or -0,
+    as the hardware's comparators do). Returns (axis, boundary, n_left, n_right, cost, left
+    box, right box); axis -1 without a candidate."""
     S = binbox.shape[1]
 
     def union(a, bins):
@@ -85,13 +88,13 @@ def naive_best_split(binbox, bincnt):
 
     best = (-1, 0, 0, 0, F(np.inf), None, None)
     for a in range(3):
-        for k in range(1, S):
+        for k in range(S - 1, 0, -1):
             nl, nr = int(bincnt[a, :k].sum()), int(bincnt[a, k:].sum())
             if nl == 0 or nr == 0:
                 continue
             lb, rb = union(a, range(k)), union(a, range(k, S))
             cost = _sa(lb) * F(nl) + _sa(rb) * F(nr)
-            if best[0] < 0 or cost < best[4]:
+            if best[0] < 0 or cost < best[4] or (a == best[0] and cost == best[4]):
                 best = (a, k, nl, nr, cost, lb, rb)
     return best
 

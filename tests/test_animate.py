@@ -489,6 +489,11 @@ def test_a_damaged_frame_is_rendered_again_on_resume(tmp_path, capsys):
     (tmp_path / "run" / "frame_0001.exr").write_bytes(b"not an image")
     rc, out, err = _run_cli(capsys, *args)
     assert rc == 0 and json.loads(out)["resumed_from"] == 1, err
+    # a whole frame of the run, but another frame's: rendered again
+    (tmp_path / "run" / "frame_0003.exr").write_bytes((tmp_path / "run" / "frame_0000.exr").read_bytes())
+    rc, out, err = _run_cli(capsys, *args)
+    assert rc == 0 and json.loads(out)["resumed_from"] == 3, err
+    assert read_exr(tmp_path / "run" / "frame_0003.exr")[2]["frame"] == 3
 
 
 def test_unknown_strategy_and_bad_output_exit_2_before_any_work(tmp_path, capsys):

@@ -633,6 +633,17 @@ def test_bench_accel_named_twice_is_an_error(capsys):
     assert rc == 2 and out == "" and one_line_error(err) == "hwrt: error: --accel: grid given twice"
 
 
+@pytest.mark.parametrize("argv,line", [
+    (["bench", "tti", "--quick", ""], "hwrt: error: argument MESH: expected a value, got an empty one"),
+    (["bench", "trees", "--repeat", "1", "a.ply", "--bogus"], "hwrt: error: unrecognized arguments: --bogus"),
+    (["bench", "trees", "--repeat", "1", "--", "no/such.ply"],
+     "hwrt: error: no/such.ply: no such scene or file (built-in scenes: cornell, marbles, cloth, room)"),
+])
+def test_bench_meshes_after_options_are_checked_as_meshes(capsys, argv, line):
+    rc, out, err = call(capsys, *argv)
+    assert rc == 2 and out == "" and one_line_error(err) == line
+
+
 def test_bench_contention_takes_one_scene(capsys):
     rc, out, err = call(capsys, "bench", "contention", "cornell", "marbles")
     assert rc == 2 and out == "" and one_line_error(err) == (

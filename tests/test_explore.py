@@ -163,6 +163,8 @@ def test_meshes_are_named_as_the_benchmarks_name_them(tmp_path):
     (["--grid", "w=2", "--scheduler", "tcp://127.0.0.1:9"], "--scheduler: no Dask scheduler answers"),
     (["--grid", "w=2", "--scheduler", "garbage"],
      "--scheduler: 'garbage' is not a scheduler address (missing port number"),
+    (["--grid", "w=2", "--scheduler", "tcp://127.0.0.1:8786/"],
+     "is not a scheduler address (port '8786/' is not a number; e.g. tcp://HOST:8786)"),
     (["--grid", "w=2", "--scheduler", "tcp://127.0.0.1:99999"],
      "is not a scheduler address (port 99999 is not in 1..65535; e.g. tcp://HOST:8786)"),
 ])

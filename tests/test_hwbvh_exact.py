@@ -85,6 +85,31 @@ def test_sah_calculator_against_every_boundary_literally(nbins):
             assert l.tobytes() == want[5].tobytes() and r.tobytes() == want[6].tobytes()
 
 
+@pytest.mark.parametrize("nbins", [4, 16])
+def test_sah_calculator_keeps_the_literal_choice_when_costs_overflow(nbins):
+    """Bounds near float32's limit make costs inf or NaN (inf * 0): the first candidate the
+    literal sweep takes stays, at the boundary where the sweep meets it."""
+    rng = np.random.default_rng(100 + nbins)
+    values = np.array([-3e38, -1.0, 0.0, 1.0, 3e38], np.float32)
+    nan_costs = 0
+    for trial in range(400):
+        bincnt = np.where(rng.random((3, nbins)) < 0.4, rng.integers(1, 4, (3, nbins)), 0)
+        a, b = rng.choice(values, (2, 3, nbins, 3))
+        binbox = np.concatenate([np.minimum(a, b), np.maximum(a, b)], -1).astype(np.float32)
+        binbox[bincnt == 0] = [np.inf] * 3 + [-np.inf] * 3
+        l, r = np.empty(6, np.float32), np.empty(6, np.float32)
+        got = best_split(*collector_words(binbox, bincnt), nbins, l, r, *sah_scratch(nbins))
+        with np.errstate(over="ignore", invalid="ignore"):
+            want = naive_best_split(binbox, bincnt)
+        assert got[:4] == want[:4]
+        if want[0] >= 0:
+            nan_costs += bool(np.isnan(want[4]))
+            assert np.isnan(got[4]) == np.isnan(want[4])
+            assert np.isnan(want[4]) or np.float32(got[4]) == np.float32(want[4])
+            assert l.tobytes() == want[5].tobytes() and r.tobytes() == want[6].tobytes()
+    assert nan_costs > 0                    # the overflowing case was reached
+
+
 @pytest.mark.parametrize("make", [
     lambda: random_soup(300, seed=1),
     lambda: random_soup(700, seed=2, size=0.4),

@@ -338,9 +338,31 @@ def test_a_value_is_quoted_as_the_scene_file_spells_it(tmp_path, capsys, monkeyp
                          "1e+15, got [0.5, 1, true]")
 
 
+@pytest.mark.parametrize("pattern", ["seq/b_%04d.ply", "seq/b_*.ply"])
 @pytest.mark.parametrize("command", ["render", "verify"])
 def test_a_frame_pattern_given_to_a_still_command_points_to_animate(tmp_path, capsys,
-                                                                    monkeypatch, command):
-    line = refused(capsys, tmp_path, monkeypatch, command, "seq/b_%04d.ply")
-    assert line == ("hwrt: error: seq/b_%04d.ply: a frame sequence (its %d numbers the frames): "
-                    "render it with hwrt animate")
+                                                                    monkeypatch, command, pattern):
+    line = refused(capsys, tmp_path, monkeypatch, command, pattern)
+    assert line == (f"hwrt: error: {pattern}: a frame sequence (a %d or glob pattern of mesh "
+                    f"files): render it with hwrt animate")
+
+
+def test_an_empty_frames_pattern_is_named_as_empty(tmp_path, capsys, monkeypatch):
+    p = write_scene(tmp_path, scene_dict(shapes=[{"type": "frames", "pattern": "",
+                                                  "material": "white"}]))
+    line = refused(capsys, tmp_path, monkeypatch, "animate", p, "-o", tmp_path / "out")
+    assert line == f"hwrt: error: {p}: key 'shapes[0].pattern': missing, empty or not a string"
+
+
+@pytest.mark.parametrize("material, shown", [({"type": None}, "null"), ({"type": True}, "true")])
+def test_a_type_is_quoted_as_the_file_spells_it(tmp_path, capsys, monkeypatch, material, shown):
+    p = write_scene(tmp_path, scene_dict(materials={"white": material}))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p)
+    assert f"key 'materials.white.type': unknown material type {shown} (choose from" in line
+
+
+def test_a_duplicate_key_with_a_line_break_stays_one_line(tmp_path, capsys, monkeypatch):
+    p = tmp_path / "dup.json"
+    p.write_text(json.dumps(scene_dict())[:-1] + ', "a\\nb": 1, "a\\nb": 2}')
+    line = refused(capsys, tmp_path, monkeypatch, "render", p)
+    assert line == f"hwrt: error: {p}: key 'a\\nb' is given twice in one object"
