@@ -332,7 +332,7 @@ def as_params(params, name="params"):
     if isinstance(params, str):
         if params not in PRESETS:
             raise ParameterError(name, f"unknown preset {params!r} (choose from {', '.join(PRESETS)})")
-        return PRESETS[params]
+        return check_params(PRESETS[params])         # a caller may have changed the preset
     if not isinstance(params, HwParams):
         raise ParameterError(name, f"expected a HwParams or a preset name ({', '.join(PRESETS)}), "
                                    f"got {type(params).__name__}")

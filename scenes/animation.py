@@ -1000,6 +1000,10 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
     spec = os.fspath(spec)
     film = {k: v for k, v in (("width", width), ("height", height), ("spp", spp),
                               ("max_depth", max_depth)) if v is not None}
+    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float, np.number))
+                            or not MIN_FPS <= fps <= MAX_FPS):
+        raise ParameterError("fps", f"must be a frame rate in [{MIN_FPS}, {MAX_FPS}], got "
+                                    f"{fps!r}")
     if spec in ANIMATIONS:
         fn = ANIMATIONS[spec]
         import inspect

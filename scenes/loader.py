@@ -105,13 +105,27 @@ def _unique_keys(pairs):
     return d
 
 
+FILE_OVERRIDES = ("width", "height", "spp", "max_depth")      # what a file's scene takes
+
+
 def load_scene(spec, **overrides):
-    """A scene dict from a built-in name, a scene file or a mesh file."""
+    """A scene dict from a built-in name, a scene file or a mesh file. ``overrides``: a
+    built-in scene's parameters; for a file, its film and depth (``FILE_OVERRIDES``)."""
     spec = os.fspath(spec)
     if spec in BUILTIN:
         d = BUILTIN[spec](**_builtin_overrides(spec, overrides))
         d.setdefault("_source", spec)
         return d
+    for key in overrides:
+        if key not in FILE_OVERRIDES:
+            raise ParameterError(key, f"a scene or mesh file takes only "
+                                      f"{', '.join(FILE_OVERRIDES)}")
+    d = _load_scene_file(spec)
+    return with_frame(d, **overrides) if overrides else d
+
+
+def _load_scene_file(spec):
+    """The scene dict of a scene file or a mesh file."""
     if not os.path.exists(spec):
         from .animation import is_pattern
         if is_pattern(spec):

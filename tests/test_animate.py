@@ -644,3 +644,14 @@ def test_frame_sequence_errors_name_the_pattern_key(tmp_path, capsys, monkeypatc
     assert rc == 0, err
     assert sorted(f.name for f in (tmp_path / "out").glob("*.exr")) == ["frame_0000.exr",
                                                                       "frame_0001.exr"]
+
+
+@pytest.mark.parametrize("fps", [0, -5, 1e6, float("nan"), True, "30"])
+def test_load_animation_checks_its_frame_rate(fps):
+    """The command line's range for --fps holds from Python too (a rate of 0 would divide by
+    zero at the first frame)."""
+    from hwbvh.errors import ParameterError
+    from scenes.animation import load_animation
+    with pytest.raises(ParameterError, match="must be a frame rate in") as e:
+        load_animation("cloth", fps=fps, triangles=200)
+    assert e.value.parameter == "fps"

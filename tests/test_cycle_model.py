@@ -216,3 +216,13 @@ def test_a_subtree_builder_that_cannot_hold_a_leaf_is_refused():
             simulate(tree, HwParams(w=w, psize=psize, leaf_size=leaf))
         assert e.value.parameter == "psize"
     assert simulate(tree, HwParams(w=1, psize=4, leaf_size=4))["cycles"] > 0
+
+
+def test_a_preset_changed_by_its_caller_is_checked_like_any_parameters(monkeypatch):
+    import dataclasses
+    import hwbvh
+    from hwbvh.errors import ParameterError
+    monkeypatch.setitem(PRESETS, "HWBVH-C", dataclasses.replace(PRESETS["HWBVH-C"], w=0))
+    with pytest.raises(ParameterError, match="must be an integer within") as e:
+        simulate(hwbvh.build(random_soup(100, seed=3)).tree, "HWBVH-C")
+    assert e.value.parameter == "w"

@@ -366,3 +366,14 @@ def test_a_duplicate_key_with_a_line_break_stays_one_line(tmp_path, capsys, monk
     p.write_text(json.dumps(scene_dict())[:-1] + ', "a\\nb": 1, "a\\nb": 2}')
     line = refused(capsys, tmp_path, monkeypatch, "render", p)
     assert line == f"hwrt: error: {p}: key 'a\\nb' is given twice in one object"
+
+
+def test_a_files_scene_takes_film_overrides_and_refuses_others(tmp_path):
+    """As a built-in scene's parameters do: the film and depth of a scene or mesh file."""
+    (tmp_path / "tri.obj").write_text(TRIANGLE_OBJ)
+    p = write_scene(tmp_path, scene_dict())
+    for spec in (p, tmp_path / "tri.obj"):
+        c = compile_scene(load_scene(spec, width=8, height=6, spp=2, max_depth=2))
+        assert (c.width, c.height, c.spp, c.max_depth) == (8, 6, 2, 2)
+        with pytest.raises(ParameterError, match="takes only width, height, spp, max_depth"):
+            load_scene(spec, fov=30)
