@@ -43,8 +43,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from hwbvh.config import MAX_COORDINATE
-from hwbvh.errors import InputError, ParameterError
+from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
+from hwbvh.errors import InputError, ParameterError, is_integer
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
 from .loader import (FOV_RANGE, MAX_FRAMES, check_scale, compile_scene, finite, flat_normals,
@@ -1011,6 +1011,11 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
         for k in params:
             if params[k] is not None and k not in accepted:
                 raise ParameterError(k, f"the built-in animation '{spec}' has no parameter {k!r}")
+        n = params.get("triangles")
+        if n is not None and (not is_integer(n) or not 1 <= n <= MAX_PRIMITIVES):
+            # the command line's --triangles range: a tree holds at most 2^24 triangles
+            raise ParameterError("triangles", f"must be an integer in 1..{MAX_PRIMITIVES}, "
+                                              f"got {written(n)}")
         kw = {k: v for k, v in {**film, **params}.items() if v is not None and k in accepted}
         if fps is not None and "fps" in accepted:
             kw["fps"] = fps

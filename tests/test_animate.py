@@ -655,3 +655,14 @@ def test_load_animation_checks_its_frame_rate(fps):
     with pytest.raises(ParameterError, match="must be a frame rate in") as e:
         load_animation("cloth", fps=fps, triangles=200)
     assert e.value.parameter == "fps"
+
+
+@pytest.mark.parametrize("triangles", [0, -5, 2**24 + 1, 2.5, True])
+def test_load_animation_checks_its_triangle_count(triangles):
+    """--triangles' range from Python too: a negative count failed in math, a huge one ran
+    out of memory."""
+    from hwbvh.errors import ParameterError
+    from scenes.animation import load_animation
+    with pytest.raises(ParameterError, match="must be an integer in 1..16777216") as e:
+        load_animation("exploding", triangles=triangles)
+    assert e.value.parameter == "triangles"
