@@ -160,9 +160,11 @@ def _median(xs):
     return statistics.median(xs), [min(xs), max(xs)]
 
 
-def _write_outputs(out_dir, name, rows, md, plot_files, extra, where=None, commit=write_files):
+def _write_outputs(cells, out_dir, name, rows, md, plot_files, extra, where=None,
+                   commit=write_files):
     """The CSV, JSON, summary and plots, in one set through ``commit(files)``; ``where``: the
-    machine the cells were timed on (default: this one)."""
+    machine the cells were timed on (default: this one). The result names the files and
+    ``cells``' file, what a rerun resumes from."""
     buf = io.StringIO()
     flat = [{k: (json_text(v) if isinstance(v, (dict, list)) else v) for k, v in r.items()} for r in rows]
     keys = sorted({k for r in flat for k in r})
@@ -176,6 +178,7 @@ def _write_outputs(out_dir, name, rows, md, plot_files, extra, where=None, commi
              (os.path.join(out_dir, f"{name}.md"), md)] + plot_files
     commit(files)
     result["files"] = [f for f, _ in files]
+    result["cells_file"] = str(cells.path)
     return result
 
 
@@ -321,11 +324,9 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
     rows, summary = _tti_rows(cells, specs, W, H, spp, depth, repeat, structures)
     md = "# hwrt bench tti\n\n" + made_by_block(command_of(args)) + _tti_markdown(rows, summary, W, H, spp, depth)
     plots = _tti_plot(rows, out_dir, TTI_PATHS + structures)
-    result = _write_outputs(out_dir, "tti", rows, md, plots,
-                            {"setting": {"width": W, "height": H, "spp": spp, "max_depth": depth,
-                                         "repeat": repeat}, "break_even": summary}, where, commit)
-    result["cells_file"] = str(cells.path)          # what a rerun resumes from
-    return result
+    return _write_outputs(cells, out_dir, "tti", rows, md, plots,
+                          {"setting": {"width": W, "height": H, "spp": spp, "max_depth": depth,
+                                       "repeat": repeat}, "break_even": summary}, where, commit)
 
 
 def _tti_rows(cells, specs, W, H, spp, depth, repeat, structures=()):
@@ -620,11 +621,9 @@ def bench_accuracy(args, *, use_dask=True, progress=True, commit=write_files):
     rows = [r for r in rows if r]
     md = "# hwrt bench accuracy\n\n" + made_by_block(command_of(args)) + _accuracy_markdown(rows)
     plots = _accuracy_plots(rows, args.out_dir)
-    result = _write_outputs(args.out_dir, "accuracy", rows, md, plots,
-                            {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE}},
-                            where, commit)
-    result["cells_file"] = str(cells.path)          # what a rerun resumes from
-    return result
+    return _write_outputs(cells, args.out_dir, "accuracy", rows, md, plots,
+                          {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE}},
+                          where, commit)
 
 
 def human_accuracy(result):

@@ -47,8 +47,9 @@ from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, is_integer
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
-from .loader import (FOV_RANGE, MAX_FRAMES, check_scale, compile_scene, finite, flat_normals,
-                     load_scene, mesh_scene, smooth_normals, vector_ok, with_frame, written)
+from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, check_scale, compile_scene, finite,
+                     flat_normals, is_pattern, load_scene, mesh_scene, smooth_normals, vector_ok,
+                     with_frame, written)
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
@@ -227,28 +228,19 @@ def camera_track(source, keys, path, base):
 # --------------------------------------------------------------------------------------
 # Frame sequences
 # --------------------------------------------------------------------------------------
-_PRINTF = re.compile(r"%(0?)(\d*)d")
-
-
-def is_pattern(spec):
-    """True for a printf (``%04d``) or glob (``*``, ``?``, ``[``) pattern of mesh files."""
-    s = os.fspath(spec)
-    return bool(_PRINTF.search(s)) or any(c in s for c in "*?[")
-
-
 def expand_pattern(pattern, source=None):
     """The frame files of a printf or glob pattern, in frame order. Raises InputError naming
     the pattern when nothing matches, and the missing file when a frame in the middle of the
     numbered sequence is absent."""
     source = source or pattern
     pattern = os.fspath(pattern)
-    if len(_PRINTF.findall(pattern)) > 1:
+    if len(FRAME_FIELD.findall(pattern)) > 1:
         raise InputError(source, f"pattern {pattern!r} has more than one %d field")
-    m = _PRINTF.search(pattern)
+    m = FRAME_FIELD.search(pattern)
     if m:
         d = os.path.dirname(pattern) or "."
         base = os.path.basename(pattern)
-        bm = _PRINTF.search(base)
+        bm = FRAME_FIELD.search(base)
         if bm is None:
             raise InputError(source, f"pattern {pattern!r}: the %d field must be in the file name")
         rx = re.compile("^" + re.escape(base[:bm.start()]) + r"(\d+)" + re.escape(base[bm.end():]) + "$")

@@ -9,6 +9,7 @@ import difflib
 import json
 import math
 import os
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -84,6 +85,16 @@ def written(v, limit=40):
     return shown(v, limit)
 
 
+# a frame sequence of mesh files: the printf field that numbers the frames
+FRAME_FIELD = re.compile(r"%(0?)(\d*)d")
+
+
+def is_pattern(spec):
+    """True for a printf (``%04d``) or glob (``*``, ``?``, ``[``) pattern of mesh files."""
+    s = os.fspath(spec)
+    return bool(FRAME_FIELD.search(s)) or any(c in s for c in "*?[")
+
+
 def is_scene(spec):
     return spec in BUILTIN or str(spec).lower().endswith(SCENE_EXTENSIONS)
 
@@ -127,7 +138,6 @@ def load_scene(spec, **overrides):
 def _load_scene_file(spec):
     """The scene dict of a scene file or a mesh file."""
     if not os.path.exists(spec):
-        from .animation import is_pattern
         if is_pattern(spec):
             raise InputError(spec, "a frame sequence (a %d or glob pattern of mesh files): "
                                    "render it with hwrt animate")
