@@ -682,10 +682,9 @@ def _write_report(args, result, human, commit):
 # integers, and none is meaningful beyond this.
 MAX_OPTION_INT = (1 << 31) - 1
 # Tighter limits where a larger value would only exhaust memory or the machine: rays per query
-# set (2^26 rays hold some 1.5 GB of rays and answers), triangles of a generated animation (a
-# tree holds 2^24), timed repeats, local Dask workers (one process each). Frames of an
-# animation: scenes.loader.MAX_FRAMES, which a scene file's animation.frames shares.
-MAX_RAYS = 1 << 26
+# set (traversal.config.MAX_RAYS), triangles of a generated animation (a tree holds 2^24),
+# timed repeats, local Dask workers (one process each). Frames of an animation:
+# scenes.loader.MAX_FRAMES, which a scene file's animation.frames shares.
 MAX_REPEAT = 1000
 MAX_WORKERS = 256
 
@@ -714,6 +713,12 @@ def _scene_limit(name):
         from scenes import loader
         return _int_at_least(1, getattr(loader, name))(v)
     return parse
+
+
+def _rays(v):
+    """Rays of a generated query set: 1 up to ``traversal.config.MAX_RAYS``."""
+    from traversal.config import MAX_RAYS
+    return _int_at_least(1, MAX_RAYS)(v)
 
 
 _film_side = _scene_limit("MAX_FILM_SIDE")
@@ -958,7 +963,7 @@ def make_parser():
                                    "shared edge) or mismatch. Mismatching rays go to a file "
                                    "that --replay traces again.")
     v.add_argument("scene", type=_path, help="built-in scene name, scene file, or mesh file")
-    v.add_argument("--rays", type=_int_at_least(1, MAX_RAYS),
+    v.add_argument("--rays", type=_rays,
                    help=f"rays to trace; exactly these many (default: {VERIFY_RAYS})")
     v.add_argument("--kind", choices=RAY_KINDS,
                    help=f"the ray set (default: {VERIFY_KIND})")
@@ -1034,7 +1039,7 @@ def make_parser():
     be.add_argument("--mesh-dir", type=_path, help=_bench_help("mesh_dir"))
     be.add_argument("--repeat", type=_int_at_least(1, MAX_REPEAT),
                     help=_bench_help("repeat"))
-    be.add_argument("--rays", type=_int_at_least(1, MAX_RAYS),
+    be.add_argument("--rays", type=_rays,
                     help=_bench_help("rays"))
     be.add_argument("--quick", action="store_true",
                     help=_bench_help("quick"))

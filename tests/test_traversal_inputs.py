@@ -349,6 +349,10 @@ def test_argument_errors_are_parameter_errors_naming_the_parameter(bvh, tracers)
         ("triangles", lambda: GridTracer(np.zeros((4, 9), np.float32))),
         ("n", lambda: verify_mesh(TRIS, V, F, n=-5)),
         ("n", lambda: verify_mesh(TRIS, V, F, n=16.5)),
+        ("n", lambda: verify_mesh(TRIS, V, F, n=(1 << 26) + 1)),
+        ("seed", lambda: verify_mesh(TRIS, V, F, seed=-1)),
+        ("seed", lambda: verify_mesh(TRIS, V, F, seed=1.5)),
+        ("seed", lambda: verify_mesh(TRIS, V, F, seed="7")),
         ("kind", lambda: verify_mesh(TRIS, V, F, kind="bogus")),
         ("accel", lambda: verify_mesh(TRIS, V, F, accel="bogus")),
         ("kind", lambda: CountingTracer(tracers["bvh"]).work("bogus")),
@@ -382,21 +386,70 @@ def _mesh_at(scale):
 
 def test_the_float32_units_domain_is_as_documented():
     """traversal.structure states the float32 unit's domain (its t numerator, edge x edge x
-    origin distance, overflows float32): every hit at a finite t up to coordinates of 2.5e13,
-    hits lost at 1e14, where the float64 units still find every one (up to the builder's
-    bound)."""
+    origin distance, overflows float32): every float32 tracer traces the mesh whole up to
+    coordinates of 1.3e13 and refuses it, naming the origins and the float64 units, from 1.4e13
+    (past the products' guaranteed bound); the unit itself, unchecked, keeps every hit up to
+    2.5e13 and loses them at 1e14, where the float64 units still find every one (up to the
+    builder's bound)."""
     def finite_hits(tracer, o, d):
         h = tracer.intersect(o, d)
         return int(((h.prim >= 0) & np.isfinite(h.t)).sum())
 
-    t, o, d = _mesh_at(2.5e13)
-    assert [finite_hits(tr, o, d) for tr in (Tracer(hwbvh.build(t)), GridTracer(t),
-                                              KdTreeTracer(t))] == [64, 64, 64]
-    t, o, d = _mesh_at(1e14)
-    assert finite_hits(Tracer(hwbvh.build(t)), o, d) < 32
+    def float32_tracers(t):
+        return Tracer(hwbvh.build(t)), GridTracer(t), KdTreeTracer(t)
+
+    t, o, d = _mesh_at(1.3e13)
+    assert [finite_hits(tr, o, d) for tr in float32_tracers(t)] == [64, 64, 64]
+    for scale in (1.4e13, 2.5e13, 1e14):
+        t, o, d = _mesh_at(scale)
+        for tr in float32_tracers(t):
+            with pytest.raises(ParameterError, match=r"^origins: origins up to .* beyond the "
+                                                     r"8.51e\+37 .*precision='float64'"):
+                tr.intersect(o, d)
+            with pytest.raises(ParameterError, match=r"^origins: "):
+                tr.occluded(o, d)
+    unchecked = []
+    for scale in (2.5e13, 1e14):
+        t, o, d = _mesh_at(scale)
+        tr = Tracer(hwbvh.build(t))
+        tr.f32_range = None                 # the unit's own reach, past the guaranteed bound
+        unchecked.append(finite_hits(tr, o, d))
+    assert unchecked[0] == 64 and unchecked[1] < 32
     assert finite_hits(Tracer(hwbvh.build(t), precision="float64"), o, d) == 64
     t, o, d = _mesh_at(9.9e14 / 1.06)
     assert finite_hits(Tracer(hwbvh.build(t), precision="float64"), o, d) == 64
+
+
+def test_float32_rays_are_checked_against_the_units_range():
+    """The check bounds every product of the unit, the direction's length in them: far origins
+    on a small mesh are traced (their products stay small), as are long directions; on a mesh
+    a million times larger, directions long enough to take the products past the bound are
+    refused naming ``dirs`` (unchecked, the unit loses hits there); a NaN ray passes over the
+    check (it misses), and so does an infinite one; a finite one far enough is refused."""
+    tr = Tracer(hwbvh.build(TRIS))
+    far = O.copy()
+    far[:, 2] = np.float32(1e30)
+    np.testing.assert_array_equal(tr.intersect(far, D).prim,
+                                  Tracer(hwbvh.build(TRIS), precision="float64").intersect(
+                                      far, D).prim)
+    np.testing.assert_array_equal(tr.intersect(O, D * np.float32(1e37)).prim,
+                                  tr.intersect(O, D).prim)
+    big, o = TRIS * np.float32(1e6), O * np.float32(1e6)
+    tr = Tracer(hwbvh.build(big))
+    hit = tr.intersect(o, D).prim
+    assert (hit >= 0).all()
+    with pytest.raises(ParameterError, match=r"^dirs: directions up to 1e\+30 long take the "
+                                             r"float32 unit's products to .*precision='float64'"):
+        tr.intersect(o, D * np.float32(1e30))
+    tr.f32_range = None
+    assert (tr.intersect(o, D * np.float32(1e30)).prim == hit).mean() < 0.5
+    tr = Tracer(hwbvh.build(big))
+    o[0] = np.nan
+    o[1, 0] = np.inf
+    assert (tr.intersect(o, D).prim[:2] == -1).all()
+    o[2, 2] = np.float32(1e33)
+    with pytest.raises(ParameterError, match=r"^origins: origins up to 1e\+33 from"):
+        tr.occluded(o, D)
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])

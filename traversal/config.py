@@ -73,6 +73,9 @@ if CHUNK_RAYS % PACKET_RAYS:
 # a render's queries are a band's rays (16k camera rays, a few times that in shadow rays), so
 # the kept arrays stay at a megabyte or two each.
 KEPT_BOUND_RAYS = 1 << 18
+# The most rays of one generated query set (``verify_mesh``, ``hwrt verify --rays``, ``hwrt bench
+# trace --rays``): 2^26 rays hold some 1.5 GB of rays and answers; more would only exhaust memory.
+MAX_RAYS = 1 << 26
 
 # --- Uniform grid (grid) -------------------------------------------------------------------
 # Cells per triangle of the density heuristic (cells ~ GRID_DENSITY * N, cubic where the mesh's

@@ -7,11 +7,14 @@ The float32 unit's domain is narrower than the coordinates the builder accepts
 as e2 . ((o - v0) x e1) / det: its numerator is a product of three lengths, edge x edge x
 origin distance, and it overflows float32 (3.4e38) once that product passes it, about
 (7e12)^3. Past that point a ray misses the triangle, or (with tmax = inf) reports it at
-t = inf. Measured on a mesh of 64 triangles, each a tenth of the mesh's size, with rays from
-three mesh sizes away: every float32 tracer here (BVH, grid, kd-tree) finds every hit at a
-finite t while the mesh spans up to 2.5e13, Embree up to 2e13; at 1e14 the BVH finds 2 of 64.
-Larger triangles, or rays from farther away, lose hits sooner: one triangle 1e13 across, seen
-from 1e13 away, is already past the limit. The datapath is the hardware's and is kept;
+t = inf. So every float32 tracer (BVH, grid, kd-tree) checks each batch of rays first
+(``triangle_unit.Float32Range``): where its products could pass a quarter of float32's range,
+the batch is refused with an error that names the origins (or the directions) and the float64
+units, instead of being traced to lost hits. Measured on a mesh of 64 triangles, each a tenth
+of the mesh's size, with rays from three mesh sizes away: the tracers trace it whole while it
+spans up to 1.3e13 and refuse it from 1.4e13; the unit itself, unchecked, keeps every hit up to
+2.5e13 (the bound is a guarantee, not the edge), and finds 2 of 64 at 1e14. Embree, which has
+no such check, keeps every hit up to 2e13. The datapath is the hardware's and is kept;
 ``traversal.Tracer(precision="float64")`` traces the builder's whole domain (every hit on the
 same mesh spanning 9.9e14).
 """
@@ -21,7 +24,7 @@ from hwbvh.errors import ParameterError
 from hwbvh.primitives import checked_coordinates
 from .api import Hits, _answers, _rays
 from .config import EDGE_EPS_F32
-from .triangle_unit import band_eps2, preprocess
+from .triangle_unit import Float32Range, band_eps2, preprocess
 
 
 def checked_triangles(triangles):
@@ -64,6 +67,7 @@ class TriangleStructure:
     def _set_unit(self, tris):
         self.n_triangles = len(tris)
         self.tris = preprocess(tris, np.float32)
+        self.f32_range = Float32Range(self.tris, tris)
         self._tris1 = self.tris.reshape(-1)
         self.eps2 = band_eps2(np.float32)
         self.one = np.float32(1)
@@ -75,6 +79,7 @@ class TriangleStructure:
 
     def _run(self, origins, dirs, tmin, tmax, anyhit, normals):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, np.float32)
+        self.f32_range.check(o, d)
         prim, t, u, v, ng = _answers(len(o), anyhit, normals, np.float32)
         self._trace(o, d, lo, hi, anyhit, prim, t, u, v, ng)
         return prim, t, u, v, (ng if normals else None)

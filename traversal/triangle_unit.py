@@ -31,6 +31,7 @@ import numpy as np
 from numba import njit, types
 from numba.extending import overload
 
+from hwbvh.errors import ParameterError
 from .config import BAND_K, F32_UNIT_MAX_PRODUCT
 
 # A preprocessed triangle row: offsets of its words (x, y, z each) in the working float type.
@@ -131,6 +132,83 @@ def span_of(box):
     """The diagonal of a ``coordinate_box``; 0 for an empty one."""
     lo, hi, _ = box
     return float(np.linalg.norm(hi - lo)) if np.all(hi >= lo) else 0.0
+
+
+@njit(cache=True, nogil=True)
+def ray_magnitudes(o, d):
+    """(largest finite |coordinate| of the origins, of the directions), from float32 or
+    float64 rows seen flat: a ray with a NaN or infinite coordinate misses in the kernels
+    whatever the range, so it is passed over."""
+    om = 0.0
+    for k in range(o.shape[0]):
+        a = abs(np.float64(o[k]))
+        om = a if (a > om) & (a < np.inf) else om
+    dm = 0.0
+    for k in range(d.shape[0]):
+        a = abs(np.float64(d[k]))
+        dm = a if (a > dm) & (a < np.inf) else dm
+    return om, dm
+
+
+class Float32Range:
+    """Whether a batch of rays keeps the float32 unit within float32's range on a tracer's
+    triangles, checked before its kernels run (they trust their rays).
+
+    The unit's products are |d| |e1| |e2| (det), |o - v0| |d| |e| (u and v) and
+    |o - v0| |e1| |e2| (t); each bounded by ``config.F32_UNIT_MAX_PRODUCT``, none can leave the
+    range. From the triangles, once: the largest |e1| |e2|, the longest edge and the largest
+    coordinate magnitude. Per batch, one pass over the rays (``ray_magnitudes``) bounds
+    |o - v0| by sqrt(3) (max |o_i| + the mesh's magnitude) and |d| by sqrt(3) max |d_i|; where
+    that bound fails, the boxes of the origins and the triangles (as ``f32_unit_reach`` takes
+    them) and the rays' own lengths decide, so a scene the renderer accepts is traced."""
+
+    def __init__(self, rows, triangles):
+        """``rows``: the ``preprocess`` rows of ``triangles`` (n, 3, 3)."""
+        n1 = np.zeros(len(rows))
+        n2 = np.zeros(len(rows))
+        for c in range(3):
+            e1 = rows[:, TRI_E1 + c].astype(np.float64)
+            e2 = rows[:, TRI_E2 + c].astype(np.float64)
+            n1 += e1 * e1
+            n2 += e2 * e2
+        self.edges = float(np.sqrt((n1 * n2).max(initial=0)))
+        self.longest = float(np.sqrt(max(n1.max(initial=0), n2.max(initial=0))))
+        self.box = coordinate_box(triangles)
+
+    def _largest(self, dist, dlen):
+        """The largest of the unit's products for origins ``dist`` from a vertex and
+        directions of length ``dlen``."""
+        return max(dist * self.edges, dist * self.longest * max(dlen, 1.0), dlen * self.edges)
+
+    def check(self, o, d):
+        """ParameterError naming ``origins`` or ``dirs`` when the rays ``o``, ``d`` (n, 3)
+        could take a product past the bound."""
+        if self.edges == 0 or len(o) == 0:          # no triangle can be hit / no ray
+            return
+        om, dm = ray_magnitudes(o.reshape(-1), d.reshape(-1))
+        k = np.sqrt(3.0)
+        if self._largest(k * (om + self.box[2]), k * dm) <= F32_UNIT_MAX_PRODUCT:
+            return
+        # non-finite coordinates passed over here too (as NaN, which fmin/fmax skip)
+        of = np.where(np.isfinite(o), o, np.nan).astype(np.float64)
+        lo = np.fmin(np.fmin.reduce(of, axis=0), self.box[0])
+        hi = np.fmax(np.fmax.reduce(of, axis=0), self.box[1])
+        dist = float(np.linalg.norm(hi - lo))
+        dd = np.zeros(len(d))
+        for c in range(3):
+            dc = d[:, c].astype(np.float64)
+            dd += dc * dc
+        dlen = float(np.sqrt(np.fmax.reduce(np.where(dd < np.inf, dd, np.nan), initial=0.0)))
+        got = self._largest(dist, dlen)
+        if got <= F32_UNIT_MAX_PRODUCT:
+            return
+        name = "dirs" if self._largest(dist, 1.0) <= F32_UNIT_MAX_PRODUCT else "origins"
+        why = (f"directions up to {dlen:.3g} long" if name == "dirs" else
+               f"origins up to {dist:.3g} from the triangles")
+        raise ParameterError(name, f"{why} take the float32 unit's products to {got:.3g}, beyond "
+                                   f"the {F32_UNIT_MAX_PRODUCT:.3g} they stay within (hits would "
+                                   f"be lost): trace with precision='float64', or scale the "
+                                   f"scene down")
 
 
 def band_eps2(dtype):

@@ -21,7 +21,7 @@ from hwbvh.errors import ParameterError, is_integer
 from hwbvh.parallel import run_ranges
 
 from .api import ACCELS, _interval, ray_arrays, real_array
-from .config import BARY_TOL, BEHIND_TOL_REL, T_TOL_REL
+from .config import BARY_TOL, BEHIND_TOL_REL, MAX_RAYS, T_TOL_REL
 
 BEHIND = BEHIND_TOL_REL / T_TOL_REL    # the slack before t_min, as a share of the t tolerance
 
@@ -271,8 +271,10 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
     from .embree_ref import embree_scene
 
     # every argument before the build: a structure over a large mesh takes seconds
-    if not is_integer(n) or n < 1:
-        raise ParameterError("n", f"must be a positive integer (rays), got {n!r}")
+    if not is_integer(n) or not 1 <= n <= MAX_RAYS:
+        raise ParameterError("n", f"must be an integer from 1 to {MAX_RAYS} (rays), got {n!r}")
+    if not is_integer(seed) or seed < 0:
+        raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
     if kind not in RAY_KINDS:
         raise ParameterError("kind", f"must be one of {', '.join(map(repr, RAY_KINDS))}, "
                                      f"got {kind!r}")
@@ -280,7 +282,7 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
         raise ParameterError("accel", f"must be one of {', '.join(map(repr, ACCELS))}, "
                                       f"got {accel!r}")
     if tracer is not None:
-        pass
+        pass                            # checked by the query itself
     elif accel == "grid":
         from .grid import GridTracer
         tracer = GridTracer(tris)
