@@ -225,7 +225,15 @@ def load(prefix, triangles=None):
         raise InputError(prefix + ".indices", f"{len(entries)} entries, but {prefix}.json says "
                                               f"{n} triangles")
     boxes = primitive_boxes(tris) if tris is not None else None
-    validate(nodes, entries, n, max_leaf, boxes, source=prefix + ".nodes")
+    reached = validate(nodes, entries, n, max_leaf, boxes, source=prefix + ".nodes")
+    # the counts a reader reports must be the tree's own
+    for key, got in (("nodes", reached), ("node_slots", len(nodes))):
+        if key in meta or key == "nodes":
+            said = _json_count(meta, (key,), 2 * config.MAX_PRIMITIVES, prefix + ".json")
+            if said != got:
+                raise InputError(prefix + ".json", f"{key!r} is {said}, but {prefix}.nodes "
+                                                   f"{'reaches' if key == 'nodes' else 'holds'} "
+                                                   f"{got} nodes")
     return Bvh(nodes=nodes, indices=entries[:n].copy(), triangles=tris, meta=meta)
 
 

@@ -32,6 +32,7 @@ upper builder's DRAM model, and its AABB pass is the fill itself.
 """
 import math
 from dataclasses import asdict, dataclass
+from types import MappingProxyType
 
 import numpy as np
 from numba import njit, prange
@@ -45,7 +46,7 @@ from .errors import ParameterError, is_integer
 from .resources import cost
 
 
-@dataclass
+@dataclass(frozen=True)
 class HwParams:
     """One instantiation (Table 4.1 for the presets)."""
     w: int = 4                 # partitioning units (and buffer pairs) per subtree builder
@@ -63,10 +64,12 @@ class HwParams:
         return self.w * self.psize
 
 
-PRESETS = {
+# Read-only, as are their parameters (frozen): a caller's change cannot reach another's runs;
+# ``dataclasses.replace`` makes a variant.
+PRESETS = MappingProxyType({
     "HWBVH-C": HwParams(w=4, tsize=8, psize=2048, subtree_builders=1, ram_pairs=1, clock_mhz=250.0),
     "HWBVH-HP": HwParams(w=4, tsize=8, psize=2048, subtree_builders=2, ram_pairs=2, clock_mhz=500.0),
-}
+})
 
 
 def unit_positions(ids, w):
@@ -332,7 +335,7 @@ def as_params(params, name="params"):
     if isinstance(params, str):
         if params not in PRESETS:
             raise ParameterError(name, f"unknown preset {params!r} (choose from {', '.join(PRESETS)})")
-        return check_params(PRESETS[params])         # a caller may have changed the preset
+        return PRESETS[params]
     if not isinstance(params, HwParams):
         raise ParameterError(name, f"expected a HwParams or a preset name ({', '.join(PRESETS)}), "
                                    f"got {type(params).__name__}")

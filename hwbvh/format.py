@@ -184,7 +184,14 @@ def validate(nodes, entries, n_prims, max_leaf, prim_boxes=None, source="<tree>"
         if pb.shape != (n_prims, 6) or pb.dtype.kind != "f":
             raise ParameterError("prim_boxes", f"must be a ({n_prims}, 6) float array (one box per "
                                                f"primitive), got {pb.dtype} of shape {pb.shape}")
-        pb = np.ascontiguousarray(pb, dtype=np.float32)
+        with np.errstate(over="ignore"):        # beyond float32: infinite, refused below
+            pb = np.ascontiguousarray(pb, dtype=np.float32)
+        bad = ~np.isfinite(pb).all(axis=1)
+        if bad.any():
+            # a NaN compares false both ways: its box would pass every containment test
+            raise ParameterError("prim_boxes", f"must be finite (in float32), got "
+                                               f"{pb[int(np.argmax(bad))].tolist()} for primitive "
+                                               f"{int(np.argmax(bad))}")
     else:
         pb = np.zeros((1, 6), np.float32)
     u, f = node_views(nodes)

@@ -13,7 +13,8 @@ from hwbvh.files import write_files
 def write_exr(path, result, metadata=None, layers=True):
     """Float RGB, plus depth (Z), shading normal (N.X/N.Y/N.Z) and primitive id (prim.id, exact
     in float32 below 2^24) when ``layers``; ``metadata`` (a dict) goes into the header as hwrt:*
-    keys: numbers as numbers where the header's types hold them, anything else as text."""
+    keys: numbers as numbers where the header's types hold them (floats rounded to float32),
+    anything else as text."""
     write_files([(path, exr_writer(path, result, metadata, layers))])
 
 
@@ -68,13 +69,18 @@ INT32 = np.iinfo(np.int32)
 
 
 def _header_value(v):
-    """An EXR header holds 32-bit integers and floats: a number it cannot hold exactly (an
-    integer beyond 32 bits, a bool) goes in as text, like every other value."""
+    """An EXR header holds 32-bit integers and floats: an integer beyond 32 bits, a bool, and
+    a float that float32 would turn into infinity or zero go in as text, like every other
+    value (a float within float32's range goes in rounded to it)."""
     if isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) \
             and INT32.min <= v <= INT32.max:
         return int(v)
     if isinstance(v, (float, np.floating)):
-        return float(v)
+        x = float(v)
+        with np.errstate(over="ignore", under="ignore"):
+            f = np.float32(x)
+        if (np.isfinite(f) or not np.isfinite(x)) and (f != 0 or x == 0):
+            return x
     return str(v)
 
 

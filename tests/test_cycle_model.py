@@ -218,11 +218,18 @@ def test_a_subtree_builder_that_cannot_hold_a_leaf_is_refused():
     assert simulate(tree, HwParams(w=1, psize=4, leaf_size=4))["cycles"] > 0
 
 
-def test_a_preset_changed_by_its_caller_is_checked_like_any_parameters(monkeypatch):
+def test_the_presets_cannot_be_changed_only_varied():
+    """A caller cannot change a preset for everyone: the table and its parameters are
+    read-only; ``dataclasses.replace`` gives a variant, checked like any parameters."""
     import dataclasses
     import hwbvh
     from hwbvh.errors import ParameterError
-    monkeypatch.setitem(PRESETS, "HWBVH-C", dataclasses.replace(PRESETS["HWBVH-C"], w=0))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        PRESETS["HWBVH-C"].w = 0
+    with pytest.raises(TypeError):
+        PRESETS["HWBVH-C"] = dataclasses.replace(PRESETS["HWBVH-C"], w=0)
+    assert PRESETS["HWBVH-C"].w == 4
     with pytest.raises(ParameterError, match="must be an integer within") as e:
-        simulate(hwbvh.build(random_soup(100, seed=3)).tree, "HWBVH-C")
+        simulate(hwbvh.build(random_soup(100, seed=3)).tree,
+                 dataclasses.replace(PRESETS["HWBVH-C"], w=0))
     assert e.value.parameter == "w"

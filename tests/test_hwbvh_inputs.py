@@ -274,6 +274,42 @@ def test_load_checks_the_json_counts(tmp_path, bvh, key, value):
     assert e.value.source == prefix + ".json" and key in e.value.problem
 
 
+@pytest.mark.parametrize("key,value,problem", [
+    ("nodes", 38, "'nodes' is 38, but {p}.nodes reaches 39 nodes"),
+    ("node_slots", 1000, "'node_slots' is 1000, but {p}.nodes holds 39 nodes"),
+    ("nodes", None, "missing 'nodes'"),
+])
+def test_load_checks_the_json_node_counts_against_the_tree(tmp_path, bvh, key, value, problem):
+    prefix = str(tmp_path / "t")
+    hwbvh.save(bvh, prefix)
+    with open(prefix + ".json") as f:
+        meta = json.load(f)
+    if value is None:
+        del meta[key]
+    else:
+        meta[key] = value
+    with open(prefix + ".json", "w") as f:
+        json.dump(meta, f)
+    with pytest.raises(InputError) as e:
+        hwbvh.load(prefix)
+    assert e.value.source == prefix + ".json" and e.value.problem == problem.format(p=prefix)
+    if key == "node_slots":                     # a reader that writes no slot count
+        del meta[key]
+        with open(prefix + ".json", "w") as f:
+            json.dump(meta, f)
+        assert len(hwbvh.load(prefix).nodes) == 39
+
+
+def test_validate_refuses_primitive_boxes_that_are_not_finite(tris, bvh):
+    boxes = hwbvh.primitive_boxes(tris).astype(np.float64)
+    boxes[5, 1] = np.nan
+    with pytest.raises(ParameterError, match=r"^prim_boxes: must be finite .* for primitive 5$"):
+        hwbvh.validate(bvh.nodes, bvh.indices, 64, 4, boxes)
+    boxes[5, 1] = 1e39                          # beyond float32: infinite there
+    with pytest.raises(ParameterError, match=r"^prim_boxes: must be finite"):
+        hwbvh.validate(bvh.nodes, bvh.indices, 64, 4, boxes)
+
+
 def test_load_refuses_json_that_is_not_an_object(tmp_path, bvh):
     prefix = str(tmp_path / "t")
     hwbvh.save(bvh, prefix)

@@ -250,6 +250,14 @@ def test_exr_layers_metadata_and_atomic_write(tmp_path):
     np.testing.assert_array_equal(px[..., :3], res.image)
     assert meta["scene"] == "cornell" and float(meta["build_seconds"]) == 0.5
     assert sorted(os.listdir(tmp_path)) == ["x.exr"]
+    # numbers the header's float32 would turn into infinity or zero go in as text
+    write_exr(out, res, {"big": 1e300, "small": 1e-300, "zero": 0.0, "inf": float("inf"),
+                         "third": 1 / 3, "wide": 2**40, "flag": True})
+    meta = read_exr(out)[2]
+    assert (meta["big"], meta["small"], meta["wide"], meta["flag"]) == \
+        ("1e+300", "1e-300", str(2**40), "True")
+    assert meta["zero"] == 0.0 and meta["inf"] == float("inf")
+    assert meta["third"] == pytest.approx(1 / 3, rel=1e-7)
 
 
 def cli(*args):

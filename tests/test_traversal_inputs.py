@@ -112,6 +112,8 @@ def test_classify_refuses_primitive_ids_out_of_range_and_answers_not_one_per_ray
                                                      np.zeros(4, bool)))
     refused("tris", lambda: classify(tris.reshape(-1, 9), o, d, 0.0, np.inf, miss, np.ones(16),
                                      miss, np.ones(16)))
+    refused("float_blocked", lambda: classify_occluded(tris, o, d, 0.0, np.inf, np.ones(16),
+                                                       np.zeros(16, bool)))
     """)
     assert code >= 0, out
     assert "far ParameterError ours_prim: primitive ids must be -1 or below len(tris) = 64, " \
@@ -120,6 +122,8 @@ def test_classify_refuses_primitive_ids_out_of_range_and_answers_not_one_per_ray
     assert "few ParameterError ours_prim: must hold one answer per ray (16,), got shape (4,)" in out
     assert "few_blocked ParameterError ours_blocked: must hold one answer per ray (16,)" in out
     assert "tris ParameterError tris: must be (m, 3, 3), got shape (64, 9)" in out
+    assert "float_blocked ParameterError ours_blocked: must be booleans (or integers 0 and 1), " \
+           "got float64" in out
 
 
 def test_classify_still_judges_right_answers(bvh):

@@ -132,8 +132,8 @@ def _per_ray(x, n, name, kinds="fiu"):
     """Answer array ``name``: one per ray, of a NumPy kind in ``kinds``."""
     a = np.asarray(x)
     if a.dtype.kind not in kinds:
-        raise ParameterError(name, f"must be {'integers' if kinds == 'iu' else 'real numbers'}, "
-                                   f"got {a.dtype}")
+        what = {"iu": "integers", "biu": "booleans (or integers 0 and 1)"}.get(kinds, "real numbers")
+        raise ParameterError(name, f"must be {what}, got {a.dtype}")
     if a.shape != (n,):
         raise ParameterError(name, f"must hold one answer per ray ({n},), got shape {a.shape}")
     return a
