@@ -96,7 +96,8 @@ def _check_keys(source, obj, allowed, path):
 
 
 def _number(source, v, path, lo=None, positive=False, hi=None):
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not finite(v):
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) \
+            or not finite(v):
         _fail(source, path, f"expected a finite number, got {written(v)}")
     if positive and not v > 0:
         _fail(source, path, f"must be positive, got {written(v)}")
@@ -108,7 +109,7 @@ def _number(source, v, path, lo=None, positive=False, hi=None):
 
 
 def _vec3(source, v, path):
-    if isinstance(v, (int, float)) and not isinstance(v, bool):
+    if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)):
         v = [v, v, v]
     try:
         a = np.asarray(v, np.float64)
@@ -170,7 +171,7 @@ class Track:
 
 def parse_keys(source, keys, path, allowed, defaults, vec_keys, num_keys=(), num_ranges=None):
     """A :class:`Track` from a list of key objects; checks keys, types and time order."""
-    if not isinstance(keys, list) or not keys:
+    if not isinstance(keys, (list, tuple)) or not keys:
         _fail(source, path, "expected a non-empty list of keys")
     times = []
     chans = {k: [] for k in defaults}
@@ -498,12 +499,12 @@ def from_scene_dict(d, source=None, fps=None):
     anim = d.get("animation", {})
     _check_keys(source, anim, ANIMATION_KEYS, "animation")
     frames = anim.get("frames")
-    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
+    if frames is not None and (not is_integer(frames) or frames < 1):
         _fail(source, "animation.frames", f"expected a positive integer, got {written(frames)}")
     if frames is not None and frames > MAX_FRAMES:
         _fail(source, "animation.frames", too_many_frames(frames))
     shapes = d.get("shapes")
-    if not isinstance(shapes, list) or not shapes:
+    if not isinstance(shapes, (list, tuple)) or not shapes:
         _fail(source, "shapes", "expected a non-empty list")
     static = {k: v for k, v in d.items() if k not in ("animation", "shapes")}
     scene_dir = os.path.dirname(os.path.abspath(source)) if os.path.exists(str(source)) else os.getcwd()
@@ -521,7 +522,7 @@ def from_scene_dict(d, source=None, fps=None):
             if not isinstance(pat, str) or not pat:
                 _fail(source, f"{path}.pattern", "missing, empty or not a string")
             smooth = sh.get("smooth", False)
-            if not isinstance(smooth, bool):
+            if not isinstance(smooth, (bool, np.bool_)):
                 _fail(source, f"{path}.smooth", f"expected true or false, got {written(smooth)}")
             full = pat if os.path.isabs(pat) else os.path.join(scene_dir, pat)
             files = expand_pattern(full, f"{source}: key '{path}.pattern'")

@@ -75,7 +75,12 @@ SCALE_RANGE = (1.0 / MAX_COORDINATE, MAX_COORDINATE)
 
 def written(v, limit=40):
     """A scene file's value for a message, cut short: ``shown``, but true, false and null
-    and the lists that hold them as the file spells them (Python would say True, None)."""
+    and the lists that hold them as the file spells them (Python would say True, None); a
+    dict built in Python may hold NumPy's values, shown the same way."""
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    elif isinstance(v, np.generic):
+        v = v.item()
     if isinstance(v, (bool, list, tuple)) or v is None:
         try:
             text = json.dumps(v, allow_nan=False)
@@ -240,8 +245,21 @@ def vector_ok(v, a, bound=MAX_COORDINATE):
     booleans would read as 1 and 0) and none beyond ``bound`` (positions and directions: the
     coordinates hwbvh accepts; light: MAX_RADIANCE), so that no product of them overflows on
     the way to the image."""
-    items = v if isinstance(v, (list, tuple)) else [v]
-    return not any(isinstance(x, bool) for x in items) and within_bound(a, bound)
+    return not _holds_a_bool(v) and within_bound(a, bound)
+
+
+def _as_list(v):
+    """A NumPy array given in a dict built in Python, as the list a file would give."""
+    return v.tolist() if isinstance(v, np.ndarray) else v
+
+
+def _holds_a_bool(v):
+    """Whether ``v`` (a number, or lists of them, or a NumPy array) holds a true or false."""
+    if isinstance(v, np.ndarray):
+        return v.dtype == np.bool_ or (v.dtype == object and any(map(_holds_a_bool, v.flat)))
+    if isinstance(v, (list, tuple)):
+        return any(map(_holds_a_bool, v))
+    return isinstance(v, (bool, np.bool_))
 
 
 # The film and depth settings: (default, largest); each is an integer from 1.
@@ -420,9 +438,9 @@ class _Ctx:
 
     def flag(self, obj, key, path, default):
         v = obj.get(key, default)
-        if not isinstance(v, bool):
+        if not isinstance(v, (bool, np.bool_)):
             self.fail(f"{path}.{key}", f"expected true or false, got {written(v)}")
-        return v
+        return bool(v)
 
     def vec(self, obj, key, path, n=3, default=None, bound=MAX_COORDINATE):
         if key not in obj:
@@ -430,7 +448,8 @@ class _Ctx:
                 self.fail(f"{path}.{key}", "missing")
             return np.asarray(default, np.float64)
         v = given = obj[key]
-        if isinstance(v, (int, float)) and n == 3:
+        if isinstance(v, (int, float, np.integer, np.floating)) and \
+                not isinstance(v, (bool, np.bool_)) and n == 3:
             v = [v, v, v]
         try:
             a = np.asarray(v, np.float64)
@@ -548,25 +567,39 @@ def _has_area(tris):
     return np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]).any(axis=1)
 
 
+# A translation is refused when float32, at the coordinates it moves a mesh to, rounds a vertex
+# by more than a sixteenth of the mesh's size (its coordinates spaced more than an eighth of it
+# apart): the mesh then keeps at most a few positions across, flattened or staircased, even
+# where its triangles keep an area (a unit mesh moved 1e9 along x keeps its y-z areas).
+MAX_TRANSLATION_ROUNDING = 1 / 16
+
+
 def _no_collapse(ctx, mesh, scaled, moved, path):
     """Refuse a transform under which triangles of ``mesh`` with an area in float32 lose it in
     the final coordinates ``moved`` (``scaled`` plus the translation): a scale small against
     the mesh's coordinates rounds its vertices together, and so does a translation large
     against the mesh's size. The key named is the scale when the scaled mesh has already
-    lost those triangles, else the translation."""
-    after = _has_area(moved)
-    if after.all():                     # the usual case: the mesh's own areas are not needed
-        return
-    lost = _has_area(mesh) & ~after
+    lost those triangles, else the translation. A translation that rounds the vertices by
+    more than ``MAX_TRANSLATION_ROUNDING`` of the mesh's size is refused too."""
+    lost = _has_area(mesh) & ~_has_area(moved)
     n = int(lost.sum())
-    if not n:
+    if n:
+        if (lost & ~_has_area(scaled)).any():
+            key, cause = "scale", "at this scale"
+        else:
+            key, cause = "translate", "moved this far from the origin"
+        ctx.fail(f"{path}.transform.{key}", f"the mesh collapses: {n} of its {len(mesh)} "
+                                            f"triangles lose their area in float32 {cause}")
+    if not len(moved):
         return
-    if (lost & ~_has_area(scaled)).any():
-        key, cause = "scale", "at this scale"
-    else:
-        key, cause = "translate", "moved this far from the origin"
-    ctx.fail(f"{path}.transform.{key}", f"the mesh collapses: {n} of its {len(mesh)} triangles "
-                                        f"lose their area in float32 {cause}")
+    size = float((scaled.max(axis=(0, 1)) - scaled.min(axis=(0, 1))).max())
+    with np.errstate(over="ignore"):
+        step = float(np.spacing(np.abs(moved).max(axis=(0, 1)).astype(np.float32)).max())
+        own = float(np.spacing(np.abs(scaled).max(axis=(0, 1)).astype(np.float32)).max())
+    if size > 0 and step > own and step / 2 > MAX_TRANSLATION_ROUNDING * size:
+        ctx.fail(f"{path}.transform.translate",
+                 f"the mesh collapses: moved this far from the origin, its coordinates round to "
+                 f"float32 numbers {step:.3g} apart, coarse against its size of {size:.3g}")
 
 
 def _type_problem(obj, what, types):
@@ -592,7 +625,7 @@ def _shape(ctx, sh, i, scene_dir):
         except (TypeError, ValueError):
             c = None
         if c is None or c.shape != (4, 3) or not within_bound(c) or \
-                any(isinstance(x, bool) for row in sh["corners"] for x in row):
+                not vector_ok(sh["corners"], c):
             ctx.fail(f"{path}.corners", f"expected 4 corners of 3 finite numbers of magnitude at "
                                         f"most {MAX_COORDINATE:g}")
         tris = _quad(c)
@@ -607,9 +640,9 @@ def _shape(ctx, sh, i, scene_dir):
     elif typ == "sphere":
         c = ctx.vec(sh, "center", path)
         r = ctx.num(sh, "radius", path, lo=1e-30)
-        sub = sh.get("subdiv", [32, 64])
+        sub = _as_list(sh.get("subdiv", [32, 64]))
         if not (isinstance(sub, (list, tuple)) and len(sub) == 2 and
-                all(isinstance(x, int) and not isinstance(x, bool) and x >= 3 for x in sub)):
+                all(is_integer(x) and x >= 3 for x in sub)):
             ctx.fail(f"{path}.subdiv", f"expected [n_lat, n_lon] integers >= 3, got {written(sub)}")
         if 2 * sub[0] * sub[1] > MAX_PRIMITIVES:
             ctx.fail(f"{path}.subdiv", f"{written(sub)} makes more than the 2^24 triangles a tree holds")
@@ -618,9 +651,9 @@ def _shape(ctx, sh, i, scene_dir):
         _bounded(ctx, tris, f"{path}.radius", "the sphere")
         normals = V[F]                                   # radial, outward
     elif typ == "sheet":
-        res = sh.get("resolution", [64, 64])
+        res = _as_list(sh.get("resolution", [64, 64]))
         if not (isinstance(res, (list, tuple)) and len(res) == 2 and
-                all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for x in res)):
+                all(is_integer(x) and x >= 1 for x in res)):
             ctx.fail(f"{path}.resolution", f"expected [nx, ny] positive integers, got {written(res)}")
         if 2 * res[0] * res[1] > MAX_PRIMITIVES:
             ctx.fail(f"{path}.resolution",
@@ -737,7 +770,7 @@ def compile_scene(d, source=None, first_shape=0):
     shapes = d.get("shapes")
     moving = "animation" in d or any(
         isinstance(sh, dict) and ("keyframes" in sh or sh.get("type") == "frames")
-        for sh in (shapes if isinstance(shapes, list) else []))
+        for sh in (shapes if isinstance(shapes, (list, tuple)) else []))
     if moving:
         ctx.fail("animation" if "animation" in d else "shapes",
                  "the scene moves: render it with hwrt animate")
@@ -775,7 +808,7 @@ def compile_scene(d, source=None, first_shape=0):
             if ior[k] == 1.0:
                 ior[k] = 1.0 + 1e-6
     shapes = d["shapes"]
-    if not isinstance(shapes, list) or not shapes:
+    if not isinstance(shapes, (list, tuple)) or not shapes:
         ctx.fail("shapes", "expected a non-empty list")
     scene_dir = os.path.dirname(os.path.abspath(source)) if os.path.exists(str(source)) else os.getcwd()
     all_t, all_n, all_m = [], [], []
@@ -806,7 +839,7 @@ def compile_scene(d, source=None, first_shape=0):
     if integ.get("type", "whitted") != "whitted":
         ctx.fail("integrator.type", f"unknown integrator {written(integ['type'])} (the renderer is 'whitted')")
     lights = []
-    if not isinstance(d.get("lights", []), list):
+    if not isinstance(d.get("lights", []), (list, tuple)):
         ctx.fail("lights", "expected a list")
     for i, L in enumerate(d.get("lights", [])):
         p = f"lights[{i}]"

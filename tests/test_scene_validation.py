@@ -193,6 +193,23 @@ def test_a_mesh_translation_that_collapses_its_triangles_in_float32_names_transl
             "triangles lose their area in float32") in line
 
 
+def test_a_mesh_translation_that_flattens_it_in_float32_names_translate(tmp_path, capsys,
+                                                                        monkeypatch):
+    """Moved 1e9 along x, a unit mesh whose triangles stand in the y-z plane keeps their areas,
+    but float32 spaces x 64 apart there: its depth along x is gone."""
+    (tmp_path / "wall.obj").write_text("v 0 0 0\nv 0 1 0\nv 0 0 1\nv 1 0 0\nv 1 1 0\nv 1 0 1\n"
+                                       "f 1 2 3\nf 4 5 6\n")
+    shape = {"type": "mesh", "filename": "wall.obj", "material": "white",
+             "transform": {"translate": [1e9, 0, 0]}}
+    p = write_scene(tmp_path, scene_dict([shape]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert (f"{p}: key 'shapes[0].transform.translate': the mesh collapses: moved this far from "
+            "the origin, its coordinates round to float32 numbers 64 apart, coarse against its "
+            "size of 1") in line
+    shape["transform"]["translate"] = [1e6, 0, 0]        # 0.0625 apart: kept
+    compile_scene(load_scene(write_scene(tmp_path, scene_dict([shape]))))
+
+
 def test_a_mesh_moved_far_but_keeping_its_area_is_accepted(tmp_path):
     (tmp_path / "big.obj").write_text("v 0 0 0\nv 1e3 0 0\nv 0 1e3 0\nf 1 2 3\n")
     shape = {"type": "mesh", "filename": "big.obj", "material": "white",
@@ -377,3 +394,45 @@ def test_a_files_scene_takes_film_overrides_and_refuses_others(tmp_path):
         assert (c.width, c.height, c.spp, c.max_depth) == (8, 6, 2, 2)
         with pytest.raises(ParameterError, match="takes only width, height, spp, max_depth"):
             load_scene(spec, fov=30)
+
+
+def test_a_scene_built_in_python_takes_numpy_values_as_it_takes_python_ones():
+    """NumPy numbers, arrays, booleans and tuples mean what the Python values mean (the same
+    compiled scene); NumPy booleans among numbers are refused as JSON's are, and spelled
+    ``true`` in the message, as a file would spell them."""
+    plain = scene_dict([{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "white",
+                         "subdiv": [8, 16]},
+                        {"type": "sheet", "resolution": [2, 3], "material": "white"},
+                        {"type": "quad", "material": "white",
+                         "corners": [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}],
+                       integrator={"max_depth": 3, "cutoff": 0.01})
+    plain["film"]["jitter"] = False
+    numpy = scene_dict([{"type": "sphere", "center": np.zeros(3), "radius": np.float32(1),
+                         "material": np.str_("white"), "subdiv": (np.int64(8), np.int32(16))},
+                        {"type": "sheet", "resolution": np.array([2, 3]), "material": "white"},
+                        {"type": "quad", "material": "white",
+                         "corners": np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]],
+                                             np.float32)}],
+                       integrator={"max_depth": np.int64(3), "cutoff": np.float64(0.01)})
+    numpy["film"] = {"width": np.int64(8), "height": np.int32(8), "spp": np.uint8(1),
+                     "jitter": np.bool_(False)}
+    numpy["lights"] = (dict(plain["lights"][0], intensity=np.full(3, 10, np.float32)),)
+    numpy["shapes"] = tuple(numpy["shapes"])
+    a, b = compile_scene(plain), compile_scene(numpy)
+    np.testing.assert_array_equal(a.triangles, b.triangles)
+    assert (a.width, a.height, a.spp, a.max_depth, a.jitter) == \
+        (b.width, b.height, b.spp, b.max_depth, b.jitter)
+    for where, value, message in [
+            (("camera", "eye"), np.array([True, True, False]),
+             "key 'camera.eye': expected 3 finite numbers of magnitude at most 1e+15, got "
+             "[true, true, false]"),
+            (("camera", "fov"), np.bool_(True), "key 'camera.fov': expected a number, got true"),
+            (("film", "jitter"), np.int64(1), "key 'film.jitter': expected true or false, got 1"),
+            (("shapes", 0), {"type": "quad", "material": "white",
+                             "corners": [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, np.bool_(True), 0]]},
+             "key 'shapes[0].corners': expected 4 corners")]:
+        d = scene_dict()
+        d[where[0]][where[1]] = value
+        with pytest.raises(InputError) as e:
+            compile_scene(d)
+        assert str(e.value).startswith(f"<scene>: {message}"), str(e.value)
