@@ -430,6 +430,10 @@ def test_float32_rays_are_checked_against_the_units_range():
     a million times larger, directions long enough to take the products past the bound are
     refused naming ``dirs`` (unchecked, the unit loses hits there); a NaN ray passes over the
     check (it misses), and so does an infinite one; a finite one far enough is refused."""
+    from traversal.triangle_unit import ray_magnitudes
+    x = np.array([np.nan, -np.inf, -123.5, 2.0, np.inf, -0.0], np.float32)
+    assert ray_magnitudes(x, x[3:4]) == (123.5, 2.0)
+    assert ray_magnitudes(x[:2], x[:0]) == (0.0, 0.0)
     tr = Tracer(hwbvh.build(TRIS))
     far = O.copy()
     far[:, 2] = np.float32(1e30)
