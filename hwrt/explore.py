@@ -46,6 +46,11 @@ TREE_CACHE = 3             # trees a worker keeps (a 270k-triangle tree is ~50 M
 SIZE_CLASSES = ((50_000, "small (< 50k triangles)"), (150_000, "medium (50k-150k)"),
                 (math.inf, "large (> 150k)"))
 CELLS_NAME = "explore.jsonl"
+# The fields of a row (``simulate_batch``): numbers (or null), then the others; a saved row with
+# other fields, or another value in a number's place, is computed again (``study.RowSchema``).
+ROW_NUMBERS = ("triangles", "cycles", "seconds", "energy_joules", "area_mm2", "active_power_w",
+               "traffic_total_bytes", "footprint_bytes", "sah_cost", "handoffs")
+ROW_OTHERS = ("mesh", "config", "traffic_bytes", "utilisation", "upper_builder_used")
 OUTPUT_NAMES = ("explore.csv", "explore.json", "explore.md", "pareto_time_area.png",
                 "pareto_energy_area.png", "fig4_2_speedup.png", "fig4_3_leaf_size.png")
 
@@ -608,10 +613,11 @@ class _CellStore:
     removed on disk before the first batch arrives."""
 
     def __init__(self, path, fresh):
-        from .study import Cells
+        from .study import Cells, RowSchema
         self.path = Path(path)
         self.truncate = fresh
-        self.done = {} if fresh or not self.path.exists() else Cells(self.path).done
+        self.done = {} if fresh or not self.path.exists() else \
+            Cells(self.path, schema=RowSchema(ROW_NUMBERS, ROW_OTHERS)).done
 
     def add_many(self, rows):
         from hwbvh.files import json_text

@@ -54,17 +54,52 @@ def _not_ours(token):
     raise ValueError(f"{token} is not a number our cells hold")
 
 
+class RowSchema:
+    """The fields of a saved cell, so that a row edited or left by another version runs again
+    instead of reaching the tables: ``numbers`` hold a number or null, ``others`` any value;
+    every one of them is present, besides ``key``, and at most the ``optional`` numbers and
+    ``optional_others`` too."""
+
+    def __init__(self, numbers, others=(), optional=(), optional_others=()):
+        self.numbers = frozenset(numbers) | frozenset(optional)
+        self.required = frozenset(numbers) | frozenset(others) | {"key"}
+        self.allowed = self.required | frozenset(optional) | frozenset(optional_others)
+
+    def fits(self, row):
+        keys = set(row)
+        return self.required <= keys <= self.allowed and all(
+            row[k] is None or (isinstance(row[k], (int, float)) and not isinstance(row[k], bool))
+            for k in self.numbers & keys)
+
+
+TTI_ROW = RowSchema(
+    numbers=("triangles", "build_seconds", "render_seconds", "rays", "sah_cost",
+             "tracer_setup_seconds"),
+    others=("scene", "builder", "traversal", "build_spread", "render_spread", "ray_kinds",
+            "verify_clean", "simulated_build_seconds"),
+    optional=("memory_bytes", "references_per_triangle"),     # ``bench.structure_figures``
+    optional_others=("accel",))
+ACCURACY_ROW = RowSchema(
+    numbers=("build_seconds", "render_seconds", "total_seconds", "sah_cost", "nodes_per_ray",
+             "tris_per_ray", "mismatch_rate", "tie_rate", "holes", "hole_probes", "rmse",
+             "max_error"),
+    others=("scene", "knob", "value", "render_spread"))
+
+
 class Cells:
     """Finished cells on disk, one JSON object per line, keyed by ``key``.
 
     An interruption can cut the last line short. Such a line is dropped when the file is
-    opened (its cell runs again), so that the next record starts on a line of its own.
+    opened (its cell runs again), so that the next record starts on a line of its own. A line
+    that is not a row of ``schema`` (a ``RowSchema``), or holds a NaN or Infinity token, is
+    passed over: its cell runs again.
     ``fresh`` ignores the cells on disk; they are replaced when the first new cell is saved,
     so that a run that fails before any cell (a scheduler that does not answer) changes
     nothing on disk."""
 
-    def __init__(self, path, fresh=False):
+    def __init__(self, path, fresh=False, schema=None):
         self.path = Path(path)
+        self.schema = schema
         self.done = {}
         self.truncate = fresh
         if not fresh and self.path.exists():
@@ -89,7 +124,8 @@ class Cells:
                 row = json.loads(line, parse_constant=_not_ours)
             except ValueError:                          # damaged: that cell runs again
                 continue
-            if isinstance(row, dict) and "key" in row:
+            if isinstance(row, dict) and "key" in row and \
+                    (self.schema is None or self.schema.fits(row)):
                 self.done[row["key"]] = row
 
     def get(self, key):
@@ -244,12 +280,6 @@ def _tti_key(name, builder, W, H, spp, depth, repeat):
     return json.dumps([name, builder, W, H, spp, depth, repeat])
 
 
-def _tti_cell_done(cell):
-    """The cell if it is a result of the current timing: a cell saved before builds were timed
-    up to a tracer ready to trace has no ``tracer_setup_seconds`` and is computed again."""
-    return cell if cell and "tracer_setup_seconds" in cell else None
-
-
 def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat, accel="bvh"):
     """One scene and tree (``accel`` "bvh") or other structure (``accel``, its own build; the
     builder is then the default): ``repeat`` timed builds and renders, then (our traversal)
@@ -303,7 +333,7 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
     repeat = args.repeat
     out_dir = args.out_dir
     specs = _scene_specs(args, args.quick)      # bad meshes refused before the cells file is opened
-    cells = Cells(os.path.join(out_dir, "tti.jsonl"), fresh=args.fresh)
+    cells = Cells(os.path.join(out_dir, "tti.jsonl"), fresh=args.fresh, schema=TTI_ROW)
     run = _run_id()
     jobs, keys = [], {}
     structures = tti_structures(getattr(args, "accel", None))
@@ -311,7 +341,7 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
     for spec in specs:
         for builder, traversal, accel, tree in trees:
             key = _tti_key(spec[0], tree, W, H, spp, depth, repeat)
-            if not _tti_cell_done(cells.get(key)):
+            if not cells.get(key):
                 keys[f"tti-{run}-{len(jobs)}"] = key
                 jobs.append((f"tti-{run}-{len(jobs)}", tti_cell,
                              (spec, builder, traversal, W, H, spp, depth, repeat, accel)))
@@ -333,11 +363,11 @@ def _tti_rows(cells, specs, W, H, spp, depth, repeat, structures=()):
     from raytracer.render import simulated_ready_seconds
     rows, summary = [], []
     for name, _, _ in specs:
-        got = {b: _tti_cell_done(cells.get(_tti_key(name, b, W, H, spp, depth, repeat)))
+        got = {b: cells.get(_tti_key(name, b, W, H, spp, depth, repeat))
                for b, _ in TTI_TREES}
         if not all(got.values()):
             continue
-        others = {a: _tti_cell_done(cells.get(_tti_key(name, a, W, H, spp, depth, repeat)))
+        others = {a: cells.get(_tti_key(name, a, W, H, spp, depth, repeat))
                   for a in structures}
         hw = got["hwbvh"]
         # a simulated hardware build still leaves our tracer's set-up to software
@@ -591,7 +621,8 @@ def bench_accuracy(args, *, use_dask=True, progress=True, commit=write_files):
     repeat = args.repeat
     rays = MISMATCH_RAYS_QUICK if quick else MISMATCH_RAYS
     specs = _scene_specs(args, quick)[:1 if quick else 3]   # before the cells file is opened
-    cells = Cells(os.path.join(args.out_dir, "accuracy.jsonl"), fresh=args.fresh)
+    cells = Cells(os.path.join(args.out_dir, "accuracy.jsonl"), fresh=args.fresh,
+                  schema=ACCURACY_ROW)
     work = [(spec, knob, val) for spec in specs for knob, vals in KNOBS.items() for val in vals]
     key_of = lambda spec, knob, val: json.dumps([spec[0], knob, val, W, H, repeat])
     pending = [(spec, knob, val) for spec, knob, val in work if not cells.get(key_of(spec, knob, val))]

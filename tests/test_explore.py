@@ -129,6 +129,17 @@ def test_cells_resume_after_an_interruption(meshes, tmp_path):
     fourth = ex.explore(meshes, grid, out, use_dask=False, progress=False)
     assert fourth["computed"] == 1 and fourth["rows"] == first["rows"]
     assert "nan" not in (out / "explore.csv").read_text().lower()
+    # rows edited or left by another version: a field unknown, one missing, a number become
+    # text or a bool: those cells run again
+    lines = cells.read_text().splitlines()[1:]            # the NaN line is stale now
+    rows = [json.loads(x) for x in lines[:4]]
+    rows[0]["note"] = 1
+    del rows[1]["sah_cost"]
+    rows[2]["seconds"] = "fast"
+    rows[3]["cycles"] = True
+    cells.write_text("\n".join([json.dumps(r) for r in rows] + lines[4:]) + "\n")
+    fifth = ex.explore(meshes, grid, out, use_dask=False, progress=False)
+    assert fifth["computed"] == 4 and fifth["rows"] == first["rows"]
     fresh = ex.explore(meshes, grid, out, use_dask=False, progress=False, fresh=True)
     assert fresh["computed"] == fresh["cells"]
     assert len(cells.read_text().splitlines()) == fresh["cells"]

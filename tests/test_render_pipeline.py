@@ -615,14 +615,16 @@ def test_simulated_time_to_image_counts_the_tracers_set_up(capsys, tmp_path):
     counts it; and a tti cell saved before set-ups were timed is computed again."""
     import json
     from hwrt.cli import main
-    from hwrt.study import _tti_cell_done
+    from hwrt.study import TTI_ROW
     from raytracer.render import simulated_ready_seconds
 
     assert simulated_ready_seconds({"simulated_build_seconds": {"HP": 0.25},
                                     "tracer_setup_seconds": 0.5}) == {"HP": 0.75}
     assert simulated_ready_seconds({"builder": "embree"}) is None
-    assert _tti_cell_done({"key": "k", "build_seconds": 1.0}) is None
-    assert _tti_cell_done({"key": "k", "tracer_setup_seconds": None})
+    row = dict.fromkeys(TTI_ROW.required)
+    assert TTI_ROW.fits(row)
+    del row["tracer_setup_seconds"]
+    assert not TTI_ROW.fits(row)
     rc = main(["render", "cornell", "-o", str(tmp_path / "c.exr"), "--width", "32", "--height",
                "24", "--spp", "1", "--json"])
     got = json.loads(capsys.readouterr().out)

@@ -92,9 +92,11 @@ def test_accuracy_quick(tmp_path, mesh_dir):
     assert get[("spp", "8")]["rmse"] < get[("spp", "1")]["rmse"]
     assert all(x["holes"] == 0 for x in rows)
     assert (out / "accuracy.png").exists() and (out / "accuracy.md").exists()
-    # without --json (every cell resumed): the table of its page
+    # without --json (every cell resumed, none measured again): the table of its page
+    lines = (out / "accuracy.jsonl").read_text().count("\n")
     r = run("bench", "accuracy", "--quick", "--mesh-dir", mesh_dir, "--out-dir", out)
     assert r.returncode == 0, r.stderr
+    assert (out / "accuracy.jsonl").read_text().count("\n") == lines
     body = _page_body((out / "accuracy.md").read_text())
     assert "| bins | 16 |" in body
     assert r.stdout == body + "\nwrote " + ", ".join(str(out / f) for f in (
