@@ -324,6 +324,48 @@ def test_zero_area_triangles_are_never_hit():
     assert not (h.prim >= len(good)).any()
 
 
+def test_an_answer_within_the_units_rounding_of_its_triangle_is_a_tie_but_a_hole_is_not():
+    """Two triangles sharing an edge, a ray through B just past the edge (outside A by 3e-4 in
+    A's barycentrics, beyond BARY_TOL). Seen from 600 triangle sizes away at cos 0.1 to the
+    normal, the float32 unit's rounding of the barycentrics is ~1e-3: an answer on A is a tie
+    with one on B. Seen head-on from close by, the same answer on A is a mismatch. A ray that
+    passes through B (entered by more than BARY_TOL) to a triangle behind is a hole: a mismatch
+    however grazing; and so is a miss there. The any-hit test judges alike."""
+    from traversal.verify import classify, classify_occluded
+    A = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    B = [[1, 0, 0], [1, 1, 0], [0, 1, 0]]
+    C = [[-5, -5, -1], [5, -5, -1], [-5, 5, -1]]                 # far behind, below both
+    tris = np.array([A, B, C], np.float32)
+    delta = 3e-4
+    P = np.array([0.5 + delta / 2, 0.5 + delta / 2, 0.0])
+    graze = np.array([np.sqrt(1 - 0.01), 0.0, -0.1])              # cos 0.1 to the normal
+    cases = {"grazing": (P - 600 * graze, graze), "head-on": (P + [0, 0, 2], np.array([0, 0, -1.0]))}
+    got = {}
+    for name, (o, d) in cases.items():
+        O = np.array([o], np.float32)
+        D = np.array([d], np.float32)
+        t = float(np.linalg.norm(P - o))
+        t_behind = t + 1.0 / abs(d[2])
+        for other, (p_ours, t_ours) in {"A": (0, t), "C": (2, t_behind), "miss": (-1, np.inf)}.items():
+            counts, _ = classify(tris, O, D, 0.0, np.inf, np.array([p_ours]), np.array([t_ours]),
+                                 np.array([1]), np.array([t]))
+            got[name, other] = max((k for k in ("tie", "mismatch") if counts[k]), default="agree")
+        # any-hit, up to just past B: a shadow ray let through B is a hole; without B, a
+        # shadow ray blocked by A alone is right within the unit's rounding (grazing) only
+        tmax = np.array([t + 0.5])
+        for label, kept, ours, ref in (("let through", [0, 1, 2], False, True),
+                                       ("blocked by A", [0, 2], True, False)):
+            counts, _ = classify_occluded(tris[kept], O, D, 0.0, tmax, np.array([ours]),
+                                          np.array([ref]))
+            got[name, label] = "mismatch" if counts["mismatch"] else "tie"
+    assert got == {("grazing", "A"): "tie", ("grazing", "C"): "mismatch",
+                   ("grazing", "miss"): "mismatch", ("grazing", "let through"): "mismatch",
+                   ("grazing", "blocked by A"): "tie",
+                   ("head-on", "A"): "mismatch", ("head-on", "C"): "mismatch",
+                   ("head-on", "miss"): "mismatch", ("head-on", "let through"): "mismatch",
+                   ("head-on", "blocked by A"): "mismatch"}
+
+
 def test_verify_replay_of_a_mismatch_file(tmp_path):
     import json
     import subprocess

@@ -5,14 +5,17 @@ Each ray is classified:
 * ``agree``: same primitive and |t_ours - t_embree| <= tol_t, or both miss;
 * ``tie``: the answers differ but both are right to within the stated tolerances, judged by a
   float64 brute-force re-test of the ray against every triangle: each answer's triangle
-  contains its hit point (barycentrics within ``BARY_TOL`` of the triangle), the point at the t
-  it reports lies within tol_t (times |d|) of that triangle's plane, and no
-  triangle that contains the ray strictly (by more than ``BARY_TOL``) is hit closer. These are
-  the rays through shared edges and vertices (two triangles, one t) and rays grazing an edge
-  within the tolerance (one answer a hit on the edge, the other a miss);
+  contains its hit point (barycentrics within ``BARY_TOL`` of the triangle, or within the
+  float32 unit's own rounding of them where that is larger, as on rays grazing a triangle far
+  smaller than its distance), the point at the t it reports lies within tol_t (times |d|) of
+  that triangle's plane, and no triangle that contains the ray strictly (by more than
+  ``BARY_TOL``) is hit closer. These are the rays through shared edges and vertices (two
+  triangles, one t) and rays grazing an edge within the tolerance (one answer a hit on the
+  edge, the other a miss);
 * ``mismatch``: anything else.
 
-The tolerances ``T_TOL_REL``, ``BEHIND_TOL_REL`` and ``BARY_TOL`` live in ``traversal.config`` with their reasons.
+The tolerances ``T_TOL_REL``, ``BEHIND_TOL_REL``, ``BARY_TOL`` and ``BARY_ERR_K`` live in
+``traversal.config`` with their reasons.
 """
 import numpy as np
 from numba import njit
@@ -21,7 +24,7 @@ from hwbvh.errors import ParameterError, is_integer
 from hwbvh.parallel import run_ranges
 
 from .api import ACCELS, _interval, ray_arrays, real_array
-from .config import BARY_TOL, BEHIND_TOL_REL, MAX_RAYS, T_TOL_REL
+from .config import BARY_ERR_K, BARY_TOL, BARY_TOL_MAX, BEHIND_TOL_REL, MAX_RAYS, T_TOL_REL
 
 BEHIND = BEHIND_TOL_REL / T_TOL_REL    # the slack before t_min, as a share of the t tolerance
 
@@ -62,6 +65,27 @@ def _cosine(tri, d):
 
 
 @njit(cache=True, error_model="numpy")
+def _answer_tol(tri, o, d):
+    """How far outside ``tri`` (in barycentric units) an answer on it is still right: the
+    float32 unit's rounding of the barycentrics, eps |o - v0| max|e| / (|e1 x e2| cos), times
+    BARY_ERR_K, within [BARY_TOL, BARY_TOL_MAX] (``traversal.config``)."""
+    e1 = tri[1] - tri[0]
+    e2 = tri[2] - tri[0]
+    s = o - tri[0]
+    nx = e1[1] * e2[2] - e1[2] * e2[1]
+    ny = e1[2] * e2[0] - e1[0] * e2[2]
+    nz = e1[0] * e2[1] - e1[1] * e2[0]
+    dn = abs(nx * d[0] + ny * d[1] + nz * d[2]) / np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    emax = np.sqrt(max(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2],
+                       e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2]))
+    err = BARY_ERR_K * 2.0**-24 * np.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) * emax
+    # |e1 x e2| cos = |n . d| / |d|: err / dn, without a division by zero
+    if not err < BARY_TOL_MAX * dn:
+        return BARY_TOL_MAX
+    return max(BARY_TOL, err / dn)
+
+
+@njit(cache=True, error_model="numpy")
 def _margin(u, v):
     """Signed distance inside the triangle in barycentric units (>0 inside)."""
     return min(u, min(v, 1.0 - u - v))
@@ -96,7 +120,8 @@ def _reference(lo, hi, tris, O, D, tmin, tmax, scale, pa, ta, pb, tb, out):
                 t, u, v = _mt64(tris[p], o, d)
                 tol = T_TOL_REL * (abs(t) + scale[i])
                 reported = ta[i] if k == 0 else tb[i]
-                ok = _margin(u, v) >= -BARY_TOL and t >= tmin[i] - tol * BEHIND and \
+                ok = _margin(u, v) >= -_answer_tol(tris[p], o, d) and \
+                    t >= tmin[i] - tol * BEHIND and \
                     t <= tmax[i] + tol and not (best < t - tol) and \
                     abs(reported - t) * _cosine(tris[p], d) <= tol
             out[i, 1 + k] = 1.0 if ok else 0.0
@@ -191,8 +216,8 @@ def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
 def _reference_any(lo, hi, tris, O, D, tmin, tmax, scale, out):
     """For disputed any-hit rays lo..hi: out[i] = (a strict hit exists, a loose hit exists),
     where a strict hit lies inside its triangle by more than BARY_TOL at t clearly inside
-    (tmin, tmax), and a loose hit within BARY_TOL of its triangle at t within the tolerance of
-    [tmin, tmax]."""
+    (tmin, tmax), and a loose hit within ``_answer_tol`` of its triangle at t within the
+    tolerance of [tmin, tmax]."""
     for i in range(lo, hi):
         o = O[i]
         d = D[i]
@@ -206,7 +231,8 @@ def _reference_any(lo, hi, tris, O, D, tmin, tmax, scale, out):
             m = _margin(u, v)
             if m > BARY_TOL and t > tmin[i] + tol and t < tmax[i] - tol:
                 strict = True
-            if m >= -BARY_TOL and t >= tmin[i] - tol * BEHIND and t <= tmax[i] + tol:
+            if t >= tmin[i] - tol * BEHIND and t <= tmax[i] + tol and \
+                    (m >= -BARY_TOL or m >= -_answer_tol(tris[j], o, d)):
                 loose = True
             if strict and loose:
                 break
