@@ -6,7 +6,7 @@ no first ray hits can give fewer (``len`` of the result says how many).
 """
 import numpy as np
 
-from .camera import frame_bounds, primary_rays, tile_order
+from .camera import TILE, frame_bounds, look_at_basis, tile_order
 from .offset import offset_origins
 
 
@@ -22,25 +22,88 @@ HIT_GROWTH = 4
 HIT_ROUNDS = 2
 
 
-def primary(tris, n):
-    """n camera rays of a 4:3 view framing the mesh, in 4x4 pixel tiles (the image is the
-    smallest 4:3 one with at least n pixels; the last tiles are left out)."""
-    n = int(n)
+# Rays made at a time: a set of up to 2^26 rays (and the first rays a hit-based set draws,
+# up to HIT_GROWTH^HIT_ROUNDS times more) is made a slice at a time, so that its float64
+# working arrays stay small; whole, they took several times the set's own size.
+MAKE_CHUNK = 1 << 20
+
+
+def _tile_pixels(k, w, h, tile):
+    """Row-major pixel indices of positions ``k`` (an int64 array) of ``camera.tile_order``:
+    a row of tiles holds ``tile`` image rows (fewer in the last), its tiles ``tile`` columns
+    each (fewer in the last), so a position's row of tiles, tile and place in it follow by
+    division, without the order of every pixel."""
+    band = k // (tile * w)                              # the row of tiles
+    rows = np.minimum(tile, h - band * tile)            # image rows in it
+    j = k - band * tile * w
+    tx = (j // (tile * rows)) * tile                    # the tile's first column
+    cols = np.minimum(tile, w - tx)
+    q = j - (tx // tile) * tile * rows
+    return (band * tile + q // cols) * w + tx + q % cols
+
+
+def _primary_view(tris, n):
+    """The view of ``primary``: (eye, basis (u, v, w), tan(fov/2), width, height)."""
     lo, hi = bounds_of(tris)
     eye, target, up = frame_bounds(lo, hi)
     w = max(1, int(np.ceil(np.sqrt(n * 4 / 3))))
     h = max(1, -(-n // w))
-    o, d = primary_rays(eye, target, up, 40.0, w, h)
-    order = tile_order(w, h)[:n]            # in 4x4 pixel tiles, as a renderer issues them
-    return o[order], d[order]
+    return eye, look_at_basis(eye, target, up), np.tan(np.radians(40.0) / 2), w, h
 
 
-def incoherent(tris, n, seed=0):
+def primary_chunks(tris, n, dtype=np.float64):
+    """``primary``'s rays, a slice of up to ``MAKE_CHUNK`` at a time: (origins, dirs)."""
+    n = int(n)
+    eye, (u, v, fwd), half, w, h = _primary_view(tris, n)
+    for a in range(0, n, MAKE_CHUNK):
+        # as camera.primary_rays, pixel by pixel of the slice
+        y, x = np.divmod(_tile_pixels(np.arange(a, min(n, a + MAKE_CHUNK)), w, h, TILE), w)
+        sx = (2 * (x + 0.5) / w - 1) * half * (w / h)
+        sy = (1 - 2 * (y + 0.5) / h) * half
+        d = sx[:, None] * u + sy[:, None] * v + fwd
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        yield np.broadcast_to(eye.astype(dtype), d.shape).copy(), d.astype(dtype, copy=False)
+
+
+def primary(tris, n, dtype=np.float64):
+    """n camera rays of a 4:3 view framing the mesh, in 4x4 pixel tiles (the image is the
+    smallest 4:3 one with at least n pixels; the last tiles are left out). The rays are
+    computed in float64 and stored in ``dtype`` (float32: as the float32 tracers take them)."""
+    return _joined(primary_chunks(tris, n, dtype), n, dtype)
+
+
+def incoherent_chunks(tris, n, seed=0, dtype=np.float64):
+    """``incoherent``'s rays, a slice of up to ``MAKE_CHUNK`` at a time: (origins, dirs). The
+    stream holds the n origins, then the n directions: the directions come from a second
+    generator advanced past the origins' 3n draws (one 64-bit draw per uniform)."""
+    n = int(n)
     lo, hi = bounds_of(tris)
-    rng = np.random.default_rng(seed)
-    o = rng.uniform(lo, hi, (n, 3))
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    rng_o = np.random.default_rng(seed)
+    rng_d = np.random.default_rng(seed)
+    rng_d.bit_generator.advance(3 * n)
+    for a in range(0, n, MAKE_CHUNK):
+        m = min(MAKE_CHUNK, n - a)
+        o = rng_o.uniform(lo, hi, (m, 3))
+        d = rng_d.normal(size=(m, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        yield o.astype(dtype, copy=False), d.astype(dtype, copy=False)
+
+
+def incoherent(tris, n, seed=0, dtype=np.float64):
+    """n rays from uniform points of the mesh's box in uniform directions: the stream of
+    ``default_rng(seed)``, n origins then n directions, computed in float64 and stored in
+    ``dtype``."""
+    return _joined(incoherent_chunks(tris, n, seed, dtype), n, dtype)
+
+
+def _joined(chunks, n, dtype):
+    o = np.empty((n, 3), dtype)
+    d = np.empty((n, 3), dtype)
+    a = 0
+    for oc, dc in chunks:
+        o[a:a + len(oc)] = oc
+        d[a:a + len(dc)] = dc
+        a += len(oc)
     return o, d
 
 
@@ -49,55 +112,92 @@ def light_position(tris):
     return (lo + hi) / 2 + np.array([0.3, 1.0, 0.6]) * np.linalg.norm(hi - lo)
 
 
-def hit_points(tracer, tris, o, d):
-    """First hits of (o, d) with our tracer: (mask, points, normals, triangle magnitudes)."""
-    h = tracer.intersect(o, d)
-    m = h.prim >= 0
-    p = o[m] + d[m] * h.t[m, None].astype(np.float64)
-    ng = h.ng[m].astype(np.float64)
-    mag = np.abs(np.asarray(tris)[h.prim[m]]).reshape(-1, 9).max(axis=1)
-    return m, p, ng, mag
+def hit_points(tracer, tri_mag, chunks, keep_dirs=False, enough=None):
+    """First hits of the rays of ``chunks`` (slices of (origins, dirs)) with our tracer:
+    (rays drawn, points (float64, along the rays as given), normals (float32), the hit
+    triangles' ``tri_mag``, and with ``keep_dirs`` their rays' directions). A slice at a time,
+    so that only the hits' arrays grow with the set; with ``enough``, no slice is traced once
+    that many hits are in."""
+    parts = []
+    m = got = 0
+    for o, d in chunks:
+        if enough is not None and got >= enough:
+            break
+        h = tracer.intersect(o, d)
+        hit = h.prim >= 0
+        oc, dc = o[hit].astype(np.float64), d[hit].astype(np.float64)
+        parts.append((oc + dc * h.t[hit, None].astype(np.float64), h.ng[hit],
+                      tri_mag[h.prim[hit]], dc if keep_dirs else dc[:0]))
+        m += len(o)
+        got += int(hit.sum())
+    if not parts:
+        parts = [(np.empty((0, 3)), np.empty((0, 3), np.float32), np.empty(0), np.empty((0, 3)))]
+    return (m, *(np.concatenate(x) for x in zip(*parts)))
 
 
-def _n_hits(tracer, tris, n, first_rays, spread):
-    """(o, d, points, normals, magnitudes) of n first hits of ``first_rays(m)`` (m rays), m
-    grown until n hit. ``spread``: pick the n evenly from all hits (coherent sets keep covering
-    the whole view) rather than the first n (random sets)."""
+def _n_hits(tracer, tris, n, first_rays, spread, keep_dirs=False):
+    """(points, normals, magnitudes, directions or none) of n first hits of the rays of
+    ``first_rays(m)`` (slices of m rays, float32 as the tracer takes them), m grown until n
+    hit. ``spread``: pick the n evenly from all hits (coherent sets keep covering the whole
+    view) rather than the first n (random sets)."""
     n = int(n)
     m = max(n, 1)
+    tri_mag = np.abs(np.asarray(tris, np.float64)).reshape(-1, 9).max(axis=1)
     for _ in range(HIT_ROUNDS + 1):
-        o, d = first_rays(m)
-        mask, p, ng, mag = hit_points(tracer, tris, o, d)
+        # the first n hits are all a set that is not spread takes
+        _, p, ng, mag, di = hit_points(tracer, tri_mag, first_rays(m), keep_dirs,
+                                       None if spread else n)
         k = len(p)
         if k >= n:
             break
         m = max(m + 16, int(m * min(HIT_GROWTH, max(1.1, 1.05 * n / max(k, 1)))))
     got = min(n, k)
     pick = (np.arange(got) * k) // max(got, 1) if spread else np.arange(got)
-    return o[mask][pick], d[mask][pick], p[pick], ng[pick], mag[pick]
+    return p[pick], ng[pick], mag[pick], di[pick] if keep_dirs else di
 
 
-def shadow(tracer, tris, n):
-    """n rays from first hits of primary rays toward a point light (tmax = the light)."""
-    _, _, p, ng, mag = _n_hits(tracer, tris, n, lambda m: primary(tris, m), spread=True)
+def shadow(tracer, tris, n, dtype=np.float64):
+    """n rays from first hits of primary rays toward a point light (tmax = the light), stored
+    in ``dtype`` (computed in float64, a slice at a time)."""
+    p, ng, mag, _ = _n_hits(tracer, tris, n, lambda m: primary_chunks(tris, m, np.float32),
+                            spread=True)
     L = light_position(tris)
-    to = L - p
-    dist = np.linalg.norm(to, axis=1)
-    dl = to / dist[:, None]
-    org = offset_origins(p, ng, dl, mag)
-    return org, dl, np.linalg.norm(L - org, axis=1)
+    k = len(p)
+    org, dirs, tmax = np.empty((k, 3), dtype), np.empty((k, 3), dtype), np.empty(k, dtype)
+    for a in range(0, k, MAKE_CHUNK):
+        b = min(k, a + MAKE_CHUNK)
+        to = L - p[a:b]
+        dl = to / np.linalg.norm(to, axis=1)[:, None]
+        o = offset_origins(p[a:b], ng[a:b], dl, mag[a:b])
+        org[a:b], dirs[a:b], tmax[a:b] = o, dl, np.linalg.norm(L - o, axis=1)
+    return org, dirs, tmax
 
 
-def bounces(tracer, tris, n, seed=1):
+def bounces(tracer, tris, n, seed=1, dtype=np.float64):
     """n secondary rays: mirror reflections of incoherent first hits plus random directions,
-    from offset origins (self-intersection is part of what is verified)."""
-    _, di, p, ng, mag = _n_hits(tracer, tris, n, lambda m: incoherent(tris, m, seed), spread=False)
-    nn = ng / np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
-    refl = di - 2 * np.einsum("ij,ij->i", di, nn)[:, None] * nn
+    from offset origins (self-intersection is part of what is verified); stored in ``dtype``
+    (computed in float64, a slice at a time)."""
+    p, ng, mag, di = _n_hits(tracer, tris, n,
+                             lambda m: incoherent_chunks(tris, m, seed, np.float32),
+                             spread=False, keep_dirs=True)
+    k = len(p)
+    half = k // 2
+    # the random directions: rows half.. of k normals of default_rng(seed + 1) (the first half
+    # drawn and passed over: a normal takes a varying number of the stream's draws)
     rng = np.random.default_rng(seed + 1)
-    rnd = rng.normal(size=refl.shape)
-    rnd /= np.linalg.norm(rnd, axis=1, keepdims=True)
-    half = len(refl) // 2
-    dirs = np.concatenate([refl[:half], rnd[half:]])
-    org = offset_origins(p, ng, dirs, mag)
+    for a in range(0, half, MAKE_CHUNK):
+        rng.normal(size=(min(MAKE_CHUNK, half - a), 3))
+    org, dirs = np.empty((k, 3), dtype), np.empty((k, 3), dtype)
+    for a in range(0, k, MAKE_CHUNK):
+        b = min(k, a + MAKE_CHUNK)
+        g = ng[a:b].astype(np.float64)
+        nn = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-300)
+        out = di[a:b] - 2 * np.einsum("ij,ij->i", di[a:b], nn)[:, None] * nn
+        rest = max(b, half) - max(a, half)
+        if rest:
+            rnd = rng.normal(size=(rest, 3))
+            rnd /= np.linalg.norm(rnd, axis=1, keepdims=True)
+            out[max(a, half) - a:] = rnd
+        o = offset_origins(p[a:b], ng[a:b], out, mag[a:b])
+        org[a:b], dirs[a:b] = o, out
     return org, dirs

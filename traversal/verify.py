@@ -270,16 +270,40 @@ def classify_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
     return counts, labels
 
 
+# Rays verified at a time: each slice is traced by both tracers and classified before the next,
+# so that the working arrays of a large set (the answers, the float64 copies the re-test
+# takes) stay those of one slice.
+VERIFY_CHUNK = 1 << 20
+
+
 def verify_rays(tracer, scene, tris, O, D, tmax=None):
-    """Trace (O, D) with our tracer and with Embree (tnear = 0), classify every ray.
-    Returns (counts, labels, ours Hits, embree (t, prim))."""
+    """Trace (O, D) with our tracer and with Embree (tnear = 0), classify every ray, a slice
+    of ``VERIFY_CHUNK`` rays at a time. Returns (counts, labels, ours Hits (t, prim, u, v; no
+    normals), embree (t, prim))."""
+    from .api import Hits
     from .embree_ref import embree_intersect
 
-    h = tracer.intersect(O, D, 0.0, np.inf if tmax is None else tmax)
-    te, pe, *_ = embree_intersect(scene, O, D, tmax)
-    counts, labels = classify(tris, O, D, 0.0, np.inf if tmax is None else tmax,
-                              h.prim.astype(np.int64), h.t, pe, te)
-    return counts, labels, h, (te, pe)
+    n = len(O)
+    tmax_of = (lambda a, b: np.inf) if tmax is None else \
+        (lambda a, b: tmax[a:b] if np.ndim(tmax) else tmax)
+    labels = np.empty(n, np.int8)
+    prim, te = np.empty(n, np.int32), np.empty(n)
+    t = u = v = np.empty(0, np.float32)         # in the tracer's precision, from its answers
+    pe = np.empty(n, np.int64)
+    counts = dict.fromkeys(("rays", "agree", "tie", "mismatch"), 0)
+    for a in range(0, n, VERIFY_CHUNK):
+        b = min(n, a + VERIFY_CHUNK)
+        h = tracer.intersect(O[a:b], D[a:b], 0.0, tmax_of(a, b), normals=False)
+        if a == 0:
+            t, u, v = (np.empty(n, x.dtype) for x in (h.t, h.u, h.v))
+        prim[a:b], t[a:b], u[a:b], v[a:b] = h.prim, h.t, h.u, h.v
+        te[a:b], pe[a:b], *_ = embree_intersect(scene, O[a:b], D[a:b],
+                                                None if tmax is None else tmax_of(a, b))
+        c, labels[a:b] = classify(tris, O[a:b], D[a:b], 0.0, tmax_of(a, b),
+                                  prim[a:b].astype(np.int64), t[a:b], pe[a:b], te[a:b])
+        for k in counts:
+            counts[k] += c[k]
+    return counts, labels, Hits(t=t, prim=prim, u=u, v=v, ng=None), (te, pe)
 
 
 RAY_KINDS = ("primary", "random", "bounces", "shadow")      # the ray sets verify_mesh traces
@@ -319,13 +343,14 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
         tracer = Tracer(bvh or hwbvh.build(tris))
     scene = embree_scene(vertices, faces)
     tmax = None
+    # the rays as the float32 tracers take them (half the memory of float64, the same rays)
     if kind == "primary":
-        O, D = raysets.primary(tris, n)
+        O, D = raysets.primary(tris, n, np.float32)
     elif kind == "random":
-        O, D = raysets.incoherent(tris, n, seed)
+        O, D = raysets.incoherent(tris, n, seed, np.float32)
     elif kind == "bounces":
-        O, D = raysets.bounces(tracer, tris, n, seed)
+        O, D = raysets.bounces(tracer, tris, n, seed, dtype=np.float32)
     else:
-        O, D, tmax = raysets.shadow(tracer, tris, n)
+        O, D, tmax = raysets.shadow(tracer, tris, n, dtype=np.float32)
     counts, labels, h, emb = verify_rays(tracer, scene, tris, O, D, tmax)
     return counts, labels, (O, D, tmax), h, emb
