@@ -1,6 +1,5 @@
 """Pinhole camera (look-at, vertical field of view, resolution) producing ray arrays."""
 import numpy as np
-from numba import njit
 
 from .config import PACKET_RAYS
 
@@ -37,21 +36,27 @@ def look_at_basis(eye, target, up):
 def primary_rays(eye, target, up, fov_deg, width, height, jitter=None):
     """Rays through pixel centres (or centre + jitter in [-0.5, 0.5)^2, shape (h*w, 2)), row-major
     from the top-left. Returns (origins (n,3) float64, dirs (n,3) float64 normalised)."""
-    u, v, w = look_at_basis(eye, target, up)
-    half = np.tan(np.radians(fov_deg) / 2)
-    aspect = width / height
     ys, xs = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
     px = xs.ravel() + 0.5
     py = ys.ravel() + 0.5
     if jitter is not None:
         px = px + jitter[:, 0]
         py = py + jitter[:, 1]
-    sx = (2 * px / width - 1) * half * aspect
+    d = directions_through(px, py, width, height, look_at_basis(eye, target, up), fov_deg)
+    o = np.broadcast_to(np.asarray(eye, np.float64), d.shape).copy()
+    return o, d
+
+
+def directions_through(px, py, width, height, basis, fov_deg):
+    """Unit directions (float64 (n, 3)) through image points (px, py) (pixel units from the
+    top-left) of a ``width`` x ``height`` pinhole camera with ``basis`` (``look_at_basis``)."""
+    u, v, w = basis
+    half = np.tan(np.radians(fov_deg) / 2)
+    sx = (2 * px / width - 1) * half * (width / height)
     sy = (1 - 2 * py / height) * half
     d = sx[:, None] * u + sy[:, None] * v + w
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    o = np.broadcast_to(np.asarray(eye, np.float64), d.shape).copy()
-    return o, d
+    return d
 
 
 def tile_order(width, height, tile=TILE):
@@ -59,20 +64,21 @@ def tile_order(width, height, tile=TILE):
     by row inside a tile, tiles row by row; partial tiles at the right and bottom edges. A
     renderer issues its camera rays in this order so that 16 consecutive rays are a 4x4 block
     of neighbours, which the packet traversal needs (``traversal.packet``)."""
-    out = np.empty(width * height, np.int64)
-    _tile_order(width, height, tile, out)
-    return out
+    return tile_pixels(np.arange(width * height), width, height, tile)
 
 
-@njit(cache=True)
-def _tile_order(width, height, tile, out):
-    k = 0
-    for ty in range(0, height, tile):
-        for tx in range(0, width, tile):
-            for y in range(ty, min(ty + tile, height)):
-                for x in range(tx, min(tx + tile, width)):
-                    out[k] = y * width + x
-                    k += 1
+def tile_pixels(k, width, height, tile=TILE):
+    """Row-major pixel indices of positions ``k`` (an int64 array) of ``tile_order``: a row
+    of tiles holds ``tile`` image rows (fewer in the last), its tiles ``tile`` columns each
+    (fewer in the last), so a position's row of tiles, tile and place in it follow by
+    division, without the order of every pixel."""
+    band = k // (tile * width)                          # the row of tiles
+    rows = np.minimum(tile, height - band * tile)       # image rows in it
+    j = k - band * tile * width
+    tx = (j // (tile * rows)) * tile                    # the tile's first column
+    cols = np.minimum(tile, width - tx)
+    q = j - (tx // tile) * tile * rows
+    return (band * tile + q // cols) * width + tx + q % cols
 
 
 def frame_bounds(lo, hi, fov_deg=40.0, direction=(0.35, 0.45, 1.0)):

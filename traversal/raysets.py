@@ -6,7 +6,7 @@ no first ray hits can give fewer (``len`` of the result says how many).
 """
 import numpy as np
 
-from .camera import TILE, frame_bounds, look_at_basis, tile_order
+from .camera import directions_through, frame_bounds, look_at_basis, tile_pixels
 from .offset import offset_origins
 
 
@@ -28,40 +28,23 @@ HIT_ROUNDS = 2
 MAKE_CHUNK = 1 << 20
 
 
-def _tile_pixels(k, w, h, tile):
-    """Row-major pixel indices of positions ``k`` (an int64 array) of ``camera.tile_order``:
-    a row of tiles holds ``tile`` image rows (fewer in the last), its tiles ``tile`` columns
-    each (fewer in the last), so a position's row of tiles, tile and place in it follow by
-    division, without the order of every pixel."""
-    band = k // (tile * w)                              # the row of tiles
-    rows = np.minimum(tile, h - band * tile)            # image rows in it
-    j = k - band * tile * w
-    tx = (j // (tile * rows)) * tile                    # the tile's first column
-    cols = np.minimum(tile, w - tx)
-    q = j - (tx // tile) * tile * rows
-    return (band * tile + q // cols) * w + tx + q % cols
-
-
 def _primary_view(tris, n):
-    """The view of ``primary``: (eye, basis (u, v, w), tan(fov/2), width, height)."""
+    """The view of ``primary``: (eye, basis (u, v, w), width, height)."""
     lo, hi = bounds_of(tris)
     eye, target, up = frame_bounds(lo, hi)
     w = max(1, int(np.ceil(np.sqrt(n * 4 / 3))))
     h = max(1, -(-n // w))
-    return eye, look_at_basis(eye, target, up), np.tan(np.radians(40.0) / 2), w, h
+    return eye, look_at_basis(eye, target, up), w, h
 
 
 def primary_chunks(tris, n, dtype=np.float64):
     """``primary``'s rays, a slice of up to ``MAKE_CHUNK`` at a time: (origins, dirs)."""
     n = int(n)
-    eye, (u, v, fwd), half, w, h = _primary_view(tris, n)
+    eye, basis, w, h = _primary_view(tris, n)
     for a in range(0, n, MAKE_CHUNK):
         # as camera.primary_rays, pixel by pixel of the slice
-        y, x = np.divmod(_tile_pixels(np.arange(a, min(n, a + MAKE_CHUNK)), w, h, TILE), w)
-        sx = (2 * (x + 0.5) / w - 1) * half * (w / h)
-        sy = (1 - 2 * (y + 0.5) / h) * half
-        d = sx[:, None] * u + sy[:, None] * v + fwd
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        y, x = np.divmod(tile_pixels(np.arange(a, min(n, a + MAKE_CHUNK)), w, h), w)
+        d = directions_through(x + 0.5, y + 0.5, w, h, basis, 40.0)
         yield np.broadcast_to(eye.astype(dtype), d.shape).copy(), d.astype(dtype, copy=False)
 
 

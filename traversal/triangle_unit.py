@@ -46,6 +46,20 @@ TRI_WORDS = 11
 PRIMITIVE_ORDER = np.zeros(0, np.int32)
 
 
+def edge_norms2(rows):
+    """|e1|^2 and |e2|^2 (float64 (n,) each) of preprocessed ``rows``, from their stored
+    edges. Column by column over 1-D strided views (NumPy on (n, 3) views and its sum over
+    axis 1 take several times as long), summed x, y, z in order, as that sum does."""
+    n1 = np.zeros(len(rows))
+    n2 = np.zeros(len(rows))
+    for c in range(3):
+        e1 = rows[:, TRI_E1 + c].astype(np.float64)
+        e2 = rows[:, TRI_E2 + c].astype(np.float64)
+        n1 += e1 * e1
+        n2 += e2 * e2
+    return n1, n2
+
+
 def _half_exponent(x):
     """h with x * 4^-h in [0.5, 2) (x > 0 finite; 0 for 0 and non-finite x), from float64 x."""
     return np.frexp(x)[1] // 2
@@ -60,17 +74,12 @@ def preprocess(tris, dtype=np.float32):
     for edges down to ~1e-28, far below where ``det`` itself underflows."""
     t = np.asarray(tris, dtype=dtype)
     out = np.empty((len(t), TRI_WORDS), dtype=dtype)
-    # column by column over 1-D strided views (NumPy on (n, 3) views and its sum over axis 1
-    # take several times as long); the squared norms summed x, y, z in order, as that sum does
-    n1 = np.zeros(len(t))
-    n2 = np.zeros(len(t))
     for c in range(3):
         v0 = t[:, 0, c]
         out[:, TRI_V0 + c] = v0
-        e1 = np.subtract(t[:, 1, c], v0, out=out[:, TRI_E1 + c]).astype(np.float64)
-        e2 = np.subtract(t[:, 2, c], v0, out=out[:, TRI_E2 + c]).astype(np.float64)
-        n1 += e1 * e1
-        n2 += e2 * e2
+        np.subtract(t[:, 1, c], v0, out=out[:, TRI_E1 + c])
+        np.subtract(t[:, 2, c], v0, out=out[:, TRI_E2 + c])
+    n1, n2 = edge_norms2(out)
     h1 = _half_exponent(n1)
     h2 = _half_exponent(n2)
     info = np.finfo(dtype)
@@ -171,13 +180,7 @@ class Float32Range:
 
     def __init__(self, rows, triangles):
         """``rows``: the ``preprocess`` rows of ``triangles`` (n, 3, 3)."""
-        n1 = np.zeros(len(rows))
-        n2 = np.zeros(len(rows))
-        for c in range(3):
-            e1 = rows[:, TRI_E1 + c].astype(np.float64)
-            e2 = rows[:, TRI_E2 + c].astype(np.float64)
-            n1 += e1 * e1
-            n2 += e2 * e2
+        n1, n2 = edge_norms2(rows)
         self.edges = float(np.sqrt((n1 * n2).max(initial=0)))
         self.longest = float(np.sqrt(max(n1.max(initial=0), n2.max(initial=0))))
         self.box = coordinate_box(triangles)

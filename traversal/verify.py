@@ -55,13 +55,18 @@ def _cosine(tri, d):
     """|cos| of the angle between d and the triangle's normal. A reported t is judged by how far
     its point lies off the triangle's plane, |t - t64| |cos|: a float32 t on a ray at angle a to
     the plane is off by ~eps (|o| + t) / sin(a) however right the unit is."""
-    e1 = tri[1] - tri[0]
-    e2 = tri[2] - tri[0]
-    nx = e1[1] * e2[2] - e1[2] * e2[1]
-    ny = e1[2] * e2[0] - e1[0] * e2[2]
-    nz = e1[0] * e2[1] - e1[1] * e2[0]
+    nx, ny, nz = _normal(tri)
     return abs(nx * d[0] + ny * d[1] + nz * d[2]) / \
         np.sqrt((nx * nx + ny * ny + nz * nz) * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _normal(tri):
+    """e1 x e2 of a (3, 3) triangle."""
+    e1 = tri[1] - tri[0]
+    e2 = tri[2] - tri[0]
+    return (e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0])
 
 
 @njit(cache=True, error_model="numpy")
@@ -72,9 +77,7 @@ def _answer_tol(tri, o, d):
     e1 = tri[1] - tri[0]
     e2 = tri[2] - tri[0]
     s = o - tri[0]
-    nx = e1[1] * e2[2] - e1[2] * e2[1]
-    ny = e1[2] * e2[0] - e1[0] * e2[2]
-    nz = e1[0] * e2[1] - e1[1] * e2[0]
+    nx, ny, nz = _normal(tri)
     dn = abs(nx * d[0] + ny * d[1] + nz * d[2]) / np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
     emax = np.sqrt(max(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2],
                        e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2]))
