@@ -270,18 +270,25 @@ def _replay(path, tris, verts, faces):
     import hwbvh
     from traversal import Tracer
     from traversal.embree_ref import embree_intersect, embree_scene
-    from traversal.verify import classify
+    from traversal.verify import diagnose
 
     O, D, tmax = _replay_rays(path)
     h = Tracer(hwbvh.build(tris)).intersect(O, D, 0.0, tmax)
     te, pe, *_ = embree_intersect(embree_scene(verts, faces), O, D,
                                   None if np.isinf(tmax).all() else tmax)
-    counts, labels = classify(tris, O, D, 0.0, tmax, h.prim.astype(np.int64), h.t, pe, te)
-    names = {0: "agree", 1: "tie", 2: "mismatch"}
-    rows = [{"origin": O[i].tolist(), "dir": D[i].tolist(), "ours": [int(h.prim[i]), float(h.t[i])],
-             "embree": [int(pe[i]), float(te[i])], "class": names[int(labels[i])]}
-            for i in range(len(O))]
-    return dict(counts, replayed=rows, file=str(path))
+    found = diagnose(tris, O, D, 0.0, tmax, h.prim.astype(np.int64), h.t, pe, te)
+    rows = [dict({"origin": O[i].tolist(), "dir": D[i].tolist(),
+                  "ours": [int(h.prim[i]), float(h.t[i])], "embree": [int(pe[i]), float(te[i])]},
+                 **found[i]) for i in range(len(O))]
+    counts = {k: sum(r["class"] == k for r in rows) for k in ("agree", "tie", "mismatch")}
+    return dict(rays=len(rows), **counts, **_wrong_counts(found), replayed=rows, file=str(path))
+
+
+def _wrong_counts(found):
+    """Of ``diagnose``'s rows, the mismatches whose answer of ours and of Embree's is wrong
+    (a mismatch may count in both)."""
+    return {f"mismatch_{name}_wrong": sum(name in r["wrong"] for r in found)
+            for name in ("ours", "embree")}
 
 
 def cmd_verify(args):
@@ -290,7 +297,7 @@ def cmd_verify(args):
     from hwbvh.errors import InputError
     from hwbvh.files import check_outputs, json_text
     from scenes.loader import scene_inputs
-    from traversal.verify import verify_mesh
+    from traversal.verify import diagnose, verify_mesh
 
     if args.replay:
         for flag, value in (("--rays", args.rays), ("--kind", args.kind),
@@ -330,6 +337,9 @@ def cmd_verify(args):
         print(f"hwrt: note: {counts['rays']} of the {rays} requested {kind} rays: too few of the "
               f"first rays hit the mesh", file=sys.stderr)
     bad = np.flatnonzero(labels == 2)
+    result.update(_wrong_counts(diagnose(tris, O[bad], D[bad], 0.0,
+                                         np.inf if tmax is None else np.asarray(tmax)[bad],
+                                         h.prim[bad].astype(np.int64), h.t[bad], pe[bad], te[bad])))
     if len(bad):
         buf = io.BytesIO()
         np.savez(buf, origins=O[bad], dirs=D[bad], ours_prim=h.prim[bad], ours_t=h.t[bad],
@@ -338,7 +348,8 @@ def cmd_verify(args):
         _commit(args, [(out, buf.getvalue())])
         result["mismatch_file"] = out
     _emit(args, result, lambda r: _kv(r, ["scene", "accel", "kind", "rays", "rays_requested", "agree", "tie",
-                                          "mismatch", "mismatch_file"]))
+                                          "mismatch", "mismatch_ours_wrong",
+                                          "mismatch_embree_wrong", "mismatch_file"]))
 
 
 def cmd_simulate(args):

@@ -366,6 +366,43 @@ def test_an_answer_within_the_units_rounding_of_its_triangle_is_a_tie_but_a_hole
                    ("head-on", "blocked by A"): "mismatch"}
 
 
+def test_diagnose_names_the_wrong_answer_and_why():
+    """Two parallel triangles the ray enters head-on at t = 1 and t = 2 and one it passes by:
+    each way an answer can fail the re-test is named, for the answer that fails it, and an
+    answer that agrees or ties is named by none."""
+    from traversal.verify import classify, diagnose
+    big = lambda z: [[-5, -5, z], [5, -5, z], [-5, 5, z]]
+    aside = [[10, 10, 0.5], [11, 10, 0.5], [10, 11, 0.5]]
+    tris = np.array([big(1.0), big(2.0), aside], np.float32)
+    cases = [  # (ours, embree, t_min, t_max) -> (wrong, why's start for the wrong ones)
+        ((0, 1.0), (0, 1.0), 0.0, np.inf, [], []),
+        ((1, 2.0), (0, 1.0), 0.0, np.inf, ["ours"], ["lies behind triangle 0, which the ray enters at t = 1,"]),
+        ((-1, np.inf), (0, 1.0), 0.0, np.inf, ["ours"], ["misses triangle 0, which the ray enters at t = 1,"]),
+        ((0, 1.0), (0, 1.5), 0.0, np.inf, ["embree"], ["reports t = 1.5, where triangle 0's plane lies at t = 1"]),
+        ((2, 0.5), (0, 1.0), 0.0, np.inf, ["ours"], ["its point lies outside triangle 2 by "]),
+        ((0, 1.0), (1, 2.0), 1.5, np.inf, ["ours"], ["triangle 0 lies at t = 1, before the ray starts (t_min 1.5)"]),
+        ((1, 2.0), (0, 1.0), 0.0, 1.5, ["ours"], ["triangle 1 lies at t = 2, past the ray's end (t_max 1.5)"]),
+        ((1, 2.0), (-1, np.inf), 0.0, np.inf, ["ours", "embree"],
+         ["lies behind triangle 0", "misses triangle 0"]),
+    ]
+    n = len(cases)
+    O = np.tile(np.float32([-1.0, -1.0, 0.0]), (n, 1))
+    D = np.tile(np.float32([0.0, 0.0, 1.0]), (n, 1))
+    pick = lambda k, f: np.array([c[k][f] for c in cases])
+    tmin, tmax = (np.array([c[k] for c in cases]) for k in (2, 3))
+    args = (tris, O, D, tmin, tmax, pick(0, 0), pick(0, 1), pick(1, 0), pick(1, 1))
+    rows = diagnose(*args)
+    assert [r["class"] for r in rows] == ["agree"] + ["mismatch"] * (n - 1)
+    _, labels = classify(*args)
+    assert [r["class"] for r in rows] == [("agree", "tie", "mismatch")[k] for k in labels]
+    for r, case in zip(rows, cases):
+        wrong, why = case[4], case[5]
+        assert r["wrong"] == wrong and sorted(r["why"]) == sorted(wrong)
+        for name, start in zip(wrong, why):
+            assert r["why"][name].startswith(start), (name, r["why"][name])
+    assert "inside it by 0.2 (barycentric), |cos| 1" in rows[1]["why"]["ours"]
+
+
 def test_verify_replay_of_a_mismatch_file(tmp_path):
     import json
     import subprocess
@@ -382,6 +419,8 @@ def test_verify_replay_of_a_mismatch_file(tmp_path):
     assert r.returncode == 0, r.stderr
     res = json.loads(r.stdout)
     assert res["rays"] == 3 and res["mismatch"] == 0 and len(res["replayed"]) == 3
+    assert res["mismatch_ours_wrong"] == res["mismatch_embree_wrong"] == 0
+    assert all(x["wrong"] == [] and x["why"] == {} for x in res["replayed"])
     assert all(x["ours"][0] >= 0 for x in res["replayed"])        # from inside, every ray hits
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not an npz")

@@ -94,18 +94,47 @@ def _margin(u, v):
     return min(u, min(v, 1.0 - u - v))
 
 
+# Why the re-test rejects an answer (``_reference``; ``diagnose`` words them): it is right
+# (RIGHT), or a miss where a triangle is hit strictly (MISSED), or its triangle does not hold
+# the point (OUTSIDE), or its t lies before t_min (BEHIND) or past t_max (BEYOND), or a triangle
+# is hit strictly closer (CLOSER), or the t it reports is off its triangle's plane (OFF_PLANE).
+RIGHT, MISSED, OUTSIDE, BEHIND_START, BEYOND_END, CLOSER, OFF_PLANE = range(7)
+
+
+@njit(cache=True, error_model="numpy")
+def _verdict(tris, p, reported, o, d, tmin, tmax, scale, best):
+    """The re-test's verdict on answer (p, reported t) of ray (o, d): RIGHT or why not."""
+    if p < 0:
+        return RIGHT if best == np.inf else MISSED
+    t, u, v = _mt64(tris[p], o, d)
+    tol = T_TOL_REL * (abs(t) + scale)
+    if not _margin(u, v) >= -_answer_tol(tris[p], o, d):
+        return OUTSIDE
+    if not t >= tmin - tol * BEHIND:
+        return BEHIND_START
+    if not t <= tmax + tol:
+        return BEYOND_END
+    if best < t - tol:
+        return CLOSER
+    if not abs(reported - t) * _cosine(tris[p], d) <= tol:
+        return OFF_PLANE
+    return RIGHT
+
+
 # The re-tests run over ranges of rays (``hwbvh.parallel.run_ranges``), not in a parallel
 # loop: a verifying tracer re-tests from every band's thread at once, and Numba's workqueue
 # layer aborts when two threads enter its parallel loops together.
 @njit(cache=True, nogil=True, error_model="numpy")
 def _reference(lo, hi, tris, O, D, tmin, tmax, scale, pa, ta, pb, tb, out):
-    """For disputed rays lo..hi: closest strict hit t; and for answers (pa, ta) / (pb, tb)
-    (primitive, reported t) whether they hold. out[i] = (t_strict, ok_a, ok_b). Every t is
-    judged with the tolerance of its float64 value, T_TOL_REL * (|t| + scale)."""
+    """For disputed rays lo..hi: the closest strict hit and the verdicts on answers (pa, ta) and
+    (pb, tb) (primitive, reported t): out[i] = (t_strict, its triangle or -1, verdict a,
+    verdict b). Every t is judged with the tolerance of its float64 value,
+    T_TOL_REL * (|t| + scale)."""
     for i in range(lo, hi):
         o = O[i]
         d = D[i]
         best = np.inf
+        best_j = -1
         for j in range(tris.shape[0]):
             t, u, v = _mt64(tris[j], o, d)
             tol = T_TOL_REL * (abs(t) + scale[i])
@@ -114,20 +143,11 @@ def _reference(lo, hi, tris, O, D, tmin, tmax, scale, pa, ta, pb, tb, out):
             if _margin(u, v) > BARY_TOL and t > tmin[i] + tol and t < tmax[i] - tol:
                 if t < best:
                     best = t
+                    best_j = j
         out[i, 0] = best
-        for k in range(2):
-            p = pa[i] if k == 0 else pb[i]
-            if p < 0:
-                ok = best == np.inf
-            else:
-                t, u, v = _mt64(tris[p], o, d)
-                tol = T_TOL_REL * (abs(t) + scale[i])
-                reported = ta[i] if k == 0 else tb[i]
-                ok = _margin(u, v) >= -_answer_tol(tris[p], o, d) and \
-                    t >= tmin[i] - tol * BEHIND and \
-                    t <= tmax[i] + tol and not (best < t - tol) and \
-                    abs(reported - t) * _cosine(tris[p], d) <= tol
-            out[i, 1 + k] = 1.0 if ok else 0.0
+        out[i, 1] = best_j
+        out[i, 2] = _verdict(tris, pa[i], ta[i], o, d, tmin[i], tmax[i], scale[i], best)
+        out[i, 3] = _verdict(tris, pb[i], tb[i], o, d, tmin[i], tmax[i], scale[i], best)
 
 
 def _scale(O, D):
@@ -177,17 +197,19 @@ def _primitive_ids(x, n, m, name):
     return p
 
 
-def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
-    """Return (counts dict, labels (n,) int8: 0 agree, 1 tie, 2 mismatch). The float64
-    re-test uses the rays as both tracers saw them: rounded to float32. ParameterError naming
-    the argument on a bad shape or a primitive id out of range."""
+def _checked_answers(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
+    """The arguments of ``classify``, checked and in the re-test's types."""
     tris = _checked_triangles(tris)
     O, D, tmin, tmax = _checked_rays(O, D, tmin, tmax)
     n = len(O)
-    ours_prim = _primitive_ids(ours_prim, n, len(tris), "ours_prim")
-    ref_prim = _primitive_ids(ref_prim, n, len(tris), "ref_prim")
-    ours_t = _per_ray(ours_t, n, "ours_t").astype(np.float64)
-    ref_t = _per_ray(ref_t, n, "ref_t").astype(np.float64)
+    return (tris, O, D, tmin, tmax, _primitive_ids(ours_prim, n, len(tris), "ours_prim"),
+            _per_ray(ours_t, n, "ours_t").astype(np.float64),
+            _primitive_ids(ref_prim, n, len(tris), "ref_prim"),
+            _per_ray(ref_t, n, "ref_t").astype(np.float64))
+
+
+def _judged(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
+    """Checked answers -> (labels, disputed rays, their re-test rows ``_reference``)."""
     # the smaller of the two finite answers sets the tolerance: an infinite or absurd t
     # cannot widen it
     finite_t = lambda t: np.where(np.isfinite(t), np.abs(t), np.inf)
@@ -197,22 +219,78 @@ def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
         same = (ours_prim == ref_prim) & (ours_prim >= 0) & (np.abs(ours_t - ref_t) <= tol)
     labels = np.where(both_miss | same, 0, 2).astype(np.int8)
     disputed = np.flatnonzero(labels == 2)
+    out = np.empty((len(disputed), 4))
     if len(disputed):
-        t64 = np.ascontiguousarray(tris, np.float64)
-        out = np.empty((len(disputed), 3))
-        run_ranges(_reference, len(disputed), t64, np.ascontiguousarray(O[disputed]),
-                   np.ascontiguousarray(D[disputed]),
-                   np.ascontiguousarray(tmin[disputed]), np.ascontiguousarray(tmax[disputed]),
-                   _scale(O[disputed], D[disputed]),
-                   np.ascontiguousarray(ours_prim[disputed], np.int64),
-                   np.ascontiguousarray(ours_t[disputed]),
-                   np.ascontiguousarray(ref_prim[disputed], np.int64),
-                   np.ascontiguousarray(ref_t[disputed]), out)
-        ok = (out[:, 1] > 0) & (out[:, 2] > 0)
+        pick = lambda a: np.ascontiguousarray(a[disputed])
+        run_ranges(_reference, len(disputed), np.ascontiguousarray(tris, np.float64), pick(O),
+                   pick(D), pick(tmin), pick(tmax), _scale(O[disputed], D[disputed]),
+                   pick(ours_prim), pick(ours_t), pick(ref_prim), pick(ref_t), out)
+        ok = (out[:, 2] == RIGHT) & (out[:, 3] == RIGHT)
         labels[disputed[ok]] = 1
-    counts = {"rays": int(n), "agree": int((labels == 0).sum()), "tie": int((labels == 1).sum()),
-              "mismatch": int((labels == 2).sum())}
-    return counts, labels
+    return labels, disputed, out
+
+
+def _counts(labels):
+    return {"rays": int(len(labels)), "agree": int((labels == 0).sum()),
+            "tie": int((labels == 1).sum()), "mismatch": int((labels == 2).sum())}
+
+
+def classify(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t):
+    """Return (counts dict, labels (n,) int8: 0 agree, 1 tie, 2 mismatch). The float64
+    re-test uses the rays as both tracers saw them: rounded to float32. ParameterError naming
+    the argument on a bad shape or a primitive id out of range."""
+    labels, _, _ = _judged(*_checked_answers(tris, O, D, tmin, tmax, ours_prim, ours_t,
+                                             ref_prim, ref_t))
+    return _counts(labels), labels
+
+
+LABELS = ("agree", "tie", "mismatch")
+
+
+def diagnose(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t,
+             names=("ours", "embree")):
+    """``classify``, and per ray what the re-test found: a list of {"class": agree, tie or
+    mismatch, "wrong": the ``names`` of the answers it rejects (none unless a mismatch),
+    "why": name -> a sentence for each of those}. Meant for the few rays of a mismatch file:
+    each sentence re-tests its triangles once more."""
+    args = _checked_answers(tris, O, D, tmin, tmax, ours_prim, ours_t, ref_prim, ref_t)
+    tris, O, D, tmin, tmax = args[:5]
+    answers = (args[5:7], args[7:9])
+    labels, disputed, out = _judged(*args)
+    rows = [{"class": LABELS[k], "wrong": [], "why": {}} for k in labels]
+    t64 = np.ascontiguousarray(tris, np.float64)
+    for r, i in enumerate(disputed):
+        if labels[i] != 2:
+            continue
+        best, best_j = out[r, 0], int(out[r, 1])
+        for k, name in enumerate(names):
+            verdict = int(out[r, 2 + k])
+            if verdict != RIGHT:
+                p, reported = int(answers[k][0][i]), float(answers[k][1][i])
+                rows[i]["wrong"].append(name)
+                rows[i]["why"][name] = _why(verdict, t64, p, reported, O[i], D[i], tmin[i],
+                                            tmax[i], best, best_j)
+    return rows
+
+
+def _why(verdict, tris, p, reported, o, d, tmin, tmax, best, best_j):
+    """The sentence for a verdict of ``_reference`` on answer (p, reported t)."""
+    def entered(j):
+        t, u, v = _mt64(tris[j], o, d)
+        return f"inside it by {_margin(u, v):.3g} (barycentric), |cos| {_cosine(tris[j], d):.3g}"
+    if verdict in (MISSED, CLOSER):
+        what = "misses" if verdict == MISSED else "lies behind"
+        return (f"{what} triangle {best_j}, which the ray enters at t = {best:.9g}, "
+                f"{entered(best_j)}")
+    t, u, v = _mt64(tris[p], o, d)
+    if verdict == OUTSIDE:
+        return (f"its point lies outside triangle {p} by {-_margin(u, v):.3g} (barycentric), "
+                f"more than the {_answer_tol(tris[p], o, d):.3g} allowed")
+    if verdict == BEHIND_START:
+        return f"triangle {p} lies at t = {t:.9g}, before the ray starts (t_min {tmin:g})"
+    if verdict == BEYOND_END:
+        return f"triangle {p} lies at t = {t:.9g}, past the ray's end (t_max {tmax:g})"
+    return f"reports t = {reported:.9g}, where triangle {p}'s plane lies at t = {t:.9g}"
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -268,9 +346,7 @@ def classify_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
         right = lambda blocked: np.where(blocked, loose, ~strict)
         ok = right(ours[disputed]) & right(ref[disputed])
         labels[disputed[ok]] = 1
-    counts = {"rays": int(n), "agree": int((labels == 0).sum()), "tie": int((labels == 1).sum()),
-              "mismatch": int((labels == 2).sum())}
-    return counts, labels
+    return _counts(labels), labels
 
 
 # Rays verified at a time: each slice is traced by both tracers and classified before the next,
