@@ -280,6 +280,11 @@ def bench_scale(args):
     return {"rows": rows, "exponent": slope, "nlogn_exponent_same_range": nlogn, "machine": machine()}
 
 
+def _open3d_importable():
+    import importlib.util
+    return importlib.util.find_spec("open3d") is not None
+
+
 def _open3d_scene(verts, faces):
     try:
         import open3d as o3d
@@ -372,6 +377,7 @@ def bench_trace(args):
     from traversal.embree_ref import embree_intersect, embree_occluded, embree_scene
 
     n = args.rays
+    open3d = _open3d_importable()
     accels = list(dict.fromkeys(getattr(args, "accel", None) or []))
     for accel in accels:
         warm_up_accel(accel)
@@ -399,38 +405,36 @@ def bench_trace(args):
                                       "build_vs_sweep_bvh": build_s / sweep_s,
                                       **structure_figures(st, len(tris)), "sets": {}})
             del built[:-1]
-        sets = {}
-        O, D = raysets.primary(tris, n)
-        sets["primary"] = (O, D, None)
-        O, D = raysets.incoherent(tris, n)
-        sets["incoherent"] = (O, D, None)
-        O, D, tmax = raysets.shadow(tracer, tris, n)
-        sets["shadow"] = (O, D, tmax)
+        # one set alive at a time, made as the tracers take it (float32; Open3D's phase keeps
+        # them, when it runs): 2^26 rays of three sets in float64 and float32 held 20 GB
+        makers = {"primary": lambda: (*raysets.primary(tris, n, np.float32), None),
+                  "incoherent": lambda: (*raysets.incoherent(tris, n, dtype=np.float32), None),
+                  "shadow": lambda: raysets.shadow(tracer, tris, n, np.float32)}
         out = {}
-        for kind, (O, D, tmax) in sets.items():
-            O32 = np.ascontiguousarray(O, np.float32)
-            D32 = np.ascontiguousarray(D, np.float32)
-            tm32 = None if tmax is None else np.ascontiguousarray(tmax, np.float32)
-            query = (lambda tr: (lambda: tr.intersect(O32, D32))) if tmax is None else \
+        for kind, make in makers.items():
+            O32, D32, tm32 = make()
+            query = (lambda tr: (lambda: tr.intersect(O32, D32))) if tm32 is None else \
                 (lambda tr: (lambda: tr.occluded(O32, D32, 0.0, tm32)))
             ours = query(tracer)
-            if tmax is None:
+            if tm32 is None:
                 peer = lambda: embree_intersect(emb, O32, D32)
             else:
                 peer = lambda: embree_occluded(emb, O32, D32, tm32)
             spread_o, spread_e = _alternating_times(ours, peer, args.repeat)
             t_ours, t_emb = statistics.median(spread_o), statistics.median(spread_e)
-            out[kind] = {"rays": int(len(O)), "ours_mrays": len(O) / t_ours / 1e6,
-                         "embreex_mrays": len(O) / t_emb / 1e6,
+            out[kind] = {"rays": int(len(O32)), "ours_mrays": len(O32) / t_ours / 1e6,
+                         "embreex_mrays": len(O32) / t_emb / 1e6,
                          "ratio_vs_embreex": statistics.median(e / o for o, e in
                                                               zip(spread_o, spread_e)),
                          "ours_spread_s": [min(spread_o), max(spread_o)],
                          "embreex_spread_s": [min(spread_e), max(spread_e)]}
-            later.append((out[kind], v32, f32, O32, D32, tm32, t_ours))
+            if open3d:
+                later.append((out[kind], v32, f32, O32, D32, tm32, t_ours))
             for accel, (st, row) in structures.items():
                 t_st, spread_s = _median_time(query(st), args.repeat)
-                row["sets"][kind] = {"mrays": len(O) / t_st / 1e6, "ratio_vs_bvh": t_ours / t_st,
+                row["sets"][kind] = {"mrays": len(O32) / t_st / 1e6, "ratio_vs_bvh": t_ours / t_st,
                                      "spread_s": [min(spread_s), max(spread_s)]}
+            O32 = D32 = tm32 = None         # before the next set is made
         row = {"mesh": name, "triangles": int(len(tris)), "sets": out}
         if accels:
             row["accels"] = {accel: r for accel, (_, r) in structures.items()}
