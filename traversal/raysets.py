@@ -98,24 +98,30 @@ def light_position(tris):
 def hit_points(tracer, tri_mag, chunks, keep_dirs=False, enough=None):
     """First hits of the rays of ``chunks`` (slices of (origins, dirs)) with our tracer:
     (rays drawn, points (float64, along the rays as given), normals (float32), the hit
-    triangles' ``tri_mag``, and with ``keep_dirs`` their rays' directions). A slice at a time,
-    so that only the hits' arrays grow with the set; with ``enough``, no slice is traced once
-    that many hits are in."""
-    parts = []
+    triangles' ``tri_mag``, and with ``keep_dirs`` their rays' directions, as given). A slice
+    at a time, so that only the hits' arrays grow with the set; with ``enough``, no slice is
+    traced once that many hits are in."""
+    fields = ([], [], [], [])
     m = got = 0
     for o, d in chunks:
         if enough is not None and got >= enough:
             break
         h = tracer.intersect(o, d)
         hit = h.prim >= 0
-        oc, dc = o[hit].astype(np.float64), d[hit].astype(np.float64)
-        parts.append((oc + dc * h.t[hit, None].astype(np.float64), h.ng[hit],
-                      tri_mag[h.prim[hit]], dc if keep_dirs else dc[:0]))
+        oc, dc = o[hit], d[hit]
+        for field, x in zip(fields, (oc.astype(np.float64) + dc.astype(np.float64) * h.t[hit, None].astype(np.float64),
+                                     h.ng[hit], tri_mag[h.prim[hit]], dc if keep_dirs else dc[:0])):
+            field.append(x)
         m += len(o)
         got += int(hit.sum())
-    if not parts:
-        parts = [(np.empty((0, 3)), np.empty((0, 3), np.float32), np.empty(0), np.empty((0, 3)))]
-    return (m, *(np.concatenate(x) for x in zip(*parts)))
+    if not fields[0]:
+        return (m, np.empty((0, 3)), np.empty((0, 3), np.float32), tri_mag[:0], np.empty((0, 3)))
+    # joined field by field, each slice let go once copied: the hits are held once, not twice
+    joined = []
+    for field in fields:
+        joined.append(np.concatenate(field))
+        field.clear()
+    return (m, *joined)
 
 
 def _n_hits(tracer, tris, n, first_rays, spread, keep_dirs=False):
@@ -125,7 +131,9 @@ def _n_hits(tracer, tris, n, first_rays, spread, keep_dirs=False):
     view) rather than the first n (random sets)."""
     n = int(n)
     m = max(n, 1)
-    tri_mag = np.abs(np.asarray(tris, np.float64)).reshape(-1, 9).max(axis=1)
+    # held in float32: the scale of a triangle's rounding, for offsets (exact for the float32
+    # triangles the tracers take), in half the memory a set of 2^26 hits holds
+    tri_mag = np.abs(np.asarray(tris, np.float64)).reshape(-1, 9).max(axis=1).astype(np.float32)
     for _ in range(HIT_ROUNDS + 1):
         # the first n hits are all a set that is not spread takes
         _, p, ng, mag, di = hit_points(tracer, tri_mag, first_rays(m), keep_dirs,
@@ -135,7 +143,8 @@ def _n_hits(tracer, tris, n, first_rays, spread, keep_dirs=False):
             break
         m = max(m + 16, int(m * min(HIT_GROWTH, max(1.1, 1.05 * n / max(k, 1)))))
     got = min(n, k)
-    pick = (np.arange(got) * k) // max(got, 1) if spread else np.arange(got)
+    # the first n: views, not copies
+    pick = (np.arange(got) * k) // max(got, 1) if spread else slice(0, got)
     return p[pick], ng[pick], mag[pick], di[pick] if keep_dirs else di
 
 
@@ -175,7 +184,8 @@ def bounces(tracer, tris, n, seed=1, dtype=np.float64):
         b = min(k, a + MAKE_CHUNK)
         g = ng[a:b].astype(np.float64)
         nn = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-300)
-        out = di[a:b] - 2 * np.einsum("ij,ij->i", di[a:b], nn)[:, None] * nn
+        da = di[a:b].astype(np.float64)
+        out = da - 2 * np.einsum("ij,ij->i", da, nn)[:, None] * nn
         rest = max(b, half) - max(a, half)
         if rest:
             rnd = rng.normal(size=(rest, 3))
