@@ -89,7 +89,7 @@ KEPT_BOUND_RAYS = 1 << 18
 # The most rays of one generated query set (``verify_mesh``, ``hwrt verify --rays``, ``hwrt bench
 # trace --rays``): the sets are made and verified a slice at a time (``raysets.MAKE_CHUNK``,
 # ``verify.VERIFY_CHUNK``), and ``hwrt verify`` of 2^26 rays on a 70k-triangle scene peaked at
-# 4.2 GB (primary, random), 9.2 GB (shadow) and 10.0 GB (bounces, whose first rays mostly miss),
+# 4.2 GB (primary, random), 8.5 GB (shadow) and 10.0 GB (bounces, whose first rays mostly miss),
 # and ``hwrt bench trace`` (one set alive at a time) at 10.3 GB; more would only exhaust memory.
 MAX_RAYS = 1 << 26
 
