@@ -94,10 +94,10 @@ def _margin(u, v):
     return min(u, min(v, 1.0 - u - v))
 
 
-# Why the re-test rejects an answer (``_reference``; ``diagnose`` words them): it is right
-# (RIGHT), or a miss where a triangle is hit strictly (MISSED), or its triangle does not hold
-# the point (OUTSIDE), or its t lies before t_min (BEHIND) or past t_max (BEYOND), or a triangle
-# is hit strictly closer (CLOSER), or the t it reports is off its triangle's plane (OFF_PLANE).
+# The re-test's verdicts on an answer (``_reference``; ``diagnose`` words them): right, or why
+# not: a miss where a triangle is hit strictly (MISSED); its triangle does not hold the point
+# (OUTSIDE); its t lies before t_min (BEHIND_START) or past t_max (BEYOND_END); a triangle is hit
+# strictly closer (CLOSER); the t it reports is off its triangle's plane (OFF_PLANE).
 RIGHT, MISSED, OUTSIDE, BEHIND_START, BEYOND_END, CLOSER, OFF_PLANE = range(7)
 
 
