@@ -54,6 +54,13 @@ THREADING_SETUPS = {
 DEFAULT_THREADING = "omp-passive"
 
 
+def usable_cores():
+    """The cores this process may run on (its CPU affinity where the OS reports one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 def pin_threading(setup=None):
     """Choose the threading layer and wait policy (see the module text). Returns the set-up's
     name. Effective only before the first parallel region of the process."""

@@ -367,6 +367,7 @@ def cmd_simulate(args):
 
 def cmd_explore(args):
     from hwbvh.errors import InputError, ParameterError
+    from hwbvh.parallel import usable_cores
     from .cluster import SCHEDULER_ENV
     from .explore import KNOBS, explore, human, parse_grid
 
@@ -374,6 +375,11 @@ def cmd_explore(args):
         given = "--scheduler" if args.scheduler else f"${SCHEDULER_ENV}"
         raise InputError("--workers", f"sizes the local cluster, which is not made when "
                                       f"{given} names a running scheduler")
+    if args.workers is not None and args.workers > usable_cores():
+        raise InputError("--workers", f"at most {usable_cores()}, the cores this process may use "
+                                      f"(a cell keeps a core busy: more worker processes would "
+                                      f"only share them; --scheduler runs cells on a larger "
+                                      f"cluster), got {args.workers}")
     try:
         grid = parse_grid(args.grid) if args.grid else None
         from .report import command_of
@@ -694,10 +700,9 @@ def _write_report(args, result, human, commit):
 MAX_OPTION_INT = (1 << 31) - 1
 # Tighter limits where a larger value would only exhaust memory or the machine: rays per query
 # set (traversal.config.MAX_RAYS), triangles of a generated animation (a tree holds 2^24),
-# timed repeats, local Dask workers (one process each). Frames of an animation:
-# scenes.loader.MAX_FRAMES, which a scene file's animation.frames shares.
+# timed repeats. Local Dask workers: at most one per core (``hwrt.cluster.dask_client``). Frames
+# of an animation: scenes.loader.MAX_FRAMES, which a scene file's animation.frames shares.
 MAX_REPEAT = 1000
-MAX_WORKERS = 256
 
 
 def _int_at_least(lo, hi=MAX_OPTION_INT):
@@ -927,8 +932,9 @@ def make_parser():
     x.add_argument("--scheduler", metavar="ADDRESS", type=_path,
                    help="a running Dask scheduler, tcp://HOST:PORT (default: $HWRT_SCHEDULER, "
                         "else a local cluster of one worker per core)")
-    x.add_argument("--workers", type=_int_at_least(1, MAX_WORKERS),
-                   help="workers of the local cluster (default: one per core)")
+    x.add_argument("--workers", type=_int_at_least(1, MAX_OPTION_INT),
+                   help="workers of the local cluster, at most one per core (default: one per "
+                        "core)")
     x.add_argument("--out-dir", default="renders/explore", type=_path, help="where the files and the "
                                                                 "resumable cells go")
     x.add_argument("--fresh", action="store_true", help="ignore finished cells")

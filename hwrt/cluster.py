@@ -16,8 +16,9 @@ from contextlib import contextmanager
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from hwbvh.errors import ParameterError
+from hwbvh.errors import ParameterError, is_integer
 from hwbvh.files import signals_held
+from hwbvh.parallel import usable_cores
 
 from .progress import progress_bar
 
@@ -149,7 +150,8 @@ def _require_workers(client, named):
 @contextmanager
 def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=None):
     """A ``distributed.Client``: on ``scheduler`` (else ``$HWRT_SCHEDULER``), else on an
-    embedded local cluster of ``workers`` processes (default: one per core) whose Numba kernels
+    embedded local cluster of ``workers`` processes (default and most: one per core the process
+    may use, ``hwbvh.parallel.usable_cores``) whose Numba kernels
     get ``threads_per_cell`` threads each. ``warm_up`` runs once per worker. Raises
     ParameterError, naming "scheduler", or "$HWRT_SCHEDULER" when the address came from there,
     for an address that is none, a scheduler that does not answer within
@@ -157,15 +159,24 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
     import dask
     from distributed import Client, LocalCluster
 
-    _quiet()
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
+    cores = usable_cores()
+    if not address and workers is not None and \
+            not (is_integer(workers) and 1 <= workers <= cores):
+        raise ParameterError("workers", f"must be a whole number from 1 to {cores}, the cores "
+                                        f"this process may use (a cell keeps a core busy: more "
+                                        f"worker processes would only share them), got {workers!r}")
+    _quiet()
     named = address_source(scheduler)
     cluster = client = None
     # settings for this cluster only: restored when it closes, so the caller's process keeps
-    # its own Dask configuration
-    with dask.config.set({"distributed.scheduler.allowed-failures": 8,
-                          "distributed.worker.daemon": False,
-                          "distributed.comm.timeouts.connect": f"{CONNECT_TIMEOUT_S}s"}):
+    # its own Dask configuration. The short connect timeout is for a scheduler elsewhere (an
+    # address that does not answer fails fast); a local cluster's workers, started on a busy
+    # machine, keep Dask's own
+    settings = {"distributed.scheduler.allowed-failures": 8, "distributed.worker.daemon": False}
+    if address:
+        settings["distributed.comm.timeouts.connect"] = f"{CONNECT_TIMEOUT_S}s"
+    with dask.config.set(settings):
         try:
             if address:
                 malformed = _address_problem(address)
@@ -179,7 +190,7 @@ def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=Non
                 client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
                 _require_workers(client, named)
             else:
-                n = workers or os.cpu_count() or 1
+                n = workers or cores
                 threads = str(max(1, int(threads_per_cell)))
                 # a Ctrl-C while the cluster starts is held (the Python handler: the mask
                 # does not hold a signal the kernel hands another thread) and acted on once

@@ -42,7 +42,7 @@ from traversal.tracers import run_as_tracer_allows
 from traversal.triangle_unit import coordinate_box, f32_unit_reach, span_of
 from . import pcg64, stages
 from .config import BAND_PIXELS, BLOCK, MIN_BANDS
-from hwbvh.parallel import run_ranges
+from hwbvh.parallel import run_ranges, usable_cores
 from .stages import fresnel_dielectric  # noqa: F401  (the shading model's Fresnel term)
 
 
@@ -77,13 +77,6 @@ def _tiny_scene():
                 "fov": 60.0},
         width=8, height=8, spp=1, max_depth=3, ambient=np.full(3, 0.05), background=np.full(3, 0.1),
         cutoff=1e-3, jitter=True)
-
-
-def usable_cores():
-    """The cores this process may run on (its CPU affinity where the OS reports one)."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 def _traversal_cached():

@@ -852,7 +852,6 @@ def test_overrides_of_a_film_that_is_not_an_object(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv,option", [
     (["verify", "cornell", "--rays", 10 ** 9], "--rays"),
-    (["explore", "x.ply", "--workers", 1000], "--workers"),
     (["build", "x.ply", "--capacity", 10 ** 30], "--capacity"),
     (["animate", "exploding", "--fps", "1e-300"], "--fps"),
     (["bench", "build", "--repeat", 10 ** 6], "--repeat")])
@@ -1135,6 +1134,28 @@ def test_explore_refuses_workers_beside_a_running_scheduler(capsys, tmp_path, mo
         f"hwrt: error: --workers: sizes the local cluster, which is not made when {given} "
         "names a running scheduler")
     assert not (tmp_path / "e").exists()
+
+
+def test_a_local_cluster_takes_at_most_a_worker_per_core(capsys, tmp_path, monkeypatch):
+    """A cell keeps a core busy: more local workers than cores would only share them (and a
+    hundred worker processes on two cores did not start within Dask's timeouts). Refused
+    before any work, from the command line and from Python."""
+    from hwbvh.errors import ParameterError
+    from hwbvh.parallel import usable_cores
+    from hwrt.cluster import dask_client
+    monkeypatch.delenv("HWRT_SCHEDULER", raising=False)
+    (tmp_path / "x.obj").write_text(TETRA_OBJ)
+    cores = usable_cores()
+    rc, out, err = call(capsys, "explore", tmp_path / "x.obj", "--workers", cores + 1,
+                        "--out-dir", tmp_path / "e")
+    assert rc == 2 and one_line_error(err).startswith(
+        f"hwrt: error: --workers: at most {cores}, the cores this process may use")
+    assert not (tmp_path / "e").exists()
+    for workers in (cores + 1, 0, 1.5, True):
+        with pytest.raises(ParameterError) as e:
+            with dask_client(workers=workers):
+                pass
+        assert e.value.parameter == "workers" and f"from 1 to {cores}" in str(e.value)
 
 
 def test_a_bad_scheduler_from_the_environment_is_named_as_such(capsys, tmp_path, monkeypatch):

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from raytracer.render import usable_cores
+from hwbvh.parallel import usable_cores
 
 ROOT = Path(__file__).resolve().parents[1]
 
