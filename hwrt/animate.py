@@ -27,6 +27,7 @@ software. Producing a frame's geometry
 (physics, mesh files) and writing it are timed apart (``scene_seconds``, ``write_seconds``).
 """
 import csv
+import hashlib
 import io
 import json
 import math
@@ -229,10 +230,25 @@ def open_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
                           mesh=mesh, triangles=triangles, physics=physics)
 
 
-def _run_params(anim, strategy, threshold, scene, accel="bvh"):
+def _inputs_digest(paths):
+    """SHA-256 over the files a run reads (their paths and bytes): a scene file or mesh edited
+    since the frames on disk were rendered makes another run."""
+    h = hashlib.sha256()
+    for path in paths:
+        h.update(os.fsencode(path) + b"\0")
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
+
+
+def _run_params(anim, strategy, threshold, scene, accel="bvh", seed=0):
+    """What makes a run's frames what they are: a rerun resumes only frames made with all of
+    it the same (the inputs' content included)."""
     p = {"scene": anim.name, "source": str(anim.source), "strategy": strategy,
          "width": scene.width, "height": scene.height, "spp": scene.spp,
-         "max_depth": scene.max_depth, "fps": anim.fps, "animation": anim.info}
+         "max_depth": scene.max_depth, "fps": anim.fps, "animation": anim.info, "seed": seed,
+         "inputs_sha256": _inputs_digest(anim.inputs)}
     if strategy == "adaptive":
         p["threshold"] = threshold
     if accel != "bvh":                # a BVH run's state names no structure
@@ -262,8 +278,10 @@ def _load_state(out_dir, params):
     diff = [k for k in params if old.get(k) != params[k]]
     if diff:
         k = diff[0]
-        raise InputError(out_dir, f"holds frames of another run ({k}: {old.get(k)!r}, "
-                                   f"now {params[k]!r}); choose another output directory")
+        what = ("made from other contents of the input files" if k == "inputs_sha256" else
+                f"{k}: {old.get(k)!r}, now {params[k]!r}")
+        raise InputError(out_dir, f"holds frames of another run ({what}); choose another "
+                                   f"output directory")
     return rows
 
 
@@ -373,13 +391,14 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     first = anim.scene(0)
     first_scene_s = time.perf_counter() - t
     _check_frame_reach(anim, 0, first)          # before any output
-    params = _run_params(anim, strategy, updater.threshold, first, accel)
+    params = _run_params(anim, strategy, updater.threshold, first, accel, seed)
     rows = {}
     if out_dir is not None:
         out_dir = _check_output_dir(out_dir, anim, frames)
         rows = {k: v for k, v in _load_state(out_dir, params).items() if k < frames}
+    # resumed: the frames on disk and whole, verified if this run verifies
     start = 0
-    while start < frames and start in rows and \
+    while start < frames and start in rows and (not verify or "verify" in rows[start]) and \
             (out_dir is None or _frame_intact(out_dir, start, first.width, first.height)):
         start += 1
     rows = {k: v for k, v in rows.items() if k < start}

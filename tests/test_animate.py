@@ -470,6 +470,33 @@ def test_an_interrupted_run_resumes_at_the_first_missing_frame(tmp_path, capsys)
     assert rc == 2 and "holds frames of another run" in err
 
 
+def test_a_rerun_resumes_only_frames_made_as_it_would_make_them(tmp_path, capsys):
+    """Another seed, or a scene file edited since, makes other frames: refused, not mixed in.
+    A verifying rerun renders again the frames its first run did not verify, so its counts
+    cover every frame."""
+    scene = _scene_file(tmp_path, [BOX], animation={"frames": 3, "fps": 1, "camera": [
+        {"time": 0}, {"time": 2, "eye": [1, 1, 4]}]})
+    out_dir = tmp_path / "out"
+    args = ["animate", scene, "-o", out_dir, "--json"]
+    rc, _, err = _run_cli(capsys, *args)
+    assert rc == 0, err
+    rc, _, err = _run_cli(capsys, *args, "--seed", 7)
+    assert rc == 2 and "holds frames of another run (seed: 0, now 7)" in err
+    rc, out, err = _run_cli(capsys, *args, "--verify")
+    r = json.loads(out)
+    assert rc == 0 and r["resumed_from"] == 0 and all("verify" in f for f in r["frames"])
+    assert r["verify"]["rays"] == sum(sum(f["rays"].values()) for f in r["frames"]) > 0
+    rc, out, err = _run_cli(capsys, *args, "--verify")
+    assert rc == 0 and json.loads(out)["resumed_from"] == 3
+    d = json.loads(scene.read_text())
+    d["materials"]["white"]["reflectance"] = [0.2, 0.4, 0.6]
+    scene.write_text(json.dumps(d))
+    rc, _, err = _run_cli(capsys, *args)
+    assert rc == 2 and err.strip() == (f"hwrt: error: --output {out_dir}: holds frames of another run "
+                                         "(made from other contents of the input files); choose "
+                                         "another output directory")
+
+
 def test_a_damaged_frame_is_rendered_again_on_resume(tmp_path, capsys):
     """A frame cut short or replaced since its run (not a whole EXR of the run's size) is not
     carried into the preview: the rerun resumes at it."""
