@@ -291,6 +291,19 @@ def _wrong_counts(found):
             for name in ("ours", "embree")}
 
 
+def _verifiable_geometry(name):
+    """``_scene_geometry``, refused (naming the scene) where the float32 units cannot trace it
+    whole: too large or too small, as ``render`` refuses it, for the rays the sets make."""
+    from raytracer.render import check_float32_reach_from
+    from traversal.raysets import points_beyond
+
+    geometry = _scene_geometry(name)
+    tris = geometry[1]
+    if len(tris):
+        check_float32_reach_from(tris, points_beyond(tris))
+    return geometry
+
+
 def cmd_verify(args):
     import io
     import numpy as np
@@ -308,12 +321,15 @@ def cmd_verify(args):
         if not os.path.isfile(args.replay):
             raise InputError(args.replay, "not a file" if os.path.exists(args.replay)
                              else "no such file")
-        label, tris, verts, faces = _scene_geometry(args.scene)
+        label, tris, verts, faces = _verifiable_geometry(args.scene)
         return _emit(args, _replay(args.replay, tris, verts, faces),
                      lambda r: "\n".join(json_text(x) for x in r["replayed"]))
+    if args.mismatches and not args.mismatches.lower().endswith(".npz"):
+        raise InputError("--mismatches", f"{args.mismatches} does not end in .npz (the mismatch "
+                                         f"file is a NumPy archive, which --replay reads)")
     rays = VERIFY_RAYS if args.rays is None else args.rays
     kind = args.kind or VERIFY_KIND
-    label, tris, verts, faces = _scene_geometry(args.scene)
+    label, tris, verts, faces = _verifiable_geometry(args.scene)
     # named by the scene's name, as render's image is
     out = args.mismatches or os.path.join("renders", f"verify-{label}-{kind}-mismatches.npz")
     check_outputs([out], inputs=scene_inputs(args.scene))

@@ -533,14 +533,20 @@ def check_float32_reach(scene, float64=None):
     (``make_tracer``, ``render``). The message tells the user to scale the scene, and, given
     ``float64`` (how the caller traces with the float64 units, e.g. an option to add), that
     too."""
-    def remedy(way):
-        return f"scale it {way}" + (f", or {float64}" if float64 else "")
-
     camera = getattr(scene, "camera", None)         # a bare mesh (benchmarks) has none
     points = ([camera["eye"]] if camera else []) + \
         point_light_positions(getattr(scene, "lights", ()))
-    box = coordinate_box(scene.triangles)
-    reach = f32_unit_reach(scene.triangles, points, box)
+    check_float32_reach_from(scene.triangles, points, float64)
+
+
+def check_float32_reach_from(triangles, points, float64=None):
+    """``check_float32_reach`` for ``triangles`` and rays that start at or head for ``points``
+    (n, 3) or start within the triangles' box."""
+    def remedy(way):
+        return f"scale it {way}" + (f", or {float64}" if float64 else "")
+
+    box = coordinate_box(triangles)
+    reach = f32_unit_reach(triangles, points, box)
     if not reach <= F32_UNIT_MAX_PRODUCT:
         raise ParameterError("scene", f"too large for the float32 units: edge x edge x distance "
                                       f"reaches {reach:.3g}, beyond the {F32_UNIT_MAX_PRODUCT:.3g} "

@@ -693,6 +693,13 @@ def test_replay_rejects_options_of_a_verification_run(capsys, tmp_path, tetra):
     assert rc == 2 and "--rays" in one_line_error(err)
 
 
+def test_the_mismatch_file_must_be_named_as_an_npz_archive(capsys, tmp_path, tetra):
+    rc, out, err = call(capsys, "verify", tetra, "--rays", 10, "--mismatches", tmp_path / "m.txt")
+    assert rc == 2 and out == "" and one_line_error(err) == (
+        f"hwrt: error: --mismatches: {tmp_path / 'm.txt'} does not end in .npz (the mismatch file "
+        "is a NumPy archive, which --replay reads)")
+
+
 def test_replay_of_a_missing_or_foreign_file(capsys, tmp_path, tetra):
     missing = tmp_path / "x.npz"
     rc, _, err = call(capsys, "verify", tetra, "--replay", missing)
@@ -1029,8 +1036,18 @@ def test_verify_refuses_mismatches_over_a_mesh_its_scene_reads(capsys, tmp_path,
     scene.write_text(json.dumps(scene_dict(shapes=[{"type": "mesh", "filename": tetra.name, "material": "m"}])))
     before = tetra.read_bytes()
     rc, _, err = call(capsys, "verify", scene, "--rays", 10, "--mismatches", tetra)
-    assert rc == 2 and "is an input of this run" in one_line_error(err)
+    assert rc == 2 and "does not end in .npz" in one_line_error(err)
     assert tetra.read_bytes() == before
+    # a mesh the scene reads, were it named as an archive, is an input all the same
+    npz_mesh = tmp_path / "tetra.npz.obj"
+    npz_mesh.write_bytes(before)
+    scene.write_text(json.dumps(scene_dict(shapes=[{"type": "mesh", "filename": npz_mesh.name,
+                                                    "material": "m"}])))
+    link = tmp_path / "m.npz"
+    link.symlink_to(npz_mesh)
+    rc, _, err = call(capsys, "verify", scene, "--rays", 10, "--mismatches", link)
+    assert rc == 2 and "is an input of this run" in one_line_error(err)
+    assert npz_mesh.read_bytes() == before
 
 
 @pytest.mark.parametrize("arrays,problem", [

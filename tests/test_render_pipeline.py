@@ -542,6 +542,13 @@ def test_the_cli_names_the_scene_file_too_large_for_the_float32_units(tmp_path, 
     err = capsys.readouterr().err
     assert err.startswith(f"hwrt: error: {p}: too large for the float32 units"), err
     assert not (tmp_path / "big.exr").exists()
+    # verify traces it in float32 too: refused alike, before any work, for every ray set
+    for kind in ("primary", "shadow"):
+        assert main(["verify", str(p), "--kind", kind, "--rays", "100",
+                     "--mismatches", str(tmp_path / "m.npz")]) == 2
+        err = capsys.readouterr().err
+        assert err.rstrip().startswith(f"hwrt: error: {p}: too large for the float32 units") and \
+            err.rstrip().endswith("(scale it down)"), err
 
 
 def test_the_cli_names_the_scene_file_too_small_for_the_float32_units(tmp_path, capsys):
@@ -566,6 +573,10 @@ def test_the_cli_names_the_scene_file_too_small_for_the_float32_units(tmp_path, 
         assert "too small for the float32 units" in err and err.rstrip().endswith("(scale it up)"), err
     # and the render benchmark, whose paths all trace in float32, names the scene file
     assert main(["bench", "render", str(p), "--repeat", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"hwrt: error: {p}: too small for the float32 units"), err
+    # and so does verify, whose answers would mean nothing there
+    assert main(["verify", str(p), "--rays", "100"]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"hwrt: error: {p}: too small for the float32 units"), err
     assert err.rstrip().endswith("(scale it up)"), err

@@ -37,6 +37,13 @@ def _primary_view(tris, n):
     return eye, look_at_basis(eye, target, up), w, h
 
 
+def points_beyond(tris):
+    """Where the rays of every set start or head for outside the mesh's box: the eye of
+    ``primary``'s view and the light of ``shadow``'s (the others start within the box or on
+    the mesh). (2, 3) float64."""
+    return np.array([_primary_view(tris, 1)[0], light_position(tris)], np.float64)
+
+
 def primary_chunks(tris, n, dtype=np.float64):
     """``primary``'s rays, a slice of up to ``MAKE_CHUNK`` at a time: (origins, dirs)."""
     n = int(n)
