@@ -104,13 +104,17 @@ BUILD_OPTION_READERS = {"leaf_size": ("hwbvh",), "bins": ("hwbvh",),
 
 
 def _check_mesh_file(path, command):
-    """A built-in scene's name given where a mesh file goes (and no such file is there) is
-    said to be one."""
+    """A built-in scene's name (where no such file is there) or a scene file given where a mesh
+    file goes is said to be one."""
     from hwbvh.errors import InputError
     from scenes.builtin import BUILTIN
+    from scenes.loader import SCENE_EXTENSIONS
     if path in BUILTIN and not os.path.exists(path):
         raise InputError(path, f"no such file; {path} is a built-in scene: {command} takes a "
                                f"mesh file; render and verify take scenes")
+    if str(path).lower().endswith(SCENE_EXTENSIONS):
+        raise InputError(path, f"a scene file: {command} takes a mesh file; render and verify "
+                               f"take scenes")
 
 
 def cmd_build(args):

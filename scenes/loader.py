@@ -5,6 +5,7 @@ a mesh file (framed automatically, one point light, a plain diffuse material). `
 turns the dict into triangle, normal, material and light arrays for the renderer. Malformed
 scene files raise :class:`InputError` naming the file, the key and the problem.
 """
+import datetime
 import difflib
 import json
 import math
@@ -81,6 +82,8 @@ def written(v, limit=40):
         v = v.tolist()
     elif isinstance(v, np.generic):
         v = v.item()
+    if isinstance(v, (datetime.date, datetime.time)):       # TOML has dates and times
+        return f"the {'time' if isinstance(v, datetime.time) else 'date'} {v.isoformat()}"
     if isinstance(v, (bool, list, tuple)) or v is None:
         try:
             text = json.dumps(v, allow_nan=False)
@@ -773,7 +776,7 @@ def compile_scene(d, source=None, first_shape=0):
         for sh in (shapes if isinstance(shapes, (list, tuple)) else []))
     if moving:
         ctx.fail("animation" if "animation" in d else "shapes",
-                 "the scene moves: render it with hwrt animate")
+                 "the scene moves: render it with hwrt animate (--verify checks its frames)")
     ctx.keys(d, SCENE_KEYS, "")
     for key in ("camera", "shapes", "materials"):
         if key not in d:
@@ -815,6 +818,8 @@ def compile_scene(d, source=None, first_shape=0):
     for i, sh in enumerate(shapes, first_shape):
         tris, normals = _shape(ctx, sh, i, scene_dir)
         mname = sh.get("material")
+        if "material" not in sh:
+            ctx.fail(f"shapes[{i}].material", f"missing (defined: {', '.join(names)})")
         if not isinstance(mname, str) or mname not in mats:
             ctx.fail(f"shapes[{i}].material", f"unknown material {written(mname)} (defined: {', '.join(names)})")
         all_t.append(tris)

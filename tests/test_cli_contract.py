@@ -870,8 +870,23 @@ def test_options_beyond_what_the_machine_can_hold_are_refused(capsys, argv, opti
 def test_rendering_a_moving_scene_points_to_animate(tmp_path, capsys):
     p = tmp_path / "a.json"
     p.write_text(json.dumps(scene_dict(animation={"frames": 2})))
-    rc, out, err = call(capsys, "render", p, "-o", tmp_path / "o.exr")
-    assert rc == 2 and "the scene moves: render it with hwrt animate" in one_line_error(err)
+    for argv in (["render", p, "-o", tmp_path / "o.exr"], ["verify", p]):
+        rc, out, err = call(capsys, *argv)
+        assert rc == 2 and one_line_error(err).endswith(
+            "the scene moves: render it with hwrt animate (--verify checks its frames)")
+
+
+def test_a_shape_without_a_material_and_a_toml_date_are_named_as_such(tmp_path, capsys):
+    p = tmp_path / "s.json"
+    p.write_text(json.dumps(scene_dict(shapes=[{"type": "box", "min": [0, 0, 0], "max": [1, 1, 1]}])))
+    rc, _, err = call(capsys, "render", p, "-o", tmp_path / "o.exr")
+    assert rc == 2 and one_line_error(err).startswith(
+        f"hwrt: error: {p}: key 'shapes[0].material': missing (defined: ")
+    t = tmp_path / "s.toml"
+    t.write_text("name = 1979-05-27\n")
+    rc, _, err = call(capsys, "render", t, "-o", tmp_path / "o.exr")
+    assert rc == 2 and one_line_error(err) == (
+        f"hwrt: error: {t}: key 'name': expected a non-empty string, got the date 1979-05-27")
 
 
 @pytest.mark.parametrize("option,value", [("--width", 99999), ("--spp", 5000), ("--max-depth", 65)])
@@ -1004,12 +1019,18 @@ def test_an_unreadable_ply_says_so(capsys, tmp_path):
         f"hwrt: error: {p}: not a readable PLY file (it has no 'y')"
 
 
-def test_a_scene_given_to_build_or_simulate_is_said_to_be_one(capsys):
+def test_a_scene_given_to_build_or_simulate_is_said_to_be_one(capsys, tmp_path):
+    scene = tmp_path / "still.toml"
+    scene.write_text("[camera]\n")
     for command in ("build", "simulate"):
         rc, _, err = call(capsys, command, "cornell")
         assert rc == 2 and one_line_error(err) == (
             f"hwrt: error: cornell: no such file; cornell is a built-in scene: {command} takes a "
             f"mesh file; render and verify take scenes")
+        rc, _, err = call(capsys, command, scene)
+        assert rc == 2 and one_line_error(err) == (
+            f"hwrt: error: {scene}: a scene file: {command} takes a mesh file; render and verify "
+            f"take scenes")
 
 
 def test_every_command_opens_its_help_with_a_description():
