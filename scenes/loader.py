@@ -605,6 +605,20 @@ def _no_collapse(ctx, mesh, scaled, moved, path):
                  f"float32 numbers {step:.3g} apart, coarse against its size of {size:.3g}")
 
 
+def _not_coarse(ctx, tris, key, what):
+    """Refuse a shape placed so far from the origin, against its size, that float32 rounds its
+    coordinates by more than ``MAX_TRANSLATION_ROUNDING`` of that size (as a mesh's
+    translation is refused): a unit box at x = 1e9 would be traced as a flat or empty one."""
+    if not len(tris):
+        return
+    size = float((tris.max(axis=(0, 1)) - tris.min(axis=(0, 1))).max())
+    with np.errstate(over="ignore"):
+        step = float(np.spacing(np.abs(tris).max(axis=(0, 1)).astype(np.float32)).max())
+    if size > 0 and step / 2 > MAX_TRANSLATION_ROUNDING * size:
+        ctx.fail(key, f"{what} collapses: this far from the origin its coordinates round to "
+                      f"float32 numbers {step:.3g} apart, coarse against its size of {size:.3g}")
+
+
 def _type_problem(obj, what, types):
     """What is wrong with an object's 'type': missing, or not one of ``types``."""
     choose = f"(choose from {', '.join(types)})"
@@ -632,6 +646,7 @@ def _shape(ctx, sh, i, scene_dir):
             ctx.fail(f"{path}.corners", f"expected 4 corners of 3 finite numbers of magnitude at "
                                         f"most {MAX_COORDINATE:g}")
         tris = _quad(c)
+        _not_coarse(ctx, tris, f"{path}.corners", "the quad")
         normals = flat_normals(tris)
     elif typ == "box":
         lo, hi = ctx.vec(sh, "min", path), ctx.vec(sh, "max", path)
@@ -639,6 +654,7 @@ def _shape(ctx, sh, i, scene_dir):
             ctx.fail(f"{path}.min", "min must not exceed max")
         tris = _box(lo, hi, ctx.num(sh, "rotate_y", path, default=0.0))
         _bounded(ctx, tris, f"{path}.rotate_y", "rotated, the box")
+        _not_coarse(ctx, tris, f"{path}.min", "the box")
         normals = flat_normals(tris)
     elif typ == "sphere":
         c = ctx.vec(sh, "center", path)
@@ -652,6 +668,7 @@ def _shape(ctx, sh, i, scene_dir):
         V, F = uv_sphere(sub[0], sub[1])
         tris = V[F] * r + c
         _bounded(ctx, tris, f"{path}.radius", "the sphere")
+        _not_coarse(ctx, tris, f"{path}.center", "the sphere")
         normals = V[F]                                   # radial, outward
     elif typ == "sheet":
         res = _as_list(sh.get("resolution", [64, 64]))
@@ -673,12 +690,14 @@ def _shape(ctx, sh, i, scene_dir):
         tris[:, :, 1] += height
         _bounded(ctx, tris, f"{path}.{'height' if abs(height) >= abs(wave) else 'wave'}",
                  "with its height and wave, the sheet")
+        _not_coarse(ctx, tris, f"{path}.height", "the sheet")
         normals = flat_normals(tris)
     elif typ == "triangles":
         tris = _triangle_data(ctx, sh.get("data"), f"{path}.data")
         if not within_bound(tris):
             ctx.fail(f"{path}.data", f"expected finite coordinates of magnitude at most "
                                      f"{MAX_COORDINATE:g}")
+        _not_coarse(ctx, tris, f"{path}.data", "the set of triangles")
         normals = flat_normals(tris)
     else:  # mesh
         fn = sh.get("filename")

@@ -210,6 +210,31 @@ def test_a_mesh_translation_that_flattens_it_in_float32_names_translate(tmp_path
     compile_scene(load_scene(write_scene(tmp_path, scene_dict([shape]))))
 
 
+@pytest.mark.parametrize("shape, key, what", [
+    ({"type": "box", "min": [1e9, 0, 0], "max": [1e9 + 1, 1, 1], "material": "white"},
+     "shapes[0].min", "the box"),
+    ({"type": "sphere", "center": [1e9, 0, 0], "radius": 1, "material": "white"},
+     "shapes[0].center", "the sphere"),
+    (dict(QUAD, corners=[[1e9, 0, 0], [1e9 + 1, 0, 0], [1e9 + 1, 1, 0], [1e9, 1, 0]]),
+     "shapes[0].corners", "the quad"),
+    ({"type": "triangles", "data": [[[1e9, 0, 0], [1e9 + 1, 0, 0], [1e9, 1, 0]]],
+      "material": "white"}, "shapes[0].data", "the set of triangles"),
+    (dict(SHEET, size=1, height=1e9), "shapes[0].height", "the sheet"),
+])
+def test_a_shape_too_small_for_float32_where_it_lies_names_its_key(tmp_path, capsys, monkeypatch,
+                                                                  shape, key, what):
+    """As a mesh's translation is: a unit shape at 1e9, where float32 spaces numbers 64 apart,
+    would be traced flat or empty; a million from the origin (0.0625 apart) it is kept."""
+    p = write_scene(tmp_path, scene_dict([shape]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert line == (f"hwrt: error: {p}: key '{key}': {what} collapses: this far from the origin "
+                    f"its coordinates round to float32 numbers 64 apart, coarse against its size "
+                    f"of {1 if what != 'the sphere' else 2}"), line
+    near = json.loads(json.dumps(shape).replace("1000000000.0", "1000000.0")
+                      .replace("1000000001.0", "1000001.0"))
+    compile_scene(load_scene(write_scene(tmp_path, scene_dict([near]))))
+
+
 def test_a_mesh_moved_far_but_keeping_its_area_is_accepted(tmp_path):
     (tmp_path / "big.obj").write_text("v 0 0 0\nv 1e3 0 0\nv 0 1e3 0\nf 1 2 3\n")
     shape = {"type": "mesh", "filename": "big.obj", "material": "white",
