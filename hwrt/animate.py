@@ -392,10 +392,14 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     first_scene_s = time.perf_counter() - t
     _check_frame_reach(anim, 0, first)          # before any output
     params = _run_params(anim, strategy, updater.threshold, first, accel, seed)
-    rows = {}
+    rows, beyond = {}, {}
     if out_dir is not None:
         out_dir = _check_output_dir(out_dir, anim, frames)
-        rows = {k: v for k, v in _load_state(out_dir, params).items() if k < frames}
+        rows = _load_state(out_dir, params)
+        # frames of this run past the last asked for stay in its state (not orphaned on disk):
+        # a longer rerun resumes them
+        beyond = {k: v for k, v in rows.items() if k >= frames}
+        rows = {k: v for k, v in rows.items() if k < frames}
     # resumed: the frames on disk and whole, verified if this run verifies
     start = 0
     while start < frames and start in rows and (not verify or "verify" in rows[start]) and \
@@ -451,7 +455,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
             out["output"] = path
             out["write_seconds"] = time.perf_counter() - t
             rows[i] = jsonable(out)
-            _write_state(out_dir, params, rows)
+            _write_state(out_dir, params, rows | beyond)
         else:
             rows[i] = jsonable(out)
         if inspect is not None:

@@ -488,6 +488,16 @@ def test_a_rerun_resumes_only_frames_made_as_it_would_make_them(tmp_path, capsys
     assert r["verify"]["rays"] == sum(sum(f["rays"].values()) for f in r["frames"]) > 0
     rc, out, err = _run_cli(capsys, *args, "--verify")
     assert rc == 0 and json.loads(out)["resumed_from"] == 3
+    # a shorter rerun leaves the later frames described in the run's state, and a longer one
+    # resumes them
+    rc, out, err = _run_cli(capsys, *args, "--frames", 2)
+    assert rc == 0 and len(json.loads(out)["frames"]) == 2
+    assert [f["frame"] for f in json.loads((out_dir / "animation.json").read_text())["frames"]] == [0, 1, 2]
+    (out_dir / "frame_0001.exr").unlink()
+    rc, out, err = _run_cli(capsys, *args, "--frames", 2)
+    assert rc == 0 and json.loads(out)["resumed_from"] == 1
+    rc, out, err = _run_cli(capsys, *args)
+    assert rc == 0 and json.loads(out)["resumed_from"] == 3
     d = json.loads(scene.read_text())
     d["materials"]["white"]["reflectance"] = [0.2, 0.4, 0.6]
     scene.write_text(json.dumps(d))
