@@ -151,10 +151,10 @@ def _require_workers(client, named):
 def dask_client(scheduler=None, *, workers=None, threads_per_cell=1, warm_up=None):
     """A ``distributed.Client``: on ``scheduler`` (else ``$HWRT_SCHEDULER``), else on an
     embedded local cluster of ``workers`` processes (default and most: one per core the process
-    may use, ``hwbvh.parallel.usable_cores``) whose Numba kernels
-    get ``threads_per_cell`` threads each. ``warm_up`` runs once per worker. Raises
-    ParameterError, naming "scheduler", or "$HWRT_SCHEDULER" when the address came from there,
-    for an address that is none, a scheduler that does not answer within
+    may use, ``hwbvh.parallel.usable_cores``) whose Numba kernels get ``threads_per_cell``
+    threads each. ``warm_up`` runs once per worker. Raises ParameterError naming "workers" for
+    a local cluster of another size; naming "scheduler", or "$HWRT_SCHEDULER" when the address
+    came from there, for an address that is none, a scheduler that does not answer within
     ``CONNECT_TIMEOUT_S``, and one that no worker joins within that time."""
     import dask
     from distributed import Client, LocalCluster

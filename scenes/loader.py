@@ -577,6 +577,18 @@ def _has_area(tris):
 MAX_TRANSLATION_ROUNDING = 1 / 16
 
 
+def _extent(tris):
+    """The largest side of the box of (n, 3, 3) ``tris`` (n > 0)."""
+    return float((tris.max(axis=(0, 1)) - tris.min(axis=(0, 1))).max())
+
+
+def _float32_step(tris):
+    """How far apart float32 numbers lie where ``tris`` reach farthest from the origin, along
+    the coarsest axis."""
+    with np.errstate(over="ignore"):
+        return float(np.spacing(np.abs(tris).max(axis=(0, 1)).astype(np.float32)).max())
+
+
 def _no_collapse(ctx, mesh, scaled, moved, path):
     """Refuse a transform under which triangles of ``mesh`` with an area in float32 lose it in
     the final coordinates ``moved`` (``scaled`` plus the translation): a scale small against
@@ -595,10 +607,7 @@ def _no_collapse(ctx, mesh, scaled, moved, path):
                                             f"triangles lose their area in float32 {cause}")
     if not len(moved):
         return
-    size = float((scaled.max(axis=(0, 1)) - scaled.min(axis=(0, 1))).max())
-    with np.errstate(over="ignore"):
-        step = float(np.spacing(np.abs(moved).max(axis=(0, 1)).astype(np.float32)).max())
-        own = float(np.spacing(np.abs(scaled).max(axis=(0, 1)).astype(np.float32)).max())
+    size, step, own = _extent(scaled), _float32_step(moved), _float32_step(scaled)
     if size > 0 and step > own and step / 2 > MAX_TRANSLATION_ROUNDING * size:
         ctx.fail(f"{path}.transform.translate",
                  f"the mesh collapses: moved this far from the origin, its coordinates round to "
@@ -611,9 +620,7 @@ def _not_coarse(ctx, tris, key, what):
     translation is refused): a unit box at x = 1e9 would be traced as a flat or empty one."""
     if not len(tris):
         return
-    size = float((tris.max(axis=(0, 1)) - tris.min(axis=(0, 1))).max())
-    with np.errstate(over="ignore"):
-        step = float(np.spacing(np.abs(tris).max(axis=(0, 1)).astype(np.float32)).max())
+    size, step = _extent(tris), _float32_step(tris)
     if size > 0 and step / 2 > MAX_TRANSLATION_ROUNDING * size:
         ctx.fail(key, f"{what} collapses: this far from the origin its coordinates round to "
                       f"float32 numbers {step:.3g} apart, coarse against its size of {size:.3g}")
