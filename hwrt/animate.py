@@ -242,13 +242,14 @@ def _inputs_digest(paths):
     return h.hexdigest()
 
 
-def _run_params(anim, strategy, threshold, scene, accel="bvh", seed=0):
+def _run_params(anim, strategy, threshold, scene, accel="bvh", seed=0, written=False):
     """What makes a run's frames what they are: a rerun resumes only frames made with all of
-    it the same (the inputs' content included)."""
+    it the same; for a ``written`` run (one that can be resumed), the inputs' content too."""
     p = {"scene": anim.name, "source": str(anim.source), "strategy": strategy,
          "width": scene.width, "height": scene.height, "spp": scene.spp,
-         "max_depth": scene.max_depth, "fps": anim.fps, "animation": anim.info, "seed": seed,
-         "inputs_sha256": _inputs_digest(anim.inputs)}
+         "max_depth": scene.max_depth, "fps": anim.fps, "animation": anim.info, "seed": seed}
+    if written:                       # read only where a rerun is to be told apart
+        p["inputs_sha256"] = _inputs_digest(anim.inputs)
     if strategy == "adaptive":
         p["threshold"] = threshold
     if accel != "bvh":                # a BVH run's state names no structure
@@ -391,7 +392,8 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     first = anim.scene(0)
     first_scene_s = time.perf_counter() - t
     _check_frame_reach(anim, 0, first)          # before any output
-    params = _run_params(anim, strategy, updater.threshold, first, accel, seed)
+    params = _run_params(anim, strategy, updater.threshold, first, accel, seed,
+                         written=out_dir is not None)
     rows, beyond = {}, {}
     if out_dir is not None:
         out_dir = _check_output_dir(out_dir, anim, frames)

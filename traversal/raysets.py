@@ -115,9 +115,10 @@ def hit_points(tracer, tri_mag, chunks, keep_dirs=False, enough=None):
             break
         h = tracer.intersect(o, d)
         hit = h.prim >= 0
-        oc, dc = o[hit], d[hit]
-        for field, x in zip(fields, (oc.astype(np.float64) + dc.astype(np.float64) * h.t[hit, None].astype(np.float64),
-                                     h.ng[hit], tri_mag[h.prim[hit]], dc if keep_dirs else dc[:0])):
+        dc = d[hit]
+        points = o[hit].astype(np.float64) + dc.astype(np.float64) * h.t[hit, None].astype(np.float64)
+        for field, x in zip(fields, (points, h.ng[hit], tri_mag[h.prim[hit]],
+                                     dc if keep_dirs else dc[:0])):
             field.append(x)
         m += len(o)
         got += int(hit.sum())
