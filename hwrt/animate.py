@@ -435,7 +435,8 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
                "time_to_image_seconds": row["build_seconds"] + render_s,
                "time_to_image_simulated_seconds":
                    None if ready is None else {k: v + render_s for k, v in ready.items()},
-               "scene_seconds": scene_s, "rays": res.stats["rays"]}
+               "scene_seconds": scene_s, "rays": res.stats["rays"],
+               "pixels_beyond_float32": res.stats["pixels_beyond_float32"]}
         if verify:
             c = tracer.counts
             out["verify"] = {k: c["closest"][k] + c["shadow"][k] for k in c["closest"]}
@@ -474,6 +475,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         if strategy == "adaptive" else None
     for key in ("build_seconds", "render_seconds", "time_to_image_seconds", "simulation_seconds"):
         result[f"{key}_total"] = sum(r[key] or 0.0 for r in ordered)
+    result["pixels_beyond_float32_total"] = sum(r.get("pixels_beyond_float32", 0) for r in ordered)
     if strategy != "embree" and accel == "bvh":
         result["time_to_image_simulated_seconds_total"] = {
             k: sum(r["time_to_image_simulated_seconds"][k] for r in ordered) for k in PRESET_NAMES}

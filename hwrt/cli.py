@@ -72,6 +72,17 @@ def _emit(args, result, human):
     else:
         sys.stdout.write(human(result) + "\n")
     sys.stdout.flush()
+    _warn_beyond_float32(result)
+
+
+def _warn_beyond_float32(result):
+    """A line on stderr when a render or animation wrote pixels too bright for float32 (its
+    result's ``pixels_beyond_float32``, per image or in total): they are +inf in the EXR."""
+    n = result.get("pixels_beyond_float32", result.get("pixels_beyond_float32_total"))
+    if n:
+        sys.stderr.write(f"hwrt: warning: {n} pixel{'s' if n != 1 else ''} brighter than float32 "
+                         f"holds (3.4e38) {'are' if n != 1 else 'is'} +inf in "
+                         f"{result.get('output')}; lower the scene's light values\n")
 
 
 def _shown(v):
@@ -492,7 +503,8 @@ def cmd_render(args):
               "simulated_build_seconds": info.get("simulated_build_seconds"),
               "startup_seconds": startup_s,
               "rays": res.stats["rays"],
-              "passes": res.stats["passes"]}
+              "passes": res.stats["passes"],
+              "pixels_beyond_float32": res.stats["pixels_beyond_float32"]}
     result.update({k: v for k, v in info.items() if k in ("nodes", "sah_cost", "memory_bytes",
                                                            "references_per_triangle")})
     ready = simulated_ready_seconds(info)

@@ -443,8 +443,9 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     The result is the same either way: every pixel belongs to one band, and a band's rays
     and its film additions come in a fixed order.
 
-    stats: rays per kind, the passes the scene needs, and seconds per stage, summed over the
-    threads."""
+    stats: rays per kind, the passes the scene needs, seconds per stage, summed over the
+    threads, and ``pixels_beyond_float32``: the pixels too bright for the float32 image,
+    which hold +inf."""
     _check_render_arguments(scene, tracer, seed, progress)
     if offset not in STRATEGY_CODES:
         raise ParameterError("offset", f"unknown strategy {offset!r} (choose from {', '.join(STRATEGY_CODES)})")
@@ -487,7 +488,11 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     run_as_tracer_allows(tracer, bands, n_bands, parts=n_bands)
     rays = {k: sum(r[k] for r, _ in band_stats) for k in RAY_KINDS}
     secs = {k: sum(t[k] for _, t in band_stats) for k in STAGES}
-    stats = {"rays": rays, "passes": passes, "stage_seconds": secs}
+    # the film is float64 and the image float32: a pixel past float32's largest number
+    # (3.4e38: lights at the largest values close to a surface) is +inf in the image
+    over = int(np.count_nonzero(np.isinf(frame.image).any(axis=1)))
+    stats = {"rays": rays, "passes": passes, "stage_seconds": secs,
+             "pixels_beyond_float32": over}
     return RenderResult(image=frame.image.reshape(H, W, 3), depth=frame.aov_depth.reshape(H, W),
                         normal=frame.aov_normal.reshape(H, W, 3),
                         prim=frame.aov_prim.reshape(H, W), stats=stats)

@@ -48,10 +48,13 @@ SHAPE_KEYS = {"quad": ("corners",), "box": ("min", "max", "rotate_y"),
 TRANSFORM_KEYS = ("scale", "rotate_y", "translate")
 # Keys a shape does not take that a scene file's author may reach for: what to write instead.
 SHAPE_KEY_HINTS = {"frames": 'a shape of "type": "frames" with a "pattern"'}
-# Light (intensities, irradiance, ambient, background): a point light's intensity grows with
-# the square of the scene's scale (up to 1e30 at hwbvh's largest coordinates), and shading
-# multiplies it by a few more factors in float64, which holds up to ~1e308.
-MAX_RADIANCE = 1e100
+# Light (intensities, irradiance, ambient, background): at most float32's largest number,
+# since the image is float32 and a larger background or ambient light could only be +inf in
+# it. That leaves room for a point light's intensity, which grows with the square of the
+# scene's scale (about 1e30 lights a scene at hwbvh's largest coordinates). Shading works in
+# float64, so no sum overflows there; a pixel brighter than float32 holds (a light of such
+# values close to a surface) is +inf in the image, and the renderer counts such pixels.
+MAX_RADIANCE = float(np.finfo(np.float32).max)
 FOV_RANGE = (1e-3, 179.0)       # degrees: a pinhole camera sees less than a half-space
 
 # The largest film: a render keeps about 100 bytes per pixel (the film in float64, the image
@@ -634,6 +637,56 @@ def _type_problem(obj, what, types):
     return f"unknown {what} type {written(obj['type'])} {choose}"
 
 
+def _sphere_triangles(subdiv):
+    """Triangles of a sphere of ``subdiv`` [n_lat, n_lon] (``meshes.uv_sphere``)."""
+    return 2 * subdiv[1] * (subdiv[0] - 1)
+
+
+def _sheet_triangles(resolution):
+    """Triangles of a sheet of ``resolution`` [nx, ny] (``meshes.grid_sheet``)."""
+    return 2 * resolution[0] * resolution[1]
+
+
+def _planned_triangles(sh):
+    """The triangles a shape will make, read from its keys before it is built; None for a
+    mesh (its file holds the count) and for keys ``_shape`` refuses."""
+    if not isinstance(sh, dict):
+        return None
+    typ = sh.get("type")
+    if typ in ("quad", "box"):
+        return 2 if typ == "quad" else 12
+    if typ == "triangles":
+        data = sh.get("data")
+        return len(data) if isinstance(data, (list, tuple, np.ndarray)) else None
+    if typ in ("sphere", "sheet"):
+        key, lo, default = ("subdiv", 3, [32, 64]) if typ == "sphere" else ("resolution", 1, [64, 64])
+        v = _as_list(sh.get(key, default))
+        if isinstance(v, (list, tuple)) and len(v) == 2 and \
+                all(is_integer(x) and x >= lo for x in v):
+            return (_sphere_triangles if typ == "sphere" else _sheet_triangles)(v)
+    return None
+
+
+def _refuse_scene_size(ctx, i, total):
+    ctx.fail(f"shapes[{i}]", f"brings the scene to {total} triangles, more than the 2^24 "
+                             f"({MAX_PRIMITIVES}) a tree holds")
+
+
+def _check_scene_size(ctx, shapes, first_shape):
+    """Refuse, before any shape is built, a scene whose generated shapes together make more
+    triangles than a tree holds, naming the shape that passes the limit (one shape alone
+    beyond it is refused by ``_shape``, naming its key). Building them first could take
+    gigabytes and many seconds."""
+    total = 0
+    for i, sh in enumerate(shapes, first_shape):
+        n = _planned_triangles(sh)
+        if n is None or n > MAX_PRIMITIVES:
+            continue
+        total += n
+        if total > MAX_PRIMITIVES:
+            _refuse_scene_size(ctx, i, total)
+
+
 def _shape(ctx, sh, i, scene_dir):
     path = f"shapes[{i}]"
     if not isinstance(sh, dict):
@@ -670,7 +723,7 @@ def _shape(ctx, sh, i, scene_dir):
         if not (isinstance(sub, (list, tuple)) and len(sub) == 2 and
                 all(is_integer(x) and x >= 3 for x in sub)):
             ctx.fail(f"{path}.subdiv", f"expected [n_lat, n_lon] integers >= 3, got {written(sub)}")
-        if 2 * sub[0] * sub[1] > MAX_PRIMITIVES:
+        if _sphere_triangles(sub) > MAX_PRIMITIVES:
             ctx.fail(f"{path}.subdiv", f"{written(sub)} makes more than the 2^24 triangles a tree holds")
         V, F = uv_sphere(sub[0], sub[1])
         tris = V[F] * r + c
@@ -682,7 +735,7 @@ def _shape(ctx, sh, i, scene_dir):
         if not (isinstance(res, (list, tuple)) and len(res) == 2 and
                 all(is_integer(x) and x >= 1 for x in res)):
             ctx.fail(f"{path}.resolution", f"expected [nx, ny] positive integers, got {written(res)}")
-        if 2 * res[0] * res[1] > MAX_PRIMITIVES:
+        if _sheet_triangles(res) > MAX_PRIMITIVES:
             ctx.fail(f"{path}.resolution",
                      f"{written(res)} makes more than the 2^24 triangles a tree holds")
         # each within the coordinate bound before any arithmetic (which would overflow, with
@@ -840,9 +893,14 @@ def compile_scene(d, source=None, first_shape=0):
     if not isinstance(shapes, (list, tuple)) or not shapes:
         ctx.fail("shapes", "expected a non-empty list")
     scene_dir = os.path.dirname(os.path.abspath(source)) if os.path.exists(str(source)) else os.getcwd()
+    _check_scene_size(ctx, shapes, first_shape)
     all_t, all_n, all_m = [], [], []
+    total = 0
     for i, sh in enumerate(shapes, first_shape):
         tris, normals = _shape(ctx, sh, i, scene_dir)
+        total += len(tris)
+        if total > MAX_PRIMITIVES:                      # a mesh's count is known once read
+            _refuse_scene_size(ctx, i, total)
         mname = sh.get("material")
         if "material" not in sh:
             ctx.fail(f"shapes[{i}].material", f"missing (defined: {', '.join(names)})")

@@ -703,3 +703,19 @@ def test_load_animation_checks_its_triangle_count(triangles):
     with pytest.raises(ParameterError, match="must be an integer in 1..16777216") as e:
         load_animation("exploding", triangles=triangles)
     assert e.value.parameter == "triangles"
+
+
+def test_animate_counts_and_reports_pixels_too_bright_for_float32(tmp_path, capsys):
+    # the largest intensity 0.05 before the box's face the camera sees, on the second frame
+    keys = [{"time": 0, "translate": [0, 0, -1]}, {"time": 1, "translate": [0, 0, 0]}]
+    p = _scene_file(tmp_path, [dict(BOX, keyframes=keys)], {"frames": 2, "fps": 1})
+    d = json.loads(p.read_text())
+    d["lights"] = [{"type": "point", "position": [0, 0.5, 0.55], "intensity": 3.4e38}]
+    p.write_text(json.dumps(d))
+    out_dir = tmp_path / "frames"
+    rc, out, err = _run_cli(capsys, "animate", p, "-o", out_dir, "--json")
+    res = json.loads(out)
+    per_frame = [f["pixels_beyond_float32"] for f in res["frames"]]
+    assert rc == 0 and per_frame[0] == 0 < per_frame[1] == res["pixels_beyond_float32_total"]
+    assert err.endswith(f"hwrt: warning: {per_frame[1]} pixels brighter than float32 holds "
+                        f"(3.4e38) are +inf in {out_dir}; lower the scene's light values\n")

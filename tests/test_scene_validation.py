@@ -461,3 +461,78 @@ def test_a_scene_built_in_python_takes_numpy_values_as_it_takes_python_ones():
         with pytest.raises(InputError) as e:
             compile_scene(d)
         assert str(e.value).startswith(f"<scene>: {message}"), str(e.value)
+
+
+# --------------------------------------------------------------------------------------
+# the scene's triangle count, summed over its shapes
+# --------------------------------------------------------------------------------------
+def test_generated_shapes_past_the_triangle_limit_together_are_refused_before_any_is_built(
+        tmp_path, capsys, monkeypatch):
+    import scenes.loader as loader
+    built = []
+    real = loader.grid_sheet
+    monkeypatch.setattr(loader, "grid_sheet", lambda *a, **k: built.append(a) or real(*a, **k))
+    sheet = {"type": "sheet", "resolution": [2048, 1500], "material": "white"}   # 6,144,000 each
+    p = write_scene(tmp_path, scene_dict([sheet, sheet, sheet]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert line.startswith(f"hwrt: error: {p}: key 'shapes[2]': brings the scene to 18432000 "
+                           f"triangles, more than the 2^24 (16777216) a tree holds"), line
+    assert built == []
+
+
+def test_a_mesh_that_brings_the_scene_past_the_triangle_limit_names_its_shape(tmp_path, capsys,
+                                                                              monkeypatch):
+    monkeypatch.setattr("scenes.loader.MAX_PRIMITIVES", 13)     # a box (12) and two triangles
+    (tmp_path / "two.obj").write_text(TRIANGLE_OBJ + "v 1 1 0\nf 2 4 3\n")
+    box = scene_dict()["shapes"][0]
+    p = write_scene(tmp_path, scene_dict([box, {"type": "mesh", "filename": "two.obj",
+                                                "material": "white"}]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert line.startswith(f"hwrt: error: {p}: key 'shapes[1]': brings the scene to 14 "
+                           f"triangles"), line
+
+
+@pytest.mark.parametrize("shape", [
+    {"type": "sphere", "center": [0, 0, 0], "radius": 1, "subdiv": [3, 3]},
+    {"type": "sphere", "center": [0, 0, 0], "radius": 1, "subdiv": [7, 5]},
+    {"type": "sphere", "center": [0, 0, 0], "radius": 1},
+    {"type": "sheet", "resolution": [3, 5]},
+    {"type": "sheet"},
+    {"type": "box", "min": [0, 0, 0], "max": [1, 1, 1]},
+    QUAD,
+    {"type": "triangles", "data": [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]] * 3},
+])
+def test_the_triangles_a_shape_is_counted_for_are_those_it_makes(shape):
+    from scenes.loader import _planned_triangles
+    shape = dict(shape, material="white")
+    assert _planned_triangles(shape) == len(compile_scene(scene_dict([shape])).triangles)
+
+
+# --------------------------------------------------------------------------------------
+# light values and the float32 image
+# --------------------------------------------------------------------------------------
+def test_a_light_value_beyond_float32_is_refused_naming_its_key(tmp_path, capsys, monkeypatch):
+    d = scene_dict(lights=[{"type": "point", "position": [1, 3, 2], "intensity": 1e39}])
+    p = write_scene(tmp_path, d)
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert line.startswith(f"hwrt: error: {p}: key 'lights[0].intensity': "), line
+
+
+def test_pixels_too_bright_for_float32_are_counted_and_reported(tmp_path, capsys, monkeypatch):
+    from raytracer.output import read_exr
+    # the largest intensity 0.05 before the box's face the camera sees: 400x more
+    # irradiance than float32 holds
+    d = scene_dict(lights=[{"type": "point", "position": [0, 0.5, 0.55], "intensity": 3.4e38}])
+    p = write_scene(tmp_path, d)
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", str(p), "-o", "o.exr", "--json"]) == 0
+    out, err = capsys.readouterr()
+    n = json.loads(out)["pixels_beyond_float32"]
+    px, names, _ = read_exr(tmp_path / "o.exr")
+    assert n > 0 and n == np.isinf(px[..., :3]).any(axis=-1).sum()
+    assert err == (f"hwrt: warning: {n} pixels brighter than float32 holds (3.4e38) are +inf "
+                   f"in o.exr; lower the scene's light values\n")
+    assert main(["render", str(write_scene(tmp_path, scene_dict(), "dim.json")), "-o", "dim.exr",
+                 "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["pixels_beyond_float32"] == 0 and err == ""
