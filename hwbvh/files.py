@@ -76,6 +76,12 @@ def _directory_problem(d):
     return None
 
 
+def directory_problem(path):
+    """Why the file ``path`` could not be created where it lies (its directory, or the
+    nearest existing one above), or None."""
+    return _directory_problem(_nearest_existing(path))
+
+
 def file_identity(path):
     """``(st_dev, st_ino)`` of the existing file ``path`` (symlinks followed), else None: two
     spellings of one file that realpath cannot tie together (hard links, bind mounts)."""

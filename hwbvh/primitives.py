@@ -18,9 +18,10 @@ from .errors import InputError
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
 
 
-def _ply_face_count(path):
-    """Face count declared in a PLY header, or None. Read before loading, so a file with more
-    than 2^24 faces is refused without parsing it."""
+def _ply_declared(path):
+    """The element counts a PLY header declares ({"vertex": n, "face": m, ...}), or None for
+    another file. Read before loading, so a file with more than 2^24 faces is refused
+    without parsing it."""
     try:
         with open(path, "rb") as f:
             head = f.read(4096)
@@ -28,8 +29,8 @@ def _ply_face_count(path):
         return None
     if not head.startswith(b"ply"):
         return None
-    m = re.search(rb"element\s+face\s+(\d+)", head)
-    return int(m.group(1)) if m else None
+    return {m.group(1).decode(): int(m.group(2))
+            for m in re.finditer(rb"element\s+(\w+)\s+(\d+)", head)}
 
 
 # OBJ files as trimesh reads them. A line ending in a backslash continues on the next. Vertices,
@@ -438,6 +439,25 @@ def beyond_bound_text(big):
     return short if float(short) > MAX_COORDINATE else repr(big)
 
 
+def _elements(declared):
+    """'5 vertices and 1 face': a PLY header's element counts in words."""
+    plural = {"vertex": "vertices"}
+    return " and ".join(f"{n} {k if n == 1 else plural.get(k, k + 's')}"
+                        for k, n in declared.items())
+
+
+def _obj_short_vertex(path):
+    """'line N: ...' for the first vertex line of the OBJ file ``path`` with fewer than 3
+    coordinates (trimesh then reads every vertex with that few), or None."""
+    with open(path, "rb") as f:
+        for number, line in enumerate(f, 1):
+            words = line.split()
+            if words and words[0] == b"v" and len(words) < 4:
+                return (f"line {number}: a vertex has {len(words) - 1} coordinate"
+                        f"{'s' if len(words) != 2 else ''}, expected 3")
+    return None
+
+
 def load_mesh_arrays(path):
     """Read a mesh file with trimesh; return (vertices float32 (v,3), faces int64 (f,3))."""
     trimesh = trimesh_module()
@@ -447,9 +467,9 @@ def load_mesh_arrays(path):
         raise InputError(path, "no such file")
     if os.path.isdir(path):
         raise InputError(path, "is a directory, not a mesh file")
-    declared = _ply_face_count(path)
-    if declared is not None:
-        check_count(declared, path)
+    declared = _ply_declared(path) or {}
+    if "face" in declared:
+        check_count(declared["face"], path)
     obj = path.lower().endswith(".obj")
     load_args = _obj_load_args(path) if obj else {"file_obj": path}
     try:
@@ -471,9 +491,16 @@ def load_mesh_arrays(path):
     faces = getattr(mesh, "faces", None)
     verts = getattr(mesh, "vertices", None)
     if faces is None or verts is None or len(faces) == 0:
+        if declared.get("face"):            # the reader stopped short of what the header says
+            raise InputError(path, f"its header declares {_elements(declared)}, but no face "
+                                   f"could be read: the file ends early or does not match "
+                                   f"its header")
         raise InputError(path, "mesh has no triangles")
     faces = np.asarray(faces, dtype=np.int64)
     verts = np.asarray(verts, dtype=np.float64)
+    if verts.ndim != 2 or verts.shape[1] != 3:
+        raise InputError(path, (obj and _obj_short_vertex(path)) or
+                         f"vertices have {verts.shape[-1]} coordinates, expected 3")
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise InputError(path, "mesh faces are not triangles")
     if faces.min() < 0 or faces.max() >= len(verts):

@@ -134,7 +134,7 @@ def cmd_build(args):
     from hwbvh import config
     from hwbvh.api import build, tree_files, tree_paths, warm_up
     from hwbvh.errors import InputError
-    from hwbvh.files import check_outputs, json_text, made_as_written
+    from hwbvh.files import check_outputs, directory_problem, json_text, made_as_written
     from hwbvh.primitives import as_triangles, load_mesh_arrays, pack_records, primitive_boxes
 
     _check_mesh_file(args.mesh, "build")
@@ -153,6 +153,9 @@ def cmd_build(args):
             raise InputError("--out", f"{args.out} {problem}; give a prefix of file names such as "
                                       f"{os.path.join(args.out, 'tree')} (writes PREFIX.nodes, "
                                       f"PREFIX.indices and PREFIX.json)")
+        problem = directory_problem(args.out)     # one for all three files: name the prefix
+        if problem:
+            raise InputError(f"--out {args.out}", problem)
         planned += tree_paths(args.out)
     if args.dump_aabbs:
         planned.append(args.dump_aabbs)

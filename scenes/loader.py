@@ -157,7 +157,7 @@ def _load_scene_file(spec):
     if low.endswith(".json"):
         try:
             with open(spec, encoding="utf-8") as f:
-                d = json.load(f, object_pairs_hook=_unique_keys)
+                d = json.load(f, object_pairs_hook=_unique_keys, parse_int=_json_int)
         except json.JSONDecodeError as e:
             raise InputError(spec, f"not valid JSON ({e.msg} at line {e.lineno})") from None
         except _DuplicateKey as e:
@@ -172,7 +172,8 @@ def _load_scene_file(spec):
         except tomllib.TOMLDecodeError as e:
             raise InputError(spec, f"not valid TOML ({e})") from None
         except (OSError, UnicodeDecodeError, RecursionError, ValueError) as e:
-            raise InputError(spec, f"cannot read the scene ({_reason(e)})") from None
+            raise InputError(spec, _long_integer(spec) or f"cannot read the scene ({_reason(e)})") \
+                from None
     elif low.endswith(MESH_EXTENSIONS):
         return mesh_scene(spec)
     else:
@@ -310,6 +311,25 @@ def finite(v):
         return math.isfinite(v)
     except OverflowError:
         return False
+
+
+def _json_int(text):
+    """A JSON integer; one too long for Python to convert (over 4300 digits) as the float it
+    rounds to (infinity), so that its key's check names it."""
+    return int(text) if len(text) <= 4000 else float(text)
+
+
+def _long_integer(path):
+    """'line N: ...' for the first integer of the text file ``path`` too long for Python to
+    convert (TOML's reader fails on it without naming its line), or None."""
+    try:
+        with open(path, "rb") as f:
+            for number, line in enumerate(f, 1):
+                if re.search(rb"\d{4001,}", line):
+                    return f"line {number}: a number of more than 4000 digits"
+    except OSError:
+        pass
+    return None
 
 
 def _reason(e):

@@ -227,6 +227,13 @@ def write_ply_header_only(path, faces):
     (lambda d: (d / "empty.obj").write_text("# nothing\n") and d / "empty.obj", "no triangles"),
     (lambda d: (d / "nan.obj").write_text("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n") and d / "nan.obj", "NaN"),
     (lambda d: write_ply_header_only(d / "big.ply", (1 << 24) + 1) or d / "big.ply", "2\\^24"),
+    (lambda d: (d / "short.obj").write_text("v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n") and d / "short.obj",
+     "short.obj: line 2: a vertex has 2 coordinates, expected 3$"),
+    (lambda d: (d / "cut.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n") and d / "cut.ply",
+     "cut.ply: its header declares 5 vertices and 1 face, but no face could be read"),
 ])
 def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, setup, match):
     src_dir = tmp_path / "in"
@@ -315,3 +322,14 @@ def test_slot_assignment_grows_its_stack_past_a_wrong_depth():
     grown = assign_slots(*args, 0)
     for a, b in zip(right, grown):
         assert np.array_equal(a, b)
+
+
+def test_build_names_its_out_prefix_when_the_directory_cannot_be_made(tmp_path, capsys):
+    from hwrt.cli import main
+    p = tmp_path / "m.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "file").write_text("")
+    prefix = tmp_path / "file" / "x"
+    assert main(["build", str(p), "--out", str(prefix)]) == 2
+    assert capsys.readouterr().err == (f"hwrt: error: --out {prefix}: cannot create a directory "
+                                       f"under {tmp_path / 'file'}: it is a file\n")

@@ -536,3 +536,17 @@ def test_pixels_too_bright_for_float32_are_counted_and_reported(tmp_path, capsys
                  "--json"]) == 0
     out, err = capsys.readouterr()
     assert json.loads(out)["pixels_beyond_float32"] == 0 and err == ""
+
+
+def test_an_integer_too_long_for_python_is_named_by_key_or_line(tmp_path, capsys, monkeypatch):
+    digits = "9" * 5000
+    d = json.dumps(scene_dict()).replace('"target"', f'"fov": {digits}, "target"')
+    (tmp_path / "long.json").write_text(d)
+    line = refused(capsys, tmp_path, monkeypatch, "render", tmp_path / "long.json", "-o",
+                   tmp_path / "o.exr")
+    assert line.startswith(f"hwrt: error: {tmp_path / 'long.json'}: key 'camera.fov': "), line
+    (tmp_path / "long.toml").write_text(f'name = "s"\n[camera]\neye = [0, 1, 4]\nfov = {digits}\n')
+    line = refused(capsys, tmp_path, monkeypatch, "render", tmp_path / "long.toml", "-o",
+                   tmp_path / "o.exr")
+    assert line == (f"hwrt: error: {tmp_path / 'long.toml'}: line 4: a number of more than 4000 "
+                    f"digits"), line
