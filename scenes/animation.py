@@ -47,9 +47,9 @@ from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, is_integer
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
-from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, check_scale, compile_scene, finite,
-                     flat_normals, is_pattern, load_scene, mesh_scene, smooth_normals, vector_ok,
-                     with_frame, written)
+from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, MAX_TRANSLATION_ROUNDING, check_scale,
+                     compile_scene, finite, flat_normals, is_pattern, load_scene, mesh_scene,
+                     smooth_normals, vector_ok, with_frame, written)
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
@@ -406,6 +406,7 @@ class RigidMotion:
         k = self.track.at_times(times)
         reach = self.reach(k)
         if within_bound(reach):
+            self._check_not_coarse(k, reach, times, source)
             return reach
         near = np.flatnonzero(~(reach <= MAX_COORDINATE))
         # a shape holding still (before the first key, after the last) is placed once
@@ -417,6 +418,24 @@ class RigidMotion:
                                         f"magnitude {beyond_bound_text(np.abs(v).max())}, "
                                         f"beyond {MAX_COORDINATE:.0e}")
         return reach
+
+    def _check_not_coarse(self, k, reach, times, source):
+        """Refuse, as a still shape's placement is refused (``loader.MAX_TRANSLATION_ROUNDING``),
+        a time at which the shape lies so far from the origin against its size that float32
+        rounds its coordinates by more than that share of its size: it would be traced flat or
+        empty there. Its size at a time is bounded above by the diagonal of its box under
+        the time's scale (no rotation makes a side longer), its coordinates by ``reach``, so
+        only shapes surely that coarse are refused."""
+        side = self.tris.reshape(-1, 3).max(axis=0) - self.tris.reshape(-1, 3).min(axis=0)
+        size = np.linalg.norm(side * np.abs(k["scale"]), axis=1)
+        step = np.spacing(reach.astype(np.float32)).astype(np.float64)
+        coarse = np.flatnonzero((size > 0) & (step / 2 > MAX_TRANSLATION_ROUNDING * size))
+        if len(coarse):
+            f = coarse[0]
+            _fail(source, self.key, f"at time {times[f]:g} the shape collapses: this far from "
+                                    f"the origin its coordinates round to float32 numbers "
+                                    f"{step[f]:.3g} apart, coarse against its size (at most "
+                                    f"{size[f]:.3g})")
 
     def reach(self, k):
         """Per time of the track's values ``k`` (``Track.at_times``), a bound on the magnitude

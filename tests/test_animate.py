@@ -719,3 +719,20 @@ def test_animate_counts_and_reports_pixels_too_bright_for_float32(tmp_path, caps
     assert rc == 0 and per_frame[0] == 0 < per_frame[1] == res["pixels_beyond_float32_total"]
     assert err.endswith(f"hwrt: warning: {per_frame[1]} pixels brighter than float32 holds "
                         f"(3.4e38) are +inf in {out_dir}; lower the scene's light values\n")
+
+
+def test_a_keyframe_moving_a_shape_too_far_for_float32_is_refused_before_any_frame(tmp_path,
+                                                                                  capsys):
+    # a unit box moved to x = 1e9 by its second key, where float32 numbers lie 64 apart
+    keys = [{"time": 0, "translate": [0, 0, 0]}, {"time": 1, "translate": [1e9, 0, 0]}]
+    p = _scene_file(tmp_path, [dict(BOX, keyframes=keys)], {"frames": 3, "fps": 2})
+    out_dir = tmp_path / "frames"
+    rc, out, err = _run_cli(capsys, "animate", p, "-o", out_dir)
+    assert rc == 2 and not out_dir.exists()
+    assert err.strip() == (f"hwrt: error: {p}: key 'shapes[0].keyframes': at time 0.5 the shape "
+                           f"collapses: this far from the origin its coordinates round to float32 "
+                           f"numbers 32 apart, coarse against its size (at most 1.73)")
+    # a million from the origin it is kept, as a still shape is
+    keys[1]["translate"] = [1e6, 0, 0]
+    p = _scene_file(tmp_path, [dict(BOX, keyframes=keys)], {"frames": 3, "fps": 2})
+    assert load_animation(p).check(3) is not None
