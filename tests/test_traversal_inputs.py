@@ -416,7 +416,7 @@ def test_the_float32_units_domain_is_as_documented():
     for scale in (2.5e13, 1e14):
         t, o, d = _mesh_at(scale)
         tr = Tracer(hwbvh.build(t))
-        tr.f32_range = None                 # the unit's own reach, past the guaranteed bound
+        tr.unit_range = None                 # the unit's own reach, past the guaranteed bound
         unchecked.append(finite_hits(tr, o, d))
     assert unchecked[0] == 64 and unchecked[1] < 32
     assert finite_hits(Tracer(hwbvh.build(t), precision="float64"), o, d) == 64
@@ -449,7 +449,7 @@ def test_float32_rays_are_checked_against_the_units_range():
     with pytest.raises(ParameterError, match=r"^dirs: directions up to 1e\+30 long take the "
                                              r"float32 unit's products to .*precision='float64'"):
         tr.intersect(o, D * np.float32(1e30))
-    tr.f32_range = None
+    tr.unit_range = None
     assert (tr.intersect(o, D * np.float32(1e30)).prim == hit).mean() < 0.5
     tr = Tracer(hwbvh.build(big))
     o[0] = np.nan
@@ -472,3 +472,23 @@ def test_a_vertex_one_ulp_outside_its_leaf_is_refused(bvh, axis, side):
     with pytest.raises(InputError, match=r"^triangles: a triangle lies outside its leaf's box"):
         Tracer(bvh, triangles=moved)
     Tracer(bvh, triangles=TRIS)
+
+
+def test_float64_rays_are_checked_against_the_units_range():
+    """The float64 units take origins far beyond the builder's coordinates, up to where their
+    products would pass a quarter of float64's range; beyond, the rays are refused naming
+    ``origins`` (unchecked, most answers are a miss or a hit at t = inf)."""
+    big = TRIS.astype(np.float64) * 1e6
+    tr = Tracer(hwbvh.build(big), precision="float64")
+    aim = big.mean(axis=1)                              # straight down onto each centroid
+    down = np.tile([0.0, 0.0, -1.0], (len(aim), 1))
+    for z in (1e30, 1e250, 1e290):
+        assert (tr.intersect(aim + [0, 0, z], down).prim >= 0).all()
+    far = aim + [0, 0, 1e300]
+    with pytest.raises(ParameterError, match=r"^origins: origins up to 1e\+300 from the "
+                                             r"triangles take the float64 unit's products to "
+                                             r".* beyond the 4.49e\+307 .*: scale the scene down$"):
+        tr.intersect(far, down)
+    tr.unit_range = None
+    h = tr.intersect(far, down)
+    assert ((h.prim == -1) | (h.t == np.inf)).mean() > 0.5

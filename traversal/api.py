@@ -20,7 +20,7 @@ from .aabb_unit import GAMMA3_F32, GAMMA3_F64
 from hwbvh.parallel import run_ranges
 from .config import CHUNK_RAYS, KEPT_BOUND_RAYS
 from .traverse import trace_chunks
-from .triangle_unit import Float32Range, band_eps2, preprocess
+from .triangle_unit import Float32Range, Float64Range, band_eps2, preprocess
 from .config import EDGE_EPS_F32, EDGE_EPS_F64   # the valid check's slack, with its reason
 
 
@@ -340,9 +340,9 @@ class Tracer(PacketCount):
         self.index_bytes = np.frombuffer(pack_indices(order), dtype=np.uint8)
         self.tris = preprocess(rows, self.dtype)
         self._tris1 = self.tris.reshape(-1)
-        # float32 rays that could take the unit's products out of range are refused, not
-        # traced to lost hits; the float64 units' range holds the builder's whole domain
-        self.f32_range = Float32Range(self.tris, rows) if f32 else None
+        # rays that could take the unit's products out of its float range are refused, not
+        # traced to lost hits (float64: only rays from beyond about 1e270)
+        self.unit_range = (Float32Range if f32 else Float64Range)(self.tris, rows)
         # the watertight test (accuracy study) needs the original vertices, not v0 + e1
         self.watertight = bool(watertight)
         self.raw = np.ascontiguousarray(np.asarray(tris, self.dtype).reshape(len(tris), 9)) \
@@ -356,8 +356,8 @@ class Tracer(PacketCount):
 
     def _run(self, origins, dirs, tmin, tmax, anyhit, counters, normals=False, as_run=False):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)
-        if self.f32_range is not None:
-            self.f32_range.check(o, d)
+        if self.unit_range is not None:
+            self.unit_range.check(o, d)
         n = len(o)
         prim, t, u, v, ng = _answers(n, anyhit, normals, self.dtype)
         cnt = np.zeros((n if counters else 0, 2), np.int64)

@@ -187,6 +187,10 @@ EMBREE_CHUNK_RAYS = 1 << 10
 # it too). Below this bound, a quarter of float32's largest number, rounding cannot carry it
 # past the float32 range; beyond it a ray may miss or hit at t = inf (traversal.structure).
 F32_UNIT_MAX_PRODUCT = 2.0**126
+# The same bound for the float64 units (the accuracy study's precision), a quarter of float64's
+# largest number: the builder's coordinates (at most 1e15) keep every product far below it, so
+# only rays from origins beyond about 1e270 can reach it.
+F64_UNIT_MAX_PRODUCT = 2.0**1022
 # The same products lose bits below float32's normal range (2^-126: a product of 2^-140 keeps
 # 10 of its 24), and t's numerator and det with them, so a scene too small is refused too: one
 # whose triangles span (the diagonal of their box) less than this. The default scene scaled

@@ -67,7 +67,7 @@ class TriangleStructure:
     def _set_unit(self, tris):
         self.n_triangles = len(tris)
         self.tris = preprocess(tris, np.float32)
-        self.f32_range = Float32Range(self.tris, tris)
+        self.unit_range = Float32Range(self.tris, tris)
         self._tris1 = self.tris.reshape(-1)
         self.eps2 = band_eps2(np.float32)
         self.one = np.float32(1)
@@ -79,7 +79,7 @@ class TriangleStructure:
 
     def _run(self, origins, dirs, tmin, tmax, anyhit, normals):
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, np.float32)
-        self.f32_range.check(o, d)
+        self.unit_range.check(o, d)
         prim, t, u, v, ng = _answers(len(o), anyhit, normals, np.float32)
         self._trace(o, d, lo, hi, anyhit, prim, t, u, v, ng)
         return prim, t, u, v, (ng if normals else None)

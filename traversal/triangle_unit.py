@@ -32,7 +32,7 @@ from numba import njit, types
 from numba.extending import overload
 
 from hwbvh.errors import ParameterError
-from .config import BAND_K, F32_UNIT_MAX_PRODUCT
+from .config import BAND_K, F32_UNIT_MAX_PRODUCT, F64_UNIT_MAX_PRODUCT
 
 # A preprocessed triangle row: offsets of its words (x, y, z each) in the working float type.
 TRI_V0 = 0            # vertex 0
@@ -171,12 +171,16 @@ class Float32Range:
     triangles, checked before its kernels run (they trust their rays).
 
     The unit's products are |d| |e1| |e2| (det), |o - v0| |d| |e| (u and v) and
-    |o - v0| |e1| |e2| (t); each bounded by ``config.F32_UNIT_MAX_PRODUCT``, none can leave the
-    range. From the triangles, once: the largest |e1| |e2|, the longest edge and the largest
+    |o - v0| |e1| |e2| (t); each bounded by ``MAX_PRODUCT`` (``config.F32_UNIT_MAX_PRODUCT``),
+    none can leave the range. From the triangles, once: the largest |e1| |e2|, the longest edge and the largest
     coordinate magnitude. Per batch, one pass over the rays (``ray_magnitudes``) bounds
     |o - v0| by sqrt(3) (max |o_i| + the mesh's magnitude) and |d| by sqrt(3) max |d_i|; where
     that bound fails, the boxes of the origins and the triangles (as ``f32_unit_reach`` takes
     them) and the rays' own lengths decide, so a scene the renderer accepts is traced."""
+
+    MAX_PRODUCT = F32_UNIT_MAX_PRODUCT
+    UNIT = "float32"
+    REMEDY = "trace with precision='float64', or scale the scene down"
 
     def __init__(self, rows, triangles):
         """``rows``: the ``preprocess`` rows of ``triangles`` (n, 3, 3)."""
@@ -188,45 +192,70 @@ class Float32Range:
         # most sqrt(3) long), origins within this magnitude; -1 when no batch is that simple
         k = np.sqrt(3.0)
         worst = max(self.edges, k * self.longest)
-        self.origin_limit = -1.0 if k * self.edges > F32_UNIT_MAX_PRODUCT or worst == 0 else \
-            F32_UNIT_MAX_PRODUCT / worst / k - self.box[2]
+        with np.errstate(over="ignore"):            # float64's bound over tiny edges: inf
+            self.origin_limit = -1.0 if k * self.edges > self.MAX_PRODUCT or worst == 0 else \
+                self.MAX_PRODUCT / worst / k - self.box[2]
+
+    def _magnitudes(self, o, d):
+        """(largest finite |coordinate| of the origins, of the directions)."""
+        return ray_magnitudes(o.reshape(-1), d.reshape(-1))
 
     def _largest(self, dist, dlen):
         """The largest of the unit's products for origins ``dist`` from a vertex and
-        directions of length ``dlen``."""
-        return max(dist * self.edges, dist * self.longest * max(dlen, 1.0), dlen * self.edges)
+        directions of length ``dlen`` (infinity past float64's range)."""
+        with np.errstate(over="ignore"):
+            return max(dist * self.edges, dist * self.longest * max(dlen, 1.0), dlen * self.edges)
 
     def check(self, o, d):
         """ParameterError naming ``origins`` or ``dirs`` when the rays ``o``, ``d`` (n, 3)
         could take a product past the bound."""
         if self.edges == 0 or len(o) == 0:          # no triangle can be hit / no ray
             return
-        om, dm = ray_magnitudes(o.reshape(-1), d.reshape(-1))
+        om, dm = self._magnitudes(o, d)
         if om <= self.origin_limit and dm <= 1.0:
             return
         k = np.sqrt(3.0)
-        if self._largest(k * (om + self.box[2]), k * dm) <= F32_UNIT_MAX_PRODUCT:
+        if self._largest(k * (om + self.box[2]), k * dm) <= self.MAX_PRODUCT:
             return
         # non-finite coordinates passed over here too (as NaN, which fmin/fmax skip)
         of = np.where(np.isfinite(o), o, np.nan).astype(np.float64)
         lo = np.fmin(np.fmin.reduce(of, axis=0), self.box[0])
         hi = np.fmax(np.fmax.reduce(of, axis=0), self.box[1])
-        dist = float(np.linalg.norm(hi - lo))
+        span = hi - lo
+        m = float(np.abs(span).max())
+        dist = m * float(np.linalg.norm(span / m)) if m > 0 else 0.0    # no float64 overflow
+        # lengths of directions scaled by the largest coordinate, so that float64 squares
+        # cannot overflow
+        s = dm if dm > 0 else 1.0
         dd = np.zeros(len(d))
         for c in range(3):
-            dc = d[:, c].astype(np.float64)
+            dc = d[:, c].astype(np.float64) / s
             dd += dc * dc
-        dlen = float(np.sqrt(np.fmax.reduce(np.where(dd < np.inf, dd, np.nan), initial=0.0)))
+        dlen = s * float(np.sqrt(np.fmax.reduce(np.where(dd < np.inf, dd, np.nan), initial=0.0)))
         got = self._largest(dist, dlen)
-        if got <= F32_UNIT_MAX_PRODUCT:
+        if got <= self.MAX_PRODUCT:
             return
-        name = "dirs" if self._largest(dist, 1.0) <= F32_UNIT_MAX_PRODUCT else "origins"
+        name = "dirs" if self._largest(dist, 1.0) <= self.MAX_PRODUCT else "origins"
         why = (f"directions up to {dlen:.3g} long" if name == "dirs" else
                f"origins up to {dist:.3g} from the triangles")
-        raise ParameterError(name, f"{why} take the float32 unit's products to {got:.3g}, beyond "
-                                   f"the {F32_UNIT_MAX_PRODUCT:.3g} they stay within (hits would "
-                                   f"be lost): trace with precision='float64', or scale the "
-                                   f"scene down")
+        to = f"to {got:.3g}" if got < np.inf else "to infinity"
+        raise ParameterError(name, f"{why} take the {self.UNIT} unit's products {to}, beyond "
+                                   f"the {self.MAX_PRODUCT:.3g} they stay within (hits would be "
+                                   f"lost): {self.REMEDY}")
+
+
+class Float64Range(Float32Range):
+    """``Float32Range`` for the float64 units: the builder's coordinates keep their products
+    far inside float64's range, so only origins or directions beyond about 1e270 are refused."""
+
+    MAX_PRODUCT = F64_UNIT_MAX_PRODUCT
+    UNIT = "float64"
+    REMEDY = "scale the scene down"
+
+    def _magnitudes(self, o, d):
+        with np.errstate(invalid="ignore"):
+            return tuple(float(np.fmax.reduce(np.where(np.isfinite(a), np.abs(a), np.nan),
+                                              axis=None, initial=0.0)) for a in (o, d))
 
 
 def band_eps2(dtype):
