@@ -16,7 +16,8 @@ spans up to 1.3e13 and refuse it from 1.4e13; the unit itself, unchecked, keeps 
 2.5e13 (the bound is a guarantee, not the edge), and finds 2 of 64 at 1e14. Embree, which has
 no such check, keeps every hit up to 2e13. The datapath is the hardware's and is kept;
 ``traversal.Tracer(precision="float64")`` traces the builder's whole domain (every hit on the
-same mesh spanning 9.9e14).
+same mesh spanning 9.9e14), checking its rays in the same way against float64's range
+(``triangle_unit.Float64Range``: only origins beyond about 1e270 reach it).
 """
 import numpy as np
 
