@@ -486,13 +486,10 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
 
     # a band each: the last band ends soonest
     run_as_tracer_allows(tracer, bands, n_bands, parts=n_bands)
-    rays = {k: sum(r[k] for r, _ in band_stats) for k in RAY_KINDS}
-    secs = {k: sum(t[k] for _, t in band_stats) for k in STAGES}
-    # the film is float64 and the image float32: a pixel past float32's largest number
-    # (3.4e38: lights at the largest values close to a surface) is +inf in the image
-    over = int(np.count_nonzero(np.isinf(frame.image).any(axis=1)))
+    rays = {k: sum(r[k] for r, _, _ in band_stats) for k in RAY_KINDS}
+    secs = {k: sum(t[k] for _, t, _ in band_stats) for k in STAGES}
     stats = {"rays": rays, "passes": passes, "stage_seconds": secs,
-             "pixels_beyond_float32": over}
+             "pixels_beyond_float32": sum(over for _, _, over in band_stats)}
     return RenderResult(image=frame.image.reshape(H, W, 3), depth=frame.aov_depth.reshape(H, W),
                         normal=frame.aov_normal.reshape(H, W, 3),
                         prim=frame.aov_prim.reshape(H, W), stats=stats)
@@ -629,7 +626,7 @@ class _Frame:
 
 def _render_band(fr, band):
     """Rows band * fr.rows onward of the frame, every sample pass and bounce, on this thread.
-    Returns (rays per kind, seconds per stage)."""
+    Returns (rays per kind, seconds per stage, pixels too bright for the float32 image)."""
     scene, tracer, sa = fr.scene, fr.tracer, fr.sa
     W, H = scene.width, scene.height
     ntri = len(scene.triangles)
@@ -699,8 +696,10 @@ def _render_band(fr, band):
             rays["refraction"] += refr
             buf.cur, buf.nxt = buf.nxt, buf.cur
             n = refl + refr
-    stages.finish_band(q0, q1, film, scene.spp, fr.image)
+    # the film is float64 and the image float32: a pixel past float32's largest number
+    # (3.4e38: lights at the largest values close to a surface) is +inf in the image
+    over = int(stages.finish_band(q0, q1, film, scene.spp, fr.image))
     lap("accumulate")
     if fr.progress:
         fr.progress(y1 - y0)
-    return rays, secs
+    return rays, secs, over

@@ -153,10 +153,17 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def finish_band(q0, q1, film, spp, image):
-    """The image of pixels q0..q1: the mean of their ``spp`` samples, in float32."""
+    """The image of pixels q0..q1: the mean of their ``spp`` samples, in float32. Returns how
+    many of them are too bright for float32 (+inf in the image; the film is float64)."""
+    over = 0
     for q in range(q0, q1):
+        inf = False
         for c in range(3):
-            image[q, c] = np.float32(film[q, c] / spp)
+            x = np.float32(film[q, c] / spp)
+            image[q, c] = x
+            inf |= np.isinf(x)
+        over += inf
+    return over
 
 
 @njit(cache=True, error_model="numpy")
