@@ -145,11 +145,16 @@ def mesh_specs(paths):
     if not paths:
         raise ParameterError("meshes", "no mesh given")
     paths = [os.fspath(p) for p in paths]
-    specs = []
+    specs, by_digest = [], {}
     for name, path in zip(mesh_names(paths), paths):
         verts, faces = load_mesh_arrays(path)
         tris = as_triangles(verts[faces], source=path)
-        specs.append({"name": name, "path": os.path.abspath(path), "digest": _digest(path),
+        digest = _digest(path)
+        if digest in by_digest:                 # cells are keyed by contents: one set of rows
+            raise InputError(path, f"has the same contents as {by_digest[digest]}: give one "
+                                   f"of them")
+        by_digest[digest] = path
+        specs.append({"name": name, "path": os.path.abspath(path), "digest": digest,
                       "triangles": int(len(tris))})
     return specs
 

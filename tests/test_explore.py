@@ -157,6 +157,11 @@ def test_meshes_are_named_as_the_benchmarks_name_them(tmp_path):
         (paths[0], 100), (paths[1], 120), ("t", 80)]
     with pytest.raises(InputError, match="given twice"):
         ex.mesh_specs([paths[2], paths[2]])
+    copy = tmp_path / "copy.obj"                # cells are keyed by contents: refused too
+    copy.write_bytes(open(paths[2], "rb").read())
+    with pytest.raises(InputError) as e:
+        ex.mesh_specs([paths[2], copy])
+    assert str(e.value) == f"{copy}: has the same contents as {paths[2]}: give one of them"
     for bad, problem in ((tmp_path / "none.ply", "no such file"),
                          (tmp_path / "a", "is a directory, not a mesh file")):
         with pytest.raises(InputError) as e:
