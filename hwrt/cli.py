@@ -463,8 +463,9 @@ def cmd_render(args):
                                         f"traces in float32")
     d = with_frame(load_scene(args.scene), args.width, args.height, args.spp, args.max_depth)
     out = args.output or os.path.join("renders", f"{d.get('name', 'scene')}.exr")
-    if not out.lower().endswith(".exr"):
-        raise InputError("-o", f"{out} does not end in .exr (--png adds a PNG preview beside the EXR)")
+    if os.path.splitext(out)[1].lower() != ".exr":
+        raise InputError("-o", f"{out}: expected a file name with the extension .exr, such as "
+                               f"image.exr (--png adds a PNG preview beside the EXR)")
     png = os.path.splitext(out)[0] + ".png" if args.png else None
     check_outputs([out, png], inputs=scene_inputs(args.scene))
     scene = compile_scene(d)

@@ -19,8 +19,13 @@ def write_exr(path, result, metadata=None, layers=True):
 
 
 def _check_path(path, extension):
-    if os.path.splitext(os.fspath(path))[1].lower() != extension:
-        raise ParameterError("path", f"{os.fspath(path)}: expected a {extension} file name")
+    try:
+        name = os.fspath(path)
+    except TypeError:
+        raise ParameterError("path", f"expected a file path, got {type(path).__name__}") from None
+    if os.path.splitext(name)[1].lower() != extension:
+        raise ParameterError("path", f"{name}: expected a file name with the extension "
+                                     f"{extension}, such as image{extension}")
 
 
 def _check_image(name, image, shape):
@@ -39,6 +44,9 @@ def exr_writer(path, result, metadata=None, layers=True):
     import OpenImageIO as oiio
 
     _check_path(path, ".exr")
+    if not all(hasattr(result, a) for a in ("image", "depth", "normal", "prim")):
+        raise ParameterError("result", f"expected a render's result (raytracer.render.render "
+                                       f"returns one), got {type(result).__name__}")
     if metadata is None:
         metadata = {}
     if not isinstance(metadata, dict):

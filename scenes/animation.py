@@ -49,7 +49,7 @@ from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, 
 from .builtin import BUILTIN
 from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, MAX_TRANSLATION_ROUNDING, check_scale,
                      compile_scene, finite, flat_normals, is_pattern, load_scene, mesh_scene,
-                     smooth_normals, vector_ok, with_frame, written)
+                     smooth_normals, spec_path, vector_ok, with_frame, written)
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
@@ -1009,7 +1009,7 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
     """An :class:`Animation` from a built-in animation name (``params`` go to it), a frame
     pattern of mesh files, or anything ``load_scene`` reads (a scene file, which may animate,
     a static built-in scene, a mesh file)."""
-    spec = os.fspath(spec)
+    spec = spec_path(spec)
     film = {k: v for k, v in (("width", width), ("height", height), ("spp", spp),
                               ("max_depth", max_depth)) if v is not None}
     if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float, np.number))
@@ -1024,6 +1024,9 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
             if params[k] is not None and k not in accepted:
                 raise ParameterError(k, f"the built-in animation '{spec}' has no parameter {k!r}")
         n = params.get("triangles")
+        if n is not None and params.get("mesh") is not None:
+            raise ParameterError("triangles", "makes a generated mesh: a mesh given brings its "
+                                              "own triangles")
         if n is not None and (not is_integer(n) or not 1 <= n <= MAX_PRIMITIVES):
             # the command line's --triangles range: a tree holds at most 2^24 triangles
             raise ParameterError("triangles", f"must be an integer in 1..{MAX_PRIMITIVES}, "

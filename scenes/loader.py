@@ -130,10 +130,21 @@ def _unique_keys(pairs):
 FILE_OVERRIDES = ("width", "height", "spp", "max_depth")      # what a file's scene takes
 
 
+def spec_path(spec, name="spec", wanted="a built-in name or a file path"):
+    """``spec`` (``wanted``) as a string; ParameterError naming ``name`` for anything else (a
+    scene dict goes to ``compile_scene``, not here)."""
+    try:
+        return os.fspath(spec)
+    except TypeError:
+        hint = " (a scene dict goes to compile_scene)" if isinstance(spec, dict) else ""
+        raise ParameterError(name, f"expected {wanted}, got {type(spec).__name__}{hint}") \
+            from None
+
+
 def load_scene(spec, **overrides):
     """A scene dict from a built-in name, a scene file or a mesh file. ``overrides``: a
     built-in scene's parameters; for a file, its film and depth (``FILE_OVERRIDES``)."""
-    spec = os.fspath(spec)
+    spec = spec_path(spec)
     if spec in BUILTIN:
         d = BUILTIN[spec](**_builtin_overrides(spec, overrides))
         d.setdefault("_source", spec)
@@ -366,6 +377,7 @@ def mesh_scene(path):
     """A mesh alone: default camera framing it, a point light, a plain diffuse material."""
     from traversal.camera import frame_bounds
 
+    path = spec_path(path, "path", "a mesh file path")
     verts, faces = _mesh_arrays(path)
     used = verts[np.unique(faces)]
     lo, hi = used.min(0), used.max(0)
@@ -394,8 +406,20 @@ def transform_scene(d, scale=1.0, translate=(0.0, 0.0, 0.0)):
     irradiance, and so the image, stays the same)."""
     import copy
 
+    if not (isinstance(d, dict) and isinstance(d.get("camera"), dict)
+            and isinstance(d.get("shapes"), list)):
+        raise ParameterError("d", f"expected a scene dict with a camera and shapes (load_scene "
+                                  f"makes one), got {type(d).__name__}")
+    if not (isinstance(scale, (int, float, np.number)) and not isinstance(scale, bool)
+            and np.isfinite(scale) and scale != 0):
+        raise ParameterError("scale", f"expected a finite number other than 0, got {scale!r}")
+    try:
+        t = np.asarray(translate, np.float64)
+    except (TypeError, ValueError):
+        t = None
+    if t is None or t.shape != (3,) or not np.isfinite(t).all():
+        raise ParameterError("translate", f"expected 3 finite numbers, got {translate!r}")
     s = float(scale)
-    t = np.asarray(translate, np.float64)
     d = copy.deepcopy(d)
     P = lambda p: (np.asarray(p, np.float64) * s + t).tolist()
     d["camera"]["eye"] = P(d["camera"]["eye"])

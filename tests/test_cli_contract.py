@@ -1209,3 +1209,15 @@ def test_replay_of_a_bare_npy_array_is_refused_in_one_line(capsys, tmp_path):
     rc, out, err = call(capsys, "verify", "cornell", "--replay", f)
     assert rc == 2 and one_line_error(err) == (f"hwrt: error: --replay {f}: not a mismatch file "
                                               "from hwrt verify (not an .npz archive)")
+
+
+@pytest.mark.parametrize("argv,line", [
+    (["render", "cornell", "-o", ".exr"],
+     "hwrt: error: -o: .exr: expected a file name with the extension .exr, such as image.exr "
+     "(--png adds a PNG preview beside the EXR)"),
+    (["animate", "exploding", "--mesh", "bunny.ply", "--triangles", "500"],
+     "hwrt: error: --triangles: makes a generated mesh: a mesh given brings its own triangles")])
+def test_options_that_cannot_apply_are_named(tmp_path, capsys, monkeypatch, argv, line):
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = call(capsys, *argv)
+    assert rc == 2 and one_line_error(err) == line and not any(tmp_path.iterdir())

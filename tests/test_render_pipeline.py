@@ -429,9 +429,16 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
     h, w = 2, 3
     res = RenderResult(np.full((h, w, 3), 0.5, np.float32), np.ones((h, w), np.float32),
                        np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.int32))
-    for path in (tmp_path / "noext", tmp_path / "a.png"):
-        with pytest.raises(ParameterError, match="expected a .exr file name"):
+    for path in (tmp_path / "noext", tmp_path / "a.png", tmp_path / ".exr"):
+        with pytest.raises(ParameterError, match=r"expected a file name with the extension "
+                                                 r"\.exr, such as image\.exr"):
             write_exr(path, res)
+    for path, result, problem in ((None, res, "path: expected a file path, got NoneType"),
+                                  (tmp_path / "a.exr", res.image, "result: expected a render's "
+                                   "result (raytracer.render.render returns one), got ndarray")):
+        with pytest.raises(ParameterError) as e:
+            write_exr(path, result)
+        assert str(e.value) == problem
     (tmp_path / "d.exr").mkdir()
     with pytest.raises(IsADirectoryError, match="d.exr"):
         write_exr(tmp_path / "d.exr", res)
@@ -440,7 +447,7 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
         write_exr(tmp_path / "four.exr", four)
     with pytest.raises(ParameterError, match="result.depth"):
         write_exr(tmp_path / "depth.exr", RenderResult(res.image, res.depth[:1], res.normal, res.prim))
-    with pytest.raises(ParameterError, match="expected a .png file name"):
+    with pytest.raises(ParameterError, match="expected a file name with the extension .png"):
         write_png(tmp_path / "a.exr", res.image)
     write_exr(tmp_path / "ok.exr", res, {"rays": 2 ** 40, "flag": True, "t": 0.25, "n": 7})
     meta = read_exr(tmp_path / "ok.exr")[2]

@@ -329,6 +329,31 @@ def test_python_callers_get_errors_naming_what_they_passed():
     assert "film.width" in str(e.value) and len(str(e.value)) < 200
 
 
+@pytest.mark.parametrize("call, message", [
+    (lambda: load_scene(None), "spec: expected a built-in name or a file path, got NoneType"),
+    (lambda: load_scene({}), "spec: expected a built-in name or a file path, got dict (a scene "
+                             "dict goes to compile_scene)"),
+    (lambda: load_animation(5), "spec: expected a built-in name or a file path, got int"),
+    (lambda: __import__("scenes").mesh_scene(None), "path: expected a mesh file path, got "
+                                                    "NoneType"),
+    (lambda: __import__("scenes").transform_scene(None), "d: expected a scene dict with a camera "
+                                                         "and shapes (load_scene makes one), got "
+                                                         "NoneType"),
+    (lambda: __import__("scenes").transform_scene(load_scene("cornell"), 0),
+     "scale: expected a finite number other than 0, got 0"),
+    (lambda: __import__("scenes").transform_scene(load_scene("cornell"), "x"),
+     "scale: expected a finite number other than 0, got 'x'"),
+    (lambda: __import__("scenes").transform_scene(load_scene("cornell"), 2, [1, 2]),
+     "translate: expected 3 finite numbers, got [1, 2]"),
+    (lambda: load_animation("exploding", mesh="bunny.ply", triangles=500),
+     "triangles: makes a generated mesh: a mesh given brings its own triangles"),
+])
+def test_scene_functions_name_a_wrong_argument(call, message):
+    with pytest.raises(ParameterError) as e:
+        call()
+    assert str(e.value) == message
+
+
 # --------------------------------------------------------------------------------------
 # a missing 'type' is named as missing
 # --------------------------------------------------------------------------------------
