@@ -32,6 +32,7 @@ VERIFY_KIND = "random"
 EXIT_BAD_INPUT = 2
 EXIT_SIGINT = 128 + signal.SIGINT
 EXIT_SIGTERM = 128 + signal.SIGTERM
+EXIT_SIGPIPE = 128 + signal.SIGPIPE     # the reader of stdout went away (`hwrt ... | head`)
 DEBUG_ENV = "HWRT_DEBUG"           # set: an internal error is re-raised with its traceback
 
 
@@ -1233,6 +1234,14 @@ def _run(argv, signals_owned):
     except InputError as e:
         print(f"hwrt: error: {_input_message(parser, args, e)}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except BrokenPipeError:
+        # as a command killed by SIGPIPE would end, silently; stdout goes nowhere from here, so
+        # that the interpreter's last flush cannot fail again
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):       # stdout is not a file (called in-process)
+            pass
+        return EXIT_SIGPIPE
     except Exception as e:  # anything else is our fault, not the input's
         print(f"hwrt: internal error: {type(e).__name__}: {e}", file=sys.stderr)
         if os.environ.get(DEBUG_ENV):

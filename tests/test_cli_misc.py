@@ -520,3 +520,18 @@ sys.meta_path.insert(0, Interrupting())
     r = _console(setup, "build", mesh, "--out", tmp_path / "tree")
     assert r.stderr == "signalled\nhwrt: interrupted\n" and r.returncode == 130
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tetra.obj"]
+
+
+def test_a_reader_that_goes_away_ends_the_command_quietly(tmp_path):
+    """`hwrt build m.obj | true`: stdout's reader gone, the command ends as one killed by
+    SIGPIPE would, with nothing on stderr (not an internal error)."""
+    p = tmp_path / "m.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    r, w = os.pipe()
+    os.close(r)                                   # no reader at all
+    try:
+        proc = subprocess.run([sys.executable, "-m", "hwrt.cli", "build", str(p), "--json"],
+                              stdout=w, stderr=subprocess.PIPE, text=True, timeout=300)
+    finally:
+        os.close(w)
+    assert (proc.returncode, proc.stderr) == (141, "")
