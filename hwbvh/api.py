@@ -73,6 +73,14 @@ def _triangles(source, name=None):
     return as_triangles(source, source=name or "<array>"), name or "<array>"
 
 
+def _check_capacity(capacity, leaf_size):
+    """A subtree builder takes the subtrees of at most ``capacity`` primitives: it must hold
+    a leaf (as ``cycle_model.simulate`` requires of w * psize)."""
+    if capacity < leaf_size:
+        raise ParameterError("capacity", f"{capacity} is below the leaf size {leaf_size}: a "
+                                         f"subtree builder must hold a leaf")
+
+
 def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAULT_BINS,
           capacity=config.DEFAULT_CAPACITY, subtree_builders=1,
           block_nodes=config.DEFAULT_BLOCK_NODES, validate_tree=False, task_prims=None,
@@ -95,6 +103,8 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
         if not is_integer(v) or not lo <= v <= hi:
             span = "a positive integer below 2^63" if hi == 2**63 - 1 else f"an integer in {lo}..{hi}"
             raise ParameterError(name, f"must be {span}, got {v!r}")
+    if builder == "hwbvh":
+        _check_capacity(capacity, leaf_size)
     tris, src = _triangles(source, source_name)
     if (1 + subtree_builders) * block_nodes + 2 * len(tris) - 1 > config.MAX_NODE_SLOTS:
         raise ParameterError("block_nodes", f"{block_nodes} nodes per block for "
@@ -109,6 +119,7 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     else:
         tree = build_sweep(boxes)
         max_leaf = tree.leaf_size
+        _check_capacity(capacity, max_leaf)
     nodes, handoff, info = lay_out(tree, capacity, subtree_builders, block_nodes)
     seconds = time.perf_counter() - t0
     st = tree_stats(nodes)

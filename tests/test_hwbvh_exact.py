@@ -219,7 +219,7 @@ def test_property_invariants_and_exactness(tris, leaf, bins):
     ref, _ = naive_hwbvh(primitive_boxes(tris), leaf, bins) if len(tris) <= 120 else (None, 0)
     a, pa = tree_of(tris, leaf_size=leaf, bins=bins, capacity=1 << 30)
     # the data-parallel upper phase and parallel tasks (task_prims) must give the same tree
-    b, pb = tree_of(tris, leaf_size=leaf, bins=bins, capacity=7, subtree_builders=2, block_nodes=5,
+    b, pb = tree_of(tris, leaf_size=leaf, bins=bins, capacity=leaf + 7, subtree_builders=2, block_nodes=5,
                     task_prims=16)
     assert pa == pb
     if ref is not None:
