@@ -917,8 +917,8 @@ def make_parser():
                         f"{config.MAX_HARDWARE_BINS}, so a tree built with more cannot be "
                         f"simulated; default: {config.DEFAULT_BINS})")
     b.add_argument("--capacity", type=_positive,
-                   help=f"subtree capacity w*Psize, at least the leaf size; placement only (the tree never changes); "
-                        f"hwbvh and sweep (default: {config.DEFAULT_CAPACITY})")
+                   help=f"subtree capacity w*Psize, at least the leaf size; placement only (the "
+                        f"tree never changes); hwbvh and sweep (default: {config.DEFAULT_CAPACITY})")
     b.add_argument("--subtree-builders", type=_positive,
                    help="subtree builders, placement only; hwbvh and sweep (default: 1)")
     b.add_argument("--block-nodes", type=_positive,
