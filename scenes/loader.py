@@ -324,10 +324,22 @@ def finite(v):
         return False
 
 
+class _LongInteger(float):
+    """A JSON integer too long for Python to convert: the float it rounds to (infinity), so
+    that its key's check refuses it, shown as what the file holds."""
+
+    def __new__(cls, text):
+        self = super().__new__(cls, text)
+        self.digits = len(text.lstrip("-"))
+        return self
+
+    def __repr__(self):
+        return f"an integer of {self.digits} digits"
+
+
 def _json_int(text):
-    """A JSON integer; one too long for Python to convert (over 4300 digits) as the float it
-    rounds to (infinity), so that its key's check names it."""
-    return int(text) if len(text) <= 4000 else float(text)
+    """A JSON integer (``_LongInteger`` past 4000 digits; Python converts at most 4300)."""
+    return int(text) if len(text) <= 4000 else _LongInteger(text)
 
 
 def _long_integer(path):
@@ -460,6 +472,11 @@ class CompiledScene:
     faces: np.ndarray = None     # (n, 3) int32
 
 
+def _at(path, key):
+    """The key ``key`` of the object at ``path`` ("" for the scene itself), as messages name it."""
+    return f"{path}.{key}" if path else str(key)
+
+
 class _Ctx:
     def __init__(self, source):
         self.source = source
@@ -472,7 +489,7 @@ class _Ctx:
         (or ``hints[key]``, for a key that belongs elsewhere)."""
         for key in obj:
             if key not in allowed:
-                where = f"{path}.{key}" if path else str(key)
+                where = _at(path, key) if path else str(key)
                 close = difflib.get_close_matches(str(key), [a for a in allowed if a[0] != "_"], 1)
                 known = "known keys: " + ", ".join(a for a in allowed if a[0] != "_")
                 hint = (f"did you mean {hints[key]}? {known}" if key in (hints or {}) else
@@ -489,13 +506,13 @@ class _Ctx:
     def flag(self, obj, key, path, default):
         v = obj.get(key, default)
         if not isinstance(v, (bool, np.bool_)):
-            self.fail(f"{path}.{key}", f"expected true or false, got {written(v)}")
+            self.fail(_at(path, key), f"expected true or false, got {written(v)}")
         return bool(v)
 
     def vec(self, obj, key, path, n=3, default=None, bound=MAX_COORDINATE):
         if key not in obj:
             if default is None:
-                self.fail(f"{path}.{key}", "missing")
+                self.fail(_at(path, key), "missing")
             return np.asarray(default, np.float64)
         v = given = obj[key]
         if isinstance(v, (int, float, np.integer, np.floating)) and \
@@ -504,9 +521,9 @@ class _Ctx:
         try:
             a = np.asarray(v, np.float64)
         except (TypeError, ValueError):
-            self.fail(f"{path}.{key}", f"expected {n} numbers, got {written(given)}")
+            self.fail(_at(path, key), f"expected {n} numbers, got {written(given)}")
         if a.shape != (n,) or not np.isfinite(a).all() or not vector_ok(v, a, bound):
-            self.fail(f"{path}.{key}", f"expected {n} finite numbers of magnitude at most "
+            self.fail(_at(path, key), f"expected {n} finite numbers of magnitude at most "
                                        f"{bound:g}, got {written(given)}")
         return a
 
@@ -515,22 +532,22 @@ class _Ctx:
         ``wanted`` words the range for the error (default: from the bounds)."""
         if key not in obj:
             if default is None:
-                self.fail(f"{path}.{key}", "missing")
+                self.fail(_at(path, key), "missing")
             return default
         v = obj[key]
         # numbers as JSON and TOML give them, and NumPy's (a dict built in Python)
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
-            self.fail(f"{path}.{key}", f"expected {'an integer' if integer else 'a number'}, "
+            self.fail(_at(path, key), f"expected {'an integer' if integer else 'a number'}, "
                                        f"got {written(v)}")
         if not finite(v):
-            self.fail(f"{path}.{key}", f"expected a finite number, got {written(v)}")
+            self.fail(_at(path, key), f"expected a finite number, got {written(v)}")
         if integer and int(v) != v:
-            self.fail(f"{path}.{key}", f"expected an integer, got {written(v)}")
+            self.fail(_at(path, key), f"expected an integer, got {written(v)}")
         if (lo is not None and v < lo) or (hi is not None and v > hi):
             if wanted is None:
                 wanted = f"at least {lo}" if hi is None else \
                     (f"at most {hi}" if lo is None else f"in [{lo}, {hi}]")
-            self.fail(f"{path}.{key}", f"{written(v)} is out of range (must be {wanted})")
+            self.fail(_at(path, key), f"{written(v)} is out of range (must be {wanted})")
         return int(v) if integer else float(v)
 
 
@@ -846,7 +863,7 @@ def _reflectance(ctx, obj, key, path, default):
     """Three reflectances, each in [0, 1] (more would add light at every bounce)."""
     v = ctx.vec(obj, key, path, default=default)
     if (v < 0).any() or (v > 1).any():
-        ctx.fail(f"{path}.{key}", f"reflectances must lie in [0, 1], got {v.tolist()}")
+        ctx.fail(_at(path, key), f"reflectances must lie in [0, 1], got {v.tolist()}")
     return v
 
 
@@ -855,7 +872,7 @@ def _light(ctx, obj, key, path, default=None):
     paint negative pixels."""
     v = ctx.vec(obj, key, path, default=default, bound=MAX_RADIANCE)
     if (v < 0).any():
-        ctx.fail(f"{path}.{key}", f"must not be negative, got {v.tolist()}")
+        ctx.fail(_at(path, key), f"must not be negative, got {v.tolist()}")
     return v
 
 
@@ -894,12 +911,13 @@ def compile_scene(d, source=None, first_shape=0):
     source = source or d.get("_source", "<scene>")
     ctx = _Ctx(source)
     shapes = d.get("shapes")
-    moving = "animation" in d or any(
-        isinstance(sh, dict) and ("keyframes" in sh or sh.get("type") == "frames")
-        for sh in (shapes if isinstance(shapes, (list, tuple)) else []))
+    moving = ["animation"] if "animation" in d else [
+        f"shapes[{i}].{'keyframes' if 'keyframes' in sh else 'type'}"
+        for i, sh in enumerate(shapes if isinstance(shapes, (list, tuple)) else [], first_shape)
+        if isinstance(sh, dict) and ("keyframes" in sh or sh.get("type") == "frames")]
     if moving:
-        ctx.fail("animation" if "animation" in d else "shapes",
-                 "the scene moves: render it with hwrt animate (--verify checks its frames)")
+        ctx.fail(moving[0], "the scene moves: render it with hwrt animate (--verify checks its "
+                            "frames)")
     ctx.keys(d, SCENE_KEYS, "")
     for key in ("camera", "shapes", "materials"):
         if key not in d:
@@ -1005,7 +1023,7 @@ def compile_scene(d, source=None, first_shape=0):
         spp=_film_setting(ctx, film, "film", "spp"),
         max_depth=_film_setting(ctx, integ, "integrator", "max_depth"),
         ambient=_light(ctx, integ, "ambient", "integrator", default=[0.03] * 3),
-        background=_light(ctx, d, "background", "scene", default=[0, 0, 0]),
+        background=_light(ctx, d, "background", "", default=[0, 0, 0]),
         cutoff=ctx.num(integ, "cutoff", "integrator", default=1e-3, lo=0, hi=1),
         jitter=ctx.flag(film, "jitter", "film", True),
         vertices=V, faces=np.arange(len(V), dtype=np.int32).reshape(-1, 3))

@@ -575,3 +575,17 @@ def test_an_integer_too_long_for_python_is_named_by_key_or_line(tmp_path, capsys
                    tmp_path / "o.exr")
     assert line == (f"hwrt: error: {tmp_path / 'long.toml'}: line 4: a number of more than 4000 "
                     f"digits"), line
+
+
+def test_a_top_level_key_is_named_bare_and_a_long_integer_as_written(tmp_path, capsys,
+                                                                    monkeypatch):
+    p = write_scene(tmp_path, scene_dict(background=[-1, 0, 0]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert line == f"hwrt: error: {p}: key 'background': must not be negative, got [-1.0, 0.0, 0.0]"
+    (tmp_path / "w.json").write_text(
+        json.dumps(scene_dict()).replace('"spp"', f'"width": 1{"0" * 5000}, "spp"', 1)
+        .replace('"width": 8, ', ""))
+    line = refused(capsys, tmp_path, monkeypatch, "render", tmp_path / "w.json", "-o",
+                   tmp_path / "o.exr")
+    assert line.startswith(f"hwrt: error: {tmp_path / 'w.json'}: key 'film.width': ") and \
+        line.endswith("got an integer of 5001 digits"), line
