@@ -11,9 +11,12 @@ the few tens of milliseconds of Python's start-up, Python's own handling applies
 """
 import argparse
 import os
+import re
 import signal
 import sys
 from functools import partial
+
+from hwbvh.errors import shown
 
 from .progress import progress_bar
 
@@ -202,7 +205,7 @@ def cmd_build(args):
     # only when every file was then renamed
     result["outputs"] = planned
     keys = ["builder", "triangles", "nodes", "leaves", "max_depth", "sah_cost", "fallback_splits",
-            "build_seconds", "startup_seconds", "handoffs", "outputs"]
+            "build_seconds", "startup_seconds", "handoffs"] + (["outputs"] if planned else [])
     _emit(args, result, lambda r: _kv(r, keys))
 
 
@@ -744,14 +747,17 @@ MAX_REPEAT = 1000
 
 def _int_at_least(lo, hi=MAX_OPTION_INT):
     def parse(v):
-        try:
-            i = int(v)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {v!r}") from None
+        # digits only (Python's int() also takes "4_0" and " 5"); a number too long to convert
+        # is beyond any limit
+        if not re.fullmatch(r"[+-]?[0-9]+", v):
+            raise argparse.ArgumentTypeError(f"expected an integer, got {shown(v)}")
+        long = len(v.lstrip("+-")) >= 1000
+        i = (hi + 1 if v[0] != "-" else lo - 1) if long else int(v)
+        got = f"a number of {len(v.lstrip('+-'))} digits" if long else i
         if i < lo:
-            raise argparse.ArgumentTypeError(f"must be at least {lo}, got {i}")
+            raise argparse.ArgumentTypeError(f"must be at least {lo}, got {got}")
         if i > hi:
-            raise argparse.ArgumentTypeError(f"must be at most {hi}, got {i}")
+            raise argparse.ArgumentTypeError(f"must be at most {hi}, got {got}")
         return i
     return parse
 
@@ -883,7 +889,10 @@ class _Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
 
     def error(self, message):
-        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+        # as every other error is written: "hwrt: error: --w: must be ...", the option first
+        if message.startswith("argument "):
+            message = message[len("argument "):]
+        self.exit(EXIT_BAD_INPUT, f"hwrt: error: {message}\n")
 
 
 def _version():
@@ -949,8 +958,8 @@ def make_parser():
         s.add_argument(f"--{name}", type=_positive, help=f"{text} (default: the preset's)")
     s.add_argument("--clock-mhz", type=_positive_float, help="clock (default: the preset's)")
     s.add_argument("--control-latency", type=_non_negative, metavar="CYCLES",
-                   help="control cycles per split beyond Table 3.3 (default: the calibrated "
-                        "value; 0 = the text-only model)")
+                   help=f"control cycles per split beyond Table 3.3 (default: the calibrated "
+                        f"value, {config.CONTROL_LATENCY}; 0 = the text-only model)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.set_defaults(func=cmd_simulate)
 
@@ -1043,7 +1052,8 @@ def make_parser():
                     help="frames to render (default: the animation's)")
     an.add_argument("--fps", type=_fps,
                     help="frames per second of animation time (default: the animation's, else 30)")
-    an.add_argument("--strategy", default="rebuild",
+    from .animate import STRATEGIES
+    an.add_argument("--strategy", default="rebuild", metavar="{" + ",".join(STRATEGIES) + "}",
                     help="tree update per frame: rebuild, refit, adaptive or embree (refit, "
                          "adaptive and embree update a BVH; other --accel structures rebuild)")
     an.add_argument("--accel", choices=ACCELS, default="bvh",

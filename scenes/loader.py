@@ -127,6 +127,40 @@ def _unique_keys(pairs):
     return d
 
 
+class _Marked(dict):
+    """A JSON object read by ``_marking_keys``: ``twice`` is its first key given twice."""
+    twice = None
+
+
+def _marking_keys(pairs):
+    d = _Marked()
+    for k, v in pairs:
+        if k in d and d.twice is None:
+            d.twice = k
+        d[k] = v
+    return d
+
+
+def _twice_path(obj, path=""):
+    """The path ('camera.eye', 'shapes[2].min') of the first key given twice in ``obj`` read
+    with ``_marking_keys`` (keys written as Python writes them in a string, so a line break
+    stays escaped), or None."""
+    part = lambda k: repr(str(k))[1:-1]
+    if isinstance(obj, dict):
+        if getattr(obj, "twice", None) is not None:
+            return _at(path, part(obj.twice))
+        items = obj.items()
+    elif isinstance(obj, list):
+        items = ((None, v) for v in obj)
+    else:
+        return None
+    for i, (k, v) in enumerate(items):
+        found = _twice_path(v, _at(path, part(k)) if k is not None else f"{path}[{i}]")
+        if found:
+            return found
+    return None
+
+
 FILE_OVERRIDES = ("width", "height", "spp", "max_depth")      # what a file's scene takes
 
 
@@ -172,7 +206,16 @@ def _load_scene_file(spec):
         except json.JSONDecodeError as e:
             raise InputError(spec, f"not valid JSON ({e.msg} at line {e.lineno})") from None
         except _DuplicateKey as e:
-            raise InputError(spec, f"key {shown(e.key)} is given twice in one object") from None
+            # read again, marking the objects that hold a key twice, for the key's path (the
+            # key alone if the file fails further on)
+            try:
+                with open(spec, encoding="utf-8") as f:
+                    where = _twice_path(json.load(f, object_pairs_hook=_marking_keys,
+                                                  parse_int=_json_int))
+            except (OSError, ValueError, RecursionError):
+                where = None
+            where = where or repr(str(e.key))[1:-1]
+            raise InputError(spec, f"key '{where}' is given twice in one object") from None
         except (OSError, UnicodeDecodeError, RecursionError, ValueError) as e:
             raise InputError(spec, f"cannot read the scene ({_reason(e)})") from None
     elif low.endswith(".toml"):

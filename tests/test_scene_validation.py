@@ -381,7 +381,9 @@ def test_a_key_given_twice_is_refused_not_overwritten(tmp_path, capsys, monkeypa
     for text, key in ((good.replace('{"type": "scene",', '{"type": "scene", "type": "scene",'),
                        "type"),
                       (good.replace('"eye": [0, 1, 4],', '"eye": [0, 1, 4], "eye": [0, 1, 5],'),
-                       "eye")):
+                       "camera.eye"),
+                      (good.replace('"max": [0.5, 1, 0.5],', '"max": [0.5, 1, 0.5], "max": 1,'),
+                       "shapes[0].max")):
         assert text != good
         p = tmp_path / "dup.json"
         p.write_text(text)
