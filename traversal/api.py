@@ -378,7 +378,9 @@ class Tracer(PacketCount):
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, counters=False, normals=True,
                   as_run=False):
         """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays). ``normals=False``
-        skips the geometric normals (ng is then None) for callers that look them up.
+        skips the geometric normals (ng is then None) for callers that look them up. A ray
+        with a NaN or infinite coordinate, a zero direction or tmin > tmax misses (prim -1),
+        as in Embree: a batch may hold such rays without failing as a whole.
         ``counters``: nodes visited and triangles tested per ray, by the single-ray unit; with
         ``as_run`` as the query actually runs them (a packet's rays each count every node and
         triangle the packet tests)."""
