@@ -16,8 +16,6 @@ import signal
 import sys
 from functools import partial
 
-from hwbvh.errors import shown
-
 from .progress import progress_bar
 
 DESCRIPTION = ("hwrt simulates the hardware BVH builder of M. J. Doyle's thesis (HWBVH) bit for "
@@ -750,6 +748,7 @@ def _int_at_least(lo, hi=MAX_OPTION_INT):
         # digits only (Python's int() also takes "4_0" and " 5"); a number too long to convert
         # is beyond any limit
         if not re.fullmatch(r"[+-]?[0-9]+", v):
+            from hwbvh.errors import shown
             raise argparse.ArgumentTypeError(f"expected an integer, got {shown(v)}")
         long = len(v.lstrip("+-")) >= 1000
         i = (hi + 1 if v[0] != "-" else lo - 1) if long else int(v)
