@@ -546,6 +546,10 @@ def human(r):
                      f"{f['time_to_image_seconds'] * 1e3:>9.1f}{sah}")
     lines.append(f"{r['rebuilds']} rebuilds; time to image {r['time_to_image_seconds_total']:.2f} s; "
                  f"total {r['total_seconds']:.2f} s; wrote {r['output']}")
+    start = r.get("resumed_from") or 0
+    if start:
+        lines.append(f"resumed: frames 0-{start - 1} of {len(r['frames'])} were on disk from an "
+                     f"earlier run of the same settings (their rows are that run's)")
     if r.get("verify"):
         v = r["verify"]
         lines.append(f"verify: {v['rays']} rays, {v['agree']} agree, {v['tie']} tie, {v['mismatch']} mismatch")

@@ -465,6 +465,10 @@ def test_an_interrupted_run_resumes_at_the_first_missing_frame(tmp_path, capsys)
     # the resumed tree is the one an uninterrupted run has (a refit depends only on topology)
     assert [f["sah_cost"] for f in r["frames"]] == [f["sah_cost"] for f in full["frames"]]
     assert [f["rebuilt"] for f in r["frames"]] == [f["rebuilt"] for f in full["frames"]]
+    # the human output says so too
+    rc, out, _ = _run_cli(capsys, *args[:-1], "-o", part)
+    assert rc == 0 and ("resumed: frames 0-4 of 5 were on disk from an earlier run of the same "
+                        "settings") in out
     # another run's settings are refused instead of mixing frames
     rc, _, err = _run_cli(capsys, *args[:-1], "--spp", 2, "-o", part)
     assert rc == 2 and "holds frames of another run" in err
