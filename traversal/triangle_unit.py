@@ -172,8 +172,8 @@ class Float32Range:
 
     The unit's products are |d| |e1| |e2| (det), |o - v0| |d| |e| (u and v) and
     |o - v0| |e1| |e2| (t); each bounded by ``MAX_PRODUCT`` (``config.F32_UNIT_MAX_PRODUCT``),
-    none can leave the range. From the triangles, once: the largest |e1| |e2|, the longest edge and the largest
-    coordinate magnitude. Per batch, one pass over the rays (``ray_magnitudes``) bounds
+    none can leave the range. From the triangles, once: the largest |e1| |e2|, the longest
+    edge and the largest coordinate magnitude. Per batch, one pass over the rays (``ray_magnitudes``) bounds
     |o - v0| by sqrt(3) (max |o_i| + the mesh's magnitude) and |d| by sqrt(3) max |d_i|; where
     that bound fails, the boxes of the origins and the triangles (as ``f32_unit_reach`` takes
     them) and the rays' own lengths decide, so a scene the renderer accepts is traced."""
