@@ -25,6 +25,7 @@ from .progress import progress_bar
 SCHEDULER_ENV = "HWRT_SCHEDULER"
 CONNECT_TIMEOUT_S = 5      # an unreachable scheduler fails this fast instead of hanging
 RETRIES = 2                # re-runs of a cell that raised (a killed worker is rescheduled anyway)
+WORKER_WATCH_S = 10        # how often a run checks that its scheduler still has workers
 QUIET = ("distributed", "tornado", "asyncio", "bokeh")
 
 
@@ -235,6 +236,37 @@ def timing_host(client, named="scheduler"):
     return hosts[0]
 
 
+@contextmanager
+def workers_watched(client, every=WORKER_WATCH_S, say=None):
+    """While the block runs, check every ``every`` seconds that ``client``'s scheduler has a
+    worker; when it has none (every worker lost), say so once on stderr (``say``: a callable
+    taking the line): Dask then waits, silently, until a worker joins, and the run goes on."""
+    import sys
+    import threading
+
+    say = say or (lambda line: print(line, file=sys.stderr, flush=True))
+    done = threading.Event()
+
+    def watch():
+        told = False
+        while not done.wait(every):
+            try:
+                none = not client.scheduler_info().get("workers")
+            except Exception:           # a scheduler going away is the run's own error
+                return
+            if none and not told:
+                say(f"hwrt: the Dask scheduler at {client.scheduler.address} has no workers "
+                    f"left; waiting for one to join (the run goes on when one does)")
+            told = none
+    t = threading.Thread(target=watch, name="hwrt-worker-watch", daemon=True)
+    t.start()
+    try:
+        yield
+    finally:
+        done.set()
+        t.join()
+
+
 def run_cells(cells, on_result, client=None, desc="cells", weight=None, progress=True, host=None):
     """Run ``cells`` (a list of ``(key, fn, args)``) and call ``on_result(key, result)`` in this
     process as each finishes, with a progress bar over ``weight(key)`` units (default 1 each)
@@ -253,21 +285,27 @@ def run_cells(cells, on_result, client=None, desc="cells", weight=None, progress
                 on_result(key, fn(*args))
                 bar.update(weight(key))
             return
-        if host is not None:
-            for key, fn, args in cells:
-                fut = client.submit(_cell, fn, *args, key=key, pure=False, retries=RETRIES,
-                                    workers=[host], allow_other_workers=True)
-                on_result(key, fut.result())
-                fut.release()
-                bar.update(weight(key))
-            return
-        from distributed import as_completed
-        futures = {client.submit(_cell, fn, *args, key=key, pure=False, retries=RETRIES): key
-                   for key, fn, args in cells}
-        for fut in as_completed(futures, loop=client.loop):
-            key = futures[fut]
+        with workers_watched(client):
+            _run_on(client, cells, on_result, weight, bar, host)
+    finally:
+        bar.close()
+
+
+def _run_on(client, cells, on_result, weight, bar, host):
+    """``run_cells`` on a cluster."""
+    if host is not None:
+        for key, fn, args in cells:
+            fut = client.submit(_cell, fn, *args, key=key, pure=False, retries=RETRIES,
+                                workers=[host], allow_other_workers=True)
             on_result(key, fut.result())
             fut.release()
             bar.update(weight(key))
-    finally:
-        bar.close()
+        return
+    from distributed import as_completed
+    futures = {client.submit(_cell, fn, *args, key=key, pure=False, retries=RETRIES): key
+               for key, fn, args in cells}
+    for fut in as_completed(futures, loop=client.loop):
+        key = futures[fut]
+        on_result(key, fut.result())
+        fut.release()
+        bar.update(weight(key))

@@ -320,3 +320,24 @@ def test_ctrl_c_on_the_embedded_cluster_prints_one_line_and_leaves_resumable_cel
         time.sleep(0.1)
     assert left == "", f"processes left behind: {left}"
     assert ex._CellStore(cells, fresh=False).done          # a rerun resumes these
+
+
+def test_a_run_whose_workers_are_all_lost_says_it_waits_for_one():
+    """Dask waits, silently, for a worker when a run has lost them all: the run says so once
+    on stderr and goes on when one joins."""
+    from distributed import Client, LocalCluster
+    from hwrt.cluster import workers_watched
+
+    lines = []
+    with LocalCluster(n_workers=1, processes=False, protocol="tcp", dashboard_address=None,
+                      silence_logs=50) as cluster, Client(cluster) as client:
+        with workers_watched(client, every=0.05, say=lines.append):
+            time.sleep(0.3)
+            assert lines == []                      # a worker: nothing said
+            client.retire_workers(list(client.scheduler_info()["workers"]))
+            deadline = time.time() + 30
+            while not lines and time.time() < deadline:
+                time.sleep(0.05)
+            time.sleep(0.3)                         # said once, not at every check
+    assert lines == [f"hwrt: the Dask scheduler at {cluster.scheduler_address} has no workers "
+                     f"left; waiting for one to join (the run goes on when one does)"]
