@@ -267,6 +267,13 @@ def _check_output_dir(out_dir, anim, frames):
 def _load_state(out_dir, params):
     path = os.path.join(out_dir, STATE_NAME)
     if not os.path.exists(path):
+        # a run writes its CSV and preview only after its state: without a state they are
+        # someone else's files, which a run would replace
+        theirs = [n for n in (CSV_NAME, PREVIEW_NAME) if os.path.exists(os.path.join(out_dir, n))]
+        if theirs:
+            raise InputError(out_dir, f"holds {theirs[0]} but no {STATE_NAME} of an hwrt animate "
+                                      f"run: a run would replace it; choose another output "
+                                      f"directory")
         return {}
     try:
         with open(path) as f:

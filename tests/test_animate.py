@@ -740,3 +740,15 @@ def test_a_keyframe_moving_a_shape_too_far_for_float32_is_refused_before_any_fra
     keys[1]["translate"] = [1e6, 0, 0]
     p = _scene_file(tmp_path, [dict(BOX, keyframes=keys)], {"frames": 3, "fps": 2})
     assert load_animation(p).check(3) is not None
+
+
+def test_a_directory_holding_another_programs_csv_is_refused(tmp_path, capsys):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "frames.csv").write_text("my,data\n")
+    rc, _, err = _run_cli(capsys, "animate", "cloth", "--triangles", 200, "--frames", 2,
+                          "--width", 16, "--height", 12, "-o", out)
+    assert rc == 2 and err.strip() == (f"hwrt: error: --output {out}: holds frames.csv but no "
+                                       f"animation.json of an hwrt animate run: a run would "
+                                       f"replace it; choose another output directory")
+    assert (out / "frames.csv").read_text() == "my,data\n" and len(list(out.iterdir())) == 1
