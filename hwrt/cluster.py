@@ -12,6 +12,8 @@ process, one after the other: the reference a cluster's results equal bit for bi
 import logging
 import os
 import signal
+import sys
+import threading
 from contextlib import contextmanager
 
 from distributed.diagnostics.plugin import WorkerPlugin
@@ -241,9 +243,6 @@ def workers_watched(client, every=WORKER_WATCH_S, say=None):
     """While the block runs, check every ``every`` seconds that ``client``'s scheduler has a
     worker; when it has none (every worker lost), say so once on stderr (``say``: a callable
     taking the line): Dask then waits, silently, until a worker joins, and the run goes on."""
-    import sys
-    import threading
-
     say = say or (lambda line: print(line, file=sys.stderr, flush=True))
     done = threading.Event()
 
