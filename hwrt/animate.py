@@ -411,7 +411,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         rows = {k: v for k, v in rows.items() if k < frames}
     # resumed: the frames on disk and whole, verified if this run verifies
     start = 0
-    while start < frames and start in rows and (not verify or "verify" in rows[start]) and \
+    while start < frames and start in rows and (not verify or "verify_seconds" in rows[start]) and \
             (out_dir is None or _frame_intact(out_dir, start, first.width, first.height)):
         start += 1
     rows = {k: v for k, v in rows.items() if k < start}
@@ -422,7 +422,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         last = max(k for k, r in rows.items() if r["rebuilt"])
         updater.restore(anim.scene(last).triangles)
         updater.sah_at_rebuild = rows[last]["sah_cost"]
-    from raytracer.render import render, simulated_ready_seconds
+    from raytracer.render import render, simulated_ready_seconds, verified_render
     for i in range(start, frames):
         t = time.perf_counter()
         scene = first if i == 0 else anim.scene(i)
@@ -430,9 +430,6 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         _check_frame_reach(anim, i, scene)
         tracer, row = updater.update(scene)
         bvh = row.pop("bvh", None)
-        if verify:
-            from traversal.tracers import VerifyingTracer
-            tracer = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
         t = time.perf_counter()
         res = render(scene, tracer, seed=seed + i)
         render_s = time.perf_counter() - t
@@ -445,9 +442,10 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
                "scene_seconds": scene_s, "rays": res.stats["rays"],
                "pixels_beyond_float32": res.stats["pixels_beyond_float32"]}
         if verify:
-            c = tracer.counts
-            out["verify"] = {k: c["closest"][k] + c["shadow"][k] for k in c["closest"]}
-            out["verify"]["by_query"] = c
+            summary, out["verify_seconds"] = verified_render(scene, tracer, seed + i, res.image)
+            out["verify"] = {k: summary[k] for k in ("rays", "agree", "tie", "mismatch",
+                                                     "same_image")}
+            out["verify"]["by_query"] = {k: summary[k] for k in ("closest", "shadow")}
         if out_dir is not None:
             from raytracer.output import write_exr
             t = time.perf_counter()
@@ -487,8 +485,10 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         result["time_to_image_simulated_seconds_total"] = {
             k: sum(r["time_to_image_simulated_seconds"][k] for r in ordered) for k in PRESET_NAMES}
     if verify:
-        result["verify"] = {k: sum(r["verify"][k] for r in ordered if "verify" in r)
+        result["verify"] = {k: sum(r["verify"][k] for r in ordered)
                             for k in ("rays", "agree", "tie", "mismatch")}
+        result["verify"]["same_image"] = all(r["verify"]["same_image"] for r in ordered)
+        result["verify_seconds_total"] = sum(r["verify_seconds"] for r in ordered)
     if out_dir is not None:
         csv_path = os.path.join(out_dir, CSV_NAME)
         preview_path = os.path.join(out_dir, PREVIEW_NAME)
@@ -559,7 +559,10 @@ def human(r):
                      f"earlier run of the same settings (their rows are that run's)")
     if r.get("verify"):
         v = r["verify"]
-        lines.append(f"verify: {v['rays']} rays, {v['agree']} agree, {v['tie']} tie, {v['mismatch']} mismatch")
+        lines.append(f"verify: {v['rays']} rays, {v['agree']} agree, {v['tie']} tie, "
+                     f"{v['mismatch']} mismatch; the checked renders made "
+                     f"{'the same images' if v['same_image'] else 'OTHER IMAGES than the timed ones'}"
+                     f" ({r['verify_seconds_total']:.2f} s, not in the times above)")
     return "\n".join(lines)
 
 

@@ -223,6 +223,17 @@ def _scene_geometry(name):
 # The arrays of a mismatch file (hwrt verify writes them) that --replay reads: key -> the
 # shape of one ray's entry
 REPLAY_ARRAYS = {"origins": (3,), "dirs": (3,), "tmax": ()}
+# What the file says of the run that wrote it: key -> what --replay assumes of a file without
+# it (one written by hand): closest-hit rays on the hardware's tree, on any triangles
+REPLAY_RUN = {"kind": "random", "accel": "bvh", "scene": None, "triangles_sha256": None}
+
+
+def _triangles_digest(tris):
+    """SHA-256 of the triangles as the float32 units read them: a mismatch file names the
+    geometry its rays were verified on."""
+    import hashlib
+    import numpy as np
+    return hashlib.sha256(np.ascontiguousarray(tris, np.float32).tobytes()).hexdigest()
 
 
 def _check_float32_values(path, key, a):
@@ -246,6 +257,8 @@ def _replay_rays(path):
     import zipfile
     import numpy as np
     from hwbvh.errors import InputError
+    from traversal.api import ACCELS
+    from traversal.verify import RAY_KINDS
     try:
         data = np.load(path, allow_pickle=False)
         if not isinstance(data, np.lib.npyio.NpzFile):   # a .npy file: one bare array
@@ -268,11 +281,24 @@ def _replay_rays(path):
                 if key != "tmax":
                     _check_float32_values(path, key, a)
                 arrays[key] = a.astype(np.float64 if key == "tmax" else np.float32)
+            run = {}
+            for key in REPLAY_RUN:
+                if key in data.files:
+                    a = data[key]
+                    if a.dtype.kind != "U" or a.shape != ():
+                        raise InputError(path, f"key '{key}': expected a string, got {a.dtype} "
+                                               f"of shape {a.shape}")
+                    run[key] = str(a)
     except InputError:                                # (a ValueError)
         raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile):
         raise InputError(path, "not a mismatch file from hwrt verify (not an .npz archive)") from None
     O, D, tmax = arrays["origins"], arrays["dirs"], arrays["tmax"]
+    run = dict(REPLAY_RUN, **run)
+    for key, names, what in (("kind", RAY_KINDS, "ray set"), ("accel", ACCELS, "structure")):
+        if run[key] not in names:
+            raise InputError(path, f"key '{key}': {run[key]!r} is not a {what} hwrt verify "
+                                   f"checks ({', '.join(names)})")
     if not len(O) == len(D) == len(tmax):
         raise InputError(path, f"keys 'origins', 'dirs' and 'tmax' hold {len(O)}, {len(D)} and "
                                f"{len(tmax)} rays; expected one length")
@@ -281,27 +307,68 @@ def _replay_rays(path):
     if (~D.any(axis=1)).any():
         raise InputError(path, f"key 'dirs': ray {int(np.flatnonzero(~D.any(axis=1))[0])} has "
                                f"a zero direction")
-    return O, D, tmax
+    return O, D, tmax, run
 
 
-def _replay(path, tris, verts, faces):
-    """Re-trace the rays of a mismatch file with both tracers and the float64 reference."""
-    import numpy as np
+def _verify_tracer(accel, tris):
+    """The tracer ``hwrt verify`` checks: the hardware's tree, a grid or a kd-tree over
+    ``tris``, compiled before its build so that a build time measures the build."""
+    if accel == "grid":
+        from traversal.grid import GridTracer, warm_up_grid
+        warm_up_grid()
+        return GridTracer(tris)
+    if accel == "kdtree":
+        from traversal.kdtree import KdTreeTracer, warm_up_kdtree
+        warm_up_kdtree()
+        return KdTreeTracer(tris)
     import hwbvh
     from traversal import Tracer
-    from traversal.embree_ref import embree_intersect, embree_scene
-    from traversal.verify import diagnose
+    return Tracer(hwbvh.build(tris))
 
-    O, D, tmax = _replay_rays(path)
-    h = Tracer(hwbvh.build(tris)).intersect(O, D, 0.0, tmax)
-    te, pe, *_ = embree_intersect(embree_scene(verts, faces), O, D,
-                                  None if np.isinf(tmax).all() else tmax)
-    found = diagnose(tris, O, D, 0.0, tmax, h.prim.astype(np.int64), h.t, pe, te)
-    rows = [dict({"origin": O[i].tolist(), "dir": D[i].tolist(),
-                  "ours": [int(h.prim[i]), float(h.t[i])], "embree": [int(pe[i]), float(te[i])]},
-                 **found[i]) for i in range(len(O))]
+
+def _replay(path, scene, tris, verts, faces):
+    """Re-trace the rays of a mismatch file with the structure and query its run checked,
+    with Embree and the float64 reference, on the triangles it was made on."""
+    import numpy as np
+    from hwbvh.errors import InputError
+    from traversal.embree_ref import embree_intersect, embree_occluded, embree_scene
+    from traversal.verify import diagnose, diagnose_occluded
+
+    O, D, tmax, run = _replay_rays(path)
+    if run["triangles_sha256"] not in (None, _triangles_digest(tris)):
+        made_on = f" ({run['scene']})" if run["scene"] else ""
+        raise InputError(path, f"its rays were verified on other triangles{made_on} than "
+                               f"{scene}'s {len(tris)}: replay it on the scene it was made on")
+    tracer = _verify_tracer(run["accel"], tris)
+    reference = embree_scene(verts, faces)
+    rays = [{"origin": O[i].tolist(), "dir": D[i].tolist(), "tmax": float(tmax[i])}
+            for i in range(len(O))]
+    if run["kind"] == "shadow":
+        blocked = tracer.occluded(O, D, 0.0, tmax)
+        ref = embree_occluded(reference, O, D, np.minimum(tmax, 3e38))
+        found = diagnose_occluded(tris, O, D, 0.0, tmax, blocked, ref)
+        answers = [{"ours": bool(blocked[i]), "embree": bool(ref[i])} for i in range(len(O))]
+    else:
+        h = tracer.intersect(O, D, 0.0, tmax)
+        te, pe, *_ = embree_intersect(reference, O, D, None if np.isinf(tmax).all() else tmax)
+        found = diagnose(tris, O, D, 0.0, tmax, h.prim.astype(np.int64), h.t, pe, te)
+        answers = [{"ours": [int(h.prim[i]), float(h.t[i])],
+                    "embree": [int(pe[i]), float(te[i])]} for i in range(len(O))]
+    rows = [dict(rays[i], **answers[i], **found[i]) for i in range(len(O))]
     counts = {k: sum(r["class"] == k for r in rows) for k in ("agree", "tie", "mismatch")}
-    return dict(rays=len(rows), **counts, **_wrong_counts(found), replayed=rows, file=str(path))
+    return dict(rays=len(rows), **counts, **_wrong_counts(found), kind=run["kind"],
+                accel=run["accel"], query="occluded" if run["kind"] == "shadow" else "intersect",
+                replayed=rows, file=str(path))
+
+
+def _replay_human(r):
+    """A summary line, then each ray's row as one line of JSON."""
+    from hwbvh.files import json_text
+    head = (f"replayed {r['rays']} {r['kind']} rays of {r['file']} ({r['query']} queries, "
+            f"accel {r['accel']}): {r['agree']} agree, {r['tie']} tie, {r['mismatch']} mismatch "
+            f"(our answer wrong in {r['mismatch_ours_wrong']}, Embree's in "
+            f"{r['mismatch_embree_wrong']})")
+    return "\n".join([head] + [json_text(x) for x in r["replayed"]])
 
 
 def _wrong_counts(found):
@@ -330,7 +397,7 @@ def cmd_verify(args):
     from hwbvh.errors import InputError
     from hwbvh.files import check_outputs, json_text
     from scenes.loader import scene_inputs
-    from traversal.verify import diagnose, verify_mesh
+    from traversal.verify import diagnose, diagnose_occluded, verify_mesh
 
     if args.replay:
         for flag, value in (("--rays", args.rays), ("--kind", args.kind),
@@ -342,8 +409,7 @@ def cmd_verify(args):
             raise InputError(args.replay, "not a file" if os.path.exists(args.replay)
                              else "no such file")
         label, tris, verts, faces = _verifiable_geometry(args.scene)
-        return _emit(args, _replay(args.replay, tris, verts, faces),
-                     lambda r: "\n".join(json_text(x) for x in r["replayed"]))
+        return _emit(args, _replay(args.replay, label, tris, verts, faces), _replay_human)
     if args.mismatches and not args.mismatches.lower().endswith(".npz"):
         raise InputError("--mismatches", f"{args.mismatches} does not end in .npz (the mismatch "
                                          f"file is a NumPy archive, which --replay reads)")
@@ -353,39 +419,45 @@ def cmd_verify(args):
     # named by the scene's name, as render's image is
     out = args.mismatches or os.path.join("renders", f"verify-{label}-{kind}-mismatches.npz")
     check_outputs([out], inputs=scene_inputs(args.scene))
-    tracer = None
-    if args.accel == "grid":
-        from traversal.grid import GridTracer, warm_up_grid
-        warm_up_grid()              # the build time below measures the build, not JIT start-up
-        tracer = GridTracer(tris)
-    elif args.accel == "kdtree":
-        from traversal.kdtree import KdTreeTracer, warm_up_kdtree
-        warm_up_kdtree()            # the build time below measures the build, not JIT start-up
-        tracer = KdTreeTracer(tris)
-    counts, labels, (O, D, tmax), h, (te, pe) = verify_mesh(tris, verts, faces, kind, rays,
-                                                            accel=args.accel, tracer=tracer)
+    tracer = _verify_tracer(args.accel, tris)
+    counts, labels, (O, D, tmax), ours, ref = verify_mesh(tris, verts, faces, kind, rays,
+                                                          tracer=tracer)
+    if counts["rays"] == 0:
+        raise InputError(args.scene, f"makes no {kind} rays: none of the first rays that "
+                                     f"make them hits the mesh")
     result = dict(counts)
-    result.update({"kind": kind, "scene": label, "rays_requested": rays, "accel": args.accel})
-    if tracer is not None:
+    result.update({"kind": kind, "scene": label, "rays_requested": rays, "accel": args.accel,
+                   "query": "occluded" if kind == "shadow" else "intersect",
+                   "hit_fraction": counts["hit"] / counts["rays"]})
+    if args.accel != "bvh":
         result.update({k: v for k, v in tracer.stats().items()
                        if k in ("build_seconds", "memory_bytes", "references_per_triangle")})
     if counts["rays"] != rays:
         print(f"hwrt: note: {counts['rays']} of the {rays} requested {kind} rays: too few of the "
               f"first rays hit the mesh", file=sys.stderr)
     bad = np.flatnonzero(labels == 2)
-    result.update(_wrong_counts(diagnose(tris, O[bad], D[bad], 0.0,
-                                         np.inf if tmax is None else np.asarray(tmax)[bad],
-                                         h.prim[bad].astype(np.int64), h.t[bad], pe[bad], te[bad])))
+    bounds = np.full(len(bad), np.inf) if tmax is None else np.asarray(tmax)[bad]
+    if kind == "shadow":
+        answers = {"ours_blocked": ours[bad], "embree_blocked": ref[bad]}
+        found = diagnose_occluded(tris, O[bad], D[bad], 0.0, bounds, ours[bad], ref[bad])
+    else:
+        te, pe = ref
+        answers = {"ours_prim": ours.prim[bad], "ours_t": ours.t[bad], "embree_prim": pe[bad],
+                   "embree_t": te[bad]}
+        found = diagnose(tris, O[bad], D[bad], 0.0, bounds, ours.prim[bad].astype(np.int64),
+                         ours.t[bad], pe[bad], te[bad])
+    result.update(_wrong_counts(found))
     if len(bad):
         buf = io.BytesIO()
-        np.savez(buf, origins=O[bad], dirs=D[bad], ours_prim=h.prim[bad], ours_t=h.t[bad],
-                 embree_prim=pe[bad], embree_t=te[bad],
-                 tmax=(np.full(len(bad), np.inf) if tmax is None else np.asarray(tmax)[bad]))
+        np.savez(buf, origins=O[bad], dirs=D[bad], tmax=bounds, **answers, kind=np.str_(kind),
+                 accel=np.str_(args.accel), scene=np.str_(label),
+                 triangles_sha256=np.str_(_triangles_digest(tris)))
         _commit(args, [(out, buf.getvalue())])
         result["mismatch_file"] = out
-    _emit(args, result, lambda r: _kv(r, ["scene", "accel", "kind", "rays", "rays_requested", "agree", "tie",
-                                          "mismatch", "mismatch_ours_wrong",
-                                          "mismatch_embree_wrong", "mismatch_file"]))
+    _emit(args, result, lambda r: _kv(r, ["scene", "accel", "kind", "query", "rays",
+                                          "rays_requested", "hit", "agree", "tie", "mismatch",
+                                          "mismatch_ours_wrong", "mismatch_embree_wrong",
+                                          "mismatch_file"]))
 
 
 def cmd_simulate(args):
@@ -435,7 +507,7 @@ def cmd_render(args):
     from hwbvh.errors import InputError, ParameterError
     from hwbvh.files import check_outputs
     from raytracer.render import (check_float32_reach, make_tracer, render,
-                                   simulated_ready_seconds, warm_up)
+                                   simulated_ready_seconds, verified_render, warm_up)
     from raytracer.output import exr_writer, png_writer
     from scenes import compile_scene, load_scene, with_frame
     from scenes.loader import scene_inputs
@@ -489,15 +561,12 @@ def cmd_render(args):
         startup_s += warm_up_kdtree()
     tracer, build_s, info = make_tracer(scene, args.builder, args.traversal,
                                         precision=args.precision, accel=args.accel)
-    checked = None
-    if args.verify:
-        from traversal.tracers import VerifyingTracer
-        tracer = checked = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
     bar = progress_bar(scene.height, f"render {scene.name}", "row")
     t0 = time.perf_counter()
     res = render(scene, tracer, seed=args.seed, progress=bar.update)
     render_s = time.perf_counter() - t0
     bar.close()
+    checked = verified_render(scene, tracer, args.seed, res.image) if args.verify else None
     bvh = args.accel == "bvh"              # another structure has its own build and traversal
     result = {"output": out, "scene": scene.name, "accel": args.accel,
               "builder": args.builder if bvh else None, "traversal": args.traversal if bvh else None,
@@ -517,7 +586,7 @@ def cmd_render(args):
     if ready:
         result["time_to_image_simulated_seconds"] = {k: v + render_s for k, v in ready.items()}
     if checked is not None:
-        result["verify"] = checked.summary()
+        result["verify"], result["verify_seconds"] = checked
     meta = {"scene": scene.name, "accel": args.accel, "precision": args.precision,
             "build_seconds": build_s,
             "render_seconds": render_s, "spp": scene.spp, "max_depth": scene.max_depth}
@@ -532,7 +601,8 @@ def cmd_render(args):
     result["wall_seconds"] = time.perf_counter() - t_start
     _emit(args, result, lambda r: _kv(r, ["output", "png", "scene", "triangles", "build_seconds",
                                           "render_seconds", "time_to_image_seconds",
-                                          "simulated_build_seconds", "rays", "verify"]))
+                                          "simulated_build_seconds", "rays", "verify",
+                                          "verify_seconds"]))
 
 
 def cmd_animate(args):
@@ -1010,7 +1080,9 @@ def make_parser():
     r.add_argument("--precision", choices=PRECISIONS, default="float32",
                    help="working precision of our traversal's units: float32 (the hardware's) "
                         "or float64 (for a scene too large or too small for float32)")
-    r.add_argument("--verify", action="store_true", help="check every ray against Embree")
+    r.add_argument("--verify", action="store_true",
+                   help="render again with every ray checked against Embree (its time reported "
+                        "apart, as verify_seconds)")
     r.add_argument("--png", action="store_true",
                    help="also write a tone-mapped PNG preview beside the EXR")
     r.add_argument("--no-layers", action="store_true", help="RGB only (no Z, N, prim.id)")
@@ -1028,7 +1100,8 @@ def make_parser():
     v.add_argument("--rays", type=_rays,
                    help=f"rays to trace; exactly these many (default: {VERIFY_RAYS})")
     v.add_argument("--kind", choices=RAY_KINDS,
-                   help=f"the ray set (default: {VERIFY_KIND})")
+                   help=f"the ray set; shadow rays are checked as occluded queries, the "
+                        f"others as closest hits (default: {VERIFY_KIND})")
     v.add_argument("--mismatches", metavar="F.npz", type=_path,
                    help="where mismatching rays are written (default: "
                         "renders/verify-<scene>-<kind>-mismatches.npz, only if there are any)")
@@ -1076,7 +1149,8 @@ def make_parser():
                          f"(default: {GENERATED_TRIANGLES})")
     an.add_argument("--physics", help="marbles: pybullet, analytic or auto (default: auto)")
     an.add_argument("--verify", action="store_true",
-                    help="check every ray (closest hits and shadows) against Embree")
+                    help="render each frame again with every ray (closest hits and shadows) "
+                         "checked against Embree (its time reported apart)")
     an.add_argument("--seed", type=_non_negative, default=0, help="seed of the pixel jitter")
     an.add_argument("-o", "--output", metavar="DIR", type=_path,
                     help="output directory (default: renders/animate-<scene>-<strategy>, or "

@@ -38,7 +38,7 @@ from traversal.camera import TILE, look_at_basis
 from traversal.config import F32_UNIT_MAX_PRODUCT, F32_UNIT_MIN_SPAN
 from traversal.offset import STRATEGY_CODES
 from traversal.api import ACCELS, PRECISIONS, release_kept_bounds  # noqa: F401 (ACCELS: accel=)
-from traversal.tracers import run_as_tracer_allows
+from traversal.tracers import check_tracer, run_as_tracer_allows
 from traversal.triangle_unit import coordinate_box, f32_unit_reach, span_of
 from . import pcg64, stages
 from .config import BAND_PIXELS, BLOCK, MIN_BANDS
@@ -495,6 +495,26 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
                         prim=frame.aov_prim.reshape(H, W), stats=stats)
 
 
+def verified_render(scene, tracer, seed=0, image=None, offset="relative"):
+    """Render ``scene`` once more with every query ``tracer`` answers checked against Embree
+    (``traversal.tracers.VerifyingTracer``): the closest hits and the ``occluded`` answers
+    shading used. A render is deterministic, so this asks the queries of the render it
+    checks, made apart so that Embree's time stays out of that render's time. ``image``: that
+    render's image, which this one must equal bit for bit (``same_image`` in the summary).
+    Returns (``VerifyingTracer.summary()``, seconds of the checked render)."""
+    from traversal.tracers import VerifyingTracer
+
+    _check_render_arguments(scene, tracer, seed, None)
+    checked = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
+    t = time.perf_counter()
+    res = render(scene, checked, seed=seed, offset=offset)
+    seconds = time.perf_counter() - t
+    summary = checked.summary()
+    if image is not None:
+        summary["same_image"] = bool(np.array_equal(res.image, image, equal_nan=True))
+    return summary, seconds
+
+
 def _check_render_arguments(scene, tracer, seed, progress):
     """``render``'s arguments, before any work: a compiled scene with triangles and a film,
     a tracer with both queries, a seed that is an integer, a callable ``progress``."""
@@ -507,15 +527,7 @@ def _check_render_arguments(scene, tracer, seed, progress):
         v = getattr(scene, key)
         if not is_integer(v) or v < 1:
             raise ParameterError(f"scene.{key}", f"must be a positive integer, got {v!r}")
-    if not (callable(getattr(tracer, "intersect", None)) and
-            callable(getattr(tracer, "occluded", None))):
-        raise ParameterError("tracer", f"expected a tracer with intersect and occluded, got "
-                                       f"{type(tracer).__name__}")
-    known = getattr(tracer, "n_triangles", None)
-    if known is not None and known != len(scene.triangles):
-        raise ParameterError("tracer", f"{type(tracer).__name__} traces {known} triangles, the "
-                                       f"scene has {len(scene.triangles)}: not built over the "
-                                       f"scene's triangles")
+    check_tracer(tracer, len(scene.triangles))
     if not is_integer(seed) or seed < 0:
         raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
     if progress is not None and not callable(progress):

@@ -490,6 +490,9 @@ def test_a_rerun_resumes_only_frames_made_as_it_would_make_them(tmp_path, capsys
     r = json.loads(out)
     assert rc == 0 and r["resumed_from"] == 0 and all("verify" in f for f in r["frames"])
     assert r["verify"]["rays"] == sum(sum(f["rays"].values()) for f in r["frames"]) > 0
+    # each frame checked in a render of its own, whose seconds are not the frame's
+    assert r["verify"]["same_image"] is True and all(f["verify_seconds"] > 0 for f in r["frames"])
+    assert r["verify_seconds_total"] == pytest.approx(sum(f["verify_seconds"] for f in r["frames"]))
     rc, out, err = _run_cli(capsys, *args, "--verify")
     assert rc == 0 and json.loads(out)["resumed_from"] == 3
     # a shorter rerun leaves the later frames described in the run's state, and a longer one

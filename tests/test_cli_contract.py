@@ -676,16 +676,76 @@ def test_verify_traces_exactly_the_rays_asked_for(capsys, tmp_path, sphere_ply, 
     assert r["agree"] + r["tie"] + r["mismatch"] == 1001
 
 
-def test_verify_says_so_when_it_traces_fewer(capsys, tmp_path):
-    # one sliver seen edge-on by the framing camera: almost no first ray hits it
-    p = write_ply(tmp_path / "sliver.ply", [[[0, 0, 0], [1, 0, 0], [0.5, 1e-7, 0]]])
+def test_verify_says_so_when_it_traces_fewer_and_refuses_none(capsys, tmp_path):
+    # a sliver seen edge-on by the framing camera: few first rays hit it
+    p = write_ply(tmp_path / "sliver.ply", [[[0, 0, 0], [1, 0, 0], [0.5, 1e-2, 0]]])
     rc, out, err = call(capsys, "verify", p, "--rays", 50, "--kind", "shadow", "--json",
                         "--mismatches", tmp_path / "m.npz")
     assert rc == 0, err
     r = strict_json(out)
-    assert r["rays_requested"] == 50
-    if r["rays"] != 50:
-        assert "of the 50 requested" in err
+    assert r["rays_requested"] == 50 and 0 < r["rays"] < 50
+    assert f"{r['rays']} of the 50 requested" in err
+    # a triangle of no area: no first ray hits it, so there is nothing to verify
+    p = write_ply(tmp_path / "line.ply", [[[0, 0, 0], [1, 0, 0], [2, 0, 0]]])
+    rc, out, err = call(capsys, "verify", p, "--rays", 50, "--kind", "shadow")
+    assert rc == 2 and out == "" and one_line_error(err) == (
+        f"hwrt: error: {p}: makes no shadow rays: none of the first rays that make them hits "
+        f"the mesh")
+
+
+def test_verify_reports_how_many_rays_hit(capsys, tmp_path, sphere_ply):
+    """"All agree" is read with the hits: shadow rays are checked as occluded queries, the
+    others as closest-hit ones, and each says how many of its rays hit (or are blocked)."""
+    for kind, query in (("primary", "intersect"), ("shadow", "occluded")):
+        rc, out, err = call(capsys, "verify", sphere_ply, "--rays", 500, "--kind", kind,
+                            "--json", "--mismatches", tmp_path / "m.npz")
+        assert rc == 0, err
+        r = strict_json(out)
+        assert r["query"] == query and r["hit_fraction"] == r["hit"] / r["rays"]
+        # the framing camera's rays miss around the sphere; shadow rays from its far side
+        # are blocked by the sphere itself
+        assert 0 < r["hit"] < r["rays"] == 500
+
+
+def _mismatch_file(path, tris, **run):
+    """A mismatch file as hwrt verify writes it, for two rays from inside the tetrahedron."""
+    from hwrt.cli import _triangles_digest
+    centre = np.asarray(tris, np.float64).reshape(-1, 3).mean(axis=0)
+    run.setdefault("triangles_sha256", _triangles_digest(tris))
+    np.savez(path, origins=np.array([centre, centre], np.float32),
+             dirs=np.array([[0, 0, 1], [1, 1, 1]], np.float32), tmax=np.array([np.inf, 1e-3]),
+             **{k: np.str_(v) for k, v in run.items()})
+    return path
+
+
+def test_replay_traces_as_the_run_that_wrote_the_file(capsys, tmp_path, tetra):
+    """A mismatch file records its ray set, structure and triangles: --replay re-traces with
+    that query and structure, and refuses another scene's triangles."""
+    from hwrt.cli import _scene_geometry
+    tris = _scene_geometry(str(tetra))[1]
+    f = _mismatch_file(tmp_path / "m.npz", tris, kind="shadow", accel="kdtree", scene="tetra")
+    rc, out, err = call(capsys, "verify", tetra, "--replay", f, "--json")
+    assert rc == 0, err
+    r = strict_json(out)
+    assert (r["kind"], r["accel"], r["query"], r["rays"], r["agree"]) == \
+        ("shadow", "kdtree", "occluded", 2, 2)
+    # from inside, the first ray is blocked; the second stops before any face
+    assert [(x["ours"], x["embree"]) for x in r["replayed"]] == [(True, True), (False, False)]
+    rc, out, err = call(capsys, "verify", tetra, "--replay", f)
+    assert rc == 0 and out.splitlines()[0] == (
+        f"replayed 2 shadow rays of {f} (occluded queries, accel kdtree): 2 agree, 0 tie, "
+        f"0 mismatch (our answer wrong in 0, Embree's in 0)")
+    assert len(out.splitlines()) == 3
+    other = _mismatch_file(tmp_path / "o.npz", tris + 1, kind="random", scene="elsewhere")
+    rc, out, err = call(capsys, "verify", tetra, "--replay", other)
+    assert rc == 2 and out == "" and one_line_error(err) == (
+        f"hwrt: error: --replay {other}: its rays were verified on other triangles (elsewhere) "
+        f"than tetra's {len(tris)}: replay it on the scene it was made on")
+    bad = _mismatch_file(tmp_path / "b.npz", tris, kind="sideways")
+    rc, out, err = call(capsys, "verify", tetra, "--replay", bad)
+    assert rc == 2 and one_line_error(err) == (
+        f"hwrt: error: --replay {bad}: key 'kind': 'sideways' is not a ray set hwrt verify "
+        f"checks (primary, random, bounces, shadow)")
 
 
 def test_replay_rejects_options_of_a_verification_run(capsys, tmp_path, tetra):

@@ -226,6 +226,39 @@ def test_reproducible_and_verified():
     assert v["mismatch"] == 0 and v["rays"] > 3000 and v["shadow"]["rays"] > 1000
 
 
+def test_a_verified_render_is_a_second_render_checked_apart():
+    """``verified_render`` asks the render's queries again, each checked against Embree, and
+    says whether its image is the timed render's; ``render --verify`` reports the check's
+    seconds apart from the render's, which are those of the unchecked render."""
+    from raytracer.render import verified_render
+    sc = compile_scene(load_scene("cornell", width=40, height=30, spp=1))
+    tracer, _, _ = make_tracer(sc)
+    res = render(sc, tracer, seed=5)
+    summary, seconds = verified_render(sc, tracer, 5, res.image)
+    assert summary["same_image"] and summary["mismatch"] == 0 and seconds > 0
+    assert summary["rays"] == sum(res.stats["rays"].values())
+    other = res.image.copy()
+    other[0, 0, 0] += 1
+    assert not verified_render(sc, tracer, 5, other)[0]["same_image"]
+    # another seed's rays make another image
+    assert not verified_render(sc, tracer, 6, res.image)[0]["same_image"]
+
+
+def test_render_verify_reports_the_check_apart(tmp_path, capsys):
+    from hwrt.cli import main
+    out = tmp_path / "c.exr"
+    assert main(["render", "cornell", "--width", "32", "--height", "24", "--spp", "1",
+                 "-o", str(out), "--verify", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    v = r["verify"]
+    assert v["same_image"] is True and v["mismatch"] == 0
+    assert v["rays"] == sum(r["rays"].values()) and r["verify_seconds"] > 0
+    assert main(["render", "cornell", "--width", "32", "--height", "24", "--spp", "1",
+                 "-o", str(out), "--verify"]) == 0
+    human = capsys.readouterr().out
+    assert "verify_seconds: " in human and "same_image" in human
+
+
 def test_embree_path_renders_the_same_image():
     d = load_scene("cornell", width=64, height=48, spp=1)
     d["film"]["jitter"] = False

@@ -12,7 +12,7 @@ from traversal.aabb_unit import aabb_hit_at, near_far_planes
 from traversal.config import GAMMA3_F32
 from traversal.embree_ref import embree_occluded, embree_scene
 from traversal.triangle_unit import TRI_WORDS, band_eps2, mt_valid_at, preprocess
-from traversal.verify import t_tolerance, verify_mesh
+from traversal.verify import t_tolerance, verify_mesh, verify_rays
 from scenes.meshes import grid_sheet, random_soup, sphere, uv_sphere
 
 from .naive import ray_triangle_f64
@@ -264,6 +264,38 @@ def test_zero_mismatches_against_embree(mesh, kind):
     assert counts["agree"] >= 0.99 * counts["rays"]
 
 
+@pytest.mark.parametrize("wrong", ["never", "always"])
+def test_shadow_sets_verify_the_occluded_answers(wrong):
+    """The shadow set is checked as renderers ask it, through ``occluded``: a tracer whose
+    closest hits are right but whose any-hit answers are wrong fails it, and each mismatch
+    says which answer is wrong and why."""
+    from traversal.verify import diagnose_occluded
+    tris, V, F = closed_sphere(16, 24)
+    good = Tracer(hwbvh.build(tris))
+
+    class WrongOccluded:
+        n_triangles = good.n_triangles
+
+        def intersect(self, *a, **kw):
+            return good.intersect(*a, **kw)
+
+        def occluded(self, o, d, tmin=0.0, tmax=np.inf):
+            return np.full(len(o), wrong == "always")
+
+    counts, labels, (O, D, tmax), ours, ref = verify_mesh(tris, V, F, "shadow", 2000,
+                                                          tracer=WrongOccluded())
+    assert ours.dtype == ref.dtype == bool and counts["hit"] == ours.sum()
+    assert counts["mismatch"] > 100 and (labels == 2).sum() == counts["mismatch"]
+    bad = np.flatnonzero(labels == 2)
+    rows = diagnose_occluded(tris, O[bad], D[bad], 0.0, tmax[bad], ours[bad], ref[bad])
+    assert all(r["class"] == "mismatch" and r["wrong"] == ["ours"] for r in rows)
+    why = rows[0]["why"]["ours"]
+    assert why.startswith("not blocked, but triangle " if wrong == "never" else
+                          "blocked, but no triangle is hit within the tolerances"), why
+    # the right tracer passes the same set
+    assert verify_mesh(tris, V, F, "shadow", 2000, tracer=good)[0]["mismatch"] == 0
+
+
 def test_float64_units_agree_with_float32():
     tris = random_soup(3000, seed=8)
     bvh = hwbvh.build(tris)
@@ -499,7 +531,15 @@ def test_hits_on_1e12_and_1e_12_meshes_match_float64_and_embree(mesh, scale):
     bvh = hwbvh.build(tris)
     f64 = Tracer(bvh, precision="float64")
     for kind in kinds:
-        counts, labels, (o, d, tmax), h, (_, pe) = verify_mesh(tris, V, F, kind, 4000, bvh=bvh)
+        counts, labels, (o, d, tmax), h, ref = verify_mesh(tris, V, F, kind, 4000, bvh=bvh)
+        if kind == "shadow":            # any-hit answers: those of the float64 units
+            assert counts["mismatch"] == 0, counts
+            assert np.array_equal(h, f64.occluded(o, d, 0.0, tmax))
+            # and their closest hits, checked below as the other sets'
+            counts, labels, h, (_, pe) = verify_rays(Tracer(bvh), embree_scene(V, F), tris, o,
+                                                     d, tmax)
+        else:
+            pe = ref[1]
         subnormal_t = labels == 2 if scale < 1 and kind != "primary" else np.zeros(len(o), bool)
         assert np.array_equal(h.prim[subnormal_t], pe[subnormal_t]), kind
         assert subnormal_t.sum() <= 0.005 * counts["rays"], (kind, counts)
@@ -795,6 +835,7 @@ def test_ray_sets_and_verification_made_a_slice_at_a_time_equal_the_whole(monkey
     di = rng.normal(size=(n, 3))
     di /= np.linalg.norm(di, axis=1, keepdims=True)
     whole = verify_mesh(tris, V, F, "bounces", 3000)
+    whole_shadow = verify_mesh(tris, V, F, "shadow", 3000)
     monkeypatch.setattr(raysets, "MAKE_CHUNK", 1000)
     monkeypatch.setattr(verify, "VERIFY_CHUNK", 700)
     for a, b in zip(raysets.primary(tris, n), (o[order], d[order])):
@@ -805,3 +846,6 @@ def test_ray_sets_and_verification_made_a_slice_at_a_time_equal_the_whole(monkey
     assert sliced[0] == whole[0] and np.array_equal(sliced[1], whole[1])
     assert all(np.array_equal(x, y) for x, y in zip(sliced[2][:2], whole[2][:2]))
     assert np.array_equal(sliced[3].t, whole[3].t) and np.array_equal(sliced[4][1], whole[4][1])
+    sliced = verify_mesh(tris, V, F, "shadow", 3000)
+    assert sliced[0] == whole_shadow[0] and np.array_equal(sliced[1], whole_shadow[1])
+    assert np.array_equal(sliced[3], whole_shadow[3]) and np.array_equal(sliced[4], whole_shadow[4])

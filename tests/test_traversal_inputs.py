@@ -16,7 +16,7 @@ from traversal.embree_ref import (EmbreeTracer, embree_intersect, embree_occlude
 from traversal.grid import GridTracer
 from traversal.kdtree import KdTreeTracer
 from traversal.tracers import CountingTracer, RecordingTracer, VerifyingTracer
-from traversal.verify import classify, classify_occluded, verify_mesh
+from traversal.verify import classify, classify_occluded, verify_mesh, verify_rays
 
 # 64 small triangles and 16 rays straight down at the first 16 centroids: all 16 hit
 PRELUDE = """
@@ -361,6 +361,18 @@ def test_argument_errors_are_parameter_errors_naming_the_parameter(bvh, tracers)
         ("accel", lambda: verify_mesh(TRIS, V, F, accel="bogus")),
         ("kind", lambda: CountingTracer(tracers["bvh"]).work("bogus")),
         ("inner", lambda: CountingTracer(tracers["embree"])),
+        ("packets", lambda: Tracer(bvh, packets="no")),
+        ("watertight", lambda: Tracer(bvh, watertight=1)),
+        # a tracer or a reference over other geometry than the triangles checked: refused,
+        # not reported as mismatches
+        ("tracer", lambda: verify_mesh(TRIS, V, F, tracer="x")),
+        ("tracer", lambda: verify_mesh(TRIS[:-1], V[:-3], F[:-1], tracer=tracers["grid"])),
+        ("scene", lambda: verify_rays(tracers["bvh"], None, TRIS, O, D)),
+        ("tracer", lambda: verify_rays(None, embree_scene(V, F), TRIS, O, D)),
+        ("inner", lambda: VerifyingTracer(tracers["kdtree"], TRIS[:-1], V[:-3], F[:-1])),
+        ("inner", lambda: VerifyingTracer(object(), TRIS, V, F)),
+        ("faces", lambda: VerifyingTracer(tracers["bvh"], TRIS, V, F[::-1])),
+        ("triangles", lambda: VerifyingTracer(tracers["bvh"], TRIS[0], V, F)),
     ]
     for parameter, call in cases:
         with pytest.raises(ParameterError) as e:

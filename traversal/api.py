@@ -285,6 +285,9 @@ class Tracer(PacketCount):
                  packets=True):
         if precision not in PRECISIONS:
             raise ParameterError("precision", f"must be 'float32' or 'float64', got {precision!r}")
+        for name, flag in (("watertight", watertight), ("packets", packets)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise ParameterError(name, f"must be True or False, got {flag!r}")
         self.dtype = np.float32 if precision == "float32" else np.float64
         f32 = self.dtype == np.float32
         if edge_eps is None:

@@ -45,6 +45,21 @@ from hwbvh.parallel import run_ranges
 from .api import _rays
 
 
+def check_tracer(tracer, n_triangles=None, name="tracer"):
+    """ParameterError naming ``name`` unless ``tracer`` has both queries and, where it says
+    how many triangles it traces (``n_triangles``), traces ``n_triangles`` of them: answers
+    over other triangles would be read as wrong, or index the caller's arrays out of range."""
+    if not (callable(getattr(tracer, "intersect", None)) and
+            callable(getattr(tracer, "occluded", None))):
+        raise ParameterError(name, f"expected a tracer with intersect and occluded, got "
+                                   f"{type(tracer).__name__}")
+    known = getattr(tracer, "n_triangles", None)
+    if n_triangles is not None and known is not None and known != n_triangles:
+        raise ParameterError(name, f"{type(tracer).__name__} traces {known} triangles, the "
+                                   f"scene has {n_triangles}: not built over the scene's "
+                                   f"triangles")
+
+
 class _Wrapper:
     """What a wrapper shares with the tracer it wraps (``inner``)."""
 
@@ -77,10 +92,19 @@ class VerifyingTracer(_Tally):
     ("closest", "shadow"), the rays checked and how many agree, tie or mismatch."""
 
     def __init__(self, inner, triangles, vertices, faces):
-        from .embree_ref import embree_scene
+        from .embree_ref import embree_scene, indexed_mesh
 
-        self.inner = inner
         self.triangles = np.asarray(triangles, np.float32)
+        if self.triangles.ndim != 3 or self.triangles.shape[1:] != (3, 3):
+            raise ParameterError("triangles", f"expected an (n, 3, 3) array, got shape "
+                                              f"{self.triangles.shape}")
+        check_tracer(inner, len(self.triangles), "inner")
+        vertices, faces = indexed_mesh(vertices, faces)
+        if len(faces) != len(self.triangles) or \
+                not np.array_equal(vertices[faces], self.triangles):
+            raise ParameterError("faces", "vertices[faces] are not the triangles checked: Embree "
+                                          "would trace other geometry than the tracer")
+        self.inner = inner
         self.reference = embree_scene(vertices, faces)
         zero = {"rays": 0, "agree": 0, "tie": 0, "mismatch": 0}
         self.counts = {"closest": dict(zero), "shadow": dict(zero)}

@@ -295,23 +295,27 @@ def _why(verdict, tris, p, reported, o, d, tmin, tmax, best, best_j):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _reference_any(lo, hi, tris, O, D, tmin, tmax, scale, out):
-    """For disputed any-hit rays lo..hi: out[i] = (a strict hit exists, a loose hit exists),
-    where a strict hit lies inside its triangle by more than BARY_TOL at t clearly inside
-    (tmin, tmax), and a loose hit within ``_answer_tol`` of its triangle at t within the
-    tolerance of [tmin, tmax]."""
+    """For disputed any-hit rays lo..hi: out[i] = (a strict hit exists, a loose hit exists,
+    the first triangle hit strictly or -1, its t), where a strict hit lies inside its triangle
+    by more than BARY_TOL at t clearly inside (tmin, tmax), and a loose hit within
+    ``_answer_tol`` of its triangle at t within the tolerance of [tmin, tmax]."""
     for i in range(lo, hi):
         o = O[i]
         d = D[i]
         strict = False
         loose = False
+        out[i, 2] = -1.0
+        out[i, 3] = np.inf
         for j in range(tris.shape[0]):
             t, u, v = _mt64(tris[j], o, d)
             if not np.isfinite(t):
                 continue
             tol = T_TOL_REL * (abs(t) + scale[i])
             m = _margin(u, v)
-            if m > BARY_TOL and t > tmin[i] + tol and t < tmax[i] - tol:
+            if not strict and m > BARY_TOL and t > tmin[i] + tol and t < tmax[i] - tol:
                 strict = True
+                out[i, 2] = j
+                out[i, 3] = t
             if t >= tmin[i] - tol * BEHIND and t <= tmax[i] + tol and \
                     (m >= -BARY_TOL or m >= -_answer_tol(tris[j], o, d)):
                 loose = True
@@ -321,12 +325,9 @@ def _reference_any(lo, hi, tris, O, D, tmin, tmax, scale, out):
         out[i, 1] = 1.0 if loose else 0.0
 
 
-def classify_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
-    """Any-hit answers: (counts dict, labels) as :func:`classify`. Equal answers agree. Where
-    they differ, a float64 brute-force re-test decides: "blocked" is right when some triangle is
-    hit within the tolerances, "not blocked" when no triangle is hit strictly inside the
-    interval; both right is a tie (a ray grazing an edge or ending on a surface).
-    ParameterError naming the argument on a bad shape."""
+def _judged_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
+    """Checked any-hit answers -> (labels, disputed rays, their re-test rows
+    ``_reference_any``, ours, ref, each answer's rightness on the disputed rays)."""
     tris = _checked_triangles(tris)
     O, D, tmin, tmax = _checked_rays(O, D, tmin, tmax)
     n = len(O)
@@ -334,19 +335,55 @@ def classify_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
     ref = _per_ray(ref_blocked, n, "ref_blocked", "biu").astype(bool)
     labels = np.where(ours == ref, 0, 2).astype(np.int8)
     disputed = np.flatnonzero(labels == 2)
+    out = np.empty((len(disputed), 4))
+    right = {}
     if len(disputed):
         Od = np.ascontiguousarray(O[disputed])
         Dd = np.ascontiguousarray(D[disputed])
-        scale = _scale(Od, Dd)
-        out = np.empty((len(disputed), 2))
         run_ranges(_reference_any, len(disputed), np.ascontiguousarray(tris, np.float64), Od, Dd,
                    np.ascontiguousarray(tmin[disputed]), np.ascontiguousarray(tmax[disputed]),
-                   scale, out)
-        strict, loose = out[:, 0] > 0, out[:, 1] > 0
-        right = lambda blocked: np.where(blocked, loose, ~strict)
-        ok = right(ours[disputed]) & right(ref[disputed])
-        labels[disputed[ok]] = 1
+                   _scale(Od, Dd), out)
+    strict, loose = out[:, 0] > 0, out[:, 1] > 0
+    for name, blocked in (("ours", ours), ("ref", ref)):
+        right[name] = np.where(blocked[disputed], loose, ~strict)
+    labels[disputed[right["ours"] & right["ref"]]] = 1
+    return labels, disputed, out, right
+
+
+def classify_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
+    """Any-hit answers: (counts dict, labels) as :func:`classify`. Equal answers agree. Where
+    they differ, a float64 brute-force re-test decides: "blocked" is right when some triangle is
+    hit within the tolerances, "not blocked" when no triangle is hit strictly inside the
+    interval; both right is a tie (a ray grazing an edge or ending on a surface).
+    ParameterError naming the argument on a bad shape."""
+    labels = _judged_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked)[0]
     return _counts(labels), labels
+
+
+def diagnose_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked,
+                      names=("ours", "embree")):
+    """``classify_occluded``, and per ray what the re-test found, as :func:`diagnose` words
+    it: {"class", "wrong": the ``names`` of the answers it rejects, "why": name -> a sentence}.
+    """
+    labels, disputed, out, right = _judged_occluded(tris, O, D, tmin, tmax, ours_blocked,
+                                                    ref_blocked)
+    ours = np.asarray(ours_blocked).astype(bool)
+    rows = [{"class": LABELS[k], "wrong": [], "why": {}} for k in labels]
+    for r, i in enumerate(disputed):
+        if labels[i] != 2:
+            continue
+        for name, key in zip(names, ("ours", "ref")):
+            if right[key][r]:
+                continue
+            # the answers differ: the reference says the opposite of ours
+            blocked = bool(ours[i]) == (key == "ours")
+            rows[i]["wrong"].append(name)
+            rows[i]["why"][name] = (
+                "blocked, but no triangle is hit within the tolerances in the ray's interval"
+                if blocked else
+                f"not blocked, but triangle {int(out[r, 2])} is hit strictly inside the "
+                f"interval, at t = {out[r, 3]:.9g}")
+    return rows
 
 
 # Rays verified at a time: each slice is traced by both tracers and classified before the next,
@@ -355,16 +392,30 @@ def classify_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
 VERIFY_CHUNK = 1 << 20
 
 
-def verify_rays(tracer, scene, tris, O, D, tmax=None):
+def _check_embree_scene(scene):
+    if not callable(getattr(scene, "run", None)):
+        raise ParameterError("scene", f"expected an Embree scene (traversal.embree_ref."
+                                      f"embree_scene), got {type(scene).__name__}")
+
+
+def verify_rays(tracer, scene, tris, O, D, tmax=None, anyhit=False):
     """Trace (O, D) with our tracer and with Embree (tnear = 0), classify every ray, a slice
-    of ``VERIFY_CHUNK`` rays at a time. Returns (counts, labels, ours Hits (t, prim, u, v; no
-    normals), embree (t, prim))."""
+    of ``VERIFY_CHUNK`` rays at a time. Closest hits: returns (counts, labels, ours Hits (t,
+    prim, u, v; no normals), embree (t, prim)). ``anyhit`` checks ``occluded`` answers
+    instead (shadow rays): returns (counts, labels, ours blocked, embree blocked), (n,) bool
+    each. ``counts["hit"]``: the rays our tracer found a hit on (or blocked), so that "all
+    agree" is not read as "all hit"."""
     from .api import Hits
+    from .tracers import check_tracer
+
+    check_tracer(tracer, len(_checked_triangles(tris)))
+    _check_embree_scene(scene)
+    if anyhit:
+        return _verify_occluded(tracer, scene, tris, O, D, tmax)
     from .embree_ref import embree_intersect
 
     n = len(O)
-    tmax_of = (lambda a, b: np.inf) if tmax is None else \
-        (lambda a, b: tmax[a:b] if np.ndim(tmax) else tmax)
+    tmax_of = _tmax_slices(tmax)
     labels = np.empty(n, np.int8)
     prim, te = np.empty(n, np.int32), np.empty(n)
     t = u = v = np.empty(0, np.float32)         # in the tracer's precision, from its answers
@@ -382,7 +433,36 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None):
                                   prim[a:b].astype(np.int64), t[a:b], pe[a:b], te[a:b])
         for k in counts:
             counts[k] += c[k]
+    counts["hit"] = int((prim >= 0).sum())
     return counts, labels, Hits(t=t, prim=prim, u=u, v=v, ng=None), (te, pe)
+
+
+def _tmax_slices(tmax):
+    """Slice [a, b) of the bound: inf for None, a number as is, else its entries."""
+    if tmax is None:
+        return lambda a, b: np.inf
+    return lambda a, b: tmax[a:b] if np.ndim(tmax) else tmax
+
+
+def _verify_occluded(tracer, scene, tris, O, D, tmax):
+    """``verify_rays`` of ``occluded`` answers."""
+    from .embree_ref import embree_occluded
+
+    n = len(O)
+    tmax_of = _tmax_slices(tmax)
+    labels = np.empty(n, np.int8)
+    ours, ref = np.empty(n, bool), np.empty(n, bool)
+    counts = dict.fromkeys(("rays", "agree", "tie", "mismatch"), 0)
+    for a in range(0, n, VERIFY_CHUNK):
+        b = min(n, a + VERIFY_CHUNK)
+        ours[a:b] = tracer.occluded(O[a:b], D[a:b], 0.0, tmax_of(a, b))
+        ref[a:b] = embree_occluded(scene, O[a:b], D[a:b], np.minimum(tmax_of(a, b), 3e38))
+        c, labels[a:b] = classify_occluded(tris, O[a:b], D[a:b], 0.0, tmax_of(a, b), ours[a:b],
+                                           ref[a:b])
+        for k in counts:
+            counts[k] += c[k]
+    counts["hit"] = int(ours.sum())
+    return counts, labels, ours, ref
 
 
 RAY_KINDS = ("primary", "random", "bounces", "shadow")      # the ray sets verify_mesh traces
@@ -390,10 +470,14 @@ RAY_KINDS = ("primary", "random", "bounces", "shadow")      # the ray sets verif
 
 def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=0, accel="bvh",
                 tracer=None):
-    """Build (unless given), trace a ray set of ``kind`` and classify against Embree.
+    """Build (unless given), trace a ray set of ``kind`` and classify against Embree: closest
+    hits, or for "shadow" rays (toward a point light, bounded at it) the ``occluded``
+    answers, as a renderer asks them (``verify_rays``).
     ``accel``: "bvh" (``bvh`` if given, else hwbvh's build), "grid" (``grid.GridTracer``) or
     "kdtree" (``kdtree.KdTreeTracer``);
-    ``tracer``: an already built tracer of ``tris`` to check instead."""
+    ``tracer``: an already built tracer of ``tris`` to check instead.
+    Returns (counts, labels, (O, D, tmax), ours, embree) as ``verify_rays`` (tmax None: no
+    bound)."""
     import hwbvh
     from . import raysets
     from .api import Tracer
@@ -411,7 +495,8 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
         raise ParameterError("accel", f"must be one of {', '.join(map(repr, ACCELS))}, "
                                       f"got {accel!r}")
     if tracer is not None:
-        pass                            # checked by the query itself
+        from .tracers import check_tracer
+        check_tracer(tracer, len(_checked_triangles(tris)))
     elif accel == "grid":
         from .grid import GridTracer
         tracer = GridTracer(tris)
@@ -431,5 +516,6 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
         O, D = raysets.bounces(tracer, tris, n, seed, dtype=np.float32)
     else:
         O, D, tmax = raysets.shadow(tracer, tris, n, dtype=np.float32)
-    counts, labels, h, emb = verify_rays(tracer, scene, tris, O, D, tmax)
-    return counts, labels, (O, D, tmax), h, emb
+    counts, labels, ours, emb = verify_rays(tracer, scene, tris, O, D, tmax,
+                                            anyhit=kind == "shadow")
+    return counts, labels, (O, D, tmax), ours, emb
