@@ -242,6 +242,10 @@ def _inputs_digest(paths):
     return h.hexdigest()
 
 
+# What a run's parameters mean by a key they leave out
+PARAMS_ABSENT = {"accel": "bvh"}
+
+
 def _run_params(anim, strategy, threshold, scene, accel="bvh", seed=0, written=False):
     """What makes a run's frames what they are: a rerun resumes only frames made with all of
     it the same; for a ``written`` run (one that can be resumed), the inputs' content too."""
@@ -283,11 +287,14 @@ def _load_state(out_dir, params):
     except (OSError, ValueError, KeyError, TypeError):
         raise InputError(path, "is not the state of an hwrt animate run; "
                                    "choose another output directory") from None
-    diff = [k for k in params if old.get(k) != params[k]]
+    # every key of either run: a key only one names (accel, threshold) differs too
+    value = lambda p, k: p.get(k, PARAMS_ABSENT.get(k))
+    diff = [k for k in list(params) + [k for k in old if k not in params]
+            if value(old, k) != value(params, k)]
     if diff:
         k = diff[0]
         what = ("made from other contents of the input files" if k == "inputs_sha256" else
-                f"{k}: {old.get(k)!r}, now {params[k]!r}")
+                f"{k}: {value(old, k)!r}, now {value(params, k)!r}")
         raise InputError(out_dir, f"holds frames of another run ({what}); choose another "
                                    f"output directory")
     return rows

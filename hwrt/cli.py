@@ -655,7 +655,7 @@ BENCH_OPTIONS = {
     "tti": {"meshes": [], "mesh_dir": None, "repeat": 5, "quick": False, "fresh": False,
             "out_dir": "renders/bench", "width": 320, "height": 240, "spp": 1, "max_depth": 5,
             "scheduler": None, "accel": None},
-    "accuracy": {"meshes": [], "mesh_dir": None, "repeat": 3, "quick": False, "fresh": False,
+    "accuracy": {"meshes": [], "repeat": 3, "quick": False, "fresh": False,
                  "out_dir": "renders/bench", "width": 160, "height": 120, "scheduler": None},
     "model": {"meshes": [], "mesh_dir": None, "out_dir": None, "scheduler": None},
     "contention": {"meshes": [], "repeat": 5, "width": 320, "height": 240, "spp": 1, "out_dir": None},
@@ -690,17 +690,47 @@ BENCH_OPTION_HELP = {
     "max_depth": "longest reflection/refraction path"}
 
 
+# What --quick does to each benchmark that reads it
+BENCH_QUICK_HELP = {
+    "tti": "a short run: the cornell scene and the smallest mesh, small cells, one run each "
+           "(seconds)",
+    "accuracy": "a short run: the cornell scene (and the meshes named), small cells, one run "
+                "each, fewer rays checked",
+    "animation": "a short run: fewer frames of fewer triangles"}
+
 # The MESH arguments of a benchmark (None: of those not listed)
 BENCH_MESHES = {None: "mesh files (default: every mesh in --mesh-dir)",
+                "accuracy": "mesh files studied beside the scenes cornell, marbles and cloth "
+                            "(default: none)",
                 "render": "scenes or mesh files (default: cornell)",
                 "trees": "scenes or mesh files (default: cornell, marbles)",
                 "contention": "one scene or mesh file (default: cornell)"}
+
+
+# What --accel NAME adds to each benchmark that reads it
+BENCH_ACCEL_HELP = {
+    "trace": "also trace the ray sets with each (default: the BVH against its peers only)",
+    "tti": "the structures timed beside the BVH paths, which are always timed (default: every "
+           "one)",
+    "animation": "the structures rebuilt every frame beside the BVH's strategies (default: "
+                 "every one)"}
+
+
+def _accel_help(what=None):
+    """The help of bench's --accel: for benchmark ``what``, or for each that reads it."""
+    from raytracer.render import ACCELS
+    head = f"an acceleration structure ({', '.join(ACCELS)}); repeat the option for more"
+    if what is not None:
+        return f"{head}: {BENCH_ACCEL_HELP[what]}"
+    return f"{head}. " + "; ".join(f"{w}: {t}" for w, t in BENCH_ACCEL_HELP.items())
 
 
 def _bench_help(dest, what=None):
     """The help of a bench option: what it sets (BENCH_OPTION_HELP) and its default, for
     benchmark ``what`` or for each benchmark (BENCH_OPTIONS)."""
     text = BENCH_OPTION_HELP[dest]
+    if what is not None and dest == "quick":
+        return BENCH_QUICK_HELP[what]
     if what is not None:
         v = BENCH_OPTIONS[what][dest]
         if v is False:                                        # a flag
@@ -941,10 +971,10 @@ def _bench_page(parser, what):
     for action in parser._actions:
         if not (isinstance(action, argparse._HelpAction) or action.dest in reads):
             continue
-        if action.dest in BENCH_OPTION_HELP or action.dest == "meshes":
+        if action.dest in BENCH_OPTION_HELP or action.dest in ("meshes", "accel"):
             action = copy.copy(action)
             action.help = BENCH_MESHES.get(what, BENCH_MESHES[None]) if action.dest == "meshes" \
-                else _bench_help(action.dest, what)
+                else _accel_help(what) if action.dest == "accel" else _bench_help(action.dest, what)
         page._add_action(action)
     return page.format_help()
 
@@ -1191,12 +1221,7 @@ def make_parser():
     be.add_argument("--max-depth", type=_depth,
                     help=_bench_help("max_depth"))
     be.add_argument("--accel", action="append", choices=ACCELS, metavar="NAME",
-                    help=f"an acceleration structure ({', '.join(ACCELS)}); repeat the option "
-                         "for more. trace: also trace the ray sets with each (default: the BVH "
-                         "against its peers only); tti: the structures timed beside the BVH "
-                         "paths, which are always timed (default: every one); animation: the "
-                         "structures rebuilt every frame beside the BVH's strategies (default: "
-                         "every one)")
+                    help=_accel_help())
     from .animate import BENCH_FRAMES, BENCH_QUICK_FRAMES
     be.add_argument("--frames", type=_frames,
                     help=f"frames per animation (read by animation; default {BENCH_FRAMES}, "

@@ -222,7 +222,7 @@ def describe(client):
     n = len(client.scheduler_info().get("workers", {}))
     if client.cluster is not None:
         return f"a local Dask cluster of {n} worker process{'' if n == 1 else 'es'}"
-    return f"the Dask scheduler at {client.scheduler.address} ({n} workers)"
+    return f"the Dask scheduler at {client.scheduler.address} ({n} worker{'' if n == 1 else 's'})"
 
 
 def timing_host(client, named="scheduler"):

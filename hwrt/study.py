@@ -158,6 +158,20 @@ def _scene_specs(args, quick):
     return specs + [(m.name, "mesh", os.path.abspath(m.path)) for m in meshes]
 
 
+# The accuracy study's scenes: a diffuse box with a mirror and a glass block, glass and mirror
+# spheres, a cloth sheet (offsets and precision matter on curved, reflective and thin surfaces)
+ACCURACY_SCENES = ("cornell", "marbles", "cloth")
+
+
+def _accuracy_specs(args, quick):
+    """``ACCURACY_SCENES`` (--quick: the first), then the mesh files named, each as
+    :func:`_scene_specs` describes it."""
+    specs = [(n, "builtin", n) for n in ACCURACY_SCENES[:1 if quick else None]]
+    if args.meshes:
+        specs += [(m.name, "mesh", os.path.abspath(m.path)) for m in mesh_inputs(args)]
+    return specs
+
+
 _generated = {"dir": None, "lock": threading.Lock()}
 
 
@@ -258,6 +272,27 @@ def _timing(scheduler, use_dask, warm_up):
         yield _Timing(client, address_source(scheduler))
 
 
+def _provenance(args, use_dask, timed, used, cells):
+    """Where a benchmark's cells came from, for its JSON (``_provenance_line`` words it): how
+    many were timed in this run and how many kept from an earlier one (``cells``' file), and
+    what ran them."""
+    from .cluster import SCHEDULER_ENV
+    address = getattr(args, "scheduler", None) or os.environ.get(SCHEDULER_ENV)
+    ran_on = ("this process" if not use_dask else
+              f"the Dask scheduler at {address}" if address else "an embedded local Dask cluster")
+    return {"timed": timed, "resumed": used - timed, "file": os.path.basename(str(cells.path)),
+            "ran_on": ran_on if timed else None}
+
+
+def _provenance_line(cells):
+    """A ``_provenance`` as the first line of a benchmark's page."""
+    kept = (f"kept from an earlier run ({cells['file']}; --fresh times them all again)")
+    if not cells["timed"]:
+        return f"Cells: all {cells['resumed']} {kept}.\n\n"
+    return (f"Cells: {cells['timed']} timed in this run, on {cells['ran_on']}; "
+            f"{cells['resumed']} {kept}.\n\n")
+
+
 def _run_id():
     """A prefix that keeps one run's Dask keys apart from another's on a shared scheduler."""
     return uuid.uuid4().hex[:8]
@@ -352,11 +387,16 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
                        "bench tti", progress)
             where = timing.machine()
     rows, summary = _tti_rows(cells, specs, W, H, spp, depth, repeat, structures)
-    md = "# hwrt bench tti\n\n" + made_by_block(command_of(args)) + _tti_markdown(rows, summary, W, H, spp, depth)
+    used = sum(1 for spec in specs for *_, tree in trees
+               if cells.get(_tti_key(spec[0], tree, W, H, spp, depth, repeat)))
+    provenance = _provenance(args, use_dask, len(jobs), used, cells)
+    md = "# hwrt bench tti\n\n" + made_by_block(command_of(args)) + \
+        _provenance_line(provenance) + _tti_markdown(rows, summary, W, H, spp, depth)
     plots = _tti_plot(rows, out_dir, TTI_PATHS + structures)
     return _write_outputs(cells, out_dir, "tti", rows, md, plots,
                           {"setting": {"width": W, "height": H, "spp": spp, "max_depth": depth,
-                                       "repeat": repeat}, "break_even": summary}, where, commit)
+                                       "repeat": repeat}, "break_even": summary,
+                           "cells": provenance}, where, commit)
 
 
 def _tti_rows(cells, specs, W, H, spp, depth, repeat, structures=()):
@@ -422,7 +462,8 @@ def _tti_rows(cells, specs, W, H, spp, depth, repeat, structures=()):
 def human_tti(result):
     """A ``bench_tti`` result as the command line prints it: the tables of its tti.md."""
     s = result["setting"]
-    return (_tti_markdown(result["rows"], result["break_even"], s["width"], s["height"], s["spp"],
+    return (_provenance_line(result["cells"]) +
+            _tti_markdown(result["rows"], result["break_even"], s["width"], s["height"], s["spp"],
                           s["max_depth"]) + "\nwrote " + ", ".join(result["files"]))
 
 
@@ -459,7 +500,7 @@ def _tti_markdown(rows, summary, W, H, spp, depth):
     for s in summary:
         lines.append(f"| {s['scene']} | {s['preset']} | {s['build_saved_seconds']:.4f} | "
                      f"{fmt(s['break_even_rays'])} | {s['build_saved_vs_sweep_seconds']:.4f} | "
-                     f"{1e6 * s['seconds_per_ray_ours']:.3f} | {1e6 * s['seconds_per_ray_sweep_tree']:.3f} | "
+                     f"{1e6 * s['seconds_per_ray_ours']:.4g} | {1e6 * s['seconds_per_ray_sweep_tree']:.4g} | "
                      f"{fmt(s['break_even_rays_vs_sweep'])} |")
     return "\n".join(lines) + "\n"
 
@@ -620,7 +661,7 @@ def bench_accuracy(args, *, use_dask=True, progress=True, commit=write_files):
     W, H = args.width, args.height
     repeat = args.repeat
     rays = MISMATCH_RAYS_QUICK if quick else MISMATCH_RAYS
-    specs = _scene_specs(args, quick)[:1 if quick else 3]   # before the cells file is opened
+    specs = _accuracy_specs(args, quick)                    # before the cells file is opened
     cells = Cells(os.path.join(args.out_dir, "accuracy.jsonl"), fresh=args.fresh,
                   schema=ACCURACY_ROW)
     work = [(spec, knob, val) for spec in specs for knob, vals in KNOBS.items() for val in vals]
@@ -650,21 +691,34 @@ def bench_accuracy(args, *, use_dask=True, progress=True, commit=write_files):
             where = timing.machine()
     rows = [cells.get(key_of(spec, k, v)) for spec, k, v in work]
     rows = [r for r in rows if r]
-    md = "# hwrt bench accuracy\n\n" + made_by_block(command_of(args)) + _accuracy_markdown(rows)
+    provenance = _provenance(args, use_dask, len(pending), len(rows), cells)
+    md = "# hwrt bench accuracy\n\n" + made_by_block(command_of(args)) + \
+        _provenance_line(provenance) + _accuracy_markdown(rows)
     plots = _accuracy_plots(rows, args.out_dir)
     return _write_outputs(cells, args.out_dir, "accuracy", rows, md, plots,
-                          {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE}},
-                          where, commit)
+                          {"setting": {"width": W, "height": H, "repeat": repeat, "base": BASE},
+                           "cells": provenance}, where, commit)
 
 
 def human_accuracy(result):
     """A ``bench_accuracy`` result as the command line prints it: the table of its
     accuracy.md."""
-    return _accuracy_markdown(result["rows"]) + "\nwrote " + ", ".join(result["files"])
+    return _provenance_line(result["cells"]) + _accuracy_markdown(result["rows"]) + "\nwrote " + \
+        ", ".join(result["files"])
 
 
 def _accuracy_markdown(rows):
-    lines = ["Medians of the repeated runs; the render spread is min-max over them.\n",
+    lines = ["Each row sets one knob to one value, the others at their defaults. Medians of the "
+             "repeated runs; the render spread is min-max over them. nodes/ray and tris/ray: the "
+             "work per closest-hit ray of the render, as the single-ray unit does it. mismatch "
+             f"and tie: the shares of {MISMATCH_RAYS:,} random rays (--quick: "
+             f"{MISMATCH_RAYS_QUICK:,}) whose answer through this tree and these units is a "
+             "mismatch or a tie against Embree's (the terms of hwrt verify). holes: rays from "
+             "the centre of a closed sphere, built and traced with the row's settings, through "
+             "its vertices and edge midpoints that escape it, out of all such rays. RMSE and max err: the image's root-mean-square and largest "
+             "per-channel difference from the scene's reference image (the full-SAH tree, "
+             f"float64 units, paths {REFERENCE_DEPTH} bounces long; for the spp knob "
+             f"{REFERENCE_SPP_OF_SPP_KNOB} samples per pixel), in the image's linear radiance.\n",
              "| scene | knob | value | build s | render s (spread) | SAH | nodes/ray | tris/ray | mismatch | tie | holes | RMSE | max err |",
              "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:

@@ -474,6 +474,21 @@ def test_an_interrupted_run_resumes_at_the_first_missing_frame(tmp_path, capsys)
     assert rc == 2 and "holds frames of another run" in err
 
 
+def test_a_rerun_on_another_structure_is_refused_either_way(tmp_path, capsys):
+    """A BVH run's state names no structure: a rerun with --accel is refused, and a BVH
+    rerun of a grid run's directory is refused too (not resumed from the grid's frames)."""
+    scene = _scene_file(tmp_path, [BOX], animation={"frames": 2, "fps": 1, "camera": [
+        {"time": 0}, {"time": 1, "eye": [1, 1, 4]}]})
+    for first, then, words in ((["--accel", "grid"], [], "accel: 'grid', now 'bvh'"),
+                               ([], ["--accel", "kdtree"], "accel: 'bvh', now 'kdtree'")):
+        out_dir = tmp_path / f"out{len(first)}"
+        args = ["animate", scene, "-o", out_dir, "--json"]
+        rc, _, err = _run_cli(capsys, *args, *first)
+        assert rc == 0, err
+        rc, _, err = _run_cli(capsys, *args, *then)
+        assert rc == 2 and f"holds frames of another run ({words})" in err
+
+
 def test_a_rerun_resumes_only_frames_made_as_it_would_make_them(tmp_path, capsys):
     """Another seed, or a scene file edited since, makes other frames: refused, not mixed in.
     A verifying rerun renders again the frames its first run did not verify, so its counts

@@ -110,7 +110,7 @@ def _accuracy(tmp_path, tetra, mesh_dir):
     out = tmp_path / "out"
     study.bench_accuracy(_study_args(mesh_dir, out), use_dask=False, progress=False)
     return (["bench", "accuracy", "--quick", "--width", 16, "--height", 12,
-             "--mesh-dir", mesh_dir, "--out-dir", out], "accuracy.csv", out, None)
+             "--out-dir", out], "accuracy.csv", out, None)
 
 
 def _bench_render(tmp_path, tetra, mesh_dir):

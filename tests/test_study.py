@@ -56,7 +56,14 @@ def test_tti_quick_outputs_and_resume(tti_quick, mesh_dir):
     r2 = run("bench", "tti", "--quick", "--mesh-dir", mesh_dir, "--out-dir", out, "--json")
     assert r2.returncode == 0
     assert (out / "tti.jsonl").read_text().count("\n") == lines
-    assert json.loads(r2.stdout)["rows"] == res["rows"]
+    again = json.loads(r2.stdout)
+    assert again["rows"] == res["rows"]
+    # and each says where its cells came from
+    assert res["cells"] == {"timed": lines, "resumed": 0, "file": "tti.jsonl",
+                            "ran_on": "an embedded local Dask cluster"}
+    assert again["cells"] == {"timed": 0, "resumed": lines, "file": "tti.jsonl", "ran_on": None}
+    assert f"Cells: all {lines} kept from an earlier run (tti.jsonl; --fresh times them all " \
+           "again)." in (out / "tti.md").read_text()
 
 
 def _page_body(md):
@@ -76,13 +83,15 @@ def test_tti_prints_the_tables_of_its_page(tti_quick, mesh_dir):
 
 def test_accuracy_quick(tmp_path, mesh_dir):
     out = tmp_path / "a"
-    r = run("bench", "accuracy", "--quick", "--mesh-dir", mesh_dir, "--out-dir", out, "--json")
+    r = run("bench", "accuracy", "--quick", mesh_dir / "ball.ply", "--out-dir", out, "--json")
     assert r.returncode == 0, r.stderr
     rows = json.loads(r.stdout)["rows"]
+    # the study's first scene, and the mesh named beside it
+    assert [x["scene"] for x in rows][::len(rows) // 2] == ["cornell", "ball"]
     knobs = {x["knob"] for x in rows}
     assert knobs == {"bins", "leaf_size", "builder", "precision", "triangle_test", "offset",
                      "offset_at_scale", "max_depth", "spp"}
-    get = {(x["knob"], str(x["value"])): x for x in rows}
+    get = {(x["knob"], str(x["value"])): x for x in rows if x["scene"] == "cornell"}
     # starting secondary rays on the surface causes acne; the robust offset does not
     assert get[("offset", "none")]["rmse"] > 10 * get[("offset", "relative")]["rmse"]
     # a fixed epsilon breaks when the scene is scaled; the relative offset does not
@@ -94,7 +103,7 @@ def test_accuracy_quick(tmp_path, mesh_dir):
     assert (out / "accuracy.png").exists() and (out / "accuracy.md").exists()
     # without --json (every cell resumed, none measured again): the table of its page
     lines = (out / "accuracy.jsonl").read_text().count("\n")
-    r = run("bench", "accuracy", "--quick", "--mesh-dir", mesh_dir, "--out-dir", out)
+    r = run("bench", "accuracy", "--quick", mesh_dir / "ball.ply", "--out-dir", out)
     assert r.returncode == 0, r.stderr
     assert (out / "accuracy.jsonl").read_text().count("\n") == lines
     body = _page_body((out / "accuracy.md").read_text())
@@ -166,8 +175,8 @@ def _span(seconds):
 def test_unreachable_scheduler_fails_fast_and_keeps_the_cells(tmp_path, mesh_dir):
     def refused(what, out, *more):
         t0 = time.perf_counter()
-        r = run("bench", what, "--quick", "--mesh-dir", mesh_dir, "--out-dir", out,
-                "--scheduler", "tcp://127.0.0.1:9", *more)
+        r = run("bench", what, "--quick", "--out-dir", out, "--scheduler", "tcp://127.0.0.1:9",
+                *more)
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
         assert r.stderr.startswith("hwrt: error: --scheduler: no Dask scheduler answers")
         from hwrt.cluster import CONNECT_TIMEOUT_S
@@ -219,9 +228,11 @@ def test_a_bad_mesh_directory_is_refused_before_the_cells_file_is_touched(tmp_pa
     out = tmp_path / "out"
     out.mkdir()
     saved = '{"key": "kept"}\n{"key": "cut sh'
-    for what in ("tti", "accuracy"):
+    # (accuracy reads no mesh directory: a mesh file named that is not there)
+    for what, given, error in (
+            ("tti", ["--mesh-dir", tmp_path / "none"], f"--mesh-dir: {tmp_path / 'none'}: no such directory"),
+            ("accuracy", [tmp_path / "none.ply"], f"{tmp_path / 'none.ply'}: no such file")):
         (out / f"{what}.jsonl").write_text(saved)
-        r = run("bench", what, "--quick", "--mesh-dir", tmp_path / "none", "--out-dir", out)
-        assert r.returncode == 2 and r.stderr.splitlines() == [
-            f"hwrt: error: --mesh-dir: {tmp_path / 'none'}: no such directory"]
+        r = run("bench", what, "--quick", *given, "--out-dir", out)
+        assert r.returncode == 2 and r.stderr.splitlines() == [f"hwrt: error: {error}"]
         assert (out / f"{what}.jsonl").read_text() == saved
