@@ -253,7 +253,8 @@ def _check_float32_values(path, key, a):
 def _replay_rays(path):
     """(origins, dirs, tmax) of mismatch file ``path``, checked: InputError naming the file and
     the key for anything but finite float arrays of one length (tmax may be infinite) and
-    non-zero directions."""
+    non-zero directions; and the run that wrote it (``REPLAY_RUN``'s keys, defaults where
+    the file has none), as a fourth item."""
     import zipfile
     import numpy as np
     from hwbvh.errors import InputError
@@ -332,7 +333,7 @@ def _replay(path, scene, tris, verts, faces):
     import numpy as np
     from hwbvh.errors import InputError
     from traversal.embree_ref import embree_intersect, embree_occluded, embree_scene
-    from traversal.verify import diagnose, diagnose_occluded
+    from traversal.verify import diagnose, diagnose_occluded, query_of
 
     O, D, tmax, run = _replay_rays(path)
     if run["triangles_sha256"] not in (None, _triangles_digest(tris)):
@@ -343,9 +344,9 @@ def _replay(path, scene, tris, verts, faces):
     reference = embree_scene(verts, faces)
     rays = [{"origin": O[i].tolist(), "dir": D[i].tolist(), "tmax": float(tmax[i])}
             for i in range(len(O))]
-    if run["kind"] == "shadow":
+    if query_of(run["kind"]) == "occluded":
         blocked = tracer.occluded(O, D, 0.0, tmax)
-        ref = embree_occluded(reference, O, D, np.minimum(tmax, 3e38))
+        ref = embree_occluded(reference, O, D, tmax)
         found = diagnose_occluded(tris, O, D, 0.0, tmax, blocked, ref)
         answers = [{"ours": bool(blocked[i]), "embree": bool(ref[i])} for i in range(len(O))]
     else:
@@ -357,7 +358,7 @@ def _replay(path, scene, tris, verts, faces):
     rows = [dict(rays[i], **answers[i], **found[i]) for i in range(len(O))]
     counts = {k: sum(r["class"] == k for r in rows) for k in ("agree", "tie", "mismatch")}
     return dict(rays=len(rows), **counts, **_wrong_counts(found), kind=run["kind"],
-                accel=run["accel"], query="occluded" if run["kind"] == "shadow" else "intersect",
+                accel=run["accel"], query=query_of(run["kind"]),
                 replayed=rows, file=str(path))
 
 
@@ -397,7 +398,7 @@ def cmd_verify(args):
     from hwbvh.errors import InputError
     from hwbvh.files import check_outputs, json_text
     from scenes.loader import scene_inputs
-    from traversal.verify import diagnose, diagnose_occluded, verify_mesh
+    from traversal.verify import diagnose, diagnose_occluded, query_of, verify_mesh
 
     if args.replay:
         for flag, value in (("--rays", args.rays), ("--kind", args.kind),
@@ -427,7 +428,7 @@ def cmd_verify(args):
                                      f"make them hits the mesh")
     result = dict(counts)
     result.update({"kind": kind, "scene": label, "rays_requested": rays, "accel": args.accel,
-                   "query": "occluded" if kind == "shadow" else "intersect",
+                   "query": query_of(kind),
                    "hit_fraction": counts["hit"] / counts["rays"]})
     if args.accel != "bvh":
         result.update({k: v for k, v in tracer.stats().items()
@@ -437,7 +438,7 @@ def cmd_verify(args):
               f"first rays hit the mesh", file=sys.stderr)
     bad = np.flatnonzero(labels == 2)
     bounds = np.full(len(bad), np.inf) if tmax is None else np.asarray(tmax)[bad]
-    if kind == "shadow":
+    if query_of(kind) == "occluded":
         answers = {"ours_blocked": ours[bad], "embree_blocked": ref[bad]}
         found = diagnose_occluded(tris, O[bad], D[bad], 0.0, bounds, ours[bad], ref[bad])
     else:

@@ -140,6 +140,10 @@ def embree_occluded(scene, origins, dirs, tmax):
     traversal's threads. A ray with an empty interval (tmax < 0) is not blocked, as in every
     tracer here: Embree itself reports such a ray as occluded."""
     o, d, dist, empty = _embree_rays(origins, dirs, tmax)
+    # an infinite bound is passed as a large finite one, as every occluded query here has
+    # always passed it to embreex
+    if dist is not None:
+        np.minimum(dist, np.float32(3e38), out=dist)
     n = len(o)
     blocked = np.empty(n, np.bool_)
 
@@ -179,4 +183,4 @@ class EmbreeTracer:
     def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
         from .tracers import _shifted
         o, d, lo, hi = _shifted(origins, dirs, tmin, tmax)
-        return embree_occluded(self.scene, o, d, np.minimum(hi, 3e38))
+        return embree_occluded(self.scene, o, d, hi)

@@ -131,7 +131,7 @@ class VerifyingTracer(_Tally):
 
         blocked = self.inner.occluded(origins, dirs, tmin, tmax)
         o, d, lo, hi = _shifted(origins, dirs, tmin, tmax)
-        ref = embree_occluded(self.reference, o, d, np.minimum(hi, 3e38))
+        ref = embree_occluded(self.reference, o, d, hi)
         counts, _ = classify_occluded(self.triangles, origins, dirs, tmin, tmax, blocked, ref)
         self._add("shadow", counts)
         return blocked

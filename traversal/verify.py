@@ -296,7 +296,7 @@ def _why(verdict, tris, p, reported, o, d, tmin, tmax, best, best_j):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _reference_any(lo, hi, tris, O, D, tmin, tmax, scale, out):
     """For disputed any-hit rays lo..hi: out[i] = (a strict hit exists, a loose hit exists,
-    the first triangle hit strictly or -1, its t), where a strict hit lies inside its triangle
+    the lowest-numbered triangle hit strictly or -1, its t), where a strict hit lies inside its triangle
     by more than BARY_TOL at t clearly inside (tmin, tmax), and a loose hit within
     ``_answer_tol`` of its triangle at t within the tolerance of [tmin, tmax]."""
     for i in range(lo, hi):
@@ -327,7 +327,7 @@ def _reference_any(lo, hi, tris, O, D, tmin, tmax, scale, out):
 
 def _judged_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked):
     """Checked any-hit answers -> (labels, disputed rays, their re-test rows
-    ``_reference_any``, ours, ref, each answer's rightness on the disputed rays)."""
+    ``_reference_any``, {"ours", "ref"}: each answer's rightness on the disputed rays)."""
     tris = _checked_triangles(tris)
     O, D, tmin, tmax = _checked_rays(O, D, tmin, tmax)
     n = len(O)
@@ -410,31 +410,56 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None, anyhit=False):
 
     check_tracer(tracer, len(_checked_triangles(tris)))
     _check_embree_scene(scene)
-    if anyhit:
-        return _verify_occluded(tracer, scene, tris, O, D, tmax)
-    from .embree_ref import embree_intersect
+    from .embree_ref import embree_intersect, embree_occluded
 
     n = len(O)
     tmax_of = _tmax_slices(tmax)
-    labels = np.empty(n, np.int8)
+    if anyhit:
+        ours, ref = np.empty(n, bool), np.empty(n, bool)
+
+        def check(a, b):
+            ours[a:b] = tracer.occluded(O[a:b], D[a:b], 0.0, tmax_of(a, b))
+            ref[a:b] = embree_occluded(scene, O[a:b], D[a:b], tmax_of(a, b))
+            return classify_occluded(tris, O[a:b], D[a:b], 0.0, tmax_of(a, b), ours[a:b],
+                                     ref[a:b])
+
+        counts, labels = _by_slices(n, check)
+        counts["hit"] = int(ours.sum())
+        return counts, labels, ours, ref
     prim, te = np.empty(n, np.int32), np.empty(n)
-    t = u = v = np.empty(0, np.float32)         # in the tracer's precision, from its answers
     pe = np.empty(n, np.int64)
+    # t, u, v in the tracer's precision, made from its first answers
+    tuv = [np.empty(0, np.float32)] * 3
+
+    def check(a, b):
+        h = tracer.intersect(O[a:b], D[a:b], 0.0, tmax_of(a, b), normals=False)
+        if a == 0:
+            tuv[:] = [np.empty(n, x.dtype) for x in (h.t, h.u, h.v)]
+        prim[a:b] = h.prim
+        for out, x in zip(tuv, (h.t, h.u, h.v)):
+            out[a:b] = x
+        te[a:b], pe[a:b], *_ = embree_intersect(scene, O[a:b], D[a:b],
+                                                None if tmax is None else tmax_of(a, b))
+        return classify(tris, O[a:b], D[a:b], 0.0, tmax_of(a, b), prim[a:b].astype(np.int64),
+                        tuv[0][a:b], pe[a:b], te[a:b])
+
+    counts, labels = _by_slices(n, check)
+    counts["hit"] = int((prim >= 0).sum())
+    t, u, v = tuv
+    return counts, labels, Hits(t=t, prim=prim, u=u, v=v, ng=None), (te, pe)
+
+
+def _by_slices(n, check):
+    """(counts, labels) of rays [0, n), ``check(a, b)`` -> (counts, labels) of slice [a, b)
+    run a ``VERIFY_CHUNK`` at a time."""
+    labels = np.empty(n, np.int8)
     counts = dict.fromkeys(("rays", "agree", "tie", "mismatch"), 0)
     for a in range(0, n, VERIFY_CHUNK):
         b = min(n, a + VERIFY_CHUNK)
-        h = tracer.intersect(O[a:b], D[a:b], 0.0, tmax_of(a, b), normals=False)
-        if a == 0:
-            t, u, v = (np.empty(n, x.dtype) for x in (h.t, h.u, h.v))
-        prim[a:b], t[a:b], u[a:b], v[a:b] = h.prim, h.t, h.u, h.v
-        te[a:b], pe[a:b], *_ = embree_intersect(scene, O[a:b], D[a:b],
-                                                None if tmax is None else tmax_of(a, b))
-        c, labels[a:b] = classify(tris, O[a:b], D[a:b], 0.0, tmax_of(a, b),
-                                  prim[a:b].astype(np.int64), t[a:b], pe[a:b], te[a:b])
+        c, labels[a:b] = check(a, b)
         for k in counts:
             counts[k] += c[k]
-    counts["hit"] = int((prim >= 0).sum())
-    return counts, labels, Hits(t=t, prim=prim, u=u, v=v, ng=None), (te, pe)
+    return counts, labels
 
 
 def _tmax_slices(tmax):
@@ -444,25 +469,10 @@ def _tmax_slices(tmax):
     return lambda a, b: tmax[a:b] if np.ndim(tmax) else tmax
 
 
-def _verify_occluded(tracer, scene, tris, O, D, tmax):
-    """``verify_rays`` of ``occluded`` answers."""
-    from .embree_ref import embree_occluded
-
-    n = len(O)
-    tmax_of = _tmax_slices(tmax)
-    labels = np.empty(n, np.int8)
-    ours, ref = np.empty(n, bool), np.empty(n, bool)
-    counts = dict.fromkeys(("rays", "agree", "tie", "mismatch"), 0)
-    for a in range(0, n, VERIFY_CHUNK):
-        b = min(n, a + VERIFY_CHUNK)
-        ours[a:b] = tracer.occluded(O[a:b], D[a:b], 0.0, tmax_of(a, b))
-        ref[a:b] = embree_occluded(scene, O[a:b], D[a:b], np.minimum(tmax_of(a, b), 3e38))
-        c, labels[a:b] = classify_occluded(tris, O[a:b], D[a:b], 0.0, tmax_of(a, b), ours[a:b],
-                                           ref[a:b])
-        for k in counts:
-            counts[k] += c[k]
-    counts["hit"] = int(ours.sum())
-    return counts, labels, ours, ref
+def query_of(kind):
+    """The query a ray set of ``kind`` is verified with: shadow rays as renderers ask them,
+    ``occluded``; the others ``intersect``."""
+    return "occluded" if kind == "shadow" else "intersect"
 
 
 RAY_KINDS = ("primary", "random", "bounces", "shadow")      # the ray sets verify_mesh traces
@@ -517,5 +527,5 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
     else:
         O, D, tmax = raysets.shadow(tracer, tris, n, dtype=np.float32)
     counts, labels, ours, emb = verify_rays(tracer, scene, tris, O, D, tmax,
-                                            anyhit=kind == "shadow")
+                                            anyhit=query_of(kind) == "occluded")
     return counts, labels, (O, D, tmax), ours, emb
