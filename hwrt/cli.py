@@ -285,7 +285,11 @@ def _replay_rays(path):
             run = {}
             for key in REPLAY_RUN:
                 if key in data.files:
-                    a = data[key]
+                    try:
+                        a = data[key]
+                    except ValueError:                # an object array needs pickle
+                        raise InputError(path, f"key '{key}': expected a string, got an object "
+                                               "array") from None
                     if a.dtype.kind != "U" or a.shape != ():
                         raise InputError(path, f"key '{key}': expected a string, got {a.dtype} "
                                                f"of shape {a.shape}")
@@ -337,7 +341,7 @@ def _replay(path, scene, tris, verts, faces):
 
     O, D, tmax, run = _replay_rays(path)
     if run["triangles_sha256"] not in (None, _triangles_digest(tris)):
-        made_on = f" ({run['scene']})" if run["scene"] else ""
+        made_on = f" ({run['scene']!r})" if run["scene"] else ""
         raise InputError(path, f"its rays were verified on other triangles{made_on} than "
                                f"{scene}'s {len(tris)}: replay it on the scene it was made on")
     tracer = _verify_tracer(run["accel"], tris)
@@ -567,7 +571,13 @@ def cmd_render(args):
     res = render(scene, tracer, seed=args.seed, progress=bar.update)
     render_s = time.perf_counter() - t0
     bar.close()
-    checked = verified_render(scene, tracer, args.seed, res.image) if args.verify else None
+    checked = None
+    if args.verify:
+        bar = progress_bar(scene.height, f"verify {scene.name}", "row")
+        checked = verified_render(scene, tracer, args.seed, res.image, progress=bar.update)
+        bar.close()
+        if not checked[0]["same_image"]:
+            _warn_other_image("the checked render")
     bvh = args.accel == "bvh"              # another structure has its own build and traversal
     result = {"output": out, "scene": scene.name, "accel": args.accel,
               "builder": args.builder if bvh else None, "traversal": args.traversal if bvh else None,
@@ -606,9 +616,22 @@ def cmd_render(args):
                                           "verify_seconds"]))
 
 
+def _warn_other_image(which):
+    """One line on stderr: a render is deterministic, so a check that rendered another image
+    than the timed render's did not check that render's queries."""
+    print(f"hwrt: warning: {which} made another image than the timed render: its answers "
+          f"were checked, the timed render's were not (the renderer is not deterministic here)",
+          file=sys.stderr)
+
+
 def cmd_animate(args):
     from . import animate
-    _emit(args, animate.cmd_animate(args, commit=partial(_commit, args)), animate.human)
+    result = animate.cmd_animate(args, commit=partial(_commit, args))
+    if result.get("verify") and not result["verify"]["same_image"]:
+        other = [str(r["frame"]) for r in result["frames"] if not r["verify"]["same_image"]]
+        _warn_other_image(f"the checked render of frame{'s' if len(other) > 1 else ''} "
+                          f"{', '.join(other)}")
+    _emit(args, result, animate.human)
 
 
 # What each benchmark measures, against which peer, and roughly how long it runs with its
@@ -1113,7 +1136,7 @@ def make_parser():
                         "or float64 (for a scene too large or too small for float32)")
     r.add_argument("--verify", action="store_true",
                    help="render again with every ray checked against Embree (its time reported "
-                        "apart, as verify_seconds)")
+                        "apart, as verify_seconds; a warning if that render's image differs)")
     r.add_argument("--png", action="store_true",
                    help="also write a tone-mapped PNG preview beside the EXR")
     r.add_argument("--no-layers", action="store_true", help="RGB only (no Z, N, prim.id)")
@@ -1140,7 +1163,9 @@ def make_parser():
                    help="acceleration structure checked: bvh (hwbvh's tree), grid (uniform grid) "
                         "or kdtree (SAH kd-tree)")
     v.add_argument("--replay", metavar="F.npz", type=_path,
-                   help="re-trace the rays of a mismatch file instead (default: a new run)")
+                   help="re-trace the rays of a mismatch file instead, with the ray set's "
+                        "query and the structure the file records; refused on other triangles "
+                        "than the file's (default: a new run)")
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=cmd_verify)
 

@@ -495,19 +495,20 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
                         prim=frame.aov_prim.reshape(H, W), stats=stats)
 
 
-def verified_render(scene, tracer, seed=0, image=None, offset="relative"):
+def verified_render(scene, tracer, seed=0, image=None, offset="relative", progress=None):
     """Render ``scene`` once more with every query ``tracer`` answers checked against Embree
     (``traversal.tracers.VerifyingTracer``): the closest hits and the ``occluded`` answers
     shading used. A render is deterministic, so this asks the queries of the render it
     checks, made apart so that Embree's time stays out of that render's time. ``image``: that
     render's image, which this one must equal bit for bit (``same_image`` in the summary).
-    Returns (``VerifyingTracer.summary()``, seconds of the checked render)."""
+    ``progress`` as for ``render``. Returns (``VerifyingTracer.summary()``, seconds of the
+    checked render)."""
     from traversal.tracers import VerifyingTracer
 
-    _check_render_arguments(scene, tracer, seed, None)
+    _check_render_arguments(scene, tracer, seed, progress)
     checked = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
     t = time.perf_counter()
-    res = render(scene, checked, seed=seed, offset=offset)
+    res = render(scene, checked, seed=seed, offset=offset, progress=progress)
     seconds = time.perf_counter() - t
     summary = checked.summary()
     if image is not None:

@@ -770,3 +770,25 @@ def test_a_directory_holding_another_programs_csv_is_refused(tmp_path, capsys):
                                        f"animation.json of an hwrt animate run: a run would "
                                        f"replace it; choose another output directory")
     assert (out / "frames.csv").read_text() == "my,data\n" and len(list(out.iterdir())) == 1
+
+
+def test_animate_verify_warns_naming_the_frames_whose_check_made_another_image(
+        tmp_path, capsys, monkeypatch):
+    import raytracer.render as rr
+    real = rr.verified_render
+
+    def second_frame_differs(scene, tracer, seed, *a, **k):
+        summary, seconds = real(scene, tracer, seed, *a, **k)
+        return dict(summary, same_image=seed != 1), seconds
+
+    monkeypatch.setattr(rr, "verified_render", second_frame_differs)
+    scene = _scene_file(tmp_path, [BOX], animation={"frames": 3, "fps": 1})
+    rc, out, err = _run_cli(capsys, "animate", scene, "-o", tmp_path / "out", "--verify", "--json")
+    assert rc == 0, err
+    r = json.loads(out)
+    assert r["verify"]["same_image"] is False
+    assert [f["verify"]["same_image"] for f in r["frames"]] == [True, False, True]
+    assert [line for line in err.splitlines() if line.startswith("hwrt: warning")] == [
+        "hwrt: warning: the checked render of frame 1 made another image than the timed render: "
+        "its answers were checked, the timed render's were not (the renderer is not "
+        "deterministic here)"]

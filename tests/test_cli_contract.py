@@ -739,13 +739,62 @@ def test_replay_traces_as_the_run_that_wrote_the_file(capsys, tmp_path, tetra):
     other = _mismatch_file(tmp_path / "o.npz", tris + 1, kind="random", scene="elsewhere")
     rc, out, err = call(capsys, "verify", tetra, "--replay", other)
     assert rc == 2 and out == "" and one_line_error(err) == (
-        f"hwrt: error: --replay {other}: its rays were verified on other triangles (elsewhere) "
+        f"hwrt: error: --replay {other}: its rays were verified on other triangles ('elsewhere') "
         f"than tetra's {len(tris)}: replay it on the scene it was made on")
     bad = _mismatch_file(tmp_path / "b.npz", tris, kind="sideways")
     rc, out, err = call(capsys, "verify", tetra, "--replay", bad)
     assert rc == 2 and one_line_error(err) == (
         f"hwrt: error: --replay {bad}: key 'kind': 'sideways' is not a ray set hwrt verify "
         f"checks (primary, random, bounces, shadow)")
+    bad = _mismatch_file(tmp_path / "a.npz", tris, accel="octree")
+    rc, out, err = call(capsys, "verify", tetra, "--replay", bad)
+    assert rc == 2 and out == "" and one_line_error(err) == (
+        f"hwrt: error: --replay {bad}: key 'accel': 'octree' is not a structure hwrt verify "
+        f"checks (bvh, grid, kdtree)")
+
+
+@pytest.mark.parametrize("kind, accel, query", [("random", "bvh", "intersect"),
+                                                ("shadow", "grid", "occluded")])
+def test_a_file_written_by_verify_replays_as_its_run(capsys, tmp_path, monkeypatch, tetra,
+                                                     kind, accel, query):
+    """What hwrt verify writes, --replay reads: two of a real run's rays reported as
+    mismatches go to the file, and replaying it re-traces them with the run's query and
+    structure, where they agree."""
+    import traversal.verify as tv
+    real = tv.verify_mesh
+
+    def two_reported(*a, **k):
+        counts, labels, rays, ours, ref = real(*a, **k)
+        labels = labels.copy()
+        labels[:2] = 2
+        return counts, labels, rays, ours, ref
+
+    monkeypatch.setattr(tv, "verify_mesh", two_reported)
+    f = tmp_path / "m.npz"
+    rc, out, err = call(capsys, "verify", tetra, "--rays", 50, "--kind", kind, "--accel", accel,
+                        "--mismatches", f, "--json")
+    assert rc == 0 and strict_json(out)["mismatch_file"] == str(f), err
+    monkeypatch.undo()
+    rc, out, err = call(capsys, "verify", tetra, "--replay", f, "--json")
+    assert rc == 0, err
+    r = strict_json(out)
+    assert (r["kind"], r["accel"], r["query"], r["rays"], r["agree"] + r["tie"]) == \
+        (kind, accel, query, 2, 2)
+
+
+def test_replay_of_a_run_key_stored_as_an_object_array_names_the_key(capsys, tmp_path, tetra):
+    """A run key NumPy can read only through pickle is named, not taken for a broken
+    archive."""
+    from hwrt.cli import _scene_geometry
+    tris = _scene_geometry(str(tetra))[1]
+    f = tmp_path / "m.npz"
+    _mismatch_file(f, tris)
+    arrays = dict(np.load(f))
+    arrays["scene"] = np.array(["tetra", None], dtype=object)
+    np.savez(f, **arrays)
+    rc, out, err = call(capsys, "verify", tetra, "--replay", f)
+    assert rc == 2 and out == "" and one_line_error(err) == (
+        f"hwrt: error: --replay {f}: key 'scene': expected a string, got an object array")
 
 
 def test_replay_rejects_options_of_a_verification_run(capsys, tmp_path, tetra):

@@ -255,8 +255,32 @@ def test_render_verify_reports_the_check_apart(tmp_path, capsys):
     assert v["rays"] == sum(r["rays"].values()) and r["verify_seconds"] > 0
     assert main(["render", "cornell", "--width", "32", "--height", "24", "--spp", "1",
                  "-o", str(out), "--verify"]) == 0
-    human = capsys.readouterr().out
-    assert "verify_seconds: " in human and "same_image" in human
+    captured = capsys.readouterr()
+    assert "verify_seconds: " in captured.out and "same_image" in captured.out
+    assert "warning" not in captured.err
+
+
+def test_render_verify_warns_when_the_check_made_another_image(tmp_path, capsys, monkeypatch):
+    """A check whose render differs from the timed one did not check the timed render's
+    queries: one warning line on stderr, the image still written."""
+    import raytracer.render as rr
+    from hwrt.cli import main
+    real = rr.verified_render
+
+    def differing(*a, **k):
+        summary, seconds = real(*a, **k)
+        return dict(summary, same_image=False), seconds
+
+    monkeypatch.setattr(rr, "verified_render", differing)
+    out = tmp_path / "c.exr"
+    assert main(["render", "cornell", "--width", "16", "--height", "12", "--spp", "1",
+                 "-o", str(out), "--verify", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["verify"]["same_image"] is False and out.exists()
+    warnings = [line for line in captured.err.splitlines() if line.startswith("hwrt: warning")]
+    assert warnings == ["hwrt: warning: the checked render made another image than the timed "
+                        "render: its answers were checked, the timed render's were not (the "
+                        "renderer is not deterministic here)"]
 
 
 def test_embree_path_renders_the_same_image():
