@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hwbvh.errors import InputError
 from hwbvh.files import json_text, write_files
 from .report import command_of, made_by_block
 from .bench import machine, mesh_inputs
@@ -155,7 +156,7 @@ def _scene_specs(args, quick):
         return specs + [(m.name, "generated", m.stem) for m in generated[:1 if quick else None]]
     if quick:
         meshes = sorted(meshes, key=lambda m: m.path.stat().st_size)[:1]
-    return specs + [(m.name, "mesh", os.path.abspath(m.path)) for m in meshes]
+    return _named_apart(specs + [(m.name, "mesh", os.path.abspath(m.path)) for m in meshes])
 
 
 # The accuracy study's scenes: a diffuse box with a mirror and a glass block, glass and mirror
@@ -169,6 +170,18 @@ def _accuracy_specs(args, quick):
     specs = [(n, "builtin", n) for n in ACCURACY_SCENES[:1 if quick else None]]
     if args.meshes:
         specs += [(m.name, "mesh", os.path.abspath(m.path)) for m in mesh_inputs(args)]
+    return _named_apart(specs)
+
+
+def _named_apart(specs):
+    """``specs``, refused where a mesh takes the name of a built-in scene the study also runs:
+    a study keeps its cells by scene name, so the two would share (and resume from) one
+    scene's results."""
+    builtin = {name for name, kind, _ in specs if kind == "builtin"}
+    for name, kind, source in specs:
+        if kind == "mesh" and name in builtin:
+            raise InputError(source, f"named {name!r}, as a built-in scene the study also "
+                                     f"runs, whose results are kept by name: rename the file")
     return specs
 
 

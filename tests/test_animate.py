@@ -510,6 +510,13 @@ def test_a_rerun_resumes_only_frames_made_as_it_would_make_them(tmp_path, capsys
     assert r["verify_seconds_total"] == pytest.approx(sum(f["verify_seconds"] for f in r["frames"]))
     rc, out, err = _run_cli(capsys, *args, "--verify")
     assert rc == 0 and json.loads(out)["resumed_from"] == 3
+    # a frame checked without its check's seconds recorded (an older state) is checked again
+    state = json.loads((out_dir / "animation.json").read_text())
+    del state["frames"][1]["verify_seconds"]
+    (out_dir / "animation.json").write_text(json.dumps(state))
+    rc, out, err = _run_cli(capsys, *args, "--verify")
+    assert rc == 0 and json.loads(out)["resumed_from"] == 1
+    assert all(f["verify_seconds"] > 0 for f in json.loads(out)["frames"])
     # a shorter rerun leaves the later frames described in the run's state, and a longer one
     # resumes them
     rc, out, err = _run_cli(capsys, *args, "--frames", 2)

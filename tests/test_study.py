@@ -85,7 +85,8 @@ def test_accuracy_quick(tmp_path, mesh_dir):
     out = tmp_path / "a"
     r = run("bench", "accuracy", "--quick", mesh_dir / "ball.ply", "--out-dir", out, "--json")
     assert r.returncode == 0, r.stderr
-    rows = json.loads(r.stdout)["rows"]
+    first = json.loads(r.stdout)
+    rows = first["rows"]
     # the study's first scene, and the mesh named beside it
     assert [x["scene"] for x in rows][::len(rows) // 2] == ["cornell", "ball"]
     knobs = {x["knob"] for x in rows}
@@ -106,6 +107,10 @@ def test_accuracy_quick(tmp_path, mesh_dir):
     r = run("bench", "accuracy", "--quick", mesh_dir / "ball.ply", "--out-dir", out)
     assert r.returncode == 0, r.stderr
     assert (out / "accuracy.jsonl").read_text().count("\n") == lines
+    # the page says where its cells came from: all timed by the first run, kept by this one
+    assert first["cells"]["timed"] == lines and first["cells"]["resumed"] == 0
+    assert f"Cells: all {lines} kept from an earlier run (accuracy.jsonl; --fresh times them " \
+           "all again)." in (out / "accuracy.md").read_text()
     body = _page_body((out / "accuracy.md").read_text())
     assert "| bins | 16 |" in body
     assert r.stdout == body + "\nwrote " + ", ".join(str(out / f) for f in (
@@ -236,3 +241,29 @@ def test_a_bad_mesh_directory_is_refused_before_the_cells_file_is_touched(tmp_pa
         r = run("bench", what, "--quick", *given, "--out-dir", out)
         assert r.returncode == 2 and r.stderr.splitlines() == [f"hwrt: error: {error}"]
         assert (out / f"{what}.jsonl").read_text() == saved
+
+
+def test_a_mesh_named_as_a_built_in_scene_the_study_runs_is_refused(tmp_path, mesh_dir):
+    """A study keeps its cells by scene name: a mesh file called cornell.ply would share the
+    built-in cornell's cells. Refused in one line naming the file, the cells file untouched."""
+    import shutil
+    from hwbvh.errors import InputError
+    from hwrt.study import _accuracy_specs, _scene_specs
+    same = tmp_path / "meshes" / "cornell.ply"
+    same.parent.mkdir()
+    shutil.copy(mesh_dir / "ball.ply", same)
+    for specs, args in ((_accuracy_specs, Namespace(meshes=[str(same)], mesh_dir=None)),
+                        (_scene_specs, Namespace(meshes=[], mesh_dir=str(same.parent)))):
+        with pytest.raises(InputError, match="named 'cornell', as a built-in scene"):
+            specs(args, False)
+    # a mesh of another name is taken
+    assert _accuracy_specs(Namespace(meshes=[str(mesh_dir / "ball.ply")], mesh_dir=None),
+                           True)[-1][:2] == ("ball", "mesh")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "accuracy.jsonl").write_text('{"key": "kept"}\n')
+    r = run("bench", "accuracy", "--quick", same, "--out-dir", out)
+    assert r.returncode == 2 and r.stderr.splitlines() == [
+        f"hwrt: error: {same}: named 'cornell', as a built-in scene the study also runs, whose "
+        f"results are kept by name: rename the file"]
+    assert (out / "accuracy.jsonl").read_text() == '{"key": "kept"}\n'

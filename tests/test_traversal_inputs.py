@@ -362,6 +362,7 @@ def test_argument_errors_are_parameter_errors_naming_the_parameter(bvh, tracers)
         ("kind", lambda: CountingTracer(tracers["bvh"]).work("bogus")),
         ("inner", lambda: CountingTracer(tracers["embree"])),
         ("packets", lambda: Tracer(bvh, packets="no")),
+        ("packets", lambda: GridTracer(TRIS, packets="no")),
         ("watertight", lambda: Tracer(bvh, watertight=1)),
         # a tracer or a reference over other geometry than the triangles checked: refused,
         # not reported as mismatches

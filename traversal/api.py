@@ -248,6 +248,14 @@ def _boxes_widened_by_an_ulp(nodes):
     return wide
 
 
+def checked_flag(flag, name):
+    """``flag`` as a bool: True or False (NumPy's too), else ParameterError naming it (a string
+    such as "no" would read as True)."""
+    if not isinstance(flag, (bool, np.bool_)):
+        raise ParameterError(name, f"must be True or False, got {flag!r}")
+    return bool(flag)
+
+
 class PacketCount:
     """``last_packets``: the packets the calling thread's last query traced (the rest went ray
     by ray). Per thread, since a ``concurrent`` tracer takes queries from several at once."""
@@ -286,8 +294,7 @@ class Tracer(PacketCount):
         if precision not in PRECISIONS:
             raise ParameterError("precision", f"must be 'float32' or 'float64', got {precision!r}")
         for name, flag in (("watertight", watertight), ("packets", packets)):
-            if not isinstance(flag, (bool, np.bool_)):
-                raise ParameterError(name, f"must be True or False, got {flag!r}")
+            checked_flag(flag, name)
         self.dtype = np.float32 if precision == "float32" else np.float64
         f32 = self.dtype == np.float32
         if edge_eps is None:

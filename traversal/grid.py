@@ -37,7 +37,7 @@ from numba import njit
 
 from hwbvh.errors import ParameterError
 from hwbvh.parallel import run_ranges
-from .api import PacketCount
+from .api import PacketCount, checked_flag
 from .structure import TriangleStructure, checked_triangles, padded_box
 from .config import (CHUNK_RAYS, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
                      GRID_MAX_REFS_PER_TRI, GRID_PACKET_MAILBOX, GRID_PACKET_WIDEN,
@@ -563,7 +563,7 @@ class GridTracer(TriangleStructure, PacketCount):
 
     def __init__(self, triangles, resolution=None, packets=True):
         start = time.perf_counter()
-        self.packets = bool(packets)
+        self.packets = checked_flag(packets, "packets")
         self._start_packet_count()
         tris = checked_triangles(triangles)
         n = len(tris)
