@@ -20,7 +20,10 @@ def test_the_kernels_are_stamped_by_the_whole_kernel_tree():
 def _run(code, root, cache):
     return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
                           text=True, timeout=300, cwd=root,
+                          # no .pyc: within one second, a rewritten file of the same size
+                          # would be read from its stale bytecode
                           env={"PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(cache),
+                               "PYTHONDONTWRITEBYTECODE": "1",
                                "PYTHONPATH": str(root) + ":" + ":".join(p for p in sys.path if p)})
 
 
