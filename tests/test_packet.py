@@ -9,7 +9,7 @@ import hwbvh
 from traversal.camera import frame_bounds, primary_rays, tile_order
 from scenes.meshes import grid_sheet, random_soup, uv_sphere
 from traversal import Tracer, raysets
-from traversal.packet import P, coherent, packet_rays
+from traversal.packet import P, coherent, coherent_packet, packet_rays
 
 
 def pair(tris, **kw):
@@ -173,6 +173,26 @@ def test_coherence_test_is_the_direction_octant():
     assert coherent(d, 0, 3)
     d[2, 1] = -0.0                 # 1/-0 = -inf: the AABB unit treats -0 as negative
     assert not coherent(d, 0, 3)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_packet_coherence_test_is_the_general_one(dtype):
+    """The traversal's per-packet test (flat, branch-free) answers as ``coherent`` on P rays,
+    signed zeros included, wherever the one ray that differs sits."""
+    rng = np.random.default_rng(5)
+    values = np.array([1.0, 0.25, 0.0, -0.0, -1.0, -3e-30], dtype)
+    for trial in range(400):
+        d = np.abs(rng.choice(values, (3 * P, 3))).astype(dtype)
+        if trial % 2:                  # a sign flipped in one component of one ray
+            d[rng.integers(P, 2 * P), rng.integers(3)] *= -1
+        for lo in (0, P, 2 * P - 5):
+            hi = min(lo + P, len(d))
+            if hi - lo == P:
+                assert coherent_packet(d.reshape(-1), lo) == coherent(d, lo, hi)
+    d = np.ones((P, 3), dtype)
+    assert coherent_packet(d.reshape(-1), 0)
+    d[P - 1, 2] = -0.0
+    assert not coherent_packet(d.reshape(-1), 0)
 
 
 def test_signed_zero_directions_mixed_in_a_group():

@@ -158,6 +158,20 @@ def coherent(D, lo, hi):
     return True
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def coherent_packet(Df, lo):
+    """``coherent(D, lo, lo + P)`` on the directions seen flat (3n,), as the traversal asks it
+    once per packet: every component of every ray against the previous ray's, without a
+    branch, over a view of exactly 3P words indexed from 0, so that the loop runs in SIMD
+    lanes (a third of the time per packet that misses the scene; with a length known only at
+    run time, or 2D indexing, it stays scalar)."""
+    s = Df[3 * lo:3 * lo + 3 * P]
+    differ = False
+    for k in range(3, 3 * P):
+        differ |= math.copysign(1.0, s[k]) != math.copysign(1.0, s[k - 3])
+    return not differ
+
+
 def packet_rays(dirs):
     """Which rays of a batch ``dirs`` (n, 3) the traversal traces in packets (the rule of
     ``traverse._trace_range``): those in full groups of P consecutive rays, aligned to the

@@ -24,7 +24,7 @@ from hwbvh.config import LEAF_FLAG
 from hwbvh.format import WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, WORDS_PER_NODE
 from .aabb_unit import aabb_hit_at, near_far_planes
 from .config import CHUNK_RAYS
-from .packet import NF, NI, NM, P, coherent, trace_packets
+from .packet import NF, NI, NM, P, coherent_packet, trace_packets
 from .prefetch import prefetch
 from .rawtree import read_index, _ray_ok
 from .triangle_unit import TRI_WORDS, mt_valid_at, store_answer, store_normals, wt_hit_ray
@@ -146,7 +146,7 @@ def _trace_range(u, f, ib, tris, row_of, raw, O, D, Of, Df, tmin, tmax, eps2, on
     a = lo
     while a < hi:
         b = a                           # the run of coherent full groups from a
-        while packets and b + P <= hi and coherent(D, b, b + P):
+        while packets and b + P <= hi and coherent_packet(Df, b):
             b += P
         if b > a:
             over += trace_packets(u, f, ib, tris, Of, Df, tmin, tmax, eps2, one, widen, edge, a,
