@@ -14,33 +14,60 @@ beside the file, else the user's cache directory); only its freshness test chang
 in the same process keeps Numba's own locators. ``install`` runs when ``hwbvh`` is imported,
 which each kernel package does before it defines a kernel.
 """
-import functools
 import hashlib
 import os
+import sys
 
 # The packages whose modules define kernels, and whose kernels call into each other's.
 KERNEL_PACKAGES = ("hwbvh", "traversal", "raytracer", "scenes")
 _ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 _DIRS = tuple(os.path.join(_ROOT, p) for p in KERNEL_PACKAGES)
 
+# (listing, digest) of the last call: the listing of paths, mtimes and sizes is re-read at each
+# call, the bytes hashed again only when it changed, so a module edited and reloaded in a
+# long-lived process (a notebook) is seen.
+_last_digest = [None, None]
 
-@functools.lru_cache(maxsize=1)
-def kernel_sources_digest():
-    """SHA-256 of the name and bytes of every ``.py`` file of ``KERNEL_PACKAGES``, in a fixed
-    order; once per process (Numba reads a cache index once per kernel as well)."""
-    h = hashlib.sha256()
+
+def _kernel_source_files():
+    """Every ``.py`` file under ``_DIRS`` (sub-packages included), sorted; names starting with
+    a dot (editor lock files, often dangling links) and ``__pycache__`` are not sources."""
+    files = []
     for d in _DIRS:
-        for name in sorted(os.listdir(d)):
-            if name.endswith(".py"):
-                h.update(f"{os.path.basename(d)}/{name}\0".encode())
-                with open(os.path.join(d, name), "rb") as f:
-                    h.update(f.read())
-    return h.hexdigest()
+        for parent, subdirs, names in os.walk(d, onerror=_raise):
+            subdirs[:] = sorted(s for s in subdirs
+                                if not s.startswith(".") and s != "__pycache__")
+            files += [os.path.join(parent, n) for n in sorted(names)
+                      if n.endswith(".py") and not n.startswith(".")]
+    return files
+
+
+def _raise(error):
+    raise error
+
+
+def kernel_sources_digest():
+    """SHA-256 of the path (relative to the packages' root) and bytes of every kernel source
+    file, or None when they cannot all be read (then Numba's own stamps serve)."""
+    try:
+        files = _kernel_source_files()
+        listing = tuple((f, st.st_mtime_ns, st.st_size) for f in files for st in [os.stat(f)])
+        if listing != _last_digest[0]:
+            h = hashlib.sha256()
+            for f in files:
+                h.update(f"{os.path.relpath(f, _ROOT)}\0".encode())
+                with open(f, "rb") as src:
+                    h.update(src.read())
+            _last_digest[:] = [listing, h.hexdigest()]
+        return _last_digest[1]
+    except OSError:
+        return None
 
 
 def is_kernel_source(py_file):
     """Whether ``py_file`` is a module of ``KERNEL_PACKAGES``."""
-    return os.path.dirname(os.path.abspath(py_file)) in _DIRS
+    path = os.path.abspath(py_file)
+    return any(path.startswith(d + os.sep) for d in _DIRS)
 
 
 class _StampedByTheTree:
@@ -52,22 +79,26 @@ class _StampedByTheTree:
 
     @classmethod
     def from_function(cls, py_func, py_file):
-        if not is_kernel_source(py_file):
+        # A frozen application has no sources to digest; Numba stamps it by its executable.
+        if getattr(sys, "frozen", False) or not is_kernel_source(py_file) \
+                or kernel_sources_digest() is None:
             return None
         return super().from_function(py_func, py_file)
 
 
 def _numba_name(module, name):
-    """A class of Numba's caching module by its name (public from Numba 0.60, with a leading
-    underscore before), or None."""
+    """A class of Numba's caching module by its name (the locators are public from Numba 0.60,
+    with a leading underscore before), or None."""
     return getattr(module, name, None) or getattr(module, "_" + name, None)
 
 
 def install():
     """Put the stamped locators in front of Numba's own (once). Returns whether they are in
-    place: False where Numba's caching module has another layout, whose own locators then
-    serve."""
-    from numba.core import caching
+    place: False where Numba's caching module has another layout, or where the user chose the
+    locators (``NUMBA_CACHE_LOCATOR_CLASSES``); Numba's own or the chosen ones then serve."""
+    from numba.core import caching, config
+    if getattr(config, "CACHE_LOCATOR_CLASSES", None):
+        return False
     impl = _numba_name(caching, "CacheImpl")
     bases = [_numba_name(caching, n) for n in
              ("UserProvidedCacheLocator", "InTreeCacheLocator", "UserWideCacheLocator")]

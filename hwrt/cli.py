@@ -250,6 +250,16 @@ def _check_float32_values(path, key, a):
                                f"(+-{np.finfo(np.float32).max:.4g})")
 
 
+def _replay_array(path, data, key, want):
+    """``data[key]`` of a mismatch file, or an InputError naming what it is instead."""
+    from hwbvh.errors import InputError
+    try:
+        return data[key]
+    except ValueError as e:
+        got = "an object array" if "allow_pickle" in str(e) else f"an unreadable array ({e})"
+        raise InputError(path, f"key '{key}': expected {want}, got {got}") from None
+
+
 def _replay_rays(path):
     """(origins, dirs, tmax) of mismatch file ``path``, checked: InputError naming the file and
     the key for anything but finite float arrays of one length (tmax may be infinite) and
@@ -269,27 +279,18 @@ def _replay_rays(path):
             for key, shape in REPLAY_ARRAYS.items():
                 if key not in data.files:
                     raise InputError(path, f"not a mismatch file from hwrt verify (no key '{key}')")
-                try:
-                    a = data[key]
-                except ValueError:                    # an object array needs pickle
-                    a = None
-                if a is None or a.dtype.kind not in "fiu" or a.ndim != 1 + len(shape) \
-                        or a.shape[1:] != shape:
-                    want = "(n, 3)" if shape else "(n,)"
-                    raise InputError(path, f"key '{key}': expected a {want} array of numbers, got "
-                                           + ("an object array" if a is None else
-                                              f"{a.dtype} of shape {a.shape}"))
+                want = f"a {'(n, 3)' if shape else '(n,)'} array of numbers"
+                a = _replay_array(path, data, key, want)
+                if a.dtype.kind not in "fiu" or a.ndim != 1 + len(shape) or a.shape[1:] != shape:
+                    raise InputError(path, f"key '{key}': expected {want}, got {a.dtype} of shape "
+                                           f"{a.shape}")
                 if key != "tmax":
                     _check_float32_values(path, key, a)
                 arrays[key] = a.astype(np.float64 if key == "tmax" else np.float32)
             run = {}
             for key in REPLAY_RUN:
                 if key in data.files:
-                    try:
-                        a = data[key]
-                    except ValueError:                # an object array needs pickle
-                        raise InputError(path, f"key '{key}': expected a string, got an object "
-                                               "array") from None
+                    a = _replay_array(path, data, key, "a string")
                     if a.dtype.kind != "U" or a.shape != ():
                         raise InputError(path, f"key '{key}': expected a string, got {a.dtype} "
                                                f"of shape {a.shape}")
@@ -566,16 +567,14 @@ def cmd_render(args):
         startup_s += warm_up_kdtree()
     tracer, build_s, info = make_tracer(scene, args.builder, args.traversal,
                                         precision=args.precision, accel=args.accel)
-    bar = progress_bar(scene.height, f"render {scene.name}", "row")
-    t0 = time.perf_counter()
-    res = render(scene, tracer, seed=args.seed, progress=bar.update)
-    render_s = time.perf_counter() - t0
-    bar.close()
+    with progress_bar(scene.height, f"render {scene.name}", "row") as bar:
+        t0 = time.perf_counter()
+        res = render(scene, tracer, seed=args.seed, progress=bar.update)
+        render_s = time.perf_counter() - t0
     checked = None
     if args.verify:
-        bar = progress_bar(scene.height, f"verify {scene.name}", "row")
-        checked = verified_render(scene, tracer, args.seed, res.image, progress=bar.update)
-        bar.close()
+        with progress_bar(scene.height, f"verify {scene.name}", "row") as bar:
+            checked = verified_render(scene, tracer, args.seed, res.image, progress=bar.update)
         if not checked[0]["same_image"]:
             _warn_other_image("the checked render")
     bvh = args.accel == "bvh"              # another structure has its own build and traversal
@@ -1164,8 +1163,8 @@ def make_parser():
                         "or kdtree (SAH kd-tree)")
     v.add_argument("--replay", metavar="F.npz", type=_path,
                    help="re-trace the rays of a mismatch file instead, with the ray set's "
-                        "query and the structure the file records; refused on other triangles "
-                        "than the file's (default: a new run)")
+                        "query and the structure the file records; refused where the file "
+                        "records other triangles than the scene's (default: a new run)")
     v.add_argument("--json", action="store_true", help="print one JSON object")
     v.set_defaults(func=cmd_verify)
 

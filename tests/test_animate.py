@@ -785,12 +785,14 @@ def test_animate_verify_warns_naming_the_frames_whose_check_made_another_image(
     real = rr.verified_render
 
     def second_frame_differs(scene, tracer, seed, *a, **k):
+        # frame i is rendered with the run's seed + i
         summary, seconds = real(scene, tracer, seed, *a, **k)
-        return dict(summary, same_image=seed != 1), seconds
+        return dict(summary, same_image=seed != 10 + 1), seconds
 
     monkeypatch.setattr(rr, "verified_render", second_frame_differs)
     scene = _scene_file(tmp_path, [BOX], animation={"frames": 3, "fps": 1})
-    rc, out, err = _run_cli(capsys, "animate", scene, "-o", tmp_path / "out", "--verify", "--json")
+    rc, out, err = _run_cli(capsys, "animate", scene, "-o", tmp_path / "out", "--verify",
+                            "--seed", 10, "--json")
     assert rc == 0, err
     r = json.loads(out)
     assert r["verify"]["same_image"] is False

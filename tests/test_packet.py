@@ -178,9 +178,9 @@ def test_coherence_test_is_the_direction_octant():
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_the_packet_coherence_test_is_the_general_one(dtype):
     """The traversal's per-packet test (flat, branch-free) answers as ``coherent`` on P rays,
-    signed zeros included, wherever the one ray that differs sits."""
+    signed zeros, infinities and NaN included, wherever the one ray that differs sits."""
     rng = np.random.default_rng(5)
-    values = np.array([1.0, 0.25, 0.0, -0.0, -1.0, -3e-30], dtype)
+    values = np.array([1.0, 0.25, 0.0, -0.0, -1.0, -3e-30, np.inf, np.nan], dtype)
     for trial in range(400):
         d = np.abs(rng.choice(values, (3 * P, 3))).astype(dtype)
         if trial % 2:                  # a sign flipped in one component of one ray
