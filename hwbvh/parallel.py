@@ -147,10 +147,13 @@ def run_ranges(kernel, n, *args, min_items=1, parts=None):
     query inside a renderer's band of rows), it runs [0, n) on the calling thread: the outer
     ranges already keep every thread busy, and a second level would only add meetings."""
     check_threading()
+    if getattr(_in_range, "active", False):
+        kernel(0, n, *args)              # a range's own parallel work stays on its thread
+        return
     threads = numba.get_num_threads()
     parts = min(parts or threads * RANGES_PER_THREAD, max(1, n // max(1, min_items)))
-    if threads == 1 or parts <= 1 or getattr(_in_range, "active", False):
-        kernel(0, n, *args)              # a range's own parallel work stays on its thread
+    if threads == 1 or parts <= 1:
+        kernel(0, n, *args)
         return
     bounds = [n * k // parts for k in range(parts + 1)]
     cond = threading.Condition()

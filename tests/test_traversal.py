@@ -749,6 +749,27 @@ def test_scalar_bounds_serve_batches_of_every_size():
         release_kept_bounds() if n == 7 else None
 
 
+def test_a_kept_float_bound_is_checked_as_the_first_time():
+    """A Python float bound is kept after its first checks (``api._interval``): the same value
+    as t_max (where negatives are allowed) does not let it through as t_min later, a NaN is
+    never kept, and -0.0 is kept apart from 0.0."""
+    from hwbvh.errors import ParameterError
+    from traversal.api import _interval, release_kept_bounds
+
+    release_kept_bounds()
+    assert (_interval(-0.5, 8, np.float32, "tmax") == -0.5).all()
+    for _ in range(2):
+        with pytest.raises(ParameterError, match="tmin.*must not be negative"):
+            _interval(-0.5, 8, np.float32, "tmin", nonnegative=True)
+        with pytest.raises(ParameterError, match="tmax.*NaN"):
+            _interval(float("nan"), 8, np.float32, "tmax")
+    zero = _interval(0.0, 8, np.float32, "tmin", nonnegative=True)
+    negzero = _interval(-0.0, 8, np.float32, "tmin", nonnegative=True)
+    assert not np.signbit(zero).any() and np.signbit(negzero).all()
+    assert _interval(0.0, 8, np.float64, "tmin").dtype == np.float64
+    assert len(_interval(0.0, 3, np.float32, "tmin")) == 3
+
+
 def test_an_empty_range_of_chunks_writes_nothing():
     """``trace_chunks`` over no chunk (an empty batch: the warm-up query is one) must not write
     its per-range entries: the arrays have none. Empty views into a larger array catch a write

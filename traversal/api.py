@@ -73,9 +73,15 @@ def _filled(value, n):
     return kept[:n]
 
 
+# (dtype, float.hex(x), nonnegative) -> the kept array of a Python float bound that passed
+# ``_interval``'s checks: the renderer's scalar bounds skip NumPy's conversion and checks
+_checked_fills = {}
+
+
 def release_kept_bounds():
     """Free the bound arrays ``_filled`` keeps."""
     _fills.clear()
+    _checked_fills.clear()
 
 
 def negative_tmin_error(name):
@@ -106,6 +112,11 @@ def _interval(x, n, dtype, name, nonnegative=False):
     ParameterError naming it on None, a NaN, a complex or boolean value or another shape, or
     with ``nonnegative`` on a value below 0 (as converted: a tiny negative that rounds to -0 is
     none). One reduction over an array of bounds: the minimum is NaN when any bound is."""
+    if type(x) is float:
+        key = (dtype, x.hex(), nonnegative)
+        kept = _checked_fills.get(key)
+        if kept is not None and len(kept) >= n:
+            return kept[:n]
     a = _ready(x, dtype)
     if a is None or a.shape != (n,):
         if x is None:
@@ -116,7 +127,10 @@ def _interval(x, n, dtype, name, nonnegative=False):
                 raise _nan_bound_error(name, a)
             if nonnegative and n and a < 0:
                 raise negative_tmin_error(name)
-            return _filled(a, n)
+            kept = _filled(a, n)
+            if type(x) is float and n and kept.base is not None and len(_checked_fills) < 64:
+                _checked_fills[(dtype, x.hex(), nonnegative)] = kept.base
+            return kept
         if a.shape == (n,):
             a = np.require(a, requirements=("C", "W"))
         else:
