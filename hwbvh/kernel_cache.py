@@ -29,34 +29,36 @@ _DIRS = tuple(os.path.join(_ROOT, p) for p in KERNEL_PACKAGES)
 _last_digest = [None, None]
 
 
-def _kernel_source_files():
-    """Every ``.py`` file under ``_DIRS`` (sub-packages included), sorted; names starting with
-    a dot (editor lock files, often dangling links) and ``__pycache__`` are not sources."""
-    files = []
-    for d in _DIRS:
-        for parent, subdirs, names in os.walk(d, onerror=_raise):
-            subdirs[:] = sorted(s for s in subdirs
-                                if not s.startswith(".") and s != "__pycache__")
-            files += [os.path.join(parent, n) for n in sorted(names)
-                      if n.endswith(".py") and not n.startswith(".")]
-    return files
-
-
-def _raise(error):
-    raise error
+def _kernel_sources():
+    """(path, mtime_ns, size) of every ``.py`` file under ``_DIRS`` (sub-packages included),
+    in a fixed order; names starting with a dot (editor lock files, often dangling links) and
+    ``__pycache__`` are not sources."""
+    found = []
+    dirs = list(_DIRS)
+    while dirs:
+        d = dirs.pop(0)
+        with os.scandir(d) as entries:
+            for e in sorted(entries, key=lambda e: e.name):
+                if e.name.startswith(".") or e.name == "__pycache__":
+                    continue
+                if e.is_dir():
+                    dirs.append(e.path)
+                elif e.name.endswith(".py"):
+                    st = e.stat()
+                    found.append((e.path, st.st_mtime_ns, st.st_size))
+    return tuple(found)
 
 
 def kernel_sources_digest():
     """SHA-256 of the path (relative to the packages' root) and bytes of every kernel source
     file, or None when they cannot all be read (then Numba's own stamps serve)."""
     try:
-        files = _kernel_source_files()
-        listing = tuple((f, st.st_mtime_ns, st.st_size) for f in files for st in [os.stat(f)])
+        listing = _kernel_sources()
         if listing != _last_digest[0]:
             h = hashlib.sha256()
-            for f in files:
-                h.update(f"{os.path.relpath(f, _ROOT)}\0".encode())
-                with open(f, "rb") as src:
+            for path, _, _ in listing:
+                h.update(f"{os.path.relpath(path, _ROOT)}\0".encode())
+                with open(path, "rb") as src:
                     h.update(src.read())
             _last_digest[:] = [listing, h.hexdigest()]
         return _last_digest[1]
