@@ -40,6 +40,7 @@ from hwbvh.files import figure_png
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.files import check_output_dir, json_text, jsonable, write_files
 from .config import ADAPTIVE_THRESHOLD
+from .report import with_figures
 
 STRATEGIES = ("rebuild", "refit", "adaptive", "embree")
 PRESET_NAMES = ("HWBVH-C", "HWBVH-HP")
@@ -771,7 +772,7 @@ def _bench_files(out_dir, rows, summary, runs, frames, args, structures):
                   json_text({"summary": summary, "rows": rows, "machine": machine()}, indent=1) + "\n"))
     files.append((os.path.join(out_dir, BENCH_FILES["md"]),
                   _bench_markdown(summary, frames, args, machine(), structures)))
-    return files
+    return with_figures(files)
 
 
 def _bench_markdown(summary, frames, args, mach, structures):

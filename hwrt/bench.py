@@ -517,7 +517,7 @@ def bench_render(args, commit=write_files):
         peer_info = None
         if not is_scene(spec):
             skipped = mp.unsupported(scene) if mp.installed() else \
-                "mitsuba is not installed (pip install 'hwrt[mitsuba]')"
+                "mitsuba is not installed (pip install 'mitsuba>=3.5')"
             if skipped is None:
                 scene = mp.neutral_scene(scene)
             peer_info = {"skipped": skipped, "variants": []}

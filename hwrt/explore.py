@@ -31,6 +31,7 @@ from hwbvh.files import figure_png, write_files
 from hwbvh import config
 from hwbvh.cycle_model import PRESETS, check_params
 from hwbvh.errors import InputError, ParameterError
+from .report import with_figures
 
 KNOBS = ("bins", "leaf_size", "w", "tsize", "psize", "subtree_builders", "ram_pairs", "clock_mhz")
 TREE_KNOBS = ("bins", "leaf_size")
@@ -589,7 +590,7 @@ def explore(meshes, grid=None, out_dir=None, *, scheduler=None, workers=None, us
     if out_dir is not None:
         files = [("explore.csv", _csv(rows)), ("explore.json", json_text(result, indent=0) + "\n"),
                  ("explore.md", markdown(result, command))] + plots(rows, summary, specs, configs, grid)
-        files = [(os.path.join(out_dir, n), d) for n, d in files]
+        files = with_figures([(os.path.join(out_dir, n), d) for n, d in files])
         commit(files)
         result["files"] = [p for p, _ in files]
     return result

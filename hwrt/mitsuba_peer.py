@@ -140,7 +140,7 @@ def _probe_result(variant):
 def variant_status(variant):
     """(usable, reason): whether this Mitsuba variant works here, and why not."""
     if not installed():
-        return False, "mitsuba is not installed (pip install 'hwrt[mitsuba]')"
+        return False, "mitsuba is not installed (pip install 'mitsuba>=3.5')"
     import mitsuba as mi
     if variant not in mi.variants():
         return False, f"this mitsuba build has no variant {variant}"

@@ -1,5 +1,6 @@
-"""The line a generated docs page opens with: the command that made it, so that a reader can
-make the page again."""
+"""What a generated docs page carries besides its tables: the line it opens with (the command
+that made it, so that a reader can make the page again) and the figures written with it."""
+import os
 import shlex
 
 
@@ -23,3 +24,16 @@ def made_by_lines(command):
 def made_by_block(command):
     """``made_by`` as a paragraph (the line and a blank line), or ''."""
     return "".join(line + "\n" for line in made_by_lines(command))
+
+
+def with_figures(files):
+    """A set of output files ((path, text or bytes) pairs) with its ``.md`` page ending in a
+    section that shows every ``.png`` of the set (written beside it), so that the figures are
+    found where the tables are."""
+    pngs = [os.path.basename(path) for path, _ in files if path.endswith(".png")]
+    if not pngs:
+        return files
+    section = "\n## Figures\n\n" + "".join(
+        f"![{os.path.splitext(name)[0].replace('_', ' ')}]({name})\n\n" for name in pngs)
+    return [(path, data.rstrip("\n") + "\n" + section if path.endswith(".md") else data)
+            for path, data in files]

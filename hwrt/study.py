@@ -31,7 +31,7 @@ import numpy as np
 
 from hwbvh.errors import InputError
 from hwbvh.files import json_text, write_files
-from .report import command_of, made_by_block
+from .report import command_of, made_by_block, with_figures
 from .bench import machine, mesh_inputs
 
 TTI_PATHS = ("hwbvh-C", "hwbvh-HP", "hwbvh-sw", "sweep", "embree")
@@ -239,6 +239,7 @@ def _write_outputs(cells, out_dir, name, rows, md, plot_files, extra, where=None
     files = [(os.path.join(out_dir, f"{name}.csv"), buf.getvalue()),
              (os.path.join(out_dir, f"{name}.json"), json_text(result, indent=1) + "\n"),
              (os.path.join(out_dir, f"{name}.md"), md)] + plot_files
+    files = with_figures(files)
     commit(files)
     result["files"] = [f for f, _ in files]
     result["cells_file"] = str(cells.path)

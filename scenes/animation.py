@@ -947,7 +947,7 @@ def marbles(width=320, height=240, spp=1, max_depth=3, count=40, subdiv=(8, 16),
         raise ParameterError("physics", f"unknown physics {physics!r} (choose from auto, pybullet, analytic)")
     if physics != "analytic" and _import_pybullet() is None:
         if physics == "pybullet":
-            raise ParameterError("physics", "pybullet is not installed (pip install 'hwrt[physics]')")
+            raise ParameterError("physics", "pybullet is not installed (pip install 'pybullet>=3.2')")
         physics = "analytic"
     elif physics == "auto":
         physics = "pybullet"

@@ -535,3 +535,13 @@ def test_a_reader_that_goes_away_ends_the_command_quietly(tmp_path):
     finally:
         os.close(w)
     assert (proc.returncode, proc.stderr) == (141, "")
+
+
+def test_a_page_shows_the_figures_written_with_it():
+    from hwrt.report import with_figures
+    files = [("d/a.csv", "x\n"), ("d/a.md", "# A\n\ntable\n"), ("d/a_b.png", b"png"),
+             ("d/c.png", b"png")]
+    got = dict(with_figures(files))
+    assert got["d/a.md"] == "# A\n\ntable\n\n## Figures\n\n![a b](a_b.png)\n\n![c](c.png)\n\n"
+    assert got["d/a.csv"] == "x\n" and got["d/c.png"] == b"png"
+    assert with_figures(files[:2]) == files[:2]          # no figure: the page as it was

@@ -67,8 +67,10 @@ def test_tti_quick_outputs_and_resume(tti_quick, mesh_dir):
 
 
 def _page_body(md):
-    """A study page without its title and the line naming the command that made it."""
-    return md.split("`.\n\n", 1)[1]
+    """A study page without its title, the line naming the command that made it and the
+    figures it shows at its end (the command line prints the tables)."""
+    body, figures = md.split("`.\n\n", 1)[1].split("\n## Figures\n\n")
+    return body
 
 
 def test_tti_prints_the_tables_of_its_page(tti_quick, mesh_dir):
@@ -77,6 +79,7 @@ def test_tti_prints_the_tables_of_its_page(tti_quick, mesh_dir):
     assert r.returncode == 0, r.stderr
     body = _page_body((out / "tti.md").read_text())
     assert "| cornell | hwbvh-C |" in body and "Break-even ray budget" in body
+    assert (out / "tti.md").read_text().endswith("\n## Figures\n\n![tti](tti.png)\n\n")
     assert r.stdout == body + "\nwrote " + ", ".join(str(out / f) for f in (
         "tti.csv", "tti.json", "tti.md", "tti.png")) + "\n"
 
