@@ -467,6 +467,9 @@ def load_mesh_arrays(path):
         raise InputError(path, "no such file")
     if os.path.isdir(path):
         raise InputError(path, "is a directory, not a mesh file")
+    if not path.lower().endswith(MESH_EXTENSIONS):
+        raise InputError(path, "unknown mesh file type (expected " + "/".join(MESH_EXTENSIONS)
+                         + ")")
     declared = _ply_declared(path) or {}
     if "face" in declared:
         check_count(declared["face"], path)
@@ -485,9 +488,7 @@ def load_mesh_arrays(path):
         if isinstance(exc, KeyError):          # a reader looked up what the file does not hold
             msg = f"it has no {msg}"
         ext = os.path.splitext(path)[1].lower()
-        what = (f"not a readable {ext[1:].upper()} file" if ext in MESH_EXTENSIONS
-                else "cannot read mesh")
-        raise InputError(path, f"{what} ({msg})") from None
+        raise InputError(path, f"not a readable {ext[1:].upper()} file ({msg})") from None
     faces = getattr(mesh, "faces", None)
     verts = getattr(mesh, "vertices", None)
     if faces is None or verts is None or len(faces) == 0:

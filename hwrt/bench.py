@@ -112,10 +112,14 @@ def mesh_inputs(args):
     from hwbvh.primitives import load_mesh_arrays
     from scenes.meshes import GENERATED
 
+    from scenes.builtin import BUILTIN
+
     paths = [Path(m) for m in args.meshes]
     for p in paths:
         if not p.exists():
-            raise InputError(p, "no such file")
+            raise InputError(p, "no such file" + (
+                f"; {p} is a built-in scene: this benchmark takes mesh files (those that render "
+                "pick their built-in scenes themselves)" if str(p) in BUILTIN else ""))
         if p.is_dir():
             raise InputError(p, "is a directory, not a mesh file")
     base = None

@@ -27,7 +27,8 @@ EPILOG = ("With --json a command prints exactly one JSON object on stdout, in st
           "are checked before any work starts and are written whole or not at all; no output "
           "may overwrite an input. Exit status: 0 success; 2 bad input, with one line on stderr "
           "naming the file, key or option and the problem; 130 interrupted (SIGINT); 143 "
-          "terminated (SIGTERM); 1 anything else.")
+          "terminated (SIGTERM); 141 when stdout's reader has gone (a closed pipe); 1 anything "
+          "else.")
 VERIFY_RAYS = 100_000
 VERIFY_KIND = "random"
 EXIT_BAD_INPUT = 2

@@ -1127,6 +1127,15 @@ def test_an_unreadable_ply_says_so(capsys, tmp_path):
         f"hwrt: error: {p}: not a readable PLY file (it has no 'y')"
 
 
+def test_a_scene_named_to_a_mesh_benchmark_is_said_to_be_one(capsys, tmp_path):
+    for bench in ("build", "tti", "accuracy"):
+        rc, out, err = call(capsys, "bench", bench, "cornell", "--out-dir", tmp_path / bench)
+        assert rc == 2 and out == "" and one_line_error(err) == (
+            "hwrt: error: cornell: no such file; cornell is a built-in scene: this benchmark "
+            "takes mesh files (those that render pick their built-in scenes themselves)")
+        assert not (tmp_path / bench).exists()
+
+
 def test_a_scene_given_to_build_or_simulate_is_said_to_be_one(capsys, tmp_path):
     scene = tmp_path / "still.toml"
     scene.write_text("[camera]\n")
@@ -1343,3 +1352,13 @@ def test_integer_options_take_digits_only(tmp_path, capsys, value, line):
     p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     rc, out, err = call(capsys, "build", p, "--leaf-size", value)
     assert rc == 2 and out == "" and one_line_error(err) == line
+
+
+def test_a_mesh_of_an_unknown_type_is_refused_by_its_name(capsys, tmp_path):
+    p = tmp_path / "points.xyz"
+    p.write_text("0 0 0\n1 0 0\n0 1 0\n")
+    for command in ("build", "simulate"):
+        rc, out, err = call(capsys, command, p)
+        assert rc == 2 and out == "" and one_line_error(err) == (
+            f"hwrt: error: {p}: unknown mesh file type (expected "
+            ".ply/.obj/.stl/.off/.glb/.gltf)")
