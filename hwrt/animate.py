@@ -559,9 +559,12 @@ def human(r):
         lines.append(f"{f['frame']:>5}{f['triangles']:>9}{'yes' if f['rebuilt'] else 'no':>8}"
                      f"{f['build_seconds'] * 1e3:>10.2f}{c}{f['render_seconds'] * 1e3:>10.1f}"
                      f"{f['time_to_image_seconds'] * 1e3:>9.1f}{sah}")
-    lines.append(f"{r['rebuilds']} rebuilds; time to image {r['time_to_image_seconds_total']:.2f} s; "
-                 f"total {r['total_seconds']:.2f} s; wrote {r['output']}")
     start = r.get("resumed_from") or 0
+    # resumed frames' rows (and their time to image) are the earlier run's; the wall time is
+    # this run's alone
+    wall = "this run" if start else "total"
+    lines.append(f"{r['rebuilds']} rebuilds; time to image {r['time_to_image_seconds_total']:.2f} s; "
+                 f"{wall} {r['total_seconds']:.2f} s; wrote {r['output']}")
     if start:
         lines.append(f"resumed: frames 0-{start - 1} of {len(r['frames'])} were on disk from an "
                      f"earlier run of the same settings (their rows are that run's)")

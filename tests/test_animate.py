@@ -469,6 +469,7 @@ def test_an_interrupted_run_resumes_at_the_first_missing_frame(tmp_path, capsys)
     rc, out, _ = _run_cli(capsys, *args[:-1], "-o", part)
     assert rc == 0 and ("resumed: frames 0-4 of 5 were on disk from an earlier run of the same "
                         "settings") in out
+    assert "; this run " in out and "; total " not in out     # the wall time is this run's
     # another run's settings are refused instead of mixing frames
     rc, _, err = _run_cli(capsys, *args[:-1], "--spp", 2, "-o", part)
     assert rc == 2 and "holds frames of another run" in err
