@@ -282,8 +282,9 @@ class _Buffers:
     (O, D, wgt, pix, Ot, Dt; see ``raytracer.stages``), swapped after each bounce. Sized for
     ``cap`` rays of the current wavefront: its contributions ``contrib``, the shadow queue
     ``sh`` (per light a region of ``cap``: the tracer's origin, direction and t_max, the light
-    brought, the pixel; then the counts per light) and the refractions ``sp`` (origin,
-    direction, weight, pixel; then the counts of reflections and refractions). ``jitter``: one
+    brought, the pixel; then the counts per light) and the spawn queue ``sp`` (origin,
+    direction, weight, pixel; reflections from 0, refractions from ``cap``; then the counts of
+    reflections and refractions). ``jitter``: one
     band's pixel offsets of one sample pass."""
 
     def __init__(self, n, n_lights, ray_dtype):
@@ -309,7 +310,8 @@ class _Buffers:
         self.contrib = f(S, 3)
         self.sh = [r(L * S, 3), r(L * S, 3), r(L * S), f(L * S, 3), np.empty(L * S, np.int64),
                    np.zeros(L, np.int64)]
-        self.sp = [f(S, 3), f(S, 3), f(S, 3), np.empty(S, np.int64), np.zeros(2, np.int64)]
+        self.sp = [f(2 * S, 3), f(2 * S, 3), f(2 * S, 3), np.empty(2 * S, np.int64),
+                   np.zeros(2, np.int64)]
         self.cap = S
 
     def ensure_next(self, n):

@@ -13,10 +13,11 @@ thread (``raytracer.render``); per bounce of a band:
    light, one shadow ray per light with the light it brings if visible, and the secondary rays
    (mirror reflection, dielectric reflection and refraction) with their weights. Each output
    goes densely, in ray order, to its queue: the shadow rays of each light straight into the
-   tracer's shadow queue and the reflections straight into the next wavefront, so a light's
-   shadow rays and each kind of secondary ray stay in tile order (coherent packets). Before it
-   returns it joins the queues (``join_light_queues``: the other lights' shadow rays behind the
-   first's; ``append_refractions``: the refractions behind the reflections);
+   tracer's shadow queue, so a light's shadow rays stay in tile order (coherent packets), and
+   the reflections and refractions to the spawn queue. Before it returns it joins the queues
+   (``join_light_queues``: the other lights' shadow rays behind the first's;
+   ``spawn_wavefront``: the secondary rays into the next wavefront, grouped by direction
+   octant, see there);
 4. the tracer's ``occluded`` on the shadow queue;
 5. ``accumulate``: the light of the unblocked shadow rays and the other contributions into the
    film, in queue order, a fixed order per pixel.
@@ -189,7 +190,7 @@ def _unit(x, y, z):
 @njit(cache=True, error_model="numpy")
 def _put_origin_dir(O, D, k, ox, oy, oz, dx, dy, dz):
     """Ray k's origin and direction, in the arrays' own precision (the wavefront's, or the
-    tracer's copy, as ``append_refractions`` makes for the rest)."""
+    tracer's copy)."""
     O[k, 0] = ox
     O[k, 1] = oy
     O[k, 2] = oz
@@ -254,13 +255,14 @@ def _put_hit_row(S, j, Df, i, t, ox, oy, oz, w0, w1, w2):
 
 
 def shade_scratch():
-    """The working arrays of one ``shade`` call (its last four arguments): the scratch ``S``
+    """The working arrays of one ``shade`` call (its last six arguments): the scratch ``S``
     (``_ROWS`` rows of ``_ROW``), and per ray of a block, its material, whether it takes direct
-    light and whether the light is in front of it; the slots of the rays that spawn. A kernel that allocated
-    them itself would run at half the speed: Numba's reference counting then wraps its loops
-    and LLVM no longer keeps the scratch in its SIMD passes."""
+    light and whether the light is in front of it; the slots of the rays that spawn; the
+    octants' first slots for ``spawn_wavefront``. A kernel that allocated them itself would
+    run at half the speed: Numba's reference counting then wraps its loops and LLVM no longer
+    keeps the scratch in its SIMD passes."""
     return (np.empty(_ROWS * _ROW), np.empty(BLOCK, np.int64), np.empty(BLOCK, np.bool_),
-            np.empty(BLOCK, np.bool_), np.empty(BLOCK, np.int64))
+            np.empty(BLOCK, np.bool_), np.empty(BLOCK, np.int64), np.empty(8, np.int64))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -270,7 +272,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
           offset, do_shadow, do_spawn, camera, eye, first, aov_depth, aov_normal, aov_prim,
           film, contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, stride, nO, nD, nW, npix, nOt, nDt,
           sp_O, sp_D, sp_W, sp_pix, sp_cnt,
-          S, mat, lit, leaves, spawning):
+          S, mat, lit, leaves, spawning, octant_start):
     """Shade the ``n`` rays of a queue from their closest hits (see the module text), in
     blocks of BLOCK rays.
 
@@ -280,9 +282,10 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     for ``accumulate``. The shadow rays toward light l go densely to l * ``stride`` onward:
     origin, direction and t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its
     precision), the light brought if visible and the pixel in ``sh_C``, ``sh_pix``;
-    ``sh_cnt[l]`` of them. Reflections go densely to the next wavefront (``nO``, ``nD``, ``nW``,
-    ``npix`` and the tracer's copies ``nOt``, ``nDt``), ``sp_cnt[0]`` of them; refractions to
-    ``sp_O``, ``sp_D``, ``sp_W``, ``sp_pix``, ``sp_cnt[1]`` of them, for ``append_refractions``.
+    ``sh_cnt[l]`` of them. Secondary rays go densely to the spawn queue (``sp_O``, ``sp_D``,
+    ``sp_W``, ``sp_pix``): reflections from 0, ``sp_cnt[0]`` of them, refractions from
+    ``stride``, ``sp_cnt[1]`` of them; ``spawn_wavefront`` then places them in the next
+    wavefront (``nO``, ``nD``, ``nW``, ``npix`` and the tracer's copies ``nOt``, ``nDt``).
     Every output is in ray order, so the queues do not depend on anything but the rays.
     ``first`` (the first sample pass' camera rays) writes every pixel's first-hit layers
     (``aov_*``) and stores its first radiance sum, so neither needs clearing before;
@@ -529,9 +532,8 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 a2 = w2 * kr[m, 2]
                 if max(a0, a1, a2) >= cutoff:           # contribution cut-off
                     ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
-                    _put_ray(nO, nD, nW, npix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2,
-                             pix[i])
-                    _put_origin_dir(nOt, nDt, n_refl, ox, oy, oz, rx, ry, rz)
+                    _put_ray(sp_O, sp_D, sp_W, sp_pix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1,
+                             a2, pix[i])
                     n_refl += 1
                 continue
             # ns points out of the object
@@ -556,8 +558,8 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             a2 = w2 * F
             if max(a0, a1, a2) >= cutoff:
                 ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
-                _put_ray(nO, nD, nW, npix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2, pix[i])
-                _put_origin_dir(nOt, nDt, n_refl, ox, oy, oz, rx, ry, rz)
+                _put_ray(sp_O, sp_D, sp_W, sp_pix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2,
+                         pix[i])
                 n_refl += 1
             if not tir:
                 r = eta_i / eta_t                       # Snell's law
@@ -568,13 +570,14 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 c2 = w2 * (1 - F)
                 if max(c0, c1, c2) >= cutoff:
                     ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, tx, ty, tz, mag, offset)
-                    _put_ray(sp_O, sp_D, sp_W, sp_pix, n_refr, ox, oy, oz, tx, ty, tz, c0, c1, c2,
-                             pix[i])
+                    _put_ray(sp_O, sp_D, sp_W, sp_pix, stride + n_refr, ox, oy, oz, tx, ty, tz,
+                             c0, c1, c2, pix[i])
                     n_refr += 1
     sp_cnt[0] = n_refl
     sp_cnt[1] = n_refr
     if do_spawn:
-        append_refractions(sp_O, sp_D, sp_W, sp_pix, n_refr, nO, nD, nW, npix, nOt, nDt, n_refl)
+        spawn_wavefront(sp_O, sp_D, sp_W, sp_pix, n_refl, stride, n_refr, nO, nD, nW, npix, nOt,
+                        nDt, octant_start)
     return join_light_queues(qO, qD, qT, sh_cnt, stride) if n_lights > 0 else 0
 
 
@@ -595,18 +598,59 @@ def join_light_queues(qO, qD, qT, sh_cnt, stride):
     return m
 
 
+@njit(cache=True, inline="always")
+def octant(dx, dy, dz):
+    """The direction octant 0..7 of (dx, dy, dz) from its sign bits (-0 counts as negative), as
+    the packet traversal groups rays; a float64 direction and its float32 copy agree."""
+    return np.int64(np.signbit(dx)) | (np.int64(np.signbit(dy)) << 1) | \
+        (np.int64(np.signbit(dz)) << 2)
+
+
+@njit(cache=True, inline="always")
+def _place(sp_O, sp_D, sp_W, sp_pix, k, O, D, wgt, pix, Ot, Dt, j):
+    """Spawn-queue ray k to slot j of the next wavefront, with the tracer's copies."""
+    for c in range(3):
+        O[j, c] = sp_O[k, c]
+        D[j, c] = sp_D[k, c]
+        wgt[j, c] = sp_W[k, c]
+        Ot[j, c] = sp_O[k, c]
+        Dt[j, c] = sp_D[k, c]
+    pix[j] = sp_pix[k]
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def append_refractions(sp_O, sp_D, sp_W, sp_pix, f, O, D, wgt, pix, Ot, Dt, r):
-    """The ``f`` refraction rays behind the ``r`` reflections already in the next wavefront,
-    with the tracer's copies of origins and directions."""
-    for k in range(f):
-        for c in range(3):
-            O[r + k, c] = sp_O[k, c]
-            D[r + k, c] = sp_D[k, c]
-            wgt[r + k, c] = sp_W[k, c]
-            Ot[r + k, c] = sp_O[k, c]
-            Dt[r + k, c] = sp_D[k, c]
-        pix[r + k] = sp_pix[k]
+def spawn_wavefront(sp_O, sp_D, sp_W, sp_pix, n_refl, refr_at, n_refr, O, D, wgt, pix, Ot, Dt,
+                    start):
+    """The next wavefront from the spawn queue (``n_refl`` reflections from 0, ``n_refr``
+    refractions from ``refr_at``), grouped by direction octant: octant 0's rays first, then
+    octant 1's, and so on, each group in queue order (reflections, then refractions, each in
+    tile order). ``start``: (8,) int64 scratch.
+
+    The packet traversal takes 16 consecutive rays together only when they share an octant.
+    Secondary rays from neighbouring pixels leave a curved mirror or glass in nearly the
+    same direction, yet in tile order a group of 16 of them straddles an axis plane often
+    enough that most went one by one (on marbles: 220k of 370k closest-hit rays); grouped,
+    nearly all go in packets, and renders with mirrors and glass run 7-11% faster (marbles
+    and cornell; scenes without them unchanged)."""
+    for c in range(8):
+        start[c] = 0
+    for k in range(n_refl):
+        start[octant(sp_D[k, 0], sp_D[k, 1], sp_D[k, 2])] += 1
+    for k in range(refr_at, refr_at + n_refr):
+        start[octant(sp_D[k, 0], sp_D[k, 1], sp_D[k, 2])] += 1
+    at = 0
+    for c in range(8):
+        m = start[c]
+        start[c] = at
+        at += m
+    for k in range(n_refl):
+        o = octant(sp_D[k, 0], sp_D[k, 1], sp_D[k, 2])
+        _place(sp_O, sp_D, sp_W, sp_pix, k, O, D, wgt, pix, Ot, Dt, start[o])
+        start[o] += 1
+    for k in range(refr_at, refr_at + n_refr):
+        o = octant(sp_D[k, 0], sp_D[k, 1], sp_D[k, 2])
+        _place(sp_O, sp_D, sp_W, sp_pix, k, O, D, wgt, pix, Ot, Dt, start[o])
+        start[o] += 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

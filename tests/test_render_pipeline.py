@@ -662,3 +662,49 @@ def test_warm_up_loads_the_wider_units_when_asked():
     warm_up(precision="float64")
     assert any(getattr(t, "dtype", None) == types.float64
                for sig in trace_chunks.signatures for t in sig)
+
+
+def test_spawn_wavefront_groups_by_octant_keeping_queue_order():
+    rng = np.random.default_rng(3)
+    cap, n_refl, n_refr = 40, 23, 17
+    sp_D = rng.normal(size=(2 * cap, 3))
+    sp_D[:6] = [[0.0, 1, 1], [-0.0, 1, 1], [1, -0.0, 1], [0.0, 0.0, -0.0], [-1, -1, -1],
+                [1, 1, 1]]                               # -0 counts as negative, as in packets
+    sp_O = rng.normal(size=(2 * cap, 3))
+    sp_W = rng.random((2 * cap, 3))
+    sp_pix = np.arange(2 * cap, dtype=np.int64) * 7
+    n = n_refl + n_refr
+    O, D, W = (np.full((n, 3), np.nan) for _ in range(3))
+    Ot, Dt = np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32)
+    pix = np.full(n, -1, np.int64)
+    stages.spawn_wavefront(sp_O, sp_D, sp_W, sp_pix, n_refl, cap, n_refr, O, D, W, pix, Ot, Dt,
+                           np.empty(8, np.int64))
+    queue = np.r_[np.arange(n_refl), cap + np.arange(n_refr)]   # reflections, then refractions
+    sign = np.signbit(sp_D[queue])
+    key = sign[:, 0] + 2 * sign[:, 1] + 4 * sign[:, 2]
+    order = queue[np.argsort(key, kind="stable")]
+    assert np.array_equal(pix, sp_pix[order])
+    assert np.array_equal(O, sp_O[order]) and np.array_equal(D, sp_D[order])
+    assert np.array_equal(W, sp_W[order])
+    assert np.array_equal(Ot, sp_O[order].astype(np.float32))
+    assert np.array_equal(Dt, sp_D[order].astype(np.float32))
+    got = np.signbit(Dt) @ [1, 2, 4]                    # the float32 copies group alike
+    assert (np.diff(got) >= 0).all()
+
+
+def test_secondary_rays_reach_the_tracer_grouped_by_octant_and_traced_in_packets():
+    sc = small("marbles", 96, 64, 1)
+    tracer, _, _ = make_tracer(sc)
+    rec = RecordingTracer(tracer)
+    render(sc, rec)
+    # camera rays all start at the eye
+    secondary = [q for q in rec.queries if q[0] == "intersect" and (q[1] != q[1][0]).any()]
+    assert sum(len(q[2]) for q in secondary) > 1000
+    in_packets = 0
+    for _, o, d, *_ in secondary:
+        key = np.signbit(d) @ [1, 2, 4]
+        assert (np.diff(key) >= 0).all()
+        tracer.intersect(o, d)
+        in_packets += 16 * tracer.last_packets
+    # a group of 16 breaks only where an octant ends or at the end of a query
+    assert in_packets >= sum(len(q[2]) for q in secondary) - 16 * 9 * len(secondary)
