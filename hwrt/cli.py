@@ -368,14 +368,30 @@ def _replay(path, scene, tris, verts, faces):
                 replayed=rows, file=str(path))
 
 
+def _replay_answer(answer):
+    """An answer of a replayed ray in words: blocked or not (occluded), else the triangle
+    hit and where, or a miss."""
+    if isinstance(answer, bool):
+        return "blocked" if answer else "not blocked"
+    prim, t = answer
+    return "a miss" if prim < 0 else f"triangle {prim} at t = {t:.9g}"
+
+
 def _replay_human(r):
-    """A summary line, then each ray's row as one line of JSON."""
-    from hwbvh.files import json_text
-    head = (f"replayed {r['rays']} {r['kind']} rays of {r['file']} ({r['query']} queries, "
-            f"accel {r['accel']}): {r['agree']} agree, {r['tie']} tie, {r['mismatch']} mismatch "
-            f"(our answer wrong in {r['mismatch_ours_wrong']}, Embree's in "
-            f"{r['mismatch_embree_wrong']})")
-    return "\n".join([head] + [json_text(x) for x in r["replayed"]])
+    """A summary line, then a line per ray (its class, both answers, the ray), and under a
+    mismatch a line for each answer the re-test rejects, saying why."""
+    triple = lambda v: "(" + ", ".join(f"{x:.9g}" for x in v) + ")"
+    whose = {"ours": "our answer", "embree": "Embree's answer"}
+    lines = [f"replayed {r['rays']} {r['kind']} rays of {r['file']} ({r['query']} queries, "
+             f"accel {r['accel']}): {r['agree']} agree, {r['tie']} tie, {r['mismatch']} "
+             f"mismatch (our answer wrong in {r['mismatch_ours_wrong']}, Embree's in "
+             f"{r['mismatch_embree_wrong']})"]
+    for i, x in enumerate(r["replayed"]):
+        lines.append(f"  ray {i}: {x['class']}; ours {_replay_answer(x['ours'])}, Embree "
+                     f"{_replay_answer(x['embree'])}; origin {triple(x['origin'])}, direction "
+                     f"{triple(x['dir'])}, t_max {x['tmax']:.9g}")
+        lines += [f"    {whose[name]} is wrong: {x['why'][name]}" for name in x["wrong"]]
+    return "\n".join(lines)
 
 
 def _wrong_counts(found):
@@ -545,7 +561,7 @@ def cmd_render(args):
     d = with_frame(load_scene(args.scene), args.width, args.height, args.spp, args.max_depth)
     out = args.output or os.path.join("renders", f"{d.get('name', 'scene')}.exr")
     if os.path.splitext(out)[1].lower() != ".exr":
-        raise InputError("-o", f"{out}: expected a file name with the extension .exr, such as "
+        raise InputError("-o/--output", f"{out}: expected a file name with the extension .exr, such as "
                                f"image.exr (--png adds a PNG preview beside the EXR)")
     png = os.path.splitext(out)[0] + ".png" if args.png else None
     check_outputs([out, png], inputs=scene_inputs(args.scene))

@@ -125,6 +125,18 @@ def label(cfg, varied=KNOBS):
     return " ".join(parts)
 
 
+def labeller(result):
+    """``label`` for the configurations of an exploration's result: the knobs its
+    configurations vary, and a preset's name before a preset's knobs ("HWBVH-HP: w8 ...")."""
+    varied = [k for k in KNOBS if len({c[k] for c in result["configs"]}) > 1] or list(KNOBS)
+    names = {tuple(c[k] for k in KNOBS): c["preset"] for c in result["configs"] if c.get("preset")}
+
+    def lab(cfg):
+        name = names.get(tuple(cfg[k] for k in KNOBS))
+        return f"{name}: {label(cfg, varied)}" if name else label(cfg, varied)
+    return lab
+
+
 # --------------------------------------------------------------------------------------
 # meshes and the model's identity
 # --------------------------------------------------------------------------------------
@@ -460,8 +472,7 @@ def _thesis_plots(by_cfg, meshes, grid):
 def markdown(result, command=None):
     """A summary page: the run, the cost model, the best configurations and the presets' gaps."""
     from .report import made_by_lines
-    varied = [k for k in KNOBS if len({c[k] for c in result["configs"]}) > 1] or list(KNOBS)
-    lab = lambda c: label(c, varied)
+    lab = labeller(result)
     f = result["cost_model"]
     lines = ["# Design-space exploration\n"] + made_by_lines(command) + [
              f"{result['cells']} cells: {len(result['configs'])} configurations x {len(result['meshes'])} "
@@ -598,7 +609,7 @@ def explore(meshes, grid=None, out_dir=None, *, scheduler=None, workers=None, us
 
 def human(result):
     """The command line's summary: where the files went, and the best per size class."""
-    varied = [k for k in KNOBS if len({c[k] for c in result["configs"]}) > 1] or list(KNOBS)
+    lab = labeller(result)
     lines = [f"{result['cells']} cells ({result['computed']} computed, {result['resumed']} resumed)"
              + (f", {result['cells_per_second']:.0f} cells/s on {result['cluster']}"
                 if result["computed"] else "")]
@@ -606,8 +617,8 @@ def human(result):
         if b["scope"] in {m["name"] for m in result["meshes"]}:
             continue
         lines.append(f"leaf {b['leaf_size']}, {b['bins']} bins, {b['scope']}: fastest "
-                     f"{label(b['fastest']['config'], varied)}; least energy x area "
-                     f"{label(b['energy_area']['config'], varied)}")
+                     f"{lab(b['fastest']['config'])}; least energy x area "
+                     f"{lab(b['energy_area']['config'])}")
     if result["files"]:
         lines.append("wrote " + ", ".join(result["files"]))
     return "\n".join(lines)

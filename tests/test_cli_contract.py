@@ -735,7 +735,12 @@ def test_replay_traces_as_the_run_that_wrote_the_file(capsys, tmp_path, tetra):
     assert rc == 0 and out.splitlines()[0] == (
         f"replayed 2 shadow rays of {f} (occluded queries, accel kdtree): 2 agree, 0 tie, "
         f"0 mismatch (our answer wrong in 0, Embree's in 0)")
-    assert len(out.splitlines()) == 3
+    centre = "(" + ", ".join(f"{x:.9g}" for x in r["replayed"][0]["origin"]) + ")"
+    assert out.splitlines()[1:] == [
+        f"  ray 0: agree; ours blocked, Embree blocked; origin {centre}, direction (0, 0, 1), "
+        f"t_max inf",
+        f"  ray 1: agree; ours not blocked, Embree not blocked; origin {centre}, direction "
+        f"(1, 1, 1), t_max 0.001"]
     other = _mismatch_file(tmp_path / "o.npz", tris + 1, kind="random", scene="elsewhere")
     rc, out, err = call(capsys, "verify", tetra, "--replay", other)
     assert rc == 2 and out == "" and one_line_error(err) == (
@@ -1331,7 +1336,7 @@ def test_replay_of_a_bare_npy_array_is_refused_in_one_line(capsys, tmp_path):
 
 @pytest.mark.parametrize("argv,line", [
     (["render", "cornell", "-o", ".exr"],
-     "hwrt: error: -o: .exr: expected a file name with the extension .exr, such as image.exr "
+     "hwrt: error: -o/--output: .exr: expected a file name with the extension .exr, such as image.exr "
      "(--png adds a PNG preview beside the EXR)"),
     (["animate", "exploding", "--mesh", "bunny.ply", "--triangles", "500"],
      "hwrt: error: --triangles: makes a generated mesh: a mesh given brings its own triangles")])
@@ -1362,3 +1367,21 @@ def test_a_mesh_of_an_unknown_type_is_refused_by_its_name(capsys, tmp_path):
         assert rc == 2 and out == "" and one_line_error(err) == (
             f"hwrt: error: {p}: unknown mesh file type (expected "
             ".ply/.obj/.stl/.off/.glb/.gltf)")
+
+
+def test_replay_text_says_which_answer_is_wrong_and_why():
+    from hwrt.cli import _replay_human
+    r = dict(rays=2, kind="random", file="m.npz", query="intersect", accel="bvh", agree=1, tie=0,
+             mismatch=1, mismatch_ours_wrong=1, mismatch_embree_wrong=0, replayed=[
+                 {"origin": [0.0, 0.5, -1.0], "dir": [0.0, 0.0, 1.0], "tmax": float("inf"),
+                  "ours": [-1, None], "embree": [-1, None], "class": "agree", "wrong": [],
+                  "why": {}},
+                 {"origin": [1e-8, 2.0, 3.0], "dir": [0.0, 1.0, 0.0], "tmax": 5.0,
+                  "ours": [7, 1.25], "embree": [3, 0.5], "class": "mismatch", "wrong": ["ours"],
+                  "why": {"ours": "it misses triangle 3, which the ray enters at t = 0.5"}}])
+    assert _replay_human(r).splitlines()[1:] == [
+        "  ray 0: agree; ours a miss, Embree a miss; origin (0, 0.5, -1), direction (0, 0, 1), "
+        "t_max inf",
+        "  ray 1: mismatch; ours triangle 7 at t = 1.25, Embree triangle 3 at t = 0.5; origin "
+        "(1e-08, 2, 3), direction (0, 1, 0), t_max 5",
+        "    our answer is wrong: it misses triangle 3, which the ray enters at t = 0.5"]

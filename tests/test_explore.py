@@ -64,6 +64,19 @@ def test_configurations_cover_the_grid_and_always_hold_the_presets():
         assert e.value.parameter == knob
 
 
+def test_labels_name_the_presets_and_show_the_knobs_that_vary():
+    configs = [dict(ex.config_of(p), preset=n) for p, n in ex.configurations({"w": [2, 4]})]
+    lab = ex.labeller({"configs": configs})
+    by_name = {c["preset"]: lab(c) for c in configs if c["preset"]}
+    assert by_name["HWBVH-C"].startswith("HWBVH-C: ")
+    assert by_name["HWBVH-HP"].startswith("HWBVH-HP: ")
+    plain = [lab(c) for c in configs if not c["preset"]]
+    assert plain and not any(":" in x for x in plain)
+    # w varies in the grid; the presets add the knobs they set otherwise (HWBVH-HP's clock)
+    assert all("w" in x.split(": ")[-1] for x in plain + list(by_name.values()))
+    assert len(set(plain) | set(by_name.values())) == len(configs)     # no two alike
+
+
 def test_pareto_front_and_gaps():
     pts = [(1, 9), (2, 5), (2, 7), (3, 5), (4, 1), (4, 1), (5, 0.5), (6, 3)]
     assert ex.pareto_front(pts) == [0, 1, 4, 5, 6]
