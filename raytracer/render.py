@@ -279,12 +279,11 @@ def scene_passes(scene):
 class _Buffers:
     """One thread's wavefront arrays, allocated once and grown (never shrunk) when a bounce
     spawns more rays than they hold. ``cur``/``nxt``: the current and the next wavefront
-    (O, D, wgt, pix, Ot, Dt; see ``raytracer.stages``), swapped after each bounce. Sized for
+    (O, D, wgt, pix, Ot, Dt, order; see ``raytracer.stages``), swapped after each bounce. Sized for
     ``cap`` rays of the current wavefront: its contributions ``contrib``, the shadow queue
     ``sh`` (per light a region of ``cap``: the tracer's origin, direction and t_max, the light
-    brought, the pixel; then the counts per light) and the spawn queue ``sp`` (origin,
-    direction, weight, pixel; reflections from 0, refractions from ``cap``; then the counts of
-    reflections and refractions). ``jitter``: one
+    brought, the pixel; then the counts per light) and the refractions ``sp`` (origin,
+    direction, weight, pixel; then the counts of reflections and refractions). ``jitter``: one
     band's pixel offsets of one sample pass."""
 
     def __init__(self, n, n_lights, ray_dtype):
@@ -299,7 +298,7 @@ class _Buffers:
     def _wavefront(self, cap):
         f = lambda: np.empty((cap, 3))
         return [f(), f(), f(), np.empty(cap, np.int64), np.empty((cap, 3), self.rd),
-                np.empty((cap, 3), self.rd)]
+                np.empty((cap, 3), self.rd), np.empty(cap, np.int64)]
 
     def ensure_slots(self, n):
         if n <= self.cap:
@@ -310,8 +309,7 @@ class _Buffers:
         self.contrib = f(S, 3)
         self.sh = [r(L * S, 3), r(L * S, 3), r(L * S), f(L * S, 3), np.empty(L * S, np.int64),
                    np.zeros(L, np.int64)]
-        self.sp = [f(2 * S, 3), f(2 * S, 3), f(2 * S, 3), np.empty(2 * S, np.int64),
-                   np.zeros(2, np.int64)]
+        self.sp = [f(S, 3), f(S, 3), f(S, 3), np.empty(S, np.int64), np.zeros(2, np.int64)]
         self.cap = S
 
     def ensure_next(self, n):
@@ -669,7 +667,7 @@ def _render_band(fr, band):
             jx, jy = _band_jitter(fr.streams[s], W * H, q0, q1, buf.jitter)
         else:
             jx = jy = no_jitter
-        O, D, wgt, pix, Ot, Dt = buf.cur
+        O, D, wgt, pix, Ot, Dt, order = buf.cur
         stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, scene.jitter, fr.camera_terms[s],
                                     eye, cu, cv, cw, D, pix, Ot, Dt)
         n = npix
@@ -682,7 +680,7 @@ def _render_band(fr, band):
             buf.ensure_slots(n)
             if spawn:
                 buf.ensure_next(2 * n)              # reflections, then refractions
-            O, D, wgt, pix, Ot, Dt = buf.cur
+            O, D, wgt, pix, Ot, Dt, order = buf.cur
             qO, qD, qT, sh_C, sh_pix, sh_cnt = buf.sh
             sp_O, sp_D, sp_W, sp_pix, sp_cnt = buf.sp
             lap("queues")
@@ -692,7 +690,7 @@ def _render_band(fr, band):
             m = _shade(n, O, D, wgt, pix, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
                        bounce == 0, eye, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
                        fr.aov_prim, film, buf.contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, buf.cap,
-                       *buf.nxt, sp_O, sp_D, sp_W, sp_pix, sp_cnt)
+                       order, *buf.nxt, sp_O, sp_D, sp_W, sp_pix, sp_cnt)
             lap("shade")
             blocked = NONE_BLOCKED
             if n_lights:

@@ -14,10 +14,11 @@ thread (``raytracer.render``); per bounce of a band:
    (mirror reflection, dielectric reflection and refraction) with their weights. Each output
    goes densely, in ray order, to its queue: the shadow rays of each light straight into the
    tracer's shadow queue, so a light's shadow rays stay in tile order (coherent packets), and
-   the reflections and refractions to the spawn queue. Before it returns it joins the queues
+   the reflections straight into the next wavefront. Before it returns it joins the queues
    (``join_light_queues``: the other lights' shadow rays behind the first's;
-   ``spawn_wavefront``: the secondary rays into the next wavefront, grouped by direction
-   octant, see there);
+   ``append_refractions``: the refractions behind the reflections) and hands the tracer the
+   next wavefront grouped by direction octant (``group_by_octant``, see there), which
+   ``shade`` then reads in that order through ``order``;
 4. the tracer's ``occluded`` on the shadow queue;
 5. ``accumulate``: the light of the unblocked shadow rays and the other contributions into the
    film, in queue order, a fixed order per pixel.
@@ -258,7 +259,7 @@ def shade_scratch():
     """The working arrays of one ``shade`` call (its last six arguments): the scratch ``S``
     (``_ROWS`` rows of ``_ROW``), and per ray of a block, its material, whether it takes direct
     light and whether the light is in front of it; the slots of the rays that spawn; the
-    octants' first slots for ``spawn_wavefront``. A kernel that allocated them itself would
+    octants' first slots for ``group_by_octant``. A kernel that allocated them itself would
     run at half the speed: Numba's reference counting then wraps its loops and LLVM no longer
     keeps the scratch in its SIMD passes."""
     return (np.empty(_ROWS * _ROW), np.empty(BLOCK, np.int64), np.empty(BLOCK, np.bool_),
@@ -270,8 +271,8 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
           face_n, shading_n, material, tri_mag, kd, kd_pi, ks, shininess, kr, ior,
           light_kind, light_pos, light_dir, light_val, ambient, background, cutoff,
           offset, do_shadow, do_spawn, camera, eye, first, aov_depth, aov_normal, aov_prim,
-          film, contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, stride, nO, nD, nW, npix, nOt, nDt,
-          sp_O, sp_D, sp_W, sp_pix, sp_cnt,
+          film, contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, stride, order, nO, nD, nW, npix, nOt,
+          nDt, norder, sp_O, sp_D, sp_W, sp_pix, sp_cnt,
           S, mat, lit, leaves, spawning, octant_start):
     """Shade the ``n`` rays of a queue from their closest hits (see the module text), in
     blocks of BLOCK rays.
@@ -282,10 +283,13 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     for ``accumulate``. The shadow rays toward light l go densely to l * ``stride`` onward:
     origin, direction and t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its
     precision), the light brought if visible and the pixel in ``sh_C``, ``sh_pix``;
-    ``sh_cnt[l]`` of them. Secondary rays go densely to the spawn queue (``sp_O``, ``sp_D``,
-    ``sp_W``, ``sp_pix``): reflections from 0, ``sp_cnt[0]`` of them, refractions from
-    ``stride``, ``sp_cnt[1]`` of them; ``spawn_wavefront`` then places them in the next
-    wavefront (``nO``, ``nD``, ``nW``, ``npix`` and the tracer's copies ``nOt``, ``nDt``).
+    ``sh_cnt[l]`` of them. Reflections go densely to the next wavefront (``nO``, ``nD``,
+    ``nW``, ``npix``), ``sp_cnt[0]`` of them; refractions to ``sp_O``, ``sp_D``, ``sp_W``,
+    ``sp_pix``, ``sp_cnt[1]`` of them, then behind the reflections; ``group_by_octant`` then
+    writes the tracer's copies ``nOt``, ``nDt`` and ``norder``. A queue other than the
+    camera's is shaded in the tracer's order: its i-th ray has its hit at i, and its origin,
+    direction, weight, pixel and ``contrib`` entry at row ``order[i]`` (the camera's queue
+    passes ``order`` unread).
     Every output is in ray order, so the queues do not depend on anything but the rays.
     ``first`` (the first sample pass' camera rays) writes every pixel's first-hit layers
     (``aov_*``) and stores its first radiance sum, so neither needs clearing before;
@@ -327,8 +331,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         else:
             for j in range(nr):
                 i = lo + j
-                _put_hit_row(S, j, Df, i, np.float64(hit_t[i]), Of[3 * i], Of[3 * i + 1],
-                             Of[3 * i + 2], Wf[3 * i], Wf[3 * i + 1], Wf[3 * i + 2])
+                r = order[i]
+                _put_hit_row(S, j, Df, r, np.float64(hit_t[i]), Of[3 * r], Of[3 * r + 1],
+                             Of[3 * r + 2], Wf[3 * r], Wf[3 * r + 1], Wf[3 * r + 2])
         # -- pass 1b (scalar: gathers from the hit triangles): the unit geometric normal (per
         #    face), the interpolated shading normal, the coordinate magnitude and material; a
         #    miss reads triangle 0 (render() refuses a scene without triangles), unused --
@@ -353,6 +358,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         n_spawning = 0
         for j in range(nr):
             i = lo + j
+            r = i if camera else order[i]
             m = mat[j]
             lit[j] = False
             w0 = S[_W0 + j]
@@ -363,14 +369,14 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                     q = pix[i]
                     aov_depth[q] = np.inf
                     aov_prim[q] = -1
-                _own(film, contrib, camera, first, pix[i], i, w0 * background[0],
+                _own(film, contrib, camera, first, pix[r], r, w0 * background[0],
                      w1 * background[1], w2 * background[2])
                 continue
             if first:
                 q = pix[i]
                 aov_depth[q] = hit_t[i]
                 aov_prim[q] = hit_prim[i]
-            _own(film, contrib, camera, first, pix[i], i, w0 * (kd[m, 0] * ambient[0]),
+            _own(film, contrib, camera, first, pix[r], r, w0 * (kd[m, 0] * ambient[0]),
                  w1 * (kd[m, 1] * ambient[1]), w2 * (kd[m, 2] * ambient[2]))
             dielectric = ior[m] > 0
             lit[j] = do_shadow and not dielectric       # dielectrics take no direct light
@@ -496,7 +502,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 sh_C[s, 0] = S[_W0 + j] * (S[_E0 + j] * c * (kd_pi[m, 0] + spec))
                 sh_C[s, 1] = S[_W1 + j] * (S[_E1 + j] * c * (kd_pi[m, 1] + spec))
                 sh_C[s, 2] = S[_W2 + j] * (S[_E2 + j] * c * (kd_pi[m, 2] + spec))
-                sh_pix[s] = pix[i]
+                sh_pix[s] = pix[i if camera else order[i]]
                 s += 1
             sh_cnt[l] = s - l * stride
         # -- pass 4, in ray order: secondary rays (mirror reflection; dielectric reflection
@@ -504,6 +510,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         for k in range(n_spawning):
             j = spawning[k]
             i = lo + j
+            p = pix[i if camera else order[i]]
             m = mat[j]
             eta = ior[m]
             dx = S[_DX + j]
@@ -532,8 +539,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 a2 = w2 * kr[m, 2]
                 if max(a0, a1, a2) >= cutoff:           # contribution cut-off
                     ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
-                    _put_ray(sp_O, sp_D, sp_W, sp_pix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1,
-                             a2, pix[i])
+                    _put_ray(nO, nD, nW, npix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2, p)
                     n_refl += 1
                 continue
             # ns points out of the object
@@ -558,8 +564,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             a2 = w2 * F
             if max(a0, a1, a2) >= cutoff:
                 ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
-                _put_ray(sp_O, sp_D, sp_W, sp_pix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2,
-                         pix[i])
+                _put_ray(nO, nD, nW, npix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2, p)
                 n_refl += 1
             if not tir:
                 r = eta_i / eta_t                       # Snell's law
@@ -570,14 +575,14 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 c2 = w2 * (1 - F)
                 if max(c0, c1, c2) >= cutoff:
                     ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, tx, ty, tz, mag, offset)
-                    _put_ray(sp_O, sp_D, sp_W, sp_pix, stride + n_refr, ox, oy, oz, tx, ty, tz,
-                             c0, c1, c2, pix[i])
+                    _put_ray(sp_O, sp_D, sp_W, sp_pix, n_refr, ox, oy, oz, tx, ty, tz, c0, c1, c2,
+                             p)
                     n_refr += 1
     sp_cnt[0] = n_refl
     sp_cnt[1] = n_refr
     if do_spawn:
-        spawn_wavefront(sp_O, sp_D, sp_W, sp_pix, n_refl, stride, n_refr, nO, nD, nW, npix, nOt,
-                        nDt, octant_start)
+        append_refractions(sp_O, sp_D, sp_W, sp_pix, n_refr, nO, nD, nW, npix, n_refl)
+        group_by_octant(n_refl + n_refr, nO, nD, nOt, nDt, norder, octant_start)
     return join_light_queues(qO, qD, qT, sh_cnt, stride) if n_lights > 0 else 0
 
 
@@ -606,51 +611,47 @@ def octant(dx, dy, dz):
         (np.int64(np.signbit(dz)) << 2)
 
 
-@njit(cache=True, inline="always")
-def _place(sp_O, sp_D, sp_W, sp_pix, k, O, D, wgt, pix, Ot, Dt, j):
-    """Spawn-queue ray k to slot j of the next wavefront, with the tracer's copies."""
-    for c in range(3):
-        O[j, c] = sp_O[k, c]
-        D[j, c] = sp_D[k, c]
-        wgt[j, c] = sp_W[k, c]
-        Ot[j, c] = sp_O[k, c]
-        Dt[j, c] = sp_D[k, c]
-    pix[j] = sp_pix[k]
+@njit(cache=True, nogil=True, error_model="numpy")
+def append_refractions(sp_O, sp_D, sp_W, sp_pix, f, O, D, wgt, pix, r):
+    """The ``f`` refraction rays behind the ``r`` reflections already in the next wavefront."""
+    for k in range(f):
+        for c in range(3):
+            O[r + k, c] = sp_O[k, c]
+            D[r + k, c] = sp_D[k, c]
+            wgt[r + k, c] = sp_W[k, c]
+        pix[r + k] = sp_pix[k]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def spawn_wavefront(sp_O, sp_D, sp_W, sp_pix, n_refl, refr_at, n_refr, O, D, wgt, pix, Ot, Dt,
-                    start):
-    """The next wavefront from the spawn queue (``n_refl`` reflections from 0, ``n_refr``
-    refractions from ``refr_at``), grouped by direction octant: octant 0's rays first, then
-    octant 1's, and so on, each group in queue order (reflections, then refractions, each in
-    tile order). ``start``: (8,) int64 scratch.
+def group_by_octant(n, O, D, Ot, Dt, order, start):
+    """The tracer's copies ``Ot``, ``Dt`` of the n rays of a wavefront (``O``, ``D``, in spawn
+    order) grouped by direction octant: octant 0's rays first, then octant 1's, and so on, each
+    group in spawn order; ``order[j]``: the wavefront row of the tracer's ray j, through which
+    ``shade`` reads the rest of the ray. ``start``: (8,) int64 scratch.
 
     The packet traversal takes 16 consecutive rays together only when they share an octant.
     Secondary rays from neighbouring pixels leave a curved mirror or glass in nearly the
     same direction, yet in tile order a group of 16 of them straddles an axis plane often
     enough that most went one by one (on marbles, 220k of its 370k secondary rays); grouped,
-    nearly all go in packets, and renders with mirrors and glass take 0.85-0.9x the time
-    (marbles and cornell, ``hwrt bench trees``; scenes without them unchanged)."""
+    nearly all go in packets. Only the tracer's copies move: the wavefront stays where
+    ``shade`` wrote it, so grouping costs a pass over the directions and an index per ray."""
     for c in range(8):
         start[c] = 0
-    for k in range(n_refl):
-        start[octant(sp_D[k, 0], sp_D[k, 1], sp_D[k, 2])] += 1
-    for k in range(refr_at, refr_at + n_refr):
-        start[octant(sp_D[k, 0], sp_D[k, 1], sp_D[k, 2])] += 1
+    for k in range(n):
+        start[octant(D[k, 0], D[k, 1], D[k, 2])] += 1
     at = 0
     for c in range(8):
         m = start[c]
         start[c] = at
         at += m
-    for k in range(n_refl):
-        o = octant(sp_D[k, 0], sp_D[k, 1], sp_D[k, 2])
-        _place(sp_O, sp_D, sp_W, sp_pix, k, O, D, wgt, pix, Ot, Dt, start[o])
-        start[o] += 1
-    for k in range(refr_at, refr_at + n_refr):
-        o = octant(sp_D[k, 0], sp_D[k, 1], sp_D[k, 2])
-        _place(sp_O, sp_D, sp_W, sp_pix, k, O, D, wgt, pix, Ot, Dt, start[o])
-        start[o] += 1
+    for k in range(n):
+        o = octant(D[k, 0], D[k, 1], D[k, 2])
+        j = start[o]
+        start[o] = j + 1
+        order[j] = k
+        for c in range(3):
+            Ot[j, c] = O[k, c]
+            Dt[j, c] = D[k, c]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -664,30 +664,21 @@ def test_warm_up_loads_the_wider_units_when_asked():
                for sig in trace_chunks.signatures for t in sig)
 
 
-def test_spawn_wavefront_groups_by_octant_keeping_queue_order():
+def test_the_tracer_gets_a_wavefront_grouped_by_octant_in_spawn_order():
     rng = np.random.default_rng(3)
-    cap, n_refl, n_refr = 40, 23, 17
-    sp_D = rng.normal(size=(2 * cap, 3))
-    sp_D[:6] = [[0.0, 1, 1], [-0.0, 1, 1], [1, -0.0, 1], [0.0, 0.0, -0.0], [-1, -1, -1],
-                [1, 1, 1]]                               # -0 counts as negative, as in packets
-    sp_O = rng.normal(size=(2 * cap, 3))
-    sp_W = rng.random((2 * cap, 3))
-    sp_pix = np.arange(2 * cap, dtype=np.int64) * 7
-    n = n_refl + n_refr
-    O, D, W = (np.full((n, 3), np.nan) for _ in range(3))
+    n = 40
+    D = rng.normal(size=(n, 3))
+    D[:6] = [[0.0, 1, 1], [-0.0, 1, 1], [1, -0.0, 1], [0.0, 0.0, -0.0], [-1, -1, -1],
+             [1, 1, 1]]                                  # -0 counts as negative, as in packets
+    O = rng.normal(size=(n, 3))
     Ot, Dt = np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32)
-    pix = np.full(n, -1, np.int64)
-    stages.spawn_wavefront(sp_O, sp_D, sp_W, sp_pix, n_refl, cap, n_refr, O, D, W, pix, Ot, Dt,
-                           np.empty(8, np.int64))
-    queue = np.r_[np.arange(n_refl), cap + np.arange(n_refr)]   # reflections, then refractions
-    sign = np.signbit(sp_D[queue])
-    key = sign[:, 0] + 2 * sign[:, 1] + 4 * sign[:, 2]
-    order = queue[np.argsort(key, kind="stable")]
-    assert np.array_equal(pix, sp_pix[order])
-    assert np.array_equal(O, sp_O[order]) and np.array_equal(D, sp_D[order])
-    assert np.array_equal(W, sp_W[order])
-    assert np.array_equal(Ot, sp_O[order].astype(np.float32))
-    assert np.array_equal(Dt, sp_D[order].astype(np.float32))
+    order = np.full(n, -1, np.int64)
+    stages.group_by_octant(n, O, D, Ot, Dt, order, np.empty(8, np.int64))
+    sign = np.signbit(D)
+    want = np.argsort(sign[:, 0] + 2 * sign[:, 1] + 4 * sign[:, 2], kind="stable")
+    assert np.array_equal(order, want)
+    assert np.array_equal(Ot, O[want].astype(np.float32))
+    assert np.array_equal(Dt, D[want].astype(np.float32))
     got = np.signbit(Dt) @ [1, 2, 4]                    # the float32 copies group alike
     assert (np.diff(got) >= 0).all()
 
