@@ -1,9 +1,10 @@
 """The stages of one Whitted wavefront, as Numba kernels (after pbrt-v4's wavefront integrator).
 
 A wavefront is a queue of rays in structure-of-arrays form: origins ``O`` and directions ``D``
-(n, 3) float64 for shading, the same rays in the tracer's precision (``Ot``, ``Dt``: float32 for
-the hardware units, so the tracer reads them without a conversion), path weights ``wgt``
-(n, 3) and film pixels ``pix`` (n,). The renderer runs one band of image rows at a time on a
+(n, 3) float64 for shading, path weights ``wgt`` (n, 3) and film pixels ``pix`` (n,), and the
+same rays in the tracer's precision and order (``Ot``, ``Dt``: float32 for the hardware units,
+so the tracer reads them without a conversion; a secondary wavefront's ray j for the tracer is
+row ``order[j]`` of the others, see ``group_by_octant``). The renderer runs one band of image rows at a time on a
 thread (``raytracer.render``); per bounce of a band:
 
 1. ``generate_camera_rays``: the camera's rays for one sample pass, in 4x4 pixel tiles;
@@ -13,7 +14,8 @@ thread (``raytracer.render``); per bounce of a band:
    light, one shadow ray per light with the light it brings if visible, and the secondary rays
    (mirror reflection, dielectric reflection and refraction) with their weights. Each output
    goes densely, in ray order, to its queue: the shadow rays of each light straight into the
-   tracer's shadow queue, so a light's shadow rays stay in tile order (coherent packets), and
+   tracer's shadow queue, in the order of the rays that cast them (tile order for the camera's:
+   coherent packets), and
    the reflections straight into the next wavefront. Before it returns it joins the queues
    (``join_light_queues``: the other lights' shadow rays behind the first's;
    ``append_refractions``: the refractions behind the reflections) and hands the tracer the
@@ -190,8 +192,7 @@ def _unit(x, y, z):
 
 @njit(cache=True, error_model="numpy")
 def _put_origin_dir(O, D, k, ox, oy, oz, dx, dy, dz):
-    """Ray k's origin and direction, in the arrays' own precision (the wavefront's, or the
-    tracer's copy)."""
+    """Ray k's origin and direction."""
     O[k, 0] = ox
     O[k, 1] = oy
     O[k, 2] = oz
@@ -279,8 +280,8 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
 
     ``camera``: the queue holds camera rays, whose origin is ``eye`` and weight 1 (O and wgt
     are not read); each pixel appears once in it, so ray i adds its own contribution
-    (background or ambient) to ``film`` directly, where other queues write it to ``contrib[i]``
-    for ``accumulate``. The shadow rays toward light l go densely to l * ``stride`` onward:
+    (background or ambient) to ``film`` directly, where other queues write it to
+    ``contrib[order[i]]`` for ``accumulate``. The shadow rays toward light l go densely to l * ``stride`` onward:
     origin, direction and t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its
     precision), the light brought if visible and the pixel in ``sh_C``, ``sh_pix``;
     ``sh_cnt[l]`` of them. Reflections go densely to the next wavefront (``nO``, ``nD``,
@@ -631,10 +632,11 @@ def group_by_octant(n, O, D, Ot, Dt, order, start):
 
     The packet traversal takes 16 consecutive rays together only when they share an octant.
     Secondary rays from neighbouring pixels leave a curved mirror or glass in nearly the
-    same direction, yet in tile order a group of 16 of them straddles an axis plane often
-    enough that most went one by one (on marbles, 220k of its 370k secondary rays); grouped,
-    nearly all go in packets. Only the tracer's copies move: the wavefront stays where
-    ``shade`` wrote it, so grouping costs a pass over the directions and an index per ray."""
+    same direction, yet in spawn order a group of 16 of them straddles an axis plane often
+    enough that most would go one by one (on marbles, 220k of its 370k secondary rays);
+    grouped, nearly all go in packets. Only the tracer's copies move: the wavefront stays
+    where ``shade`` wrote it, so grouping costs two passes over the directions and an index
+    per ray."""
     for c in range(8):
         start[c] = 0
     for k in range(n):
