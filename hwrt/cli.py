@@ -561,8 +561,9 @@ def cmd_render(args):
     d = with_frame(load_scene(args.scene), args.width, args.height, args.spp, args.max_depth)
     out = args.output or os.path.join("renders", f"{d.get('name', 'scene')}.exr")
     if os.path.splitext(out)[1].lower() != ".exr":
-        raise InputError("-o/--output", f"{out}: expected a file name with the extension .exr, such as "
-                               f"image.exr (--png adds a PNG preview beside the EXR)")
+        raise InputError("-o/--output", f"{out}: expected a file name with the extension .exr, "
+                                        f"such as image.exr (--png adds a PNG preview beside "
+                                        f"the EXR)")
     png = os.path.splitext(out)[0] + ".png" if args.png else None
     check_outputs([out, png], inputs=scene_inputs(args.scene))
     scene = compile_scene(d)

@@ -279,10 +279,10 @@ def scene_passes(scene):
 class _Buffers:
     """One thread's wavefront arrays, allocated once and grown (never shrunk) when a bounce
     spawns more rays than they hold. ``cur``/``nxt``: the current and the next wavefront
-    (O, D, wgt, pix, Ot, Dt, order; see ``raytracer.stages``), swapped after each bounce. Sized for
-    ``cap`` rays of the current wavefront: its contributions ``contrib``, the shadow queue
-    ``sh`` (per light a region of ``cap``: the tracer's origin, direction and t_max, the light
-    brought, the pixel; then the counts per light) and the refractions ``sp`` (origin,
+    (O, D, wgt, pix, Ot, Dt, order; see ``raytracer.stages``), swapped after each bounce.
+    Sized for ``cap`` rays of the current wavefront: its contributions ``contrib``, the shadow
+    queue ``sh`` (per light a region of ``cap``: the tracer's origin, direction and t_max, the
+    light brought, the pixel; then the counts per light) and the refractions ``sp`` (origin,
     direction, weight, pixel; then the counts of reflections and refractions). ``jitter``: one
     band's pixel offsets of one sample pass."""
 

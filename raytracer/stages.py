@@ -4,8 +4,8 @@ A wavefront is a queue of rays in structure-of-arrays form: origins ``O`` and di
 (n, 3) float64 for shading, path weights ``wgt`` (n, 3) and film pixels ``pix`` (n,), and the
 same rays in the tracer's precision and order (``Ot``, ``Dt``: float32 for the hardware units,
 so the tracer reads them without a conversion; a secondary wavefront's ray j for the tracer is
-row ``order[j]`` of the others, see ``group_by_octant``). The renderer runs one band of image rows at a time on a
-thread (``raytracer.render``); per bounce of a band:
+row ``order[j]`` of the others, see ``group_by_octant``). The renderer runs one band of image
+rows at a time on a thread (``raytracer.render``); per bounce of a band:
 
 1. ``generate_camera_rays``: the camera's rays for one sample pass, in 4x4 pixel tiles;
 2. the tracer's ``intersect`` on the queue (our traversal or Embree: the only stage outside
@@ -15,12 +15,11 @@ thread (``raytracer.render``); per bounce of a band:
    (mirror reflection, dielectric reflection and refraction) with their weights. Each output
    goes densely, in ray order, to its queue: the shadow rays of each light straight into the
    tracer's shadow queue, in the order of the rays that cast them (tile order for the camera's:
-   coherent packets), and
-   the reflections straight into the next wavefront. Before it returns it joins the queues
-   (``join_light_queues``: the other lights' shadow rays behind the first's;
-   ``append_refractions``: the refractions behind the reflections) and hands the tracer the
-   next wavefront grouped by direction octant (``group_by_octant``, see there), which
-   ``shade`` then reads in that order through ``order``;
+   coherent packets), and the reflections straight into the next wavefront. Before it
+   returns it joins the queues (``join_light_queues``: the other lights' shadow rays behind
+   the first's; ``append_refractions``: the refractions behind the reflections) and hands the
+   tracer the next wavefront grouped by direction octant (``group_by_octant``, see there),
+   which ``shade`` then reads in that order through ``order``;
 4. the tracer's ``occluded`` on the shadow queue;
 5. ``accumulate``: the light of the unblocked shadow rays and the other contributions into the
    film, in queue order, a fixed order per pixel.
@@ -39,6 +38,7 @@ import numpy as np
 from numba import njit
 
 from traversal.offset import offset_from_unit
+from traversal.packet import octant
 from .config import BLOCK
 
 POINT, DIRECTIONAL = 0, 1               # light kinds in the kernels' light table
@@ -191,19 +191,14 @@ def _unit(x, y, z):
 
 
 @njit(cache=True, error_model="numpy")
-def _put_origin_dir(O, D, k, ox, oy, oz, dx, dy, dz):
-    """Ray k's origin and direction."""
+def _put_ray(O, D, W, pix, k, ox, oy, oz, dx, dy, dz, w0, w1, w2, p):
+    """Ray k of a queue: origin, direction, weight and pixel."""
     O[k, 0] = ox
     O[k, 1] = oy
     O[k, 2] = oz
     D[k, 0] = dx
     D[k, 1] = dy
     D[k, 2] = dz
-
-
-@njit(cache=True, error_model="numpy")
-def _put_ray(O, D, W, pix, k, ox, oy, oz, dx, dy, dz, w0, w1, w2, p):
-    _put_origin_dir(O, D, k, ox, oy, oz, dx, dy, dz)
     W[k, 0] = w0
     W[k, 1] = w1
     W[k, 2] = w2
@@ -236,6 +231,13 @@ _ROWS = 30
 _ROW = BLOCK + 8
 (_DX, _DY, _DZ, _PX, _PY, _PZ, _GX, _GY, _GZ, _FX, _FY, _FZ, _NX, _NY, _NZ, _W0, _W1, _W2, _MAG,
  _OX, _OY, _OZ, _LX, _LY, _LZ, _TMAX, _COS, _E0, _E1, _E2) = range(0, _ROWS * _ROW, _ROW)
+
+
+@njit(cache=True, inline="always")
+def _row(camera, order, i):
+    """The wavefront row of a queue's ray i: i for the camera's queue, else ``order[i]`` (the
+    tracer's order, ``group_by_octant``)."""
+    return i if camera else order[i]
 
 
 @njit(cache=True, inline="always")
@@ -281,9 +283,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     ``camera``: the queue holds camera rays, whose origin is ``eye`` and weight 1 (O and wgt
     are not read); each pixel appears once in it, so ray i adds its own contribution
     (background or ambient) to ``film`` directly, where other queues write it to
-    ``contrib[order[i]]`` for ``accumulate``. The shadow rays toward light l go densely to l * ``stride`` onward:
-    origin, direction and t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its
-    precision), the light brought if visible and the pixel in ``sh_C``, ``sh_pix``;
+    ``contrib[order[i]]`` for ``accumulate``. The shadow rays toward light l go densely to
+    l * ``stride`` onward: origin, direction and t_max in the tracer's queue (``qO``, ``qD``,
+    ``qT``, in its precision), the light brought if visible and the pixel in ``sh_C``, ``sh_pix``;
     ``sh_cnt[l]`` of them. Reflections go densely to the next wavefront (``nO``, ``nD``,
     ``nW``, ``npix``), ``sp_cnt[0]`` of them; refractions to ``sp_O``, ``sp_D``, ``sp_W``,
     ``sp_pix``, ``sp_cnt[1]`` of them, then behind the reflections; ``group_by_octant`` then
@@ -359,7 +361,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         n_spawning = 0
         for j in range(nr):
             i = lo + j
-            r = i if camera else order[i]
+            r = _row(camera, order, i)
             m = mat[j]
             lit[j] = False
             w0 = S[_W0 + j]
@@ -503,7 +505,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 sh_C[s, 0] = S[_W0 + j] * (S[_E0 + j] * c * (kd_pi[m, 0] + spec))
                 sh_C[s, 1] = S[_W1 + j] * (S[_E1 + j] * c * (kd_pi[m, 1] + spec))
                 sh_C[s, 2] = S[_W2 + j] * (S[_E2 + j] * c * (kd_pi[m, 2] + spec))
-                sh_pix[s] = pix[i if camera else order[i]]
+                sh_pix[s] = pix[_row(camera, order, i)]
                 s += 1
             sh_cnt[l] = s - l * stride
         # -- pass 4, in ray order: secondary rays (mirror reflection; dielectric reflection
@@ -511,7 +513,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         for k in range(n_spawning):
             j = spawning[k]
             i = lo + j
-            p = pix[i if camera else order[i]]
+            p = pix[_row(camera, order, i)]
             m = mat[j]
             eta = ior[m]
             dx = S[_DX + j]
@@ -602,14 +604,6 @@ def join_light_queues(qO, qD, qT, sh_cnt, stride):
             qT[m + k] = qT[src + k]
         m += sh_cnt[l]
     return m
-
-
-@njit(cache=True, inline="always")
-def octant(dx, dy, dz):
-    """The direction octant 0..7 of (dx, dy, dz) from its sign bits (-0 counts as negative), as
-    the packet traversal groups rays; a float64 direction and its float32 copy agree."""
-    return np.int64(np.signbit(dx)) | (np.int64(np.signbit(dy)) << 1) | \
-        (np.int64(np.signbit(dz)) << 2)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -1336,8 +1336,8 @@ def test_replay_of_a_bare_npy_array_is_refused_in_one_line(capsys, tmp_path):
 
 @pytest.mark.parametrize("argv,line", [
     (["render", "cornell", "-o", ".exr"],
-     "hwrt: error: -o/--output: .exr: expected a file name with the extension .exr, such as image.exr "
-     "(--png adds a PNG preview beside the EXR)"),
+     "hwrt: error: -o/--output: .exr: expected a file name with the extension .exr, such as "
+     "image.exr (--png adds a PNG preview beside the EXR)"),
     (["animate", "exploding", "--mesh", "bunny.ply", "--triangles", "500"],
      "hwrt: error: --triangles: makes a generated mesh: a mesh given brings its own triangles")])
 def test_options_that_cannot_apply_are_named(tmp_path, capsys, monkeypatch, argv, line):

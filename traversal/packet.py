@@ -158,6 +158,15 @@ def coherent(D, lo, hi):
     return True
 
 
+@njit(cache=True, inline="always")
+def octant(dx, dy, dz):
+    """The direction octant 0..7 of (dx, dy, dz) from its sign bits (-0 counts as negative):
+    rays with the same octant may share a packet (``coherent``). A float64 direction and its
+    float32 copy have the same octant."""
+    return np.int64(np.signbit(dx)) | (np.int64(np.signbit(dy)) << 1) | \
+        (np.int64(np.signbit(dz)) << 2)
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def coherent_packet(Df, lo):
     """``coherent(D, lo, lo + P)`` on the directions seen flat (3n,), as the traversal asks it
