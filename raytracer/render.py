@@ -689,7 +689,7 @@ def _render_band(fr, band):
             lap("intersect")
             m = _shade(n, O, D, wgt, pix, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
                        bounce == 0, eye, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
-                       fr.aov_prim, film, buf.contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, buf.cap,
+                       fr.aov_prim, buf.contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, buf.cap,
                        order, *buf.nxt, sp_O, sp_D, sp_W, sp_pix, sp_cnt)
             lap("shade")
             blocked = NONE_BLOCKED
@@ -698,9 +698,8 @@ def _render_band(fr, band):
                 _checked_answers(tracer, m, ntri, blocked=blocked)
                 lap("occluded")
                 rays["shadow"] += m
-            # the camera wavefront added its own contributions
             stages.accumulate(film, sh_cnt, buf.cap, sh_C, sh_pix, blocked, pix, buf.contrib,
-                              n if bounce > 0 else 0)
+                              n, bounce == 0, bounce == 0 and s == 0)
             lap("accumulate")
             if not spawn:
                 break
