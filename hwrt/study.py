@@ -329,48 +329,63 @@ def _tti_key(name, builder, W, H, spp, depth, repeat):
     return json.dumps([name, builder, W, H, spp, depth, repeat])
 
 
-def tti_cell(spec, builder, traversal, W, H, spp, depth, repeat, accel="bvh"):
-    """One scene and tree (``accel`` "bvh") or other structure (``accel``, its own build; the
-    builder is then the default): ``repeat`` timed builds and renders, then (our traversal)
-    every ray of a small render checked against Embree. The record of the cell, without its key."""
+def tti_scene_cell(spec, trees, W, H, spp, depth, repeat):
+    """One scene's time-to-image cells, one per tree of ``trees`` ((builder, traversal, accel,
+    name): a BVH by ``builder`` for ``accel`` "bvh", else that structure with its own build),
+    timed together: ``repeat`` rounds, each building and rendering every tree once, in an
+    order that rotates round by round, so that drift in the machine's speed falls on all
+    alike (timed one tree after another, renders of 10-20 ms differed by 20-30% between
+    trees that trace alike). Then, for our traversal, every ray of a small render checked
+    against Embree. Returns {name: the record of its cell, without its key}."""
     from raytracer.render import make_tracer, render
     from scenes import compile_scene, with_frame
     from traversal.tracers import VerifyingTracer
     from .bench import structure_figures
 
-    name = spec[0]
+    scene_name = spec[0]
     scene = compile_scene(with_frame(load_scene_spec(spec), W, H, spp, depth))
-    builds, renders, setups = [], [], []
-    for _ in range(repeat):
-        tracer, b, info = make_tracer(scene, builder, traversal, accel=accel)
-        t0 = time.perf_counter()
-        res = render(scene, tracer)
-        renders.append(time.perf_counter() - t0)
-        builds.append(b)
-        setups.append(info.get("tracer_setup_seconds"))
-    figures = structure_figures(tracer, len(scene.triangles)) if traversal == "numba" else {}
-    clean = None
-    if traversal == "numba":        # --verify at a small size: every ray vs Embree
-        small = compile_scene(with_frame(load_scene_spec(spec), 64, 48, 1, depth))
-        tr, _, _ = make_tracer(small, builder, traversal, accel=accel)
-        checked = VerifyingTracer(tr, small.triangles, small.vertices, small.faces)
-        render(small, checked)
-        clean = checked.summary()["mismatch"] == 0
-    b_med, b_spread = _median(builds)
-    r_med, r_spread = _median(renders)
-    record = {"scene": name, "builder": builder, "traversal": traversal,
-            "triangles": int(len(scene.triangles)), "build_seconds": b_med,
-            "build_spread": b_spread, "render_seconds": r_med, "render_spread": r_spread,
-            "rays": int(sum(res.stats["rays"].values())), "ray_kinds": res.stats["rays"],
-            "sah_cost": info.get("sah_cost"), "verify_clean": clean,
-            "simulated_build_seconds": info.get("simulated_build_seconds"),
-            # our BVH's set-up (inside build_seconds); None for the other structures, whose
-            # set-up their build includes
-            "tracer_setup_seconds": None if None in setups else _median(setups)[0],
-            **figures}
-    if accel != "bvh":
-        record["accel"] = accel
-    return record
+    runs = {t[3]: {"build": [], "render": [], "setup": []} for t in trees}
+    last = {}
+    for i in range(repeat):
+        for builder, traversal, accel, name in trees[i % len(trees):] + trees[:i % len(trees)]:
+            tracer, b, info = make_tracer(scene, builder, traversal, accel=accel)
+            t0 = time.perf_counter()
+            res = render(scene, tracer)
+            r = runs[name]
+            r["render"].append(time.perf_counter() - t0)
+            r["build"].append(b)
+            r["setup"].append(info.get("tracer_setup_seconds"))
+            figures = structure_figures(tracer, len(scene.triangles)) \
+                if traversal == "numba" else {}
+            last[name] = (res, info, figures)
+            del tracer
+    records = {}
+    for builder, traversal, accel, name in trees:
+        res, info, figures = last[name]
+        clean = None
+        if traversal == "numba":        # --verify at a small size: every ray vs Embree
+            small = compile_scene(with_frame(load_scene_spec(spec), 64, 48, 1, depth))
+            tr, _, _ = make_tracer(small, builder, traversal, accel=accel)
+            checked = VerifyingTracer(tr, small.triangles, small.vertices, small.faces)
+            render(small, checked)
+            clean = checked.summary()["mismatch"] == 0
+        r = runs[name]
+        b_med, b_spread = _median(r["build"])
+        r_med, r_spread = _median(r["render"])
+        record = {"scene": scene_name, "builder": builder, "traversal": traversal,
+                  "triangles": int(len(scene.triangles)), "build_seconds": b_med,
+                  "build_spread": b_spread, "render_seconds": r_med, "render_spread": r_spread,
+                  "rays": int(sum(res.stats["rays"].values())), "ray_kinds": res.stats["rays"],
+                  "sah_cost": info.get("sah_cost"), "verify_clean": clean,
+                  "simulated_build_seconds": info.get("simulated_build_seconds"),
+                  # our BVH's set-up (inside build_seconds); None for the other structures,
+                  # whose set-up their build includes
+                  "tracer_setup_seconds": None if None in r["setup"] else _median(r["setup"])[0],
+                  **figures}
+        if accel != "bvh":
+            record["accel"] = accel
+        records[name] = record
+    return records
 
 
 def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
@@ -387,23 +402,27 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
     jobs, keys = [], {}
     structures = tti_structures(getattr(args, "accel", None))
     trees = [(b, t, "bvh", b) for b, t in TTI_TREES] + [("hwbvh", "numba", a, a) for a in structures]
-    for spec in specs:
-        for builder, traversal, accel, tree in trees:
-            key = _tti_key(spec[0], tree, W, H, spp, depth, repeat)
-            if not cells.get(key):
-                keys[f"tti-{run}-{len(jobs)}"] = key
-                jobs.append((f"tti-{run}-{len(jobs)}", tti_cell,
-                             (spec, builder, traversal, W, H, spp, depth, repeat, accel)))
+    for spec in specs:                  # a job per scene: the trees whose cells are missing
+        todo = [t for t in trees if not cells.get(_tti_key(spec[0], t[3], W, H, spp, depth, repeat))]
+        if todo:
+            job = f"tti-{run}-{len(jobs)}"
+            keys[job] = {t[3]: _tti_key(spec[0], t[3], W, H, spp, depth, repeat) for t in todo}
+            jobs.append((job, tti_scene_cell, (spec, todo, W, H, spp, depth, repeat)))
+
+    def save(job, records):
+        for name, record in records.items():
+            cells.add({"key": keys[job][name], **record})
+
     where = None
     if jobs:
         with _timing(getattr(args, "scheduler", None), use_dask, warm_up_tti) as timing:
-            timing.run(jobs, lambda k, record: cells.add({"key": keys[k], **record}),
-                       "bench tti", progress)
+            timing.run(jobs, save, "bench tti", progress)
             where = timing.machine()
     rows, summary = _tti_rows(cells, specs, W, H, spp, depth, repeat, structures)
     used = sum(1 for spec in specs for *_, tree in trees
                if cells.get(_tti_key(spec[0], tree, W, H, spp, depth, repeat)))
-    provenance = _provenance(args, use_dask, len(jobs), used, cells)
+    timed = sum(len(k) for k in keys.values())        # cells, not scenes
+    provenance = _provenance(args, use_dask, timed, used, cells)
     md = "# hwrt bench tti\n\n" + made_by_block(command_of(args)) + \
         _provenance_line(provenance) + _tti_markdown(rows, summary, W, H, spp, depth)
     plots = _tti_plot(rows, out_dir, TTI_PATHS + structures)
@@ -486,7 +505,9 @@ def _tti_markdown(rows, summary, W, H, spp, depth):
              "Build: up to a structure ready to trace, its tracer's set-up included (our "
              "tracer's triangle rows in index order and checks); for hwbvh-C and hwbvh-HP, the "
              "simulated hardware build time plus that set-up, in software.\n",
-             "Medians of the repeated runs; the render spread is min-max over them.\n",
+             "Medians of the repeated runs, in which a scene's paths alternate run by run, "
+             "in an order that rotates each round, so that drift in the machine's speed falls "
+             "on all alike; the render spread is min-max over them.\n",
              "Memory: the structure's nodes or cells, its triangle references and preprocessed "
              "triangles (with the BVH's map from primitive to triangle row; our traversal "
              "only); refs/tri: references per triangle.\n",

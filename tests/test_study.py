@@ -66,6 +66,50 @@ def test_tti_quick_outputs_and_resume(tti_quick, mesh_dir):
            "again)." in (out / "tti.md").read_text()
 
 
+def test_tti_times_a_scenes_trees_in_rounds_whose_order_rotates(monkeypatch):
+    """Each round builds and renders every tree of the scene once, the first tree of a round
+    moving on by one each round, so that drift in the machine's speed falls on all alike."""
+    import raytracer.render as R
+    from hwrt import study
+    built = []
+    real = R.make_tracer
+
+    def spy(scene, builder="hwbvh", traversal="numba", **kw):
+        built.append(kw.get("accel", "bvh") if kw.get("accel", "bvh") != "bvh" else builder)
+        return real(scene, builder, traversal, **kw)
+
+    monkeypatch.setattr(R, "make_tracer", spy)
+    trees = [("hwbvh", "numba", "bvh", "hwbvh"), ("sweep", "numba", "bvh", "sweep"),
+             ("hwbvh", "numba", "grid", "grid")]
+    records = study.tti_scene_cell(("cornell", "builtin", "cornell"), trees, 32, 24, 1, 2, 3)
+    assert built[:9] == ["hwbvh", "sweep", "grid", "sweep", "grid", "hwbvh",
+                         "grid", "hwbvh", "sweep"]
+    assert built[9:] == ["hwbvh", "sweep", "grid"]        # then each checked against Embree
+    assert set(records) == {"hwbvh", "sweep", "grid"}
+    for name, r in records.items():
+        assert r["verify_clean"] is True and r["scene"] == "cornell"
+        assert r["render_spread"][0] <= r["render_seconds"] <= r["render_spread"][1]
+    assert records["grid"]["accel"] == "grid" and "accel" not in records["sweep"]
+
+
+def test_tti_times_only_the_missing_cells_of_a_scene(tmp_path, mesh_dir):
+    """A cells file missing some of a scene's trees: the next run times those, all of them in
+    one scene's job, and keeps the others."""
+    from hwrt import study
+    args = Namespace(quick=True, width=32, height=24, spp=1, max_depth=2, repeat=1, fresh=False,
+                     meshes=[], mesh_dir=str(mesh_dir), out_dir=str(tmp_path), accel=["bvh"])
+    first = study.bench_tti(args, use_dask=False, progress=False)
+    cells = tmp_path / "tti.jsonl"
+    lines = cells.read_text().splitlines()
+    kept = [x for x in lines if '"sweep"' not in json.loads(x)["key"]]
+    assert len(kept) < len(lines)
+    cells.write_text("\n".join(kept) + "\n")
+    again = study.bench_tti(args, use_dask=False, progress=False)
+    assert again["cells"]["timed"] == len(lines) - len(kept)
+    assert again["cells"]["resumed"] == len(kept)
+    assert [untimed(r) for r in again["rows"]] == [untimed(r) for r in first["rows"]]
+
+
 def _page_body(md):
     """A study page without its title, the line naming the command that made it and the
     figures it shows at its end (the command line prints the tables)."""
