@@ -112,6 +112,9 @@ class _Pool:
                 job()
             except BaseException:          # a job reports its own failures (run_ranges does)
                 pass
+            # drop it now, not when the next job comes: a job's closure holds what it worked
+            # on (a render's frame, its tracer and film), which would stay alive meanwhile
+            job = None
 
     def submit(self, job):
         self._queue.put(job)

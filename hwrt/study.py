@@ -355,13 +355,14 @@ def tti_scene_cell(spec, trees, W, H, spp, depth, repeat):
             r["render"].append(time.perf_counter() - t0)
             r["build"].append(b)
             r["setup"].append(info.get("tracer_setup_seconds"))
-            figures = structure_figures(tracer, len(scene.triangles)) \
-                if traversal == "numba" else {}
-            last[name] = (res, info, figures)
-            del tracer
+            if i == repeat - 1:         # the figures of the structure, once: they do not vary
+                figures = structure_figures(tracer, len(scene.triangles)) \
+                    if traversal == "numba" else {}
+                last[name] = (res.stats["rays"], info, figures)
+            del tracer, res
     records = {}
     for builder, traversal, accel, name in trees:
-        res, info, figures = last[name]
+        rays, info, figures = last[name]
         clean = None
         if traversal == "numba":        # --verify at a small size: every ray vs Embree
             small = compile_scene(with_frame(load_scene_spec(spec), 64, 48, 1, depth))
@@ -375,7 +376,7 @@ def tti_scene_cell(spec, trees, W, H, spp, depth, repeat):
         record = {"scene": scene_name, "builder": builder, "traversal": traversal,
                   "triangles": int(len(scene.triangles)), "build_seconds": b_med,
                   "build_spread": b_spread, "render_seconds": r_med, "render_spread": r_spread,
-                  "rays": int(sum(res.stats["rays"].values())), "ray_kinds": res.stats["rays"],
+                  "rays": int(sum(rays.values())), "ray_kinds": rays,
                   "sah_cost": info.get("sah_cost"), "verify_clean": clean,
                   "simulated_build_seconds": info.get("simulated_build_seconds"),
                   # our BVH's set-up (inside build_seconds); None for the other structures,
@@ -505,9 +506,10 @@ def _tti_markdown(rows, summary, W, H, spp, depth):
              "Build: up to a structure ready to trace, its tracer's set-up included (our "
              "tracer's triangle rows in index order and checks); for hwbvh-C and hwbvh-HP, the "
              "simulated hardware build time plus that set-up, in software.\n",
-             "Medians of the repeated runs, in which a scene's paths alternate run by run, "
-             "in an order that rotates each round, so that drift in the machine's speed falls "
-             "on all alike; the render spread is min-max over them.\n",
+             "Medians of the repeated runs, in which a scene's trees and structures alternate "
+             "run by run (hwbvh-C, hwbvh-HP and hwbvh-sw render one tree), in an order that "
+             "rotates each round, so that drift in the machine's speed falls on all alike; the "
+             "render spread is min-max over them.\n",
              "Memory: the structure's nodes or cells, its triangle references and preprocessed "
              "triangles (with the BVH's map from primitive to triangle row; our traversal "
              "only); refs/tri: references per triangle.\n",

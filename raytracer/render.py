@@ -351,7 +351,7 @@ def _film(npix):
     """The calling thread's radiance sums for a frame of ``npix`` pixels (float64, (npix, 3)),
     kept from its last render: a fresh 640x480 film is 7 MB of pages to map on first touch.
     Not cleared: the first sample pass' camera rays store each pixel's first sum
-    (``stages.shade`` with ``first``)."""
+    (``stages.accumulate`` with ``first``)."""
     film = getattr(_kept_current(), "film", None)
     if film is None or len(film) < npix:
         film = _kept.film = np.empty((npix, 3))

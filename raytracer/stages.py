@@ -266,20 +266,20 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
 
     ``camera``: the queue holds camera rays, whose origin is ``eye`` and weight 1 (O and wgt
     are not read). A ray's own contribution (background or ambient) goes to ``contrib`` at
-    its wavefront row (i for the camera's, ``order[i]`` for others) for ``accumulate``. The shadow rays toward light l go densely to
-    l * ``stride`` onward: origin, direction and t_max in the tracer's queue (``qO``, ``qD``,
-    ``qT``, in its precision), the light brought if visible and the pixel in ``sh_C``, ``sh_pix``;
-    ``sh_cnt[l]`` of them. Reflections go densely to the next wavefront (``nO``, ``nD``,
-    ``nW``, ``npix``), ``sp_cnt[0]`` of them; refractions to ``sp_O``, ``sp_D``, ``sp_W``,
-    ``sp_pix``, ``sp_cnt[1]`` of them, then behind the reflections; ``group_by_octant`` then
-    writes the tracer's copies ``nOt``, ``nDt`` and ``norder``. A queue other than the
-    camera's is shaded in the tracer's order: its i-th ray has its hit at i, and its origin,
-    direction, weight, pixel and ``contrib`` entry at row ``order[i]`` (the camera's queue
-    passes ``order`` unread).
+    its wavefront row (i for the camera's, ``order[i]`` for others) for ``accumulate``. The
+    shadow rays toward light l go densely to l * ``stride`` onward: origin, direction and
+    t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its precision), the light brought
+    if visible and the pixel in ``sh_C``, ``sh_pix``; ``sh_cnt[l]`` of them. Reflections go
+    densely to the next wavefront (``nO``, ``nD``, ``nW``, ``npix``), ``sp_cnt[0]`` of them;
+    refractions to ``sp_O``, ``sp_D``, ``sp_W``, ``sp_pix``, ``sp_cnt[1]`` of them, then
+    behind the reflections; ``group_by_octant`` then writes the tracer's copies ``nOt``,
+    ``nDt`` and ``norder``. A queue other than the camera's is shaded in the tracer's order:
+    its i-th ray has its hit at i, and its origin, direction, weight, pixel and ``contrib``
+    entry at row ``order[i]`` (the camera's queue passes ``order`` unread).
     Every output is in ray order, so the queues do not depend on anything but the rays.
     ``first`` (the first sample pass' camera rays) writes every pixel's first-hit layers
-    (``aov_*``) and stores its first radiance sum, so neither needs clearing before;
-    ``offset``: traversal.offset strategy index; ``kd_pi``: kd / pi.
+    (``aov_*``), so they need no clearing before (``accumulate`` stores the pixels' first
+    radiance sums); ``offset``: traversal.offset strategy index; ``kd_pi``: kd / pi.
 
     A block is shaded in passes over a structure-of-arrays scratch ``S``, so that the
     arithmetic runs in SIMD lanes: (1) the hit points of every ray of the block, its

@@ -699,3 +699,27 @@ def test_secondary_rays_reach_the_tracer_grouped_by_octant_and_traced_in_packets
         in_packets += 16 * tracer.last_packets
     # a group of 16 breaks only where an octant ends or at the end of a query
     assert in_packets >= sum(len(q[2]) for q in secondary) - 16 * 9 * len(secondary)
+
+
+@pytest.mark.parametrize("camera,first,want", [(True, True, 0.0), (True, False, 0.0),
+                                               (False, False, 1.0)])
+def test_accumulate_adds_in_a_fixed_order_per_pixel(camera, first, want):
+    """A pixel's float64 sum depends on the order of its terms: 1 + 1e16 - 1e16 is 0, while
+    1e16 - 1e16 + 1 is 1. The camera's queue adds a ray's own contribution (1) before the
+    light its shadow rays bring (1e16 from one light, -1e16 from the other); other queues add
+    the shadow rays' light first. In the first sample pass the camera's own contribution is
+    the pixel's first sum, whatever the film held."""
+    stride = 4
+    film = np.full((3, 3), np.nan if first else 0.0)        # NaN: what a kept film may hold
+    sh_cnt = np.array([1, 1], np.int64)                      # one shadow ray per light
+    sh_C = np.zeros((2 * stride, 3))
+    sh_C[0], sh_C[stride] = 1e16, -1e16
+    sh_pix = np.zeros(2 * stride, np.int64)                   # both on pixel 0
+    blocked = np.zeros(2, np.bool_)
+    pix = np.array([0], np.int64)
+    contrib = np.ones((1, 3))
+    stages.accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, 1, camera,
+                      first)
+    assert np.array_equal(film[0], np.full(3, want))
+    if first:                                                 # only the queue's pixels
+        assert np.isnan(film[1:]).all()

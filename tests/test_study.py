@@ -90,6 +90,10 @@ def test_tti_times_a_scenes_trees_in_rounds_whose_order_rotates(monkeypatch):
         assert r["verify_clean"] is True and r["scene"] == "cornell"
         assert r["render_spread"][0] <= r["render_seconds"] <= r["render_spread"][1]
     assert records["grid"]["accel"] == "grid" and "accel" not in records["sweep"]
+    # each record is its own tree's
+    assert records["hwbvh"]["sah_cost"] > records["sweep"]["sah_cost"] > 0
+    assert records["grid"]["sah_cost"] is None
+    assert records["grid"]["references_per_triangle"] > 1 == records["hwbvh"]["references_per_triangle"]
 
 
 def test_tti_times_only_the_missing_cells_of_a_scene(tmp_path, mesh_dir):
