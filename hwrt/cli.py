@@ -38,6 +38,29 @@ EXIT_SIGPIPE = 128 + signal.SIGPIPE     # the reader of stdout went away (`hwrt 
 DEBUG_ENV = "HWRT_DEBUG"           # set: an internal error is re-raised with its traceback
 
 
+# The exception of a SIGINT or SIGTERM that a library may have swallowed: llvmlite calls into
+# Python from the compiler (Numba's object cache) and from destructors and drops what those
+# raise, so a Ctrl-C while kernels compile would be lost (the run going on to exit 0) or leave
+# the compiler half done (an internal error). The run answers it at its next safe point
+# (``_answer_swallowed_signal``).
+_signal_raised = [None]
+
+
+def _quiet_swallowed_signal(unraisable):
+    """``sys.unraisablehook`` while a run owns the signals: the interrupt a library swallowed
+    is answered by the run (``_answer_swallowed_signal``), with the one line of any interrupt,
+    not with the traceback Python prints of an exception it could not raise."""
+    if not isinstance(unraisable.exc_value, KeyboardInterrupt):     # Terminated is one too
+        sys.__unraisablehook__(unraisable)
+
+
+def _answer_swallowed_signal():
+    """Stop the run as the last SIGINT or SIGTERM should have, if its exception was swallowed."""
+    raised = _signal_raised[0]
+    if raised is not None:
+        raise raised()
+
+
 def _succeeded(args):
     """The run has succeeded: its outputs are in place and only its report is left to print.
     From here until ``main`` returns, SIGINT and SIGTERM are ignored, so that a signal arriving
@@ -58,24 +81,40 @@ def _commit(args, files):
     from hwbvh.files import file_identity, write_files
     files = [(os.fspath(p), data) for p, data in files]
     before = {p: file_identity(p) for p, _ in files}
+    _answer_swallowed_signal()
     try:
         write_files(files)
         _succeeded(args)         # a signal up to the moment it ignores them is judged below
     except KeyboardInterrupt:    # SIGTERM's Terminated too
         if not files or any(file_identity(p) in (None, before[p]) for p in before):
             raise
+        _signal_raised[0] = None     # came too late: the outputs are in place
         _succeeded(args)
 
 
 def _emit(args, result, human):
     from hwbvh.files import json_text
+    _answer_swallowed_signal()
     _succeeded(args)
-    if args.json:
-        sys.stdout.write(json_text(result) + "\n")
-    else:
-        sys.stdout.write(human(result) + "\n")
-    sys.stdout.flush()
+    _write_stdout((json_text(result) if args.json else human(result)) + "\n")
     _warn_beyond_float32(result)
+
+
+def _write_stdout(text):
+    """``text`` to stdout, all of it or BrokenPipeError. Through the file descriptor where
+    there is one: Python's buffered writer, whose write to a pipe is cut short when the reader
+    goes away (``hwrt ... | head``), can return as if it had written everything, and the run
+    would end with 0 instead of 141."""
+    sys.stdout.flush()
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):     # not a file (captured in-process)
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        return
+    data = memoryview(text.encode(sys.stdout.encoding or "utf-8", "replace"))
+    while data:
+        data = data[os.write(fd, data):]
 
 
 def _warn_beyond_float32(result):
@@ -1298,12 +1337,14 @@ def _drop_one(signum, frame):
 def _raise_interrupted(signum, frame):
     """SIGINT: the run stops (KeyboardInterrupt); the next signal is dropped (``_drop_one``)."""
     _set_handlers(_drop_one, _drop_one)
+    _signal_raised[0] = KeyboardInterrupt
     raise KeyboardInterrupt()
 
 
 def _raise_terminated(signum, frame):
     """SIGTERM: as SIGINT (``_raise_interrupted``), raising Terminated."""
     _set_handlers(_drop_one, _drop_one)
+    _signal_raised[0] = Terminated
     raise Terminated()
 
 
@@ -1382,7 +1423,9 @@ def _run(argv, signals_owned):
     try:
         check_threading()
         args.func(args)
+        _answer_swallowed_signal()
     except InputError as e:
+        _answer_swallowed_signal()
         print(f"hwrt: error: {_input_message(parser, args, e)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except BrokenPipeError:
@@ -1394,6 +1437,7 @@ def _run(argv, signals_owned):
             pass
         return EXIT_SIGPIPE
     except Exception as e:  # anything else is our fault, not the input's
+        _answer_swallowed_signal()       # or a library's that swallowed an interrupt
         print(f"hwrt: internal error: {type(e).__name__}: {e}", file=sys.stderr)
         if os.environ.get(DEBUG_ENV):
             raise
@@ -1403,12 +1447,16 @@ def _run(argv, signals_owned):
 
 def _main(argv, last_act):
     argv = sys.argv[1:] if argv is None else list(argv)
+    _signal_raised[0] = None
     try:
         previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
         _set_handlers(_raise_interrupted, _raise_terminated)
     except ValueError:                        # not the main thread: leave signals alone
         previous = None
     status = None
+    hook = sys.unraisablehook
+    if previous is not None:
+        sys.unraisablehook = _quiet_swallowed_signal
     try:
         status = _run(argv, signals_owned=previous is not None)
         return status
@@ -1421,6 +1469,7 @@ def _main(argv, last_act):
         print("hwrt: interrupted", file=sys.stderr)
         return status
     finally:
+        sys.unraisablehook = hook
         # a run that succeeded ignores the signals from _succeeded on; as the process's last
         # act, a run that ended at all ignores them through the interpreter's exit (a signal
         # then would end it with a traceback from its shutdown, or by the signal itself once

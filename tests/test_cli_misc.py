@@ -537,6 +537,62 @@ def test_a_reader_that_goes_away_ends_the_command_quietly(tmp_path):
     assert (proc.returncode, proc.stderr) == (141, "")
 
 
+@pytest.mark.parametrize("sig, word, code", [("SIGINT", "interrupted", 130),
+                                             ("SIGTERM", "terminated", 143)])
+@pytest.mark.parametrize("then", ["finishes", "fails", "in a destructor"])
+def test_a_signal_a_library_swallowed_still_stops_the_run(tmp_path, sig, word, code, then):
+    """llvmlite drops what Python raises in its callbacks (Numba's compiler calls back into
+    Python) and destructors: a Ctrl-C there is swallowed. The run still stops as the signal
+    asked, with its one line and before it writes anything, whether the library then goes on
+    or fails for having been cut short."""
+    setup = f"""
+import hwbvh.parallel as parallel
+real = parallel.check_threading
+class Signalled:
+    def __del__(self):                      # what it raises, Python reports and drops
+        os.kill(os.getpid(), signal.{sig})
+        time.sleep(0.5)
+def check_threading():                      # the first step of every command
+    if "{then}" == "in a destructor":
+        Signalled()
+        return real()
+    try:
+        os.kill(os.getpid(), signal.{sig})
+        time.sleep(0.5)
+    except BaseException:
+        pass                                # swallowed, as llvmlite's callbacks do
+    if "{then}" == "fails":
+        raise RuntimeError("no compiled object yet")
+    return real()
+parallel.check_threading = check_threading
+"""
+    mesh = tmp_path / "tetra.obj"
+    mesh.write_text(TETRA_OBJ)
+    r = _console(setup, "build", mesh, "--out", tmp_path / "tree")
+    assert (r.stderr, r.returncode) == (f"hwrt: {word}\n", code)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tetra.obj"]
+
+
+def test_a_reader_that_goes_away_mid_output_ends_the_command_quietly(tmp_path):
+    """`hwrt ... | head` with more output than a pipe holds: the write is cut short when the
+    reader goes; the command still ends as one killed by SIGPIPE would (Python's buffered
+    writer would return as if it had written everything, and the run exit 0)."""
+    setup = """
+import hwbvh.files as files
+real_json = files.json_text
+files.json_text = lambda obj, *a, **k: real_json(obj, *a, **k) + " " * 4_000_000
+"""
+    p = tmp_path / "m.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    proc = subprocess.Popen([sys.executable, "-c", CONSOLE_RUN.format(setup=setup), "build",
+                             str(p), "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.stdout.read(10).startswith(b"{")
+    proc.stdout.close()                           # the reader goes, as head does
+    err = proc.stderr.read()
+    assert (proc.wait(timeout=300), err) == (141, b"")
+
+
 def test_a_page_shows_the_figures_written_with_it():
     from hwrt.report import with_figures
     files = [("d/a.csv", "x\n"), ("d/a.md", "# A\n\ntable\n"), ("d/a_b.png", b"png"),
