@@ -516,6 +516,9 @@ def cmd_verify(args):
                  triangles_sha256=np.str_(_triangles_digest(tris)))
         _commit(args, [(out, buf.getvalue())])
         result["mismatch_file"] = out
+    elif os.path.exists(out):
+        print(f"hwrt: note: no mismatches, so {out} was not written: the file there is an "
+              f"earlier run's", file=sys.stderr)
     _emit(args, result, lambda r: _kv(r, ["scene", "accel", "kind", "query", "rays",
                                           "rays_requested", "hit", "agree", "tie", "mismatch",
                                           "mismatch_ours_wrong", "mismatch_embree_wrong",

@@ -707,6 +707,22 @@ def test_verify_reports_how_many_rays_hit(capsys, tmp_path, sphere_ply):
         assert 0 < r["hit"] < r["rays"] == 500
 
 
+def test_verify_without_mismatches_says_an_earlier_file_was_left(capsys, tmp_path, sphere_ply):
+    """No mismatches: no file is written, and one already at the path (an earlier run's) is
+    left as it was, with a note, so that it is not taken for this run's."""
+    old = tmp_path / "m.npz"
+    old.write_bytes(b"an earlier run's")
+    rc, out, err = call(capsys, "verify", sphere_ply, "--rays", 300, "--kind", "primary",
+                        "--mismatches", old, "--json")
+    assert rc == 0 and strict_json(out)["mismatch"] == 0, err
+    assert err == f"hwrt: note: no mismatches, so {old} was not written: the file there is " \
+                  "an earlier run's\n"
+    assert old.read_bytes() == b"an earlier run's"
+    rc, out, err = call(capsys, "verify", sphere_ply, "--rays", 300, "--kind", "primary",
+                        "--mismatches", tmp_path / "new.npz", "--json")
+    assert rc == 0 and err == "" and not (tmp_path / "new.npz").exists()
+
+
 def _mismatch_file(path, tris, **run):
     """A mismatch file as hwrt verify writes it, for two rays from inside the tetrahedron."""
     from hwrt.cli import _triangles_digest
