@@ -12,6 +12,7 @@ the few tens of milliseconds of Python's start-up, Python's own handling applies
 import argparse
 import os
 import re
+import select
 import signal
 import sys
 from functools import partial
@@ -114,7 +115,10 @@ def _write_stdout(text):
         return
     data = memoryview(text.encode(sys.stdout.encoding or "utf-8", "replace"))
     while data:
-        data = data[os.write(fd, data):]
+        try:
+            data = data[os.write(fd, data):]
+        except BlockingIOError:             # a descriptor left non-blocking by our parent
+            select.select([], [fd], [])
 
 
 def _warn_beyond_float32(result):

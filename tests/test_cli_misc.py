@@ -593,6 +593,28 @@ files.json_text = lambda obj, *a, **k: real_json(obj, *a, **k) + " " * 4_000_000
     assert (proc.wait(timeout=300), err) == (141, b"")
 
 
+def test_output_to_a_non_blocking_pipe_is_written_whole(tmp_path):
+    """A parent may hand the command a stdout it set non-blocking: a write the pipe cannot
+    take yet waits for the reader instead of failing."""
+    setup = """
+import hwbvh.files as files
+real_json = files.json_text
+files.json_text = lambda obj, *a, **k: real_json(obj, *a, **k) + " " * 4_000_000
+"""
+    p = tmp_path / "m.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    r, w = os.pipe()
+    os.set_blocking(w, False)
+    proc = subprocess.Popen([sys.executable, "-c", CONSOLE_RUN.format(setup=setup), "build",
+                             str(p), "--json"], stdout=w, stderr=subprocess.PIPE,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    os.close(w)
+    with os.fdopen(r, "rb") as reader:
+        got = reader.read()
+    assert proc.wait(timeout=300) == 0, proc.stderr.read()
+    assert len(got) > 4_000_000 and got.startswith(b"{") and got.endswith(b"\n")
+
+
 def test_a_page_shows_the_figures_written_with_it():
     from hwrt.report import with_figures
     files = [("d/a.csv", "x\n"), ("d/a.md", "# A\n\ntable\n"), ("d/a_b.png", b"png"),
