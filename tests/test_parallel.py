@@ -149,3 +149,29 @@ def test_a_shared_counter_hands_out_every_item_once():
     take_all(len(taken_by), threads, counter, taken_by)
     assert (taken_by == 1).all()
     assert counter[0] == len(taken_by) + threads        # and one take past the end per thread
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two threads")
+def test_pool_threads_let_go_of_what_a_finished_call_worked_on():
+    """A pool thread drops its job when the job ends, not when the next one comes: a job's
+    closure holds the call's arguments (a render's frame, its tracer and film)."""
+    import gc
+    import weakref
+
+    class Frame:
+        pass
+
+    frame = Frame()
+    gone = weakref.ref(frame)
+
+    def kernel(lo, hi, frame):
+        time.sleep(0.01)
+
+    # each pool thread takes the job (run a range or find none left), then waits for the next
+    run_ranges(kernel, 8, frame, parts=8)
+    del frame
+    deadline = time.monotonic() + 5
+    while gone() is not None and time.monotonic() < deadline:
+        gc.collect()
+        time.sleep(0.01)
+    assert gone() is None
