@@ -137,6 +137,13 @@ def mesh_inputs(args):
     return [MeshInput(name, None, name, (lambda fn=fn: indexed(fn))) for name, fn in GENERATED.items()]
 
 
+def round_order(items, i):
+    """``items`` in round i's order: rotated by i, so that over the rounds each item takes each
+    place in turn and drift in the machine's speed falls on all alike."""
+    k = i % len(items)
+    return items[k:] + items[:k]
+
+
 def _median_time(fn, repeat):
     fn()  # warm-up (JIT compilation, caches)
     times = []
@@ -564,7 +571,7 @@ def _render_scene(spec, scene, variants, peer_info, repeat):
     order = list(RENDER_PATHS) + list(peers)
     runs = {k: {"build": [], "render": [], "trace": [], "stages": []} for k in order}
     for i in range(repeat):
-        for k in order[i % len(order):] + order[:i % len(order)]:
+        for k in round_order(order, i):
             r = runs[k]
             if k in peers:
                 t = peers[k].time_to_image(seed=0)

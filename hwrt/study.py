@@ -32,7 +32,7 @@ import numpy as np
 from hwbvh.errors import InputError
 from hwbvh.files import json_text, write_files
 from .report import command_of, made_by_block, with_figures
-from .bench import machine, mesh_inputs
+from .bench import machine, mesh_inputs, round_order
 
 TTI_PATHS = ("hwbvh-C", "hwbvh-HP", "hwbvh-sw", "sweep", "embree")
 TTI_TREES = (("hwbvh", "numba"), ("sweep", "numba"), ("embree", "embree"))   # (builder, traversal)
@@ -347,7 +347,7 @@ def tti_scene_cell(spec, trees, W, H, spp, depth, repeat):
     runs = {t[3]: {"build": [], "render": [], "setup": []} for t in trees}
     last = {}
     for i in range(repeat):
-        for builder, traversal, accel, name in trees[i % len(trees):] + trees[:i % len(trees)]:
+        for builder, traversal, accel, name in round_order(trees, i):
             tracer, b, info = make_tracer(scene, builder, traversal, accel=accel)
             t0 = time.perf_counter()
             res = render(scene, tracer)
@@ -361,11 +361,13 @@ def tti_scene_cell(spec, trees, W, H, spp, depth, repeat):
                 last[name] = (res.stats["rays"], info, figures)
             del tracer, res
     records = {}
+    small = None
     for builder, traversal, accel, name in trees:
         rays, info, figures = last[name]
         clean = None
         if traversal == "numba":        # --verify at a small size: every ray vs Embree
-            small = compile_scene(with_frame(load_scene_spec(spec), 64, 48, 1, depth))
+            if small is None:
+                small = compile_scene(with_frame(load_scene_spec(spec), 64, 48, 1, depth))
             tr, _, _ = make_tracer(small, builder, traversal, accel=accel)
             checked = VerifyingTracer(tr, small.triangles, small.vertices, small.faces)
             render(small, checked)
@@ -404,10 +406,12 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
     structures = tti_structures(getattr(args, "accel", None))
     trees = [(b, t, "bvh", b) for b, t in TTI_TREES] + [("hwbvh", "numba", a, a) for a in structures]
     for spec in specs:                  # a job per scene: the trees whose cells are missing
-        todo = [t for t in trees if not cells.get(_tti_key(spec[0], t[3], W, H, spp, depth, repeat))]
-        if todo:
+        missing = {t[3]: _tti_key(spec[0], t[3], W, H, spp, depth, repeat) for t in trees}
+        missing = {name: key for name, key in missing.items() if not cells.get(key)}
+        if missing:
             job = f"tti-{run}-{len(jobs)}"
-            keys[job] = {t[3]: _tti_key(spec[0], t[3], W, H, spp, depth, repeat) for t in todo}
+            keys[job] = missing
+            todo = [t for t in trees if t[3] in missing]
             jobs.append((job, tti_scene_cell, (spec, todo, W, H, spp, depth, repeat)))
 
     def save(job, records):
