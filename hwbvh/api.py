@@ -73,12 +73,15 @@ def _triangles(source, name=None):
     return as_triangles(source, source=name or "<array>"), name or "<array>"
 
 
-def _check_capacity(capacity, leaf_size):
+def _check_capacity(capacity, leaf_size, sweep=False):
     """A subtree builder takes the subtrees of at most ``capacity`` primitives: it must hold
-    a leaf (as ``cycle_model.simulate`` requires of w * psize)."""
+    a leaf (as ``cycle_model.simulate`` requires of w * psize). The sweep builder has no leaf
+    size one sets: ``leaf_size`` is then the largest leaf it made."""
     if capacity < leaf_size:
-        raise ParameterError("capacity", f"{capacity} is below the leaf size {leaf_size}: a "
-                                         f"subtree builder must hold a leaf")
+        leaf = f"the largest leaf the sweep builder made ({leaf_size} triangles)" if sweep \
+            else f"the leaf size {leaf_size}"
+        raise ParameterError("capacity", f"{capacity} is below {leaf}: a subtree builder must "
+                                         f"hold a leaf")
 
 
 def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAULT_BINS,
@@ -119,7 +122,7 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     else:
         tree = build_sweep(boxes)
         max_leaf = tree.leaf_size
-        _check_capacity(capacity, max_leaf)
+        _check_capacity(capacity, max_leaf, sweep=True)
     nodes, handoff, info = lay_out(tree, capacity, subtree_builders, block_nodes)
     seconds = time.perf_counter() - t0
     st = tree_stats(nodes)

@@ -4,8 +4,9 @@
 path as it was given, when an output could not be written or would replace an input; so a
 long run never ends in an error about its output. ``write_files`` writes each file to a
 temporary file beside it and renames it into place only when every file of the set is complete;
-an exception (an interruption included) removes the temporary files. ``json_text`` is the one
-JSON encoder: strict JSON, with ``null`` for a number that is infinite or undefined.
+an exception (an interruption included) removes the temporary files, and a file that could not
+be written (a full disk, a device error) is an :class:`OutputError` naming it. ``json_text`` is
+the one JSON encoder: strict JSON, with ``null`` for a number that is infinite or undefined.
 """
 import errno
 import json
@@ -204,6 +205,11 @@ def _restore_handlers(previous):
     return interrupted
 
 
+class OutputError(OSError):
+    """An output that could not be written although its checks passed (a full disk, a device
+    error): ``filename`` is the path the caller asked for, ``strerror`` the reason."""
+
+
 def _file_mode():
     umask = os.umask(0)
     os.umask(umask)
@@ -242,10 +248,13 @@ def write_files(pairs):
                 if not e.errno:
                     raise
                 # the error names the file the caller asked for, not its temporary file
-                raise type(e)(e.errno, e.strerror, path) from None
+                raise OutputError(e.errno, e.strerror, path) from None
         with signals_held():
             for tmp, path in tmps:
-                os.replace(tmp, path)
+                try:
+                    os.replace(tmp, path)
+                except OSError as e:
+                    raise OutputError(e.errno, e.strerror, path) from None
     finally:                             # a renamed temporary file no longer exists
         for tmp, _ in tmps:
             if os.path.exists(tmp):

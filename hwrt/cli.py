@@ -1416,6 +1416,7 @@ def _late_meshes(parser, extra):
 def _run(argv, signals_owned):
     """Parse ``argv`` and run its command; the exit status. Interrupts go to the caller."""
     from hwbvh.errors import InputError
+    from hwbvh.files import OutputError
     from hwbvh.parallel import check_threading
     parser = make_parser()
     args, extra = parser.parse_known_args(argv)
@@ -1443,6 +1444,10 @@ def _run(argv, signals_owned):
         except (OSError, ValueError):       # stdout is not a file (called in-process)
             pass
         return EXIT_SIGPIPE
+    except OutputError as e:      # checked writable, then not writable: the disk, not us
+        _answer_swallowed_signal()
+        print(f"hwrt: cannot write {e.filename}: {e.strerror}", file=sys.stderr)
+        return 1
     except Exception as e:  # anything else is our fault, not the input's
         _answer_swallowed_signal()       # or a library's that swallowed an interrupt
         print(f"hwrt: internal error: {type(e).__name__}: {e}", file=sys.stderr)

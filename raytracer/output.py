@@ -2,6 +2,7 @@
 a temporary file in the target directory, renamed into place only when complete, so an
 interrupted render leaves no broken image. ``exr_writer``/``png_writer`` give the writers, so
 that an EXR and its preview can be written as one set, both or neither."""
+import errno
 import os
 
 import numpy as np
@@ -95,17 +96,55 @@ def _header_value(v):
 def _write_image(tmp, path, spec, pixels):
     """``pixels`` to the file ``tmp`` (the temporary file of ``path``) through OpenImageIO. The
     writer is closed before anything propagates, so that an interrupted write cannot finish
-    (and create the file again) after the caller has removed the temporary file."""
+    (and create the file again) after the caller has removed the temporary file. A file that
+    did not come out whole is an OSError (``write_files`` then names ``path``)."""
     import OpenImageIO as oiio
 
     out = oiio.ImageOutput.create(tmp)
     if out is None:
-        raise OSError(f"OpenImageIO could not write {path}: {oiio.geterror()}")
+        raise _image_error(tmp, oiio.geterror())
     try:
         if not out.open(tmp, spec) or not out.write_image(pixels):
-            raise OSError(f"OpenImageIO could not write {path}: {out.geterror()}")
+            raise _image_error(tmp, out.geterror())
     finally:
-        out.close()
+        closed = out.close()
+    if not closed:
+        raise _image_error(tmp, out.geterror())
+    _check_whole(tmp)
+
+
+def _check_whole(tmp):
+    """Read back the last scanline of the image just written to ``tmp``. OpenImageIO's writers
+    buffer their output and lose a failed last flush without a word (on a full disk the file
+    ends short and ``close`` succeeds); they write front to back, so a lost write always takes
+    the end of the file, and its last scanline then does not read. 1-2 ms for a 640x480 EXR."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(tmp)
+    if inp is None:
+        raise _image_error(tmp, oiio.geterror())
+    try:
+        spec = inp.spec()
+        whole = inp.read_scanline(spec.y + spec.height - 1, spec.z, "float") is not None
+        problem = inp.geterror()
+    finally:
+        inp.close()
+    if not whole:
+        raise _image_error(tmp, problem)
+
+
+def _image_error(tmp, detail):
+    """The OSError of an image OpenImageIO could not write to ``tmp``: "No space left on device"
+    when its file system is full (the usual cause, which OpenImageIO reports in its own words),
+    else OpenImageIO's message."""
+    try:
+        full = os.statvfs(os.path.dirname(os.path.abspath(tmp))).f_bavail == 0
+    except OSError:
+        full = False
+    if full:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), tmp)
+    reason = " ".join(str(detail).split()) or "no reason given"
+    return OSError(errno.EIO, f"OpenImageIO could not write it: {reason}", tmp)
 
 
 def tonemap(image):

@@ -680,6 +680,16 @@ class Explosion:
         return tris, flat_normals(tris)
 
 
+def _check_generated(what, requested, generated, rest):
+    """Refuse, before making it, a generated mesh of ``generated`` triangles (for about
+    ``requested``) that with the ``rest`` of the scene's triangles would not fit one tree."""
+    total = generated + rest
+    if total > MAX_PRIMITIVES:
+        raise ParameterError("triangles", f"{requested} makes a {what} of {generated} triangles, "
+                                          f"{total} with the rest of the scene: more than the "
+                                          f"2^24 = {MAX_PRIMITIVES} a tree holds")
+
+
 def exploding(width=320, height=240, spp=1, max_depth=3, mesh=None, triangles=GENERATED_TRIANGLES,
               seed=0):
     """A mesh (the file ``mesh``, else a generated sphere of about ``triangles`` triangles)
@@ -690,15 +700,17 @@ def exploding(width=320, height=240, spp=1, max_depth=3, mesh=None, triangles=GE
         verts, faces = load_mesh_arrays(src)
         tris = as_triangles(verts[faces], source=src)
         what = os.path.basename(src)
-    else:
-        n_lon = max(8, int(math.sqrt(triangles)))
-        tris = sphere(max(4, triangles // (2 * n_lon) + 1), n_lon)
-        what = f"generated sphere ({len(tris)} triangles)"
-    tris = _unit_height(tris, src)
     cam = {"type": "perspective", "eye": [0.0, 1.6, 3.6], "target": [0.0, 0.35, 0.0], "fov": 45.0}
     lights = [{"type": "point", "position": [1.5, 3.0, 2.0], "intensity": [14, 14, 13]}]
     d, base = _base_scene("exploding", [_floor(3.0)], cam, lights, width, height, spp,
                           max_depth, [0.15, 0.15, 0.18])
+    if src is None:
+        n_lon = max(8, int(math.sqrt(triangles)))
+        n_lat = max(4, triangles // (2 * n_lon) + 1)
+        _check_generated("sphere", triangles, 2 * n_lon * (n_lat - 1), len(base.triangles))
+        tris = sphere(n_lat, n_lon)
+        what = f"generated sphere ({len(tris)} triangles)"
+    tris = _unit_height(tris, src)
     parts = [Part(base.triangles, base.normals, base.material),
              Part(tris, flat_normals(tris), base.mat_names.index("red"), Explosion(tris, seed))]
     return Animation("exploding", base, parts, frames=120, info={"mesh": what},
@@ -807,6 +819,7 @@ def cloth(width=320, height=240, spp=1, max_depth=3, triangles=GENERATED_TRIANGL
             "material": "white"}
     d, base = _base_scene("cloth", [_floor(3.0), ball], cam, lights, width, height, spp,
                           max_depth, [0.2, 0.2, 0.25])
+    _check_generated("sheet", triangles, 2 * n * n, len(base.triangles))
     sim = Cloth(n, fps=fps)
     parts = [Part(base.triangles, base.normals, base.material)]
     tris0, n0 = sim(0, 0.0)

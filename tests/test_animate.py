@@ -735,6 +735,31 @@ def test_load_animation_checks_its_triangle_count(triangles):
     assert e.value.parameter == "triangles"
 
 
+@pytest.mark.parametrize("name, triangles", [("exploding", 676), ("cloth", 512)])
+def test_a_generated_mesh_too_large_for_a_tree_is_refused_before_it_is_made(
+        name, triangles, monkeypatch):
+    """--triangles 2^24 made an exploding sphere of exactly 2^24 triangles, which with the floor
+    no tree holds: refused after 48 s and 10 GB. The count is now worked out before the mesh
+    is made, exactly: with a tree that holds the scene's count the animation loads, with one
+    triangle less it is refused (the limit shrunk here so the meshes stay small)."""
+    import scenes.animation as animation
+    from hwbvh.errors import ParameterError
+    scene = animation.load_animation(name, triangles=triangles, **TINY).scene(0)
+    total = len(scene.triangles)
+    monkeypatch.setattr(animation, "MAX_PRIMITIVES", total)
+    animation.load_animation(name, triangles=triangles, **TINY)
+    monkeypatch.setattr(animation, "MAX_PRIMITIVES", total - 1)
+
+    def no_mesh(*args, **kwargs):
+        raise AssertionError("the mesh was made")
+    monkeypatch.setattr("scenes.meshes.sphere", no_mesh)
+    monkeypatch.setattr(animation, "Cloth", no_mesh)
+    with pytest.raises(ParameterError, match=f"with the rest of the scene: more than the "
+                                             f"2\\^24 = {total - 1} a tree holds") as e:
+        animation.load_animation(name, triangles=triangles, **TINY)
+    assert e.value.parameter == "triangles" and f"{total} with the rest" in str(e.value)
+
+
 def test_animate_counts_and_reports_pixels_too_bright_for_float32(tmp_path, capsys):
     # the largest intensity 0.05 before the box's face the camera sees, on the second frame
     keys = [{"time": 0, "translate": [0, 0, -1]}, {"time": 1, "translate": [0, 0, 0]}]

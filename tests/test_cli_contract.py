@@ -211,6 +211,25 @@ def test_no_output_overwrites_an_input(tmp_path, capsys, tetra):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link.obj", "tetra.obj"]
 
 
+def test_an_output_the_disk_refuses_is_one_line_exit_1_and_no_file(tmp_path, capsys, tetra,
+                                                                   monkeypatch):
+    """Checked writable before the work, then refused by the disk (full): not bad input, not
+    an internal error, but the file and the reason."""
+    import errno
+    import hwbvh.files as files
+    real = files.tempfile.mkstemp
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(files.tempfile, "mkstemp", full)
+    out = tmp_path / "boxes.bin"
+    rc, stdout, err = call(capsys, "build", tetra, "--dump-aabbs", out, "--json")
+    assert rc == 1 and stdout == ""
+    assert one_line_error(err) == f"hwrt: cannot write {out}: No space left on device"
+    monkeypatch.setattr(files.tempfile, "mkstemp", real)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tetra.obj"]
+
+
 def test_write_files_is_all_or_nothing(tmp_path):
     from hwbvh.files import write_files
 

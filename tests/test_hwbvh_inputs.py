@@ -459,9 +459,12 @@ def test_save_and_load_name_a_bad_argument_and_never_write_a_broken_tree(tris, t
 
 def test_a_capacity_below_the_leaf_size_is_refused_as_simulate_refuses_it(tris):
     sweep_leaf = hwbvh.build(tris, builder="sweep").meta["parameters"]["max_leaf"]
-    for builder, leaf in (("hwbvh", 4), ("sweep", sweep_leaf)):
+    # the sweep builder's leaf size is not the user's to set: the message says what it is
+    for builder, leaf, what in (("hwbvh", 4, "the leaf size 4"),
+                                ("sweep", sweep_leaf, f"the largest leaf the sweep builder "
+                                                      f"made ({sweep_leaf} triangles)")):
         with pytest.raises(ParameterError) as e:
             hwbvh.build(tris, builder=builder, capacity=leaf - 1)
-        assert str(e.value) == (f"capacity: {leaf - 1} is below the leaf size {leaf}: a subtree "
-                                f"builder must hold a leaf")
+        assert str(e.value) == (f"capacity: {leaf - 1} is below {what}: a subtree builder must "
+                                f"hold a leaf")
     assert hwbvh.build(tris, capacity=4).meta["handoffs"] > 0

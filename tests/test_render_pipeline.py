@@ -455,6 +455,37 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.exr", "ok.exr"]
 
 
+@pytest.mark.parametrize("name", ["a.exr", "a.png"])
+def test_an_image_that_came_out_short_is_an_error_and_leaves_no_file(tmp_path, monkeypatch, name):
+    """OpenImageIO's writers lose a failed last flush without a word (on a full disk the file
+    ends short and close succeeds): the image is read back, and a short one is refused, named
+    by the path asked for, with nothing left behind."""
+    import raytracer.output as output
+    from hwbvh.files import OutputError
+    from raytracer.render import RenderResult
+    read_back = output._check_whole
+
+    def lose_the_end(tmp):
+        os.truncate(tmp, os.path.getsize(tmp) - 100)
+        read_back(tmp)
+    monkeypatch.setattr(output, "_check_whole", lose_the_end)
+    h, w = 40, 48
+    ramp = np.linspace(0, 1, h * w * 3, dtype=np.float32).reshape(h, w, 3)
+    res = RenderResult(ramp, np.ones((h, w), np.float32), ramp, np.arange(h * w).reshape(h, w))
+    path = tmp_path / name
+    with pytest.raises(OutputError, match="OpenImageIO could not write it") as e:
+        if name.endswith(".exr"):
+            output.write_exr(path, res)
+        else:
+            output.write_png(path, res.image)
+    assert e.value.filename == str(path)
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(output, "_check_whole", read_back)     # whole: written
+    output.write_exr(tmp_path / "a.exr", res)
+    output.write_png(tmp_path / "a.png", res.image)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr", "a.png"]
+
+
 def test_a_failed_write_names_the_file_asked_for_not_its_temporary_file(tmp_path, monkeypatch):
     import errno
     import hwbvh.files as files
