@@ -638,11 +638,9 @@ class _CellStore:
 
     def add_many(self, rows):
         from hwbvh.files import json_text
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        with open(self.path, "wb" if self.truncate else "ab") as f:
+        from .study import appending
+        with appending(self.path, self.truncate) as f:
             f.write("".join(json_text(r) + "\n" for r in rows).encode())
-            f.flush()
-            os.fsync(f.fileno())
         self.truncate = False
         for r in rows:
             self.done[r["key"]] = r

@@ -631,6 +631,27 @@ def test_resume_file_with_a_cut_last_line_keeps_the_next_record(tmp_path):
     assert set(Cells(q).done) == {"c", "d"}
 
 
+@pytest.mark.parametrize("store", ["tti", "explore"])
+def test_a_cells_file_the_disk_refuses_is_an_output_error_naming_it(tmp_path, monkeypatch, store):
+    """A benchmark's or explore's cells file that cannot be appended to (a full disk, told at
+    the flush to the disk) says so by name, as every other output does."""
+    import errno
+    import hwrt.explore as explore
+    import hwrt.study as study
+    from hwbvh.files import OutputError
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(study.os, "fsync", full)
+    p = tmp_path / "cells.jsonl"
+    with pytest.raises(OutputError, match="No space left on device") as e:
+        if store == "tti":
+            study.Cells(p).add({"key": "a", "v": 1})
+        else:
+            explore._CellStore(p, fresh=True).add_many([{"key": "a", "v": 1}])
+    assert e.value.filename == str(p)
+
+
 # ---------------------------------------------------------------------------------------
 # 10. options honoured or rejected; verify --rays N traces N rays
 # ---------------------------------------------------------------------------------------
