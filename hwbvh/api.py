@@ -122,7 +122,9 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     else:
         tree = build_sweep(boxes)
         max_leaf = tree.leaf_size
-        _check_capacity(capacity, max_leaf, sweep=True)
+        used = tree.stats["nodes"]
+        _check_capacity(capacity, int(tree.count[:used][tree.axis[:used] == -1].max()),
+                        sweep=True)
     nodes, handoff, info = lay_out(tree, capacity, subtree_builders, block_nodes)
     seconds = time.perf_counter() - t0
     st = tree_stats(nodes)

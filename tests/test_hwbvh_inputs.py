@@ -458,13 +458,19 @@ def test_save_and_load_name_a_bad_argument_and_never_write_a_broken_tree(tris, t
 
 
 def test_a_capacity_below_the_leaf_size_is_refused_as_simulate_refuses_it(tris):
-    sweep_leaf = hwbvh.build(tris, builder="sweep").meta["parameters"]["max_leaf"]
-    # the sweep builder's leaf size is not the user's to set: the message says what it is
+    # the sweep builder's leaf size is not the user's to set: the message names the largest
+    # leaf it made (not its cap), and any capacity that holds that leaf builds
+    sweep = hwbvh.build(tris, builder="sweep", validate_tree=True)
+    t = sweep.tree
+    used = t.stats["nodes"]
+    largest = int(t.count[:used][t.axis[:used] == -1].max())
     for builder, leaf, what in (("hwbvh", 4, "the leaf size 4"),
-                                ("sweep", sweep_leaf, f"the largest leaf the sweep builder "
-                                                      f"made ({sweep_leaf} triangles)")):
+                                ("sweep", largest, f"the largest leaf the sweep builder made "
+                                                   f"({largest} triangles)")):
         with pytest.raises(ParameterError) as e:
             hwbvh.build(tris, builder=builder, capacity=leaf - 1)
         assert str(e.value) == (f"capacity: {leaf - 1} is below {what}: a subtree builder must "
                                 f"hold a leaf")
+        hwbvh.build(tris, builder=builder, capacity=leaf, validate_tree=True)
+    assert largest < sweep.meta["parameters"]["max_leaf"]
     assert hwbvh.build(tris, capacity=4).meta["handoffs"] > 0
