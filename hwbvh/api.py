@@ -96,6 +96,10 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     """
     if builder not in BUILDERS:
         raise ParameterError("builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
+    if isinstance(source_name, bytes):                  # a path in the file system's encoding
+        source_name = os.fsdecode(source_name)
+    if source_name is not None and not isinstance(source_name, str):
+        raise ParameterError("source_name", f"expected a str, got {type(source_name).__name__}")
     check_params(leaf_size, bins)
     check_task_prims(task_prims)
     check_threading()
@@ -191,15 +195,37 @@ def tree_files(bvh, prefix):
 
 
 def save(bvh, prefix):
-    """Write PREFIX.nodes, PREFIX.indices and PREFIX.json (SPEC 4): a tree ``load`` reads back,
-    so its nodes are checked first (a tree changed after its build may not be one)."""
+    """Write PREFIX.nodes, PREFIX.indices and PREFIX.json (SPEC 4): a tree ``load`` reads back
+    as it is, so it is checked as ``load`` checks it first (a tree changed after its build may
+    not be one), against its triangles where it has them."""
     if not all(hasattr(bvh, a) for a in ("nodes", "indices", "meta")):
         raise ParameterError("bvh", f"expected an hwbvh.Bvh, got {type(bvh).__name__}")
     prefix = _path_of(prefix, "prefix")
-    check_nodes(bvh.nodes, n_positions=len(bvh.indices), source="bvh.nodes")
+    meta = bvh.meta
+    if not isinstance(meta, dict):
+        raise ParameterError("bvh.meta", f"expected a dict, got {type(meta).__name__}")
+    try:
+        json_text(meta)
+    except (TypeError, ValueError) as e:
+        raise ParameterError("bvh.meta", f"cannot be written as JSON ({e})") from None
+    indices = np.asarray(bvh.indices) if bvh.indices is not None else None
+    if indices is None or indices.ndim != 1 or indices.dtype.kind not in "iu" or \
+            (indices.size and (indices.min() < 0 or indices.max() >= config.INDEX_PAD)):
+        raise ParameterError("bvh.indices", f"must be a 1-D array of integers in "
+                                            f"0..{config.INDEX_PAD - 1} (24 bits, the top value "
+                                            f"pads), got {_described(bvh.indices)}")
+    tris = getattr(bvh, "triangles", None)
+    _checked_tree(meta, check_nodes(bvh.nodes, n_positions=len(indices), source="bvh.nodes"),
+                  indices, None if tris is None else as_triangles(tris, source="bvh.triangles"),
+                  "bvh.meta", "bvh.nodes", "bvh.indices")
     files = tree_files(bvh, prefix)
     write_files(files)
     return [path for path, _ in files]
+
+
+def _described(a):
+    a = np.asarray(a) if a is not None else None
+    return "None" if a is None else f"{a.dtype} of shape {a.shape}"
 
 
 def load(prefix, triangles=None):
@@ -207,17 +233,17 @@ def load(prefix, triangles=None):
     (optional (N, 3, 3)) also checks that leaf boxes contain their primitives."""
     prefix = _path_of(prefix, "prefix")
     try:
-        with open(prefix + ".json") as f:
+        with open(prefix + ".json", encoding="utf-8") as f:
             meta = json.load(f)
     except OSError as e:
         raise InputError(prefix + ".json", e.strerror or "cannot read") from None
+    except UnicodeDecodeError:
+        raise InputError(prefix + ".json", "not UTF-8 text") from None
     except json.JSONDecodeError as e:
         raise InputError(prefix + ".json", f"not valid JSON ({e.msg}, line {e.lineno})") from None
     if not isinstance(meta, dict):
         raise InputError(prefix + ".json", f"expected a JSON object, got {type(meta).__name__}")
     n = _json_count(meta, ("triangles",), config.MAX_PRIMITIVES, prefix + ".json")
-    # no builder writes a leaf above MAX_LEAF_SIZE (the sweep builder's limit is below it)
-    max_leaf = _json_count(meta, ("parameters", "max_leaf"), config.MAX_LEAF_SIZE, prefix + ".json")
     tris = None
     if triangles is not None:
         tris = as_triangles(triangles, source="triangles")
@@ -233,24 +259,43 @@ def load(prefix, triangles=None):
     if len(raw) % NODE_DTYPE.itemsize:
         raise InputError(prefix + ".nodes", f"size {len(raw)} is not a multiple of 48 bytes")
     nodes = np.frombuffer(raw, dtype=NODE_DTYPE).copy()
-    try:
-        entries = unpack_indices(idx)
-    except ValueError as e:
-        raise InputError(prefix + ".indices", str(e)) from None
-    if len(entries) < n:
-        raise InputError(prefix + ".indices", f"{len(entries)} entries, but {prefix}.json says "
-                                              f"{n} triangles")
+    word = config.INDEX_BYTES * config.INDICES_PER_WORD
+    words = -(-n // config.INDICES_PER_WORD)
+    if len(idx) != words * word:
+        raise InputError(prefix + ".indices", f"size {len(idx)} bytes: {n} triangles take "
+                                              f"{words} whole {word}-byte words, {words * word} "
+                                              f"bytes")
+    entries = unpack_indices(idx)
+    if (entries[n:] != config.INDEX_PAD).any():
+        raise InputError(prefix + ".indices", f"the last word's tail after entry {n} is not "
+                                              f"padding (0xFFFFFF)")
+    _checked_tree(meta, nodes, entries[:n], tris, prefix + ".json", prefix + ".nodes",
+                  prefix + ".indices")
+    return Bvh(nodes=nodes, indices=entries[:n].copy(), triangles=tris, meta=meta)
+
+
+def _checked_tree(meta, nodes, entries, tris, meta_name, nodes_name, indices_name):
+    """The invariants of a tree as ``load`` reads it and ``save`` writes it (InputError naming
+    the part): its description's counts, every invariant of the nodes over the ``entries``
+    (and leaf boxes around ``tris`` given), and the node count it states."""
+    n = _json_count(meta, ("triangles",), config.MAX_PRIMITIVES, meta_name)
+    # no builder writes a leaf above MAX_LEAF_SIZE (the sweep builder's limit is below it)
+    max_leaf = _json_count(meta, ("parameters", "max_leaf"), config.MAX_LEAF_SIZE, meta_name)
+    if len(entries) != n:
+        raise InputError(indices_name, f"{len(entries)} entries, but {meta_name} says {n} "
+                                       f"triangles")
+    if tris is not None and len(tris) != n:
+        raise InputError(meta_name, f"says {n} triangles, the tree has {len(tris)}")
     boxes = primitive_boxes(tris) if tris is not None else None
-    reached = validate(nodes, entries, n, max_leaf, boxes, source=prefix + ".nodes")
+    reached = validate(nodes, entries, n, max_leaf, boxes, source=nodes_name)
     # the counts a reader reports must be the tree's own
     for key, got in (("nodes", reached), ("node_slots", len(nodes))):
         if key in meta or key == "nodes":
-            said = _json_count(meta, (key,), 2 * config.MAX_PRIMITIVES, prefix + ".json")
+            said = _json_count(meta, (key,), 2 * config.MAX_PRIMITIVES, meta_name)
             if said != got:
-                raise InputError(prefix + ".json", f"{key!r} is {said}, but {prefix}.nodes "
-                                                   f"{'reaches' if key == 'nodes' else 'holds'} "
-                                                   f"{got} nodes")
-    return Bvh(nodes=nodes, indices=entries[:n].copy(), triangles=tris, meta=meta)
+                raise InputError(meta_name, f"{key!r} is {said}, but {nodes_name} "
+                                            f"{'reaches' if key == 'nodes' else 'holds'} "
+                                            f"{got} nodes")
 
 
 def _json_count(meta, keys, hi, source):

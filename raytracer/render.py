@@ -528,7 +528,7 @@ def _check_render_arguments(scene, tracer, seed, progress):
         v = getattr(scene, key)
         if not is_integer(v) or v < 1:
             raise ParameterError(f"scene.{key}", f"must be a positive integer, got {v!r}")
-    check_tracer(tracer, len(scene.triangles))
+    check_tracer(tracer, triangles=scene.triangles)
     if not is_integer(seed) or seed < 0:
         raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
     if progress is not None and not callable(progress):

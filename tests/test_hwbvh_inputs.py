@@ -474,3 +474,63 @@ def test_a_capacity_below_the_leaf_size_is_refused_as_simulate_refuses_it(tris):
         hwbvh.build(tris, builder=builder, capacity=leaf, validate_tree=True)
     assert largest < sweep.meta["parameters"]["max_leaf"]
     assert hwbvh.build(tris, capacity=4).meta["handoffs"] > 0
+
+
+def _with(bvh, **changes):
+    from types import SimpleNamespace
+    parts = {"nodes": bvh.nodes, "indices": bvh.indices, "meta": bvh.meta,
+             "triangles": bvh.triangles}
+    return SimpleNamespace(**{**parts, **changes})
+
+
+def test_save_refuses_what_load_would_refuse_or_read_back_changed(tmp_path, bvh):
+    """save wrote trees load then refused (an inner box shrunk, a repeated index, a description
+    without counts) or read back as another tree (indices beyond 24 bits cut to 24, floats cut
+    to integers): it now checks what load checks, and writes nothing when it refuses."""
+    shrunk = bvh.nodes.copy()
+    shrunk["bounds"][0] = [0, 0, 0, 0.1, 0.1, 0.1]
+    repeated = bvh.indices.copy()
+    repeated[1] = repeated[0]
+    cases = [(_with(bvh, nodes=shrunk), "bvh.nodes: invalid tree: child AABB is not inside"),
+             (_with(bvh, indices=repeated), "bvh.nodes: invalid tree: primitive referenced more"),
+             (_with(bvh, meta={}), "bvh.meta: missing 'triangles'"),
+             (_with(bvh, meta=None), "bvh.meta: expected a dict, got NoneType"),
+             (_with(bvh, meta={**bvh.meta, "source": b"x"}), "bvh.meta: cannot be written as JSON"),
+             (_with(bvh, indices=bvh.indices + 2 ** 24), "bvh.indices: must be a 1-D array of "
+                                                         "integers in 0..16777214"),
+             (_with(bvh, indices=bvh.indices.astype(float)), "bvh.indices: must be a 1-D array"),
+             (_with(bvh, indices=None), "bvh.indices: must be a 1-D array")]
+    for tree, message in cases:
+        with pytest.raises(InputError) as e:
+            hwbvh.save(tree, tmp_path / "t")
+        assert str(e.value).startswith(message), str(e.value)
+    assert list(tmp_path.iterdir()) == []
+    hwbvh.save(bvh, tmp_path / "t")
+    back = hwbvh.load(tmp_path / "t", bvh.triangles)
+    assert np.array_equal(back.indices, bvh.indices) and back.nodes.tobytes() == bvh.nodes.tobytes()
+    named = hwbvh.build(bvh.triangles, source_name=b"mesh.ply")
+    assert named.meta["source"] == "mesh.ply"
+    with pytest.raises(ParameterError, match="source_name: expected a str, got int"):
+        hwbvh.build(bvh.triangles, source_name=1)
+
+
+def test_load_refuses_an_index_list_not_in_whole_padded_words(tmp_path):
+    """The index list is whole 192-bit words, the last one's tail padded with 0xFFFFFF: a file
+    cut short, with its padding overwritten or with a word too many is damaged, not a tree."""
+    bvh = hwbvh.build(soup(61))                 # 61 entries: three of padding
+    hwbvh.save(bvh, tmp_path / "t")
+    good = (tmp_path / "t.indices").read_bytes()
+    n = len(bvh.indices)
+    assert len(good) == -(-n // 8) * 24 and good.endswith(b"\xff" * 9)
+    for data, problem in ((good[:-3], f"size {len(good) - 3} bytes: {n} triangles take"),
+                          (good + b"\xff" * 24, f"size {len(good) + 24} bytes"),
+                          (good[:-3] + b"\0\0\0", f"the last word's tail after entry {n} is "
+                                                  f"not padding")):
+        (tmp_path / "t.indices").write_bytes(data)
+        with pytest.raises(InputError) as e:
+            hwbvh.load(tmp_path / "t")
+        assert str(e.value).startswith(f"{tmp_path / 't.indices'}: {problem}"), str(e.value)
+    (tmp_path / "t.indices").write_bytes(good)
+    (tmp_path / "t.json").write_bytes(b"\xff\xfe")
+    with pytest.raises(InputError, match="t.json: not UTF-8 text"):
+        hwbvh.load(tmp_path / "t")

@@ -455,6 +455,30 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.exr", "ok.exr"]
 
 
+def test_a_tracer_built_over_other_triangles_of_the_same_count_is_refused():
+    """The same scene moved: as many triangles, other coordinates. Every ray missed and the
+    image came out black without a word; every tracer (and a wrapper of one) now tells."""
+    import copy
+    import hwbvh
+    from hwbvh.errors import ParameterError
+    from scenes.loader import transform_scene
+    from traversal import Tracer
+    from traversal.grid import GridTracer
+    d = load_scene("cornell", width=8, height=6, spp=1)
+    here = compile_scene(d)
+    moved = compile_scene(transform_scene(copy.deepcopy(d), translate=(5, 0, 0)))
+    tracers = [Tracer(hwbvh.build(here.triangles)), GridTracer(here.triangles),
+               EmbreeTracer(here.vertices, here.faces)]
+    tracers.append(CountingTracer(tracers[0]))
+    prims = []
+    for tracer in tracers:
+        with pytest.raises(ParameterError, match="traces other triangles than the scene's "
+                                                 r"\(9046 each, at other coordinates\)"):
+            render(moved, tracer)
+        prims.append(render(here, tracer).prim)
+    assert (prims[0] >= 0).sum() > 30 and all(np.array_equal(p, prims[0]) for p in prims)
+
+
 @pytest.mark.parametrize("name", ["a.exr", "a.png"])
 def test_an_image_that_came_out_short_is_an_error_and_leaves_no_file(tmp_path, monkeypatch, name):
     """OpenImageIO's writers lose a failed last flush without a word (on a full disk the file

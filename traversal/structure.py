@@ -67,6 +67,7 @@ class TriangleStructure:
 
     def _set_unit(self, tris):
         self.n_triangles = len(tris)
+        self.triangles = tris
         self.tris = preprocess(tris, np.float32)
         self.unit_range = Float32Range(self.tris, tris)
         self._tris1 = self.tris.reshape(-1)

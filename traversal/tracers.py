@@ -13,7 +13,9 @@ direction, or a NaN or infinite origin or direction, misses.
 
 Every tracer also has ``n_triangles``: its answers' primitive ids lie in [-1, n_triangles), so
 a caller that indexes its own arrays with them (the renderer) checks one number, not every
-answer. A tracer without it has its answers checked query by query.
+answer. A tracer without it has its answers checked query by query. And ``triangles``, the
+(n, 3, 3) triangles it traces, so that a caller can tell a tracer built over other triangles
+of the same count (``check_tracer``).
 
 A tracer may also declare ``concurrent = True``: it answers queries from several threads at
 once, so the renderer traces each band of rows on its own thread (``raytracer.render``);
@@ -45,19 +47,28 @@ from hwbvh.parallel import run_ranges
 from .api import _rays
 
 
-def check_tracer(tracer, n_triangles=None, name="tracer"):
+def check_tracer(tracer, n_triangles=None, name="tracer", triangles=None):
     """ParameterError naming ``name`` unless ``tracer`` has both queries and, where it says
-    how many triangles it traces (``n_triangles``), traces ``n_triangles`` of them: answers
-    over other triangles would be read as wrong, or index the caller's arrays out of range."""
+    how many triangles it traces (``n_triangles``), traces ``n_triangles`` of them, and, where
+    it says which (``triangles``) and the caller gives its own, those: answers over other
+    triangles would be read as wrong, or index the caller's arrays out of range."""
     if not (callable(getattr(tracer, "intersect", None)) and
             callable(getattr(tracer, "occluded", None))):
         raise ParameterError(name, f"expected a tracer with intersect and occluded, got "
                                    f"{type(tracer).__name__}")
+    if triangles is not None and n_triangles is None:
+        n_triangles = len(triangles)
     known = getattr(tracer, "n_triangles", None)
     if n_triangles is not None and known is not None and known != n_triangles:
         raise ParameterError(name, f"{type(tracer).__name__} traces {known} triangles, the "
                                    f"scene has {n_triangles}: not built over the scene's "
                                    f"triangles")
+    traced = getattr(tracer, "triangles", None)
+    if triangles is not None and traced is not None and traced is not triangles and \
+            not np.array_equal(traced, triangles):
+        raise ParameterError(name, f"{type(tracer).__name__} traces other triangles than the "
+                                   f"scene's ({len(triangles)} each, at other coordinates): not "
+                                   f"built over the scene's triangles")
 
 
 class _Wrapper:
@@ -66,6 +77,10 @@ class _Wrapper:
     @property
     def n_triangles(self):
         return getattr(self.inner, "n_triangles", None)
+
+    @property
+    def triangles(self):
+        return getattr(self.inner, "triangles", None)
 
 
 class _Tally(_Wrapper):
@@ -94,14 +109,14 @@ class VerifyingTracer(_Tally):
     def __init__(self, inner, triangles, vertices, faces):
         from .embree_ref import embree_scene, indexed_mesh
 
-        self.triangles = np.asarray(triangles, np.float32)
-        if self.triangles.ndim != 3 or self.triangles.shape[1:] != (3, 3):
+        self.checked_triangles = np.asarray(triangles, np.float32)
+        if self.checked_triangles.ndim != 3 or self.checked_triangles.shape[1:] != (3, 3):
             raise ParameterError("triangles", f"expected an (n, 3, 3) array, got shape "
-                                              f"{self.triangles.shape}")
-        check_tracer(inner, len(self.triangles), "inner")
+                                              f"{self.checked_triangles.shape}")
+        check_tracer(inner, name="inner", triangles=self.checked_triangles)
         vertices, faces = indexed_mesh(vertices, faces)
-        if len(faces) != len(self.triangles) or \
-                not np.array_equal(vertices[faces], self.triangles):
+        if len(faces) != len(self.checked_triangles) or \
+                not np.array_equal(vertices[faces], self.checked_triangles):
             raise ParameterError("faces", "vertices[faces] are not the triangles checked: Embree "
                                           "would trace other geometry than the tracer")
         self.inner = inner
@@ -120,7 +135,7 @@ class VerifyingTracer(_Tally):
         h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals)
         o, d, lo, hi = _shifted(origins, dirs, tmin, tmax)
         te, pe, *_ = embree_intersect(self.reference, o, d, None if np.isinf(hi).all() else hi)
-        counts, _ = classify(self.triangles, origins, dirs, tmin, tmax, h.prim.astype(np.int64),
+        counts, _ = classify(self.checked_triangles, origins, dirs, tmin, tmax, h.prim.astype(np.int64),
                              h.t, pe, np.where(pe >= 0, te + lo, np.inf))
         self._add("closest", counts)
         return h
@@ -132,7 +147,7 @@ class VerifyingTracer(_Tally):
         blocked = self.inner.occluded(origins, dirs, tmin, tmax)
         o, d, lo, hi = _shifted(origins, dirs, tmin, tmax)
         ref = embree_occluded(self.reference, o, d, hi)
-        counts, _ = classify_occluded(self.triangles, origins, dirs, tmin, tmax, blocked, ref)
+        counts, _ = classify_occluded(self.checked_triangles, origins, dirs, tmin, tmax, blocked, ref)
         self._add("shadow", counts)
         return blocked
 

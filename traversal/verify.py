@@ -408,7 +408,7 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None, anyhit=False):
     from .api import Hits
     from .tracers import check_tracer
 
-    check_tracer(tracer, len(_checked_triangles(tris)))
+    check_tracer(tracer, triangles=_checked_triangles(tris))
     _check_embree_scene(scene)
     from .embree_ref import embree_intersect, embree_occluded
 
@@ -506,7 +506,7 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
                                       f"got {accel!r}")
     if tracer is not None:
         from .tracers import check_tracer
-        check_tracer(tracer, len(_checked_triangles(tris)))
+        check_tracer(tracer, triangles=_checked_triangles(tris))
     elif accel == "grid":
         from .grid import GridTracer
         tracer = GridTracer(tris)
