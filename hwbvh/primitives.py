@@ -412,6 +412,9 @@ def checked_coordinates(t, source):
     if kind == "O":
         try:
             t = t.astype(np.float64)
+        except OverflowError:                   # a Python integer past float64's range
+            raise InputError(source, f"a coordinate is too large: magnitude beyond float64's "
+                                     f"range exceeds {MAX_COORDINATE:.0e}") from None
         except (ValueError, TypeError):
             raise InputError(source, "triangles must be real numbers, got an object array holding "
                                      "something else") from None

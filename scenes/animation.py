@@ -113,7 +113,7 @@ def _vec3(source, v, path):
         v = [v, v, v]
     try:
         a = np.asarray(v, np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):     # an integer past float64's range
         a = None
     if a is None or a.shape != (3,) or not np.isfinite(a).all() or not vector_ok(v, a):
         _fail(source, path, f"expected 3 finite numbers of magnitude at most "

@@ -3,7 +3,11 @@
 A scene file is the same dict on disk (JSON or TOML). Everything here is generated in code, so
 no scene needs a download.
 """
+import math
+
 import numpy as np
+
+from hwbvh.config import MAX_PRIMITIVES
 
 
 def _materials():
@@ -111,3 +115,14 @@ def room(width=640, height=480, spp=4, max_depth=3, slats=120):
 
 
 BUILTIN = {"cornell": cornell_box, "marbles": marbles, "cloth": cloth, "room": room}
+
+# The largest value of each built-in scene's count parameter whose scene still fits one tree
+# (2^24 triangles), so that a larger one is refused before its shapes are made: the rest of
+# the scene, then what each item adds. marbles: a floor quad (2), spheres of 12 x 24 (528
+# each); cloth: the floor, an n x n sheet (2 n^2); room: six walls and a mirror (14), slats
+# that are boxes (12 each). A test holds these counts to the compiled scenes'.
+COUNT_LIMITS = {
+    "marbles": {"n": (MAX_PRIMITIVES - 2) // 528},
+    "cloth": {"n": math.isqrt((MAX_PRIMITIVES - 2) // 2)},
+    "room": {"slats": (MAX_PRIMITIVES - 14) // 12},
+}

@@ -19,7 +19,7 @@ from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, is_integer, shown
 from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
                               load_mesh_arrays, within_bound)
-from .builtin import BUILTIN
+from .builtin import BUILTIN, COUNT_LIMITS
 from .meshes import grid_sheet, uv_sphere
 
 SCENE_EXTENSIONS = (".json", ".toml")
@@ -254,6 +254,10 @@ def _builtin_overrides(name, overrides):
                                       f"(it takes {', '.join(known)})")
         if not is_integer(v) or v < 0:
             raise ParameterError(key, f"expected a non-negative integer, got {shown(v)}")
+        most = COUNT_LIMITS.get(name, {}).get(key)
+        if most is not None and v > most:
+            raise ParameterError(key, f"{shown(v)} makes more triangles than the 2^24 a tree "
+                                      f"holds: at most {most}")
     return {k: int(v) for k, v in overrides.items()}
 
 
@@ -302,11 +306,12 @@ def check_name(source, name):
 
 
 def vector_ok(v, a, bound=MAX_COORDINATE):
-    """Whether the numbers ``a`` read from ``v`` are ordinary: no true/false among them (JSON's
-    booleans would read as 1 and 0) and none beyond ``bound`` (positions and directions: the
-    coordinates hwbvh accepts; light: MAX_RADIANCE), so that no product of them overflows on
-    the way to the image."""
-    return not _holds_a_bool(v) and within_bound(a, bound)
+    """Whether the numbers ``a`` read from ``v`` are ordinary: numbers as given, not true/false
+    (JSON's booleans would read as 1 and 0) or text ("3" would read as 3, where a scalar key
+    refuses it), and none beyond ``bound`` (positions and directions: the coordinates hwbvh
+    accepts; light: MAX_RADIANCE), so that no product of them overflows on the way to the
+    image."""
+    return not _holds_a_non_number(v) and within_bound(a, bound)
 
 
 def _as_list(v):
@@ -314,13 +319,16 @@ def _as_list(v):
     return v.tolist() if isinstance(v, np.ndarray) else v
 
 
-def _holds_a_bool(v):
-    """Whether ``v`` (a number, or lists of them, or a NumPy array) holds a true or false."""
+def _holds_a_non_number(v):
+    """Whether ``v`` (a number, or lists of them, or a NumPy array) holds anything but numbers:
+    a true or false, text, None."""
     if isinstance(v, np.ndarray):
-        return v.dtype == np.bool_ or (v.dtype == object and any(map(_holds_a_bool, v.flat)))
+        return v.dtype.kind not in "fiuO" or \
+            (v.dtype == object and any(map(_holds_a_non_number, v.flat)))
     if isinstance(v, (list, tuple)):
-        return any(map(_holds_a_bool, v))
-    return isinstance(v, (bool, np.bool_))
+        return any(map(_holds_a_non_number, v))
+    return isinstance(v, (bool, np.bool_)) or \
+        not isinstance(v, (int, float, np.integer, np.floating))
 
 
 # The film and depth settings: (default, largest); each is an integer from 1.
@@ -564,8 +572,12 @@ class _Ctx:
         try:
             a = np.asarray(v, np.float64)
         except (TypeError, ValueError):
+            a = None
+        except OverflowError:                           # an integer past float64's range
+            a = np.full(n, np.inf)
+        if a is None or a.shape != (n,) or _holds_a_non_number(v):
             self.fail(_at(path, key), f"expected {n} numbers, got {written(given)}")
-        if a.shape != (n,) or not np.isfinite(a).all() or not vector_ok(v, a, bound):
+        if not np.isfinite(a).all() or not vector_ok(v, a, bound):
             self.fail(_at(path, key), f"expected {n} finite numbers of magnitude at most "
                                        f"{bound:g}, got {written(given)}")
         return a
@@ -803,7 +815,7 @@ def _shape(ctx, sh, i, scene_dir):
         c = sh.get("corners")
         try:
             c = np.asarray(c, np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             c = None
         if c is None or c.shape != (4, 3) or not within_bound(c) or \
                 not vector_ok(sh["corners"], c):
@@ -940,6 +952,9 @@ def _triangle_data(ctx, data, key):
     if ok:
         try:
             return np.asarray(items, np.float64)
+        except OverflowError:
+            ctx.fail(key, f"expected numbers of magnitude at most {MAX_COORDINATE:g}, got an "
+                          f"integer past float64's range")
         except (TypeError, ValueError):
             pass
     ctx.fail(key, "expected a list of triangles, each 3 points of 3 numbers")

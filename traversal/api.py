@@ -158,16 +158,34 @@ def ray_arrays(origins, dirs, dtype, names=("origins", "dirs")):
     o_name, d_name = names
     o = _ready(origins, dtype)
     if o is None:
-        o = np.require(real_array(origins, o_name, dtype), requirements=("C", "W"))
+        o = _converted(origins, o_name, dtype)
     d = _ready(dirs, dtype)
     if d is None:
-        d = np.require(real_array(dirs, d_name, dtype), requirements=("C", "W"))
+        d = _converted(dirs, d_name, dtype)
     if o.ndim != 2 or o.shape[1] != 3:
         raise ParameterError(o_name, f"must be (n, 3), got shape {o.shape}")
     if d.shape != o.shape:
         raise ParameterError(d_name, f"must be (n, 3) with one row per origin {o.shape}, "
                                      f"got shape {d.shape}")
     return o, d
+
+
+def _converted(x, name, dtype):
+    """``x`` (``real_array``) as a C-contiguous, writable array of ``dtype``; ParameterError
+    naming ``name`` when a finite number is beyond ``dtype``'s range (as infinity, its ray
+    would miss without a word)."""
+    a = real_array(x, name)
+    with np.errstate(over="ignore"):
+        out = np.require(np.asarray(a, dtype=dtype), requirements=("C", "W"))
+    if a.dtype.kind == "f" and a.dtype.itemsize > out.dtype.itemsize:
+        lost = np.isinf(out) & np.isfinite(a)
+        if lost.any():
+            big = float(np.abs(a[lost]).max())
+            raise ParameterError(name, f"holds {big:.3g}, beyond {out.dtype}'s range "
+                                       f"({float(np.finfo(out.dtype).max):.3g}): as infinity its "
+                                       f"ray would miss (trace with precision='float64', or "
+                                       f"scale the scene down)")
+    return out
 
 
 def _rays(origins, dirs, tmin, tmax, dtype):

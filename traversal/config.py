@@ -199,3 +199,9 @@ F64_UNIT_MAX_PRODUCT = 2.0**1022
 # pixels are off at 3.5e-12, 25% at 3.5e-14, most below. 2^-33 (~1.2e-10) stays ten times
 # above the smallest span that rendered cleanly.
 F32_UNIT_MIN_SPAN = 2.0**-33
+# A tracer's own floor, below the renderer's: the determinant of a ray of unit direction with
+# a triangle is at most |e1| |e2|, and below float32's normal range (2^-126) it loses its bits
+# and the ray its hit. A tracer whose largest triangle has |e1| |e2| below 2^-100 (triangles
+# of about 1e-15) is refused, 26 bits above that range; meshes of 1e-12 keep tracing (their
+# rays that start within rounding of a triangle lose t's bits first, as in Embree's unit).
+F32_UNIT_MIN_EDGES = 2.0**-100

@@ -32,7 +32,7 @@ from numba import njit, types
 from numba.extending import overload
 
 from hwbvh.errors import ParameterError
-from .config import BAND_K, F32_UNIT_MAX_PRODUCT, F64_UNIT_MAX_PRODUCT
+from .config import BAND_K, F32_UNIT_MAX_PRODUCT, F32_UNIT_MIN_EDGES, F64_UNIT_MAX_PRODUCT
 
 # A preprocessed triangle row: offsets of its words (x, y, z each) in the working float type.
 TRI_V0 = 0            # vertex 0
@@ -179,15 +179,25 @@ class Float32Range:
     them) and the rays' own lengths decide, so a scene the renderer accepts is traced."""
 
     MAX_PRODUCT = F32_UNIT_MAX_PRODUCT
+    MIN_EDGES = F32_UNIT_MIN_EDGES
     UNIT = "float32"
     REMEDY = "trace with precision='float64', or scale the scene down"
 
     def __init__(self, rows, triangles):
-        """``rows``: the ``preprocess`` rows of ``triangles`` (n, 3, 3)."""
+        """``rows``: the ``preprocess`` rows of ``triangles`` (n, 3, 3). Triangles whose
+        largest |e1| |e2| is below ``MIN_EDGES`` are refused (ParameterError naming
+        ``triangles``): every ray's determinant would leave the normal numbers."""
         n1, n2 = edge_norms2(rows)
         self.edges = float(np.sqrt((n1 * n2).max(initial=0)))
         self.longest = float(np.sqrt(max(n1.max(initial=0), n2.max(initial=0))))
         self.box = coordinate_box(triangles)
+        if 0 < self.edges < self.MIN_EDGES:     # no triangle with area: nothing to lose
+            raise ParameterError("triangles", f"too small for the {self.UNIT} unit: the largest "
+                                              f"|e1| |e2| of its triangles is {self.edges:.3g}, "
+                                              f"below the {self.MIN_EDGES:.3g} that keeps a unit "
+                                              f"direction's determinant a normal number (hits "
+                                              f"would be lost): "
+                                              f"{self.REMEDY.replace('down', 'up')}")
         # the usual batch in one comparison: directions no coordinate of which passes 1 (at
         # most sqrt(3) long), origins within this magnitude; -1 when no batch is that simple
         k = np.sqrt(3.0)
@@ -249,6 +259,7 @@ class Float64Range(Float32Range):
     far inside float64's range, so only origins or directions beyond about 1e270 are refused."""
 
     MAX_PRODUCT = F64_UNIT_MAX_PRODUCT
+    MIN_EDGES = 0.0                     # the builder's bound keeps float64's products normal
     UNIT = "float64"
     REMEDY = "scale the scene down"
 
