@@ -14,7 +14,7 @@ import numpy as np
 
 from . import config
 from .builder import build_canonical, check_params, check_task_prims
-from .errors import InputError, ParameterError, is_integer, shown
+from .errors import InputError, ParameterError, checked_flag, is_integer, shown
 from .files import json_text, made_as_written, write_files
 from .format import NODE_DTYPE, check_nodes, pack_indices, tree_stats, unpack_indices, validate
 from .layout import lay_out
@@ -31,6 +31,9 @@ class Bvh:
 
     nodes : (m,) NODE_DTYPE; indices : (N,) uint32 primitive index per index-list position;
     triangles : (N, 3, 3) float32 (what the indices refer to); meta : the NAME.json contents.
+    One that ``build`` or ``load`` returns holds every invariant, and ``traversal.Tracer``
+    takes it as it is; a tree made otherwise (or a copy with other arrays) is validated there
+    first. Arrays changed in place after ``build`` or ``load`` are not checked again.
     """
     nodes: np.ndarray
     indices: np.ndarray
@@ -48,7 +51,8 @@ class Bvh:
         (thesis ``mike_rt -U``), and the size of each hand-off."""
         t = self.tree
         if t is None or self.handoff is None:
-            raise ValueError("this BVH was loaded from files; rebuild it for the hand-off order")
+            raise ParameterError("bvh", "was loaded from files, which do not hold the hand-off "
+                                        "order: rebuild it for that")
         starts = t.start[self.handoff].astype(np.int64)
         counts = t.count[self.handoff].astype(np.int64)
         order = np.concatenate([t.ids[s:s + c] for s, c in zip(starts, counts)]) if len(starts) else \
@@ -96,6 +100,7 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     """
     if builder not in BUILDERS:
         raise ParameterError("builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
+    validate_tree = checked_flag(validate_tree, "validate_tree")
     if isinstance(source_name, bytes):                  # a path in the file system's encoding
         source_name = os.fsdecode(source_name)
     if source_name is not None and not isinstance(source_name, str):
@@ -157,6 +162,7 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     }
     bvh = Bvh(nodes=nodes, indices=tree.ids.astype(np.uint32), triangles=tris, meta=meta,
               handoff=handoff, tree=tree)
+    bvh._invariants_hold = True                 # as built (the tests hold the builders to it)
     if validate_tree:
         validate(nodes, bvh.indices, len(tris), max_leaf, boxes, source=src)
     return bvh
@@ -271,7 +277,9 @@ def load(prefix, triangles=None):
                                               f"padding (0xFFFFFF)")
     _checked_tree(meta, nodes, entries[:n], tris, prefix + ".json", prefix + ".nodes",
                   prefix + ".indices")
-    return Bvh(nodes=nodes, indices=entries[:n].copy(), triangles=tris, meta=meta)
+    bvh = Bvh(nodes=nodes, indices=entries[:n].copy(), triangles=tris, meta=meta)
+    bvh._invariants_hold = True                 # as validated above
+    return bvh
 
 
 def _checked_tree(meta, nodes, entries, tris, meta_name, nodes_name, indices_name):

@@ -406,7 +406,7 @@ def params_for(preset="HWBVH-C", **overrides):
     hardware's ranges."""
     from dataclasses import fields, replace
 
-    if preset not in PRESETS:
+    if not isinstance(preset, str) or preset not in PRESETS:
         raise ParameterError("preset", f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
     names = {f.name for f in fields(HwParams)}
     kw = {k: v for k, v in overrides.items() if v is not None}

@@ -30,6 +30,14 @@ def is_integer(v):
     return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
 
 
+def checked_flag(flag, name):
+    """``flag`` as a bool: True or False (NumPy's too), else ParameterError naming it (a string
+    such as "no" would read as True)."""
+    if not isinstance(flag, (bool, np.bool_)):
+        raise ParameterError(name, f"must be True or False, got {shown(flag)}")
+    return bool(flag)
+
+
 def shown(v, limit=40):
     """``repr(v)`` for a message, cut short: a 400-digit number is not worth printing."""
     try:

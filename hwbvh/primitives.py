@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from .config import MAX_COORDINATE, MAX_PRIMITIVES, OBJ_COMPILED_MIN_BYTES, PRIMITIVE_RECORD_BYTES
-from .errors import InputError
+from .errors import InputError, ParameterError
 
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
 
@@ -465,6 +465,10 @@ def load_mesh_arrays(path):
     """Read a mesh file with trimesh; return (vertices float32 (v,3), faces int64 (f,3))."""
     trimesh = trimesh_module()
 
+    if isinstance(path, bytes):                     # a path in the file system's encoding
+        path = os.fsdecode(path)
+    if not isinstance(path, (str, os.PathLike)):
+        raise ParameterError("path", f"expected a mesh file's path, got {type(path).__name__}")
     path = os.fspath(path)
     if not os.path.exists(path):
         raise InputError(path, "no such file")

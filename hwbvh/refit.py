@@ -111,6 +111,9 @@ class Refitter:
 
         if not isinstance(bvh, Bvh):
             raise ParameterError("bvh", f"expected a hwbvh.Bvh, got {type(bvh).__name__}")
+        # a refit keeps the topology and boxes every node anew from its children: its trees
+        # hold every invariant when the tree it refits does (``Bvh``)
+        self.invariants_hold = getattr(bvh, "_invariants_hold", False)
         # The kernels below follow the pointers and index ranges without bounds checks, so
         # the topology and the index list are checked once here.
         indices = np.asarray(bvh.indices)
@@ -175,7 +178,9 @@ class Refitter:
         nodes = self.refit_nodes(tris)
         st = tree_stats(nodes)
         meta = dict(self.meta, sah_cost=st["sah_cost"], refitted=True)
-        return Bvh(nodes=nodes, indices=self.indices.astype(np.uint32), triangles=tris, meta=meta)
+        bvh = Bvh(nodes=nodes, indices=self.indices.astype(np.uint32), triangles=tris, meta=meta)
+        bvh._invariants_hold = self.invariants_hold
+        return bvh
 
 
 def _described(a):

@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 
-from hwbvh.errors import ParameterError
+from hwbvh.errors import ParameterError, checked_flag
 from hwbvh.files import write_files
 
 
@@ -52,6 +52,7 @@ def exr_writer(path, result, metadata=None, layers=True):
         metadata = {}
     if not isinstance(metadata, dict):
         raise ParameterError("metadata", f"expected a dict, got {type(metadata).__name__}")
+    layers = checked_flag(layers, "layers")
     image = _check_image("result.image", result.image, (None, None, 3))
     H, W, _ = image.shape
     chans = [image[..., 0], image[..., 1], image[..., 2]]
@@ -69,9 +70,20 @@ def exr_writer(path, result, metadata=None, layers=True):
         spec.channelnames = tuple(names)
         spec.attribute("compression", "zip")
         for k, v in metadata.items():
-            spec.attribute(f"hwrt:{k}", _header_value(v))
+            value = _header_value(v)
+            spec.attribute(_text(f"hwrt:{k}"), _text(value) if isinstance(value, str) else value)
         _write_image(tmp, path, spec, pixels)
     return write
+
+
+def _text(s):
+    """``s`` as text the header can hold: a lone surrogate (the undecodable byte of a file name,
+    as Python reads it) shown as the byte's escape, \\xff, which UTF-8 can store."""
+    try:
+        s.encode("utf-8")
+        return s
+    except UnicodeEncodeError:
+        return s.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 INT32 = np.iinfo(np.int32)

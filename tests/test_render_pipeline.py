@@ -449,9 +449,15 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
         write_exr(tmp_path / "depth.exr", RenderResult(res.image, res.depth[:1], res.normal, res.prim))
     with pytest.raises(ParameterError, match="expected a file name with the extension .png"):
         write_png(tmp_path / "a.exr", res.image)
-    write_exr(tmp_path / "ok.exr", res, {"rays": 2 ** 40, "flag": True, "t": 0.25, "n": 7})
+    write_exr(tmp_path / "ok.exr", res, {"rays": 2 ** 40, "flag": True, "t": 0.25, "n": 7,
+                                         "source": "a\udcffb.ply", "\udcfe": 1})
     meta = read_exr(tmp_path / "ok.exr")[2]
-    assert meta == {"rays": str(2 ** 40), "flag": "True", "t": 0.25, "n": 7}
+    # a file name's undecodable byte (a lone surrogate in Python) as its escape: it raised
+    # from inside OpenImageIO
+    assert meta == {"rays": str(2 ** 40), "flag": "True", "t": 0.25, "n": 7,
+                    "source": "a\\xffb.ply", "\\xfe": 1}
+    with pytest.raises(ParameterError, match="layers: must be True or False, got 'no'"):
+        write_exr(tmp_path / "no.exr", res, layers="no")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.exr", "ok.exr"]
 
 

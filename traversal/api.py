@@ -11,10 +11,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from hwbvh.config import LEAF_FLAG
-from hwbvh.errors import InputError, ParameterError
+from hwbvh.config import LEAF_FLAG, MAX_LEAF_SIZE
+from hwbvh.errors import InputError, ParameterError, checked_flag
 from hwbvh.format import (BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, check_nodes, node_views,
-                          pack_indices)
+                          pack_indices, validate)
 from hwbvh.primitives import checked_coordinates
 from .aabb_unit import GAMMA3_F32, GAMMA3_F64
 from hwbvh.parallel import run_ranges
@@ -280,14 +280,6 @@ def _boxes_widened_by_an_ulp(nodes):
     return wide
 
 
-def checked_flag(flag, name):
-    """``flag`` as a bool: True or False (NumPy's too), else ParameterError naming it (a string
-    such as "no" would read as True)."""
-    if not isinstance(flag, (bool, np.bool_)):
-        raise ParameterError(name, f"must be True or False, got {flag!r}")
-    return bool(flag)
-
-
 class PacketCount:
     """``last_packets``: the packets the calling thread's last query traced (the rest went ray
     by ray). Per thread, since a ``concurrent`` tracer takes queries from several at once."""
@@ -346,7 +338,11 @@ class Tracer(PacketCount):
         tris = _checked_triangles(tris, source)
         # the triangle rows in index-list order, so that a leaf's rows lie side by side;
         # row_of[j]: primitive j's row (for the normals of hits)
-        order = np.asarray(bvh.indices, np.int64)
+        order = np.asarray(bvh.indices) if bvh.indices is not None else None
+        if order is None or order.dtype.kind not in "iu":
+            raise InputError("bvh.indices", f"must be an array of integers, got "
+                                            f"{'None' if order is None else order.dtype}")
+        order = order.astype(np.int64)
         n = len(tris)
         if order.ndim != 1 or len(order) != n:
             raise InputError(source, f"{n} triangles, but the tree has {len(order)} primitives "
@@ -362,6 +358,10 @@ class Tracer(PacketCount):
         # the kernels follow child pointers and leaf ranges unchecked: refuse a tree they
         # cannot walk before any of them reads it
         self.nodes = check_nodes(bvh.nodes, n_positions=n, source="bvh.nodes")
+        if not getattr(bvh, "_invariants_hold", False):
+            # not as hwbvh built or loaded it: a child box outside its parent's would make
+            # every ray below it miss (6.9 ms on 262k triangles, so not paid for built trees)
+            validate(self.nodes, order, n, MAX_LEAF_SIZE, source="bvh.nodes")
         self.u, self.f = node_views(self.nodes)
         # a leaf whose box does not hold its triangles (as the builder boxed them, in float32)
         # means other triangles than the tree's: every ray would miss them
@@ -398,6 +398,9 @@ class Tracer(PacketCount):
         self._start_packet_count()
 
     def _run(self, origins, dirs, tmin, tmax, anyhit, counters, normals=False, as_run=False):
+        counters = checked_flag(counters, "counters")
+        normals = checked_flag(normals, "normals")
+        as_run = checked_flag(as_run, "as_run")
         o, d, lo, hi = _rays(origins, dirs, tmin, tmax, self.dtype)
         if self.unit_range is not None:
             self.unit_range.check(o, d)
@@ -443,7 +446,7 @@ def compile_kernels(precision="float32"):
     which compiles the kernel for exactly the argument types of a real query. Lets another
     process compile the traversal while a first render compiles the builder and the shading
     (``raytracer.render.warm_up``). Returns seconds."""
-    from hwbvh.config import LEAF_FLAG
+    from hwbvh.config import LEAF_FLAG, MAX_LEAF_SIZE
     from hwbvh.format import NODE_DTYPE
     from types import SimpleNamespace
 

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from hwbvh.errors import ParameterError
+from hwbvh.errors import ParameterError, checked_flag
 from hwbvh.parallel import run_ranges
 from hwbvh.primitives import within_bound
 from .api import _interval, ray_arrays, real_array
@@ -186,6 +186,7 @@ class EmbreeTracer:
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
         from .api import Hits
         from .tracers import _shifted
+        normals = checked_flag(normals, "normals")
         o, d, lo, hi = _shifted(origins, dirs, tmin, tmax)
         t, prim, u, v, ng = embree_intersect(self.scene, o, d, None if np.isinf(hi).all() else hi)
         return Hits(t=(t + lo).astype(np.float32), prim=prim.astype(np.int32), u=u, v=v,

@@ -35,9 +35,9 @@ import time
 import numpy as np
 from numba import njit
 
-from hwbvh.errors import ParameterError
+from hwbvh.errors import ParameterError, checked_flag
 from hwbvh.parallel import run_ranges
-from .api import PacketCount, checked_flag
+from .api import PacketCount
 from .structure import TriangleStructure, checked_triangles, padded_box
 from .config import (CHUNK_RAYS, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
                      GRID_MAX_REFS_PER_TRI, GRID_PACKET_MAILBOX, GRID_PACKET_WIDEN,

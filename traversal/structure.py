@@ -21,7 +21,7 @@ same mesh spanning 9.9e14), checking its rays in the same way against float64's 
 """
 import numpy as np
 
-from hwbvh.errors import ParameterError
+from hwbvh.errors import ParameterError, checked_flag
 from hwbvh.primitives import checked_coordinates
 from .api import Hits, _answers, _rays
 from .config import EDGE_EPS_F32
@@ -89,7 +89,8 @@ class TriangleStructure:
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
         """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays); ``normals=False``
         leaves ng None."""
-        prim, t, u, v, ng = self._run(origins, dirs, tmin, tmax, False, normals)
+        prim, t, u, v, ng = self._run(origins, dirs, tmin, tmax, False,
+                                      checked_flag(normals, "normals"))
         return Hits(t=t, prim=prim, u=u, v=v, ng=ng)
 
     def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):

@@ -412,6 +412,7 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None, anyhit=False):
     _check_embree_scene(scene)
     from .embree_ref import embree_intersect, embree_occluded
 
+    ray_arrays(O, D, np.float32, names=("O", "D"))     # checked here; each tracer converts
     n = len(O)
     tmax_of = _tmax_slices(tmax)
     if anyhit:
