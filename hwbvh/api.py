@@ -51,8 +51,8 @@ class Bvh:
         (thesis ``mike_rt -U``), and the size of each hand-off."""
         t = self.tree
         if t is None or self.handoff is None:
-            raise ParameterError("bvh", "was loaded from files, which do not hold the hand-off "
-                                        "order: rebuild it for that")
+            raise ParameterError("bvh", "has no build record (loaded from files, refitted or made "
+                                        "by hand), so no hand-off order: rebuild it for that")
         starts = t.start[self.handoff].astype(np.int64)
         counts = t.count[self.handoff].astype(np.int64)
         order = np.concatenate([t.ids[s:s + c] for s, c in zip(starts, counts)]) if len(starts) else \
@@ -101,10 +101,8 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     if builder not in BUILDERS:
         raise ParameterError("builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
     validate_tree = checked_flag(validate_tree, "validate_tree")
-    if isinstance(source_name, bytes):                  # a path in the file system's encoding
-        source_name = os.fsdecode(source_name)
-    if source_name is not None and not isinstance(source_name, str):
-        raise ParameterError("source_name", f"expected a str, got {type(source_name).__name__}")
+    if source_name is not None:
+        source_name = _path_of(source_name, "source_name")
     check_params(leaf_size, bins)
     check_task_prims(task_prims)
     check_threading()

@@ -121,6 +121,7 @@ class TreeUpdater:
         costs = {k: refit_cost(r.n_prims, r.node_count, r.max_depth, PRESETS[k]) for k in PRESET_NAMES}
         bvh = Bvh(nodes=nodes, indices=r.indices.astype(np.uint32), triangles=tris,
                   meta=dict(r.meta, sah_cost=sah, refitted=True))
+        bvh._invariants_hold = r.invariants_hold       # refitted from a tree that held them
         row = {"rebuilt": False, "rebuild_reason": None,
                "build_seconds": refit_s + (sah_s if self.strategy == "adaptive" else 0.0),
                "refit_seconds": refit_s,

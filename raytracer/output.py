@@ -83,7 +83,11 @@ def _text(s):
         s.encode("utf-8")
         return s
     except UnicodeEncodeError:
+        pass
+    try:
         return s.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:          # a surrogate no byte stands for: its code point
+        return s.encode("utf-8", "backslashreplace").decode("utf-8")
 
 
 INT32 = np.iinfo(np.int32)
@@ -114,27 +118,35 @@ def _write_image(tmp, path, spec, pixels):
 
     out = oiio.ImageOutput.create(tmp)
     if out is None:
-        raise _image_error(tmp, oiio.geterror())
+        raise _image_error(tmp, path, oiio.geterror())
     try:
         if not out.open(tmp, spec) or not out.write_image(pixels):
-            raise _image_error(tmp, out.geterror())
+            raise _image_error(tmp, path, out.geterror())
     finally:
         closed = out.close()
     if not closed:
-        raise _image_error(tmp, out.geterror())
-    _check_whole(tmp)
+        raise _image_error(tmp, path, out.geterror())
+    _check_whole(tmp, path)
 
 
-def _check_whole(tmp):
-    """Read back the last scanline of the image just written to ``tmp``. OpenImageIO's writers
-    buffer their output and lose a failed last flush without a word (on a full disk the file
-    ends short and ``close`` succeeds); they write front to back, so a lost write always takes
-    the end of the file, and its last scanline then does not read. 1-2 ms for a 640x480 EXR."""
+def _check_whole(tmp, path):
+    """Check that the image just written to ``tmp`` (for ``path``) is whole. OpenImageIO's
+    writers buffer their output and lose a failed last flush without a word (on a full disk
+    the file ends short and ``close`` succeeds); they write front to back, so a lost write
+    takes the end of the file. A PNG must end in its IEND chunk; an EXR's last scanline must
+    read back (1-2 ms for a 640x480 image)."""
     import OpenImageIO as oiio
 
+    if tmp.lower().endswith(".png"):
+        with open(tmp, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - len(PNG_END)))
+            if f.read() != PNG_END:
+                raise _image_error(tmp, path, "the file does not end in its IEND chunk")
+        return
     inp = oiio.ImageInput.open(tmp)
     if inp is None:
-        raise _image_error(tmp, oiio.geterror())
+        raise _image_error(tmp, path, oiio.geterror())
     try:
         spec = inp.spec()
         whole = inp.read_scanline(spec.y + spec.height - 1, spec.z, "float") is not None
@@ -142,20 +154,24 @@ def _check_whole(tmp):
     finally:
         inp.close()
     if not whole:
-        raise _image_error(tmp, problem)
+        raise _image_error(tmp, path, problem)
 
 
-def _image_error(tmp, detail):
-    """The OSError of an image OpenImageIO could not write to ``tmp``: "No space left on device"
-    when its file system is full (the usual cause, which OpenImageIO reports in its own words),
-    else OpenImageIO's message."""
+# the last 12 bytes of every PNG file: the IEND chunk (length 0, type, CRC)
+PNG_END = bytes.fromhex("0000000049454e44ae426082")
+
+
+def _image_error(tmp, path, detail):
+    """The OSError of an image OpenImageIO could not write to ``tmp``, the temporary file of
+    ``path``: "No space left on device" when its file system is full (the usual cause, which
+    OpenImageIO reports in its own words), else OpenImageIO's message (naming ``path``)."""
     try:
         full = os.statvfs(os.path.dirname(os.path.abspath(tmp))).f_bavail == 0
     except OSError:
         full = False
     if full:
         return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), tmp)
-    reason = " ".join(str(detail).split()) or "no reason given"
+    reason = " ".join(str(detail).replace(tmp, os.fspath(path)).split()) or "no reason given"
     return OSError(errno.EIO, f"OpenImageIO could not write it: {reason}", tmp)
 
 

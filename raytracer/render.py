@@ -228,7 +228,9 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=DEFAULT_LEA
         vertices, faces = shared_vertices(scene.vertices, scene.faces)   # not part of the build
         t = time.perf_counter()
         tr = EmbreeTracer(vertices, faces)
-        return tr, time.perf_counter() - t, {"builder": "embree"}
+        seconds = time.perf_counter() - t
+        tr.triangles                    # gathered now, for render's check, outside the build
+        return tr, seconds, {"builder": "embree"}
     if traversal == "embree":
         raise ParameterError("traversal", "Embree traverses its own tree only "
                                           "(traversal 'embree' needs builder 'embree')")

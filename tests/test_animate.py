@@ -738,10 +738,11 @@ def test_load_animation_checks_its_triangle_count(triangles):
 @pytest.mark.parametrize("name, triangles", [("exploding", 676), ("cloth", 512)])
 def test_a_generated_mesh_too_large_for_a_tree_is_refused_before_it_is_made(
         name, triangles, monkeypatch):
-    """--triangles 2^24 made an exploding sphere of exactly 2^24 triangles, which with the floor
-    no tree holds: refused after 48 s and 10 GB. The count is now worked out before the mesh
-    is made, exactly: with a tree that holds the scene's count the animation loads, with one
-    triangle less it is refused (the limit shrunk here so the meshes stay small)."""
+    """A generated mesh that with the rest of the scene would pass what a tree holds
+    (--triangles 2^24 makes a sphere of exactly 2^24 triangles, plus the floor's 2) is refused
+    before it is made, by its exact count: with a tree that holds the scene's count the
+    animation loads, with one triangle less it is refused (the limit shrunk here so the
+    meshes stay small)."""
     import scenes.animation as animation
     from hwbvh.errors import ParameterError
     scene = animation.load_animation(name, triangles=triangles, **TINY).scene(0)

@@ -484,9 +484,9 @@ def _with(bvh, **changes):
 
 
 def test_save_refuses_what_load_would_refuse_or_read_back_changed(tmp_path, bvh):
-    """save wrote trees load then refused (an inner box shrunk, a repeated index, a description
-    without counts) or read back as another tree (indices beyond 24 bits cut to 24, floats cut
-    to integers): it now checks what load checks, and writes nothing when it refuses."""
+    """save refuses what load would refuse (an inner box shrunk, a repeated index, a description
+    without counts) and indices it would write as others (beyond 24 bits, not integers),
+    naming the part, and writes nothing then."""
     shrunk = bvh.nodes.copy()
     shrunk["bounds"][0] = [0, 0, 0, 0.1, 0.1, 0.1]
     repeated = bvh.indices.copy()
@@ -510,7 +510,7 @@ def test_save_refuses_what_load_would_refuse_or_read_back_changed(tmp_path, bvh)
     assert np.array_equal(back.indices, bvh.indices) and back.nodes.tobytes() == bvh.nodes.tobytes()
     named = hwbvh.build(bvh.triangles, source_name=b"mesh.ply")
     assert named.meta["source"] == "mesh.ply"
-    with pytest.raises(ParameterError, match="source_name: expected a str, got int"):
+    with pytest.raises(ParameterError, match="source_name: expected a path, got int"):
         hwbvh.build(bvh.triangles, source_name=1)
 
 

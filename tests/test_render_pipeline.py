@@ -452,8 +452,7 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
     write_exr(tmp_path / "ok.exr", res, {"rays": 2 ** 40, "flag": True, "t": 0.25, "n": 7,
                                          "source": "a\udcffb.ply", "\udcfe": 1})
     meta = read_exr(tmp_path / "ok.exr")[2]
-    # a file name's undecodable byte (a lone surrogate in Python) as its escape: it raised
-    # from inside OpenImageIO
+    # a file name's undecodable byte (a lone surrogate in Python) goes in as its escape
     assert meta == {"rays": str(2 ** 40), "flag": "True", "t": 0.25, "n": 7,
                     "source": "a\\xffb.ply", "\\xfe": 1}
     with pytest.raises(ParameterError, match="layers: must be True or False, got 'no'"):
@@ -462,8 +461,8 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
 
 
 def test_a_tracer_built_over_other_triangles_of_the_same_count_is_refused():
-    """The same scene moved: as many triangles, other coordinates. Every ray missed and the
-    image came out black without a word; every tracer (and a wrapper of one) now tells."""
+    """A tracer over the scene moved (as many triangles, other coordinates) would miss every
+    ray: every tracer, and a wrapper of one, is refused for it."""
     import copy
     import hwbvh
     from hwbvh.errors import ParameterError
@@ -495,9 +494,9 @@ def test_an_image_that_came_out_short_is_an_error_and_leaves_no_file(tmp_path, m
     from raytracer.render import RenderResult
     read_back = output._check_whole
 
-    def lose_the_end(tmp):
+    def lose_the_end(tmp, path):
         os.truncate(tmp, os.path.getsize(tmp) - 100)
-        read_back(tmp)
+        read_back(tmp, path)
     monkeypatch.setattr(output, "_check_whole", lose_the_end)
     h, w = 40, 48
     ramp = np.linspace(0, 1, h * w * 3, dtype=np.float32).reshape(h, w, 3)
@@ -784,3 +783,21 @@ def test_accumulate_adds_in_a_fixed_order_per_pixel(camera, first, want):
     assert np.array_equal(film[0], np.full(3, want))
     if first:                                                 # only the queue's pixels
         assert np.isnan(film[1:]).all()
+
+
+def test_check_tracer_compares_triangles_as_the_units_hold_them():
+    """A tracer keeps the triangles it was given; float64 triangles and their float32 rounding
+    are the same triangles to the float32 units and to Embree, and a tracer over them passes;
+    one coordinate moved by a float32 ulp does not."""
+    from hwbvh.errors import ParameterError
+    from traversal.grid import GridTracer
+    from traversal.tracers import check_tracer
+    tris = np.random.default_rng(3).uniform(0, 1, (50, 3, 3))
+    rounded = tris.astype(np.float32)
+    for tracer in (GridTracer(tris), GridTracer(rounded)):
+        check_tracer(tracer, triangles=tris)
+        check_tracer(tracer, triangles=rounded)
+        other = rounded.copy()
+        other[7, 1, 2] = np.nextafter(other[7, 1, 2], np.float32(2))
+        with pytest.raises(ParameterError, match="traces other triangles than the scene's"):
+            check_tracer(tracer, triangles=other)

@@ -593,9 +593,9 @@ def test_a_top_level_key_is_named_bare_and_a_long_integer_as_written(tmp_path, c
 
 @pytest.mark.parametrize("name, key", [("marbles", "n"), ("cloth", "n"), ("room", "slats")])
 def test_a_builtin_count_beyond_one_tree_is_refused_before_its_shapes_are_made(name, key):
-    """load_scene('marbles', n=10**9) made a billion shape dicts (it ran for minutes). Each
-    count parameter now stops at the largest scene one tree holds, and the limit is the
-    scenes' own arithmetic: the compiled scene grows by the counted triangles per item."""
+    """A built-in scene's count parameter stops at the largest scene one tree holds, before any
+    shape is made (n=10**9 would make a billion shapes), and the limit is the scenes' own
+    arithmetic: the compiled scene grows by the counted triangles per item."""
     from hwbvh.config import MAX_PRIMITIVES
     from hwbvh.errors import ParameterError
     from scenes import compile_scene, load_scene
@@ -621,8 +621,8 @@ def test_a_builtin_count_beyond_one_tree_is_refused_before_its_shapes_are_made(n
 
 
 def test_vectors_take_numbers_only_and_integers_past_float64_are_named():
-    """["0", "0", "3"] compiled as (0, 0, 3) where fov="40" is refused; an integer of 400
-    digits raised a bare OverflowError. Each is now the key and the problem."""
+    """Vectors take numbers only (["0", "0", "3"] is refused as fov="40" is), and an integer
+    past float64's range is named with its key, as every bad value is."""
     import copy
     import hwbvh
     from hwbvh.errors import InputError

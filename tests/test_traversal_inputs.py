@@ -508,9 +508,9 @@ def test_float64_rays_are_checked_against_the_units_range():
 
 
 def test_the_float32_units_refuse_what_they_would_trace_as_misses():
-    """Triangles of 1e-20 (every determinant below float32's normal range) and origins or
-    directions past float32's range (infinity once converted) missed without a word; refused
-    now, naming what to change. The float64 units trace them."""
+    """The float32 units refuse what they would trace as misses, naming what to change:
+    triangles of 1e-20 (every determinant below float32's normal range), and origins or
+    directions past float32's range (infinity once converted). The float64 units trace them."""
     import hwbvh
     from hwbvh.errors import ParameterError
     from traversal import Tracer
@@ -538,9 +538,9 @@ def test_the_float32_units_refuse_what_they_would_trace_as_misses():
 
 
 def test_flags_and_odd_arguments_are_refused_by_name():
-    """A string flag read as True ("no" returned normals or counters), and arguments that
-    raised NumPy's or Python's own errors: each is now a ParameterError or InputError naming
-    the argument."""
+    """A flag takes True or False only (a string such as "no" would read as True), and odd
+    arguments are ParameterErrors or InputErrors naming the argument, not NumPy's or Python's
+    own errors."""
     from types import SimpleNamespace
     from traversal.verify import verify_rays
     unit = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)
@@ -570,9 +570,9 @@ def test_flags_and_odd_arguments_are_refused_by_name():
 
 
 def test_a_tree_not_from_the_builder_is_validated_before_it_is_traced():
-    """A child box shrunk inside a tree made by hand made every ray miss; a tree that hwbvh did
-    not build, load or refit is validated first (one it did is taken as it is: 7 ms on 262k
-    triangles, which a timed build would pay)."""
+    """A tree that hwbvh did not build, load or refit is validated before it is traced (a child
+    box shrunk inside it would make every ray miss); one it did is taken as it is (validating
+    costs 7 ms on 262k triangles, which a timed build would pay)."""
     import dataclasses
     from types import SimpleNamespace
     from hwbvh.refit import Refitter

@@ -183,8 +183,9 @@ def _converted(x, name, dtype):
             big = float(np.abs(a[lost]).max())
             raise ParameterError(name, f"holds {big:.3g}, beyond {out.dtype}'s range "
                                        f"({float(np.finfo(out.dtype).max):.3g}): as infinity its "
-                                       f"ray would miss (trace with precision='float64', or "
-                                       f"scale the scene down)")
+                                       f"ray would miss (trace with "
+                                       f"traversal.Tracer(precision='float64'), or scale the "
+                                       f"scene down)")
     return out
 
 
@@ -446,7 +447,6 @@ def compile_kernels(precision="float32"):
     which compiles the kernel for exactly the argument types of a real query. Lets another
     process compile the traversal while a first render compiles the builder and the shading
     (``raytracer.render.warm_up``). Returns seconds."""
-    from hwbvh.config import LEAF_FLAG, MAX_LEAF_SIZE
     from hwbvh.format import NODE_DTYPE
     from types import SimpleNamespace
 
@@ -456,8 +456,9 @@ def compile_kernels(precision="float32"):
     leaf["b"][0] = 1                                   # one primitive, at index position 0
     leaf["flags"][0] = LEAF_FLAG
     triangle = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)
-    tracer = Tracer(SimpleNamespace(nodes=leaf, indices=np.zeros(1, np.int64), triangles=triangle),
-                    precision=precision)
+    # one leaf holding its triangle: valid as made (validating would load another kernel)
+    tracer = Tracer(SimpleNamespace(nodes=leaf, indices=np.zeros(1, np.int64), triangles=triangle,
+                                    _invariants_hold=True), precision=precision)
     none = np.zeros((0, 3), tracer.dtype)
     tracer.intersect(none, none, normals=False)
     return time.perf_counter() - t

@@ -601,7 +601,7 @@ class GridTracer(TriangleStructure, PacketCount):
         self.offsets = np.zeros(int(np.prod(res)) + 1, np.int64)
         self.refs = np.empty(total, np.int32)
         _fill(ranges, self._res, self.offsets, self.refs)
-        self._set_unit(tris)
+        self._set_unit(tris, triangles)
         self.references = int(total)
         self.references_per_triangle = total / max(n, 1)
         self.memory_bytes = int(self.offsets.nbytes + self.refs.nbytes + self.tris.nbytes)

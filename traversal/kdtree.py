@@ -834,7 +834,7 @@ class KdTreeTracer(TriangleStructure):
         self.depth = int(depth)
         self.nodes = len(self.node_words)
         self.leaves = int(((self.node_words[:, 1] & 3) == LEAF).sum())
-        self._set_unit(tris)
+        self._set_unit(tris, triangles)
         self.references = int(len(self.refs))
         self.references_per_triangle = self.references / max(n, 1)
         self.memory_bytes = int(self.node_words.nbytes + self.refs.nbytes + self.tris.nbytes)

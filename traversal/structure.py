@@ -65,9 +65,11 @@ class TriangleStructure:
     concurrent = True                 # queries may come from several threads at once
     dtype = np.float32
 
-    def _set_unit(self, tris):
+    def _set_unit(self, tris, given):
+        """The unit's rows of ``tris`` (``checked_triangles``); ``given``: the caller's own
+        triangles, kept as the ones traced (``traversal.tracers``) without a copy."""
         self.n_triangles = len(tris)
-        self.triangles = tris
+        self.triangles = given
         self.tris = preprocess(tris, np.float32)
         self.unit_range = Float32Range(self.tris, tris)
         self._tris1 = self.tris.reshape(-1)

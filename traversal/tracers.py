@@ -64,8 +64,9 @@ def check_tracer(tracer, n_triangles=None, name="tracer", triangles=None):
                                    f"scene has {n_triangles}: not built over the scene's "
                                    f"triangles")
     traced = getattr(tracer, "triangles", None)
+    # compared as the float32 units and Embree hold them: a tracer keeps what it was given
     if triangles is not None and traced is not None and traced is not triangles and \
-            not np.array_equal(traced, triangles):
+            not np.array_equal(np.asarray(traced, np.float32), np.asarray(triangles, np.float32)):
         raise ParameterError(name, f"{type(tracer).__name__} traces other triangles than the "
                                    f"scene's ({len(triangles)} each, at other coordinates): not "
                                    f"built over the scene's triangles")

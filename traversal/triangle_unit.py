@@ -181,7 +181,7 @@ class Float32Range:
     MAX_PRODUCT = F32_UNIT_MAX_PRODUCT
     MIN_EDGES = F32_UNIT_MIN_EDGES
     UNIT = "float32"
-    REMEDY = "trace with precision='float64', or scale the scene down"
+    REMEDY = "trace with traversal.Tracer(precision='float64'), or scale the scene down"
 
     def __init__(self, rows, triangles):
         """``rows``: the ``preprocess`` rows of ``triangles`` (n, 3, 3). Triangles whose
@@ -259,7 +259,7 @@ class Float64Range(Float32Range):
     far inside float64's range, so only origins or directions beyond about 1e270 are refused."""
 
     MAX_PRODUCT = F64_UNIT_MAX_PRODUCT
-    MIN_EDGES = 0.0                     # the builder's bound keeps float64's products normal
+    MIN_EDGES = 0.0                     # float32 triangles keep float64's products normal
     UNIT = "float64"
     REMEDY = "scale the scene down"
 

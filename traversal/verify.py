@@ -412,7 +412,10 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None, anyhit=False):
     _check_embree_scene(scene)
     from .embree_ref import embree_intersect, embree_occluded
 
-    ray_arrays(O, D, np.float32, names=("O", "D"))     # checked here; each tracer converts
+    for name, a in (("O", O), ("D", D)):                # checked here; each tracer converts
+        if np.shape(real_array(a, name)) != np.shape(O) or np.ndim(O) != 2 or np.shape(O)[1] != 3:
+            raise ParameterError(name, f"must be (n, 3), one row per ray, got shape "
+                                       f"{np.shape(a)}")
     n = len(O)
     tmax_of = _tmax_slices(tmax)
     if anyhit:
