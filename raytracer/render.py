@@ -526,15 +526,36 @@ def _check_render_arguments(scene, tracer, seed, progress):
                                       f"{type(scene).__name__}")
     if len(scene.triangles) == 0:
         raise ParameterError("scene", "has no triangles to render")
-    for key in ("width", "height", "spp"):
-        v = getattr(scene, key)
+    for key in ("width", "height", "spp", "max_depth"):
+        v = getattr(scene, key, None)
         if not is_integer(v) or v < 1:
             raise ParameterError(f"scene.{key}", f"must be a positive integer, got {v!r}")
+    _check_camera(scene.camera)
     check_tracer(tracer, triangles=scene.triangles)
     if not is_integer(seed) or seed < 0:
         raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
     if progress is not None and not callable(progress):
         raise ParameterError("progress", f"expected a callable or None, got {type(progress).__name__}")
+
+
+def _check_camera(cam):
+    """A compiled scene's camera as ``compile_scene`` makes it (checked again: a scene changed
+    after compiling, by ``dataclasses.replace`` say, would render black from a NaN basis):
+    finite eye, target and up, an eye apart from its target, a field of view in (0, 180)."""
+    try:
+        eye, target, up = (np.asarray(cam[k], np.float64) for k in ("eye", "target", "up"))
+        fov = float(cam["fov"])
+    except (KeyError, TypeError, ValueError):
+        raise ParameterError("scene.camera", "expected the eye, target, up and fov of "
+                                             "compile_scene's camera") from None
+    for name, a in (("eye", eye), ("target", target), ("up", up)):
+        if a.shape != (3,) or not np.isfinite(a).all():
+            raise ParameterError(f"scene.camera.{name}", f"must be 3 finite numbers, got {a!r}")
+    if np.array_equal(eye, target) or not np.any(up):
+        raise ParameterError("scene.camera", "needs an eye apart from its target and an up "
+                                             "that is not zero")
+    if not 0 < fov < 180:
+        raise ParameterError("scene.camera.fov", f"must be in (0, 180) degrees, got {fov!r}")
 
 
 def point_light_positions(lights):

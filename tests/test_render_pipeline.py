@@ -801,3 +801,26 @@ def test_check_tracer_compares_triangles_as_the_units_hold_them():
         other[7, 1, 2] = np.nextafter(other[7, 1, 2], np.float32(2))
         with pytest.raises(ParameterError, match="traces other triangles than the scene's"):
             check_tracer(tracer, triangles=other)
+
+
+def test_a_scene_changed_after_compiling_is_checked_again_before_it_renders():
+    """compile_scene checks the depth and the camera; a scene changed after it (by
+    dataclasses.replace) is checked again by render, whose basis would be NaN and image
+    black."""
+    import dataclasses
+    from hwbvh.errors import ParameterError
+    sc = compile_scene(load_scene("cornell", width=8, height=6, spp=1))
+    tracer = make_tracer(sc)[0]
+    cam = sc.camera
+    for change, message in (({"max_depth": 0}, "scene.max_depth: must be a positive integer"),
+                            ({"camera": dict(cam, fov=float("nan"))}, "scene.camera.fov: must be"),
+                            ({"camera": dict(cam, fov=180.0)}, "scene.camera.fov: must be"),
+                            ({"camera": dict(cam, target=cam["eye"])}, "scene.camera: needs an "
+                                                                       "eye apart"),
+                            ({"camera": dict(cam, up=np.zeros(3))}, "scene.camera: needs"),
+                            ({"camera": dict(cam, eye=np.array([np.nan, 0, 0]))},
+                             "scene.camera.eye: must be 3 finite numbers"),
+                            ({"camera": {"eye": cam["eye"]}}, "scene.camera: expected the eye")):
+        with pytest.raises(ParameterError, match=message):
+            render(dataclasses.replace(sc, **change), tracer)
+    assert (render(sc, tracer).prim >= 0).sum() > 30
