@@ -113,7 +113,7 @@ class Refitter:
             raise ParameterError("bvh", f"expected a hwbvh.Bvh, got {type(bvh).__name__}")
         # a refit keeps the topology and boxes every node anew from its children: its trees
         # hold every invariant when the tree it refits does (``Bvh``)
-        self.invariants_hold = getattr(bvh, "_invariants_hold", False)
+        self._invariants_hold = getattr(bvh, "_invariants_hold", False)
         # The kernels below follow the pointers and index ranges without bounds checks, so
         # the topology and the index list are checked once here.
         indices = np.asarray(bvh.indices)
@@ -172,14 +172,18 @@ class Refitter:
     def refit(self, triangles):
         """A new :class:`hwbvh.Bvh`: this topology, boxes for ``triangles`` ((N, 3, 3) float),
         its SAH cost recomputed."""
-        from .api import Bvh
-
         tris = self.check(triangles)
         nodes = self.refit_nodes(tris)
-        st = tree_stats(nodes)
-        meta = dict(self.meta, sah_cost=st["sah_cost"], refitted=True)
-        bvh = Bvh(nodes=nodes, indices=self.indices.astype(np.uint32), triangles=tris, meta=meta)
-        bvh._invariants_hold = self.invariants_hold
+        return self.tree(nodes, tris, tree_stats(nodes)["sah_cost"])
+
+    def tree(self, nodes, tris, sah_cost):
+        """The :class:`hwbvh.Bvh` of ``nodes`` that ``refit_nodes`` made for ``tris``, whose SAH
+        cost is ``sah_cost`` (a caller that times the refit and the cost apart passes it)."""
+        from .api import Bvh
+
+        bvh = Bvh(nodes=nodes, indices=self.indices.astype(np.uint32), triangles=tris,
+                  meta=dict(self.meta, sah_cost=sah_cost, refitted=True))
+        bvh._invariants_hold = self._invariants_hold
         return bvh
 
 

@@ -106,7 +106,6 @@ class TreeUpdater:
         return bvh, row
 
     def _refit(self, tris):
-        from hwbvh.api import Bvh
         from hwbvh.cycle_model import PRESETS
         from hwbvh.format import tree_stats
         from hwbvh.refit import refit_cost
@@ -119,9 +118,7 @@ class TreeUpdater:
         sah = tree_stats(nodes)["sah_cost"]
         sah_s = time.perf_counter() - t
         costs = {k: refit_cost(r.n_prims, r.node_count, r.max_depth, PRESETS[k]) for k in PRESET_NAMES}
-        bvh = Bvh(nodes=nodes, indices=r.indices.astype(np.uint32), triangles=tris,
-                  meta=dict(r.meta, sah_cost=sah, refitted=True))
-        bvh._invariants_hold = r.invariants_hold       # refitted from a tree that held them
+        bvh = r.tree(nodes, tris, sah)
         row = {"rebuilt": False, "rebuild_reason": None,
                "build_seconds": refit_s + (sah_s if self.strategy == "adaptive" else 0.0),
                "refit_seconds": refit_s,

@@ -419,9 +419,10 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
     jobs, keys = [], {}
     structures = tti_structures(getattr(args, "accel", None))
     trees = [(b, t, "bvh", b) for b, t in TTI_TREES] + [("hwbvh", "numba", a, a) for a in structures]
+    cell_keys = {spec[0]: {t[3]: _tti_key(spec[0], t[3], W, H, spp, depth, repeat) for t in trees}
+                 for spec in specs}
     for spec in specs:                  # a job per scene: the trees whose cells are missing
-        missing = {t[3]: _tti_key(spec[0], t[3], W, H, spp, depth, repeat) for t in trees}
-        missing = {name: key for name, key in missing.items() if not cells.get(key)}
+        missing = {name: key for name, key in cell_keys[spec[0]].items() if not cells.get(key)}
         if missing:
             job = f"tti-{run}-{len(jobs)}"
             keys[job] = missing
@@ -438,8 +439,7 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
             timing.run(jobs, save, "bench tti", progress)
             where = timing.machine()
     rows, summary = _tti_rows(cells, specs, W, H, spp, depth, repeat, structures)
-    used = sum(1 for spec in specs for *_, tree in trees
-               if cells.get(_tti_key(spec[0], tree, W, H, spp, depth, repeat)))
+    used = sum(1 for by_tree in cell_keys.values() for key in by_tree.values() if cells.get(key))
     timed = sum(len(k) for k in keys.values())        # cells, not scenes
     provenance = _provenance(args, use_dask, timed, used, cells)
     md = "# hwrt bench tti\n\n" + made_by_block(command_of(args)) + \

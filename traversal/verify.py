@@ -412,10 +412,13 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None, anyhit=False):
     _check_embree_scene(scene)
     from .embree_ref import embree_intersect, embree_occluded
 
-    for name, a in (("O", O), ("D", D)):                # checked here; each tracer converts
-        if np.shape(real_array(a, name)) != np.shape(O) or np.ndim(O) != 2 or np.shape(O)[1] != 3:
-            raise ParameterError(name, f"must be (n, 3), one row per ray, got shape "
-                                       f"{np.shape(a)}")
+    # checked here without a copy; each tracer converts them itself
+    shape = np.shape(real_array(O, "O"))
+    if len(shape) != 2 or shape[1] != 3:
+        raise ParameterError("O", f"must be (n, 3), got shape {shape}")
+    if np.shape(real_array(D, "D")) != shape:
+        raise ParameterError("D", f"must be (n, 3) with one row per origin {shape}, got shape "
+                                  f"{np.shape(D)}")
     n = len(O)
     tmax_of = _tmax_slices(tmax)
     if anyhit:
