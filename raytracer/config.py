@@ -2,7 +2,7 @@
 
 # Rays per shading block: the shading kernel works a block at a time in passes over a
 # structure-of-arrays scratch, so that its arithmetic runs in SIMD lanes; 256 keeps that
-# scratch (30 rows of 256 doubles, 60 KB) in the L2 cache beside the rays it reads.
+# scratch (72 rows of 256 doubles, 150 KB) in the L2 cache beside the rays it reads.
 BLOCK = 256
 
 # Pixels per band, and the fewest bands a frame is cut into. A frame is rendered in bands of

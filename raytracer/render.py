@@ -402,11 +402,13 @@ def _scene_arrays(scene, lights):
             ldir[k] = -np.asarray(light["direction"], np.float64)
             val[k] = light["irradiance"]
     f64 = lambda a: np.ascontiguousarray(a, np.float64)
+    kr, ior = f64(scene.kr), f64(scene.ior)
+    dielectric = ior > 0                             # dielectrics take no direct light
     return (face_n, np.ascontiguousarray(scene.normals, np.float32),
-            np.ascontiguousarray(scene.material, np.int32), tri_mag, f64(scene.kd),
-            f64(scene.kd) / np.pi, f64(scene.ks),
-            f64(scene.shininess), f64(scene.kr), f64(scene.ior), kind, pos, ldir, val,
-            f64(scene.ambient), f64(scene.background), float(scene.cutoff))
+            np.ascontiguousarray(scene.material, np.int32), tri_mag,
+            f64(scene.kd) * f64(scene.ambient), ~dielectric, dielectric | (kr.max(axis=1) > 0),
+            f64(scene.kd) / np.pi, f64(scene.ks), f64(scene.shininess), kr, ior, kind, pos,
+            ldir, val, f64(scene.background), float(scene.cutoff))
 
 
 def _band_jitter(words, npix, p0, p1, out):

@@ -170,17 +170,18 @@ def finish_band(q0, q1, film, spp, image):
     return over
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def fresnel_dielectric(cos_i, eta_i, eta_t):
-    """Unpolarised Fresnel reflectance for cos_i >= 0: (F, cos_t, total internal reflection)."""
+    """Unpolarised Fresnel reflectance for cos_i >= 0: (F, cos_t, total internal reflection).
+    Without a branch, so that it runs in SIMD lanes: under total internal reflection
+    1 - sin_t^2 <= 0, so cos_t is 0 as it is, and F is chosen to be 1."""
     r = eta_i / eta_t
     sin_t2 = r * r * max(0.0, 1.0 - cos_i * cos_i)
-    if sin_t2 >= 1.0:
-        return 1.0, 0.0, True
+    tir = sin_t2 >= 1.0
     cos_t = np.sqrt(max(0.0, 1.0 - sin_t2))
     rs = (eta_i * cos_i - eta_t * cos_t) / (eta_i * cos_i + eta_t * cos_t)
     rp = (eta_t * cos_i - eta_i * cos_t) / (eta_t * cos_i + eta_i * cos_t)
-    return 0.5 * (rs * rs + rp * rp), cos_t, False
+    return 1.0 if tir else 0.5 * (rs * rs + rp * rp), cos_t, tir
 
 
 @njit(cache=True, error_model="numpy")
@@ -211,10 +212,14 @@ def _put_ray(O, D, W, pix, k, ox, oy, oz, dx, dy, dz, w0, w1, w2, p):
 # BLOCK doubles (2 KB) apart, a ray's entries in every other row fall in one set of the L1
 # cache, and the passes that read 15-20 rows (the shadow records, the secondary rays)
 # evicted their own lines; padded, they shade 4-7% faster.
-_ROWS = 30
+_ROWS = 72
 _ROW = BLOCK + 8
 (_DX, _DY, _DZ, _PX, _PY, _PZ, _GX, _GY, _GZ, _FX, _FY, _FZ, _NX, _NY, _NZ, _W0, _W1, _W2, _MAG,
- _OX, _OY, _OZ, _LX, _LY, _LZ, _TMAX, _COS, _E0, _E1, _E2) = range(0, _ROWS * _ROW, _ROW)
+ _OX, _OY, _OZ, _LX, _LY, _LZ, _TMAX, _COS, _E0, _E1, _E2,
+ _RX, _RY, _RZ, _RW0, _RW1, _RW2, _ROX, _ROY, _ROZ,
+ _TX, _TY, _TZ, _TW0, _TW1, _TW2, _TOX, _TOY, _TOZ, _REFRACTS,
+ _SDX, _SDY, _SDZ, _SPX, _SPY, _SPZ, _SGX, _SGY, _SGZ, _SFX, _SFY, _SFZ, _SNX, _SNY, _SNZ,
+ _SW0, _SW1, _SW2, _SMAG, _SETA, _SKR0, _SKR1, _SKR2) = range(0, _ROWS * _ROW, _ROW)
 
 
 @njit(cache=True, inline="always")
@@ -255,8 +260,8 @@ def shade_scratch():
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
-          face_n, shading_n, material, tri_mag, kd, kd_pi, ks, shininess, kr, ior,
-          light_kind, light_pos, light_dir, light_val, ambient, background, cutoff,
+          face_n, shading_n, material, tri_mag, ambient_light, direct, spawns, kd_pi, ks,
+          shininess, kr, ior, light_kind, light_pos, light_dir, light_val, background, cutoff,
           offset, do_shadow, do_spawn, camera, eye, first, aov_depth, aov_normal, aov_prim,
           contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, stride, order, nO, nD, nW, npix, nOt,
           nDt, norder, sp_O, sp_D, sp_W, sp_pix, sp_cnt,
@@ -283,11 +288,14 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
 
     A block is shaded in passes over a structure-of-arrays scratch ``S``, so that the
     arithmetic runs in SIMD lanes: (1) the hit points of every ray of the block, its
-    triangle's data gathered (a miss computes values no later pass reads), then in ray order
-    misses, first-hit layers, ambient light and which rays take direct light or spawn; (2) the
-    unit normals, turned toward the ray; (3) per light, the shadow ray of every ray of the
-    block, then, in ray order, the records of the rays that take direct light and leave toward
-    the light; (4) in ray order, the secondary rays. Every value is the float64 formula of a
+    triangle's data gathered (a miss computes values no later pass reads), each ray's own
+    light (background or ambient), and which rays take direct light or spawn; (2) the unit
+    normals, turned toward the ray, and the first-hit layers; (3) per light, the shadow ray of
+    every ray of the block, then, in ray order, the records of the rays that take direct light
+    and leave toward the light; (4) the spawning rays' values gathered side by side, both
+    secondary rays of each, then, in ray order, those above the cut-off to their queues. A
+    choice between a miss and a hit, or a mirror and a dielectric, is a choice of values, not
+    of path, so that the passes run without branches. Every value is the float64 formula of a
     ray-by-ray loop, so the passes do not change a bit of the result. Then the queues are
     joined (module text). Returns the length of the joined shadow queue."""
     n_lights = light_kind.shape[0]
@@ -298,6 +306,10 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     Df = D.reshape(-1)
     Of = O.reshape(-1)
     Wf = wgt.reshape(-1)
+    Cf = contrib.reshape(-1)
+    qOf = qO.reshape(-1)
+    qDf = qD.reshape(-1)
+    sh_Cf = sh_C.reshape(-1)
     ex = eye[0]
     ey = eye[1]
     ez = eye[2]
@@ -337,40 +349,36 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             S[_NZ + j] = a * np.float64(shading_n[p, 0, 2]) + u * np.float64(shading_n[p, 1, 2]) + v * np.float64(shading_n[p, 2, 2])
             S[_MAG + j] = tri_mag[p]
             mat[j] = material[p]
-        # -- pass 1c, in ray order (the branches): misses see the background; first-hit
-        #    layers; ambient light; which rays take direct light (not dielectrics) and which
-        #    spawn. Apart from 1a and 1b, whose loops then run without a branch: 22% less
-        #    shading time than one loop doing all three --
+        # -- pass 1c (branch-free: a miss and a hit differ by a choice of values, not of path):
+        #    each ray's own light, the background for a miss and the ambient light for a hit;
+        #    which rays take direct light (hits on a non-dielectric) and which spawn. The
+        #    spawning rays' slots go densely to ``spawning`` (each ray's slot is written, the
+        #    count moves on for those that spawn). The camera's queue has its own loop: its
+        #    contributions lie in ray order, so that loop runs in SIMD lanes --
+        if camera:
+            for j in range(nr):
+                i = lo + j
+                m = mat[j]
+                hit = hit_prim[i] >= 0
+                Cf[3 * i] = S[_W0 + j] * (ambient_light[m, 0] if hit else background[0])
+                Cf[3 * i + 1] = S[_W1 + j] * (ambient_light[m, 1] if hit else background[1])
+                Cf[3 * i + 2] = S[_W2 + j] * (ambient_light[m, 2] if hit else background[2])
+        else:
+            for j in range(nr):
+                i = lo + j
+                r = order[i]
+                m = mat[j]
+                hit = hit_prim[i] >= 0
+                Cf[3 * r] = S[_W0 + j] * (ambient_light[m, 0] if hit else background[0])
+                Cf[3 * r + 1] = S[_W1 + j] * (ambient_light[m, 1] if hit else background[1])
+                Cf[3 * r + 2] = S[_W2 + j] * (ambient_light[m, 2] if hit else background[2])
         n_spawning = 0
         for j in range(nr):
-            i = lo + j
-            r = _row(camera, order, i)
             m = mat[j]
-            lit[j] = False
-            w0 = S[_W0 + j]
-            w1 = S[_W1 + j]
-            w2 = S[_W2 + j]
-            if hit_prim[i] < 0:                     # a miss sees the background
-                if first:
-                    q = pix[i]
-                    aov_depth[q] = np.inf
-                    aov_prim[q] = -1
-                contrib[r, 0] = w0 * background[0]
-                contrib[r, 1] = w1 * background[1]
-                contrib[r, 2] = w2 * background[2]
-                continue
-            if first:
-                q = pix[i]
-                aov_depth[q] = hit_t[i]
-                aov_prim[q] = hit_prim[i]
-            contrib[r, 0] = w0 * (kd[m, 0] * ambient[0])
-            contrib[r, 1] = w1 * (kd[m, 1] * ambient[1])
-            contrib[r, 2] = w2 * (kd[m, 2] * ambient[2])
-            dielectric = ior[m] > 0
-            lit[j] = do_shadow and not dielectric       # dielectrics take no direct light
-            if do_spawn and (dielectric or max(kr[m, 0], kr[m, 1], kr[m, 2]) > 0):
-                spawning[n_spawning] = j
-                n_spawning += 1
+            hit = hit_prim[lo + j] >= 0
+            lit[j] = hit & direct[m] & do_shadow
+            spawning[n_spawning] = j
+            n_spawning += hit & spawns[m] & do_spawn
         # -- pass 2 (SIMD: it reads and writes the scratch only): the unit shading normal;
         #    both normals turned toward the incoming ray --
         for j in range(nr):
@@ -401,10 +409,13 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             S[_FX + j] = fx if usable else gx       # shading normal unusable: geometric
             S[_FY + j] = fy if usable else gy
             S[_FZ + j] = fz if usable else gz
-        if first:                                   # the first-hit shading normals
+        if first:                                   # the first-hit layers
             for j in range(nr):
-                q = pix[lo + j]
-                hit = hit_prim[lo + j] >= 0
+                i = lo + j
+                q = pix[i]
+                hit = hit_prim[i] >= 0
+                aov_depth[q] = hit_t[i] if hit else np.inf
+                aov_prim[q] = hit_prim[i] if hit else -1
                 aov_normal[q, 0] = S[_NX + j] if hit else 0.0
                 aov_normal[q, 1] = S[_NY + j] if hit else 0.0
                 aov_normal[q, 2] = S[_NZ + j] if hit else 0.0
@@ -468,7 +479,6 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             for j in range(nr):
                 if not (lit[j] and leaves[j]):
                     continue
-                i = lo + j
                 m = mat[j]
                 spec = 0.0
                 kspec = ks[m]
@@ -480,60 +490,72 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                     ch = S[_FX + j] * hx + S[_FY + j] * hy + S[_FZ + j] * hz
                     spec = kspec * norm_spec * max(ch, 0.0) ** shin
                 c = S[_COS + j]
-                qO[s, 0] = S[_OX + j]
-                qO[s, 1] = S[_OY + j]
-                qO[s, 2] = S[_OZ + j]
-                qD[s, 0] = S[_LX + j]
-                qD[s, 1] = S[_LY + j]
-                qD[s, 2] = S[_LZ + j]
+                qOf[3 * s] = S[_OX + j]
+                qOf[3 * s + 1] = S[_OY + j]
+                qOf[3 * s + 2] = S[_OZ + j]
+                qDf[3 * s] = S[_LX + j]
+                qDf[3 * s + 1] = S[_LY + j]
+                qDf[3 * s + 2] = S[_LZ + j]
                 qT[s] = S[_TMAX + j]
-                sh_C[s, 0] = S[_W0 + j] * (S[_E0 + j] * c * (kd_pi[m, 0] + spec))
-                sh_C[s, 1] = S[_W1 + j] * (S[_E1 + j] * c * (kd_pi[m, 1] + spec))
-                sh_C[s, 2] = S[_W2 + j] * (S[_E2 + j] * c * (kd_pi[m, 2] + spec))
-                sh_pix[s] = pix[_row(camera, order, i)]
+                sh_Cf[3 * s] = S[_W0 + j] * (S[_E0 + j] * c * (kd_pi[m, 0] + spec))
+                sh_Cf[3 * s + 1] = S[_W1 + j] * (S[_E1 + j] * c * (kd_pi[m, 1] + spec))
+                sh_Cf[3 * s + 2] = S[_W2 + j] * (S[_E2 + j] * c * (kd_pi[m, 2] + spec))
+                sh_pix[s] = pix[_row(camera, order, lo + j)]
                 s += 1
             sh_cnt[l] = s - l * stride
-        # -- pass 4, in ray order: secondary rays (mirror reflection; dielectric reflection
-        #    and refraction) --
+        # -- pass 4a (scalar): the spawning rays' values, side by side in slot order --
         for k in range(n_spawning):
             j = spawning[k]
-            i = lo + j
-            p = pix[_row(camera, order, i)]
             m = mat[j]
-            eta = ior[m]
-            dx = S[_DX + j]
-            dy = S[_DY + j]
-            dz = S[_DZ + j]
-            Px = S[_PX + j]
-            Py = S[_PY + j]
-            Pz = S[_PZ + j]
-            gx = S[_GX + j]
-            gy = S[_GY + j]
-            gz = S[_GZ + j]
-            w0 = S[_W0 + j]
-            w1 = S[_W1 + j]
-            w2 = S[_W2 + j]
-            mag = S[_MAG + j]
-            if not eta > 0:                             # not a dielectric (as pass 1 decides)
-                fx = S[_FX + j]
-                fy = S[_FY + j]
-                fz = S[_FZ + j]
-                k2 = 2 * (dx * fx + dy * fy + dz * fz)
-                rx = dx - k2 * fx
-                ry = dy - k2 * fy
-                rz = dz - k2 * fz
-                a0 = w0 * kr[m, 0]
-                a1 = w1 * kr[m, 1]
-                a2 = w2 * kr[m, 2]
-                if max(a0, a1, a2) >= cutoff:           # contribution cut-off
-                    ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
-                    _put_ray(nO, nD, nW, npix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2, p)
-                    n_refl += 1
-                continue
+            S[_SDX + k] = S[_DX + j]
+            S[_SDY + k] = S[_DY + j]
+            S[_SDZ + k] = S[_DZ + j]
+            S[_SPX + k] = S[_PX + j]
+            S[_SPY + k] = S[_PY + j]
+            S[_SPZ + k] = S[_PZ + j]
+            S[_SGX + k] = S[_GX + j]
+            S[_SGY + k] = S[_GY + j]
+            S[_SGZ + k] = S[_GZ + j]
+            S[_SFX + k] = S[_FX + j]
+            S[_SFY + k] = S[_FY + j]
+            S[_SFZ + k] = S[_FZ + j]
+            S[_SNX + k] = S[_NX + j]
+            S[_SNY + k] = S[_NY + j]
+            S[_SNZ + k] = S[_NZ + j]
+            S[_SW0 + k] = S[_W0 + j]
+            S[_SW1 + k] = S[_W1 + j]
+            S[_SW2 + k] = S[_W2 + j]
+            S[_SMAG + k] = S[_MAG + j]
+            S[_SETA + k] = ior[m]
+            S[_SKR0 + k] = kr[m, 0]
+            S[_SKR1 + k] = kr[m, 1]
+            S[_SKR2 + k] = kr[m, 2]
+        # -- pass 4b (SIMD: it reads and writes the scratch only): both secondary rays of each
+        #    spawning ray, mirror or dielectric alike, a choice of values and no branch: the
+        #    reflection about the facing shading normal (a mirror) or about the shading normal
+        #    turned toward the ray (a dielectric), with its weight, w * kr or w * Fresnel; the
+        #    refraction by Snell's law, weight w * (1 - Fresnel), which only a dielectric
+        #    short of total internal reflection casts; each ray's origin off the surface --
+        for k in range(n_spawning):
+            eta = S[_SETA + k]
+            dielectric = eta > 0
+            dx = S[_SDX + k]
+            dy = S[_SDY + k]
+            dz = S[_SDZ + k]
+            Px = S[_SPX + k]
+            Py = S[_SPY + k]
+            Pz = S[_SPZ + k]
+            gx = S[_SGX + k]
+            gy = S[_SGY + k]
+            gz = S[_SGZ + k]
+            w0 = S[_SW0 + k]
+            w1 = S[_SW1 + k]
+            w2 = S[_SW2 + k]
+            mag = S[_SMAG + k]
             # ns points out of the object
-            nsx = S[_NX + j]
-            nsy = S[_NY + j]
-            nsz = S[_NZ + j]
+            nsx = S[_SNX + k]
+            nsy = S[_SNY + k]
+            nsz = S[_SNZ + k]
             entering = dx * nsx + dy * nsy + dz * nsz < 0
             sgn = 1.0 if entering else -1.0
             nix = nsx * sgn
@@ -543,29 +565,54 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             eta_t = eta if entering else 1.0
             cos_i = min(max(-(dx * nix + dy * niy + dz * niz), 0.0), 1.0)
             F, cos_t, tir = fresnel_dielectric(cos_i, eta_i, eta_t)
-            k2 = 2 * (dx * nix + dy * niy + dz * niz)
-            rx = dx - k2 * nix
-            ry = dy - k2 * niy
-            rz = dz - k2 * niz
-            a0 = w0 * F
-            a1 = w1 * F
-            a2 = w2 * F
+            nx = nix if dielectric else S[_SFX + k]
+            ny = niy if dielectric else S[_SFY + k]
+            nz = niz if dielectric else S[_SFZ + k]
+            k2 = 2 * (dx * nx + dy * ny + dz * nz)
+            rx = dx - k2 * nx
+            ry = dy - k2 * ny
+            rz = dz - k2 * nz
+            S[_RX + k] = rx
+            S[_RY + k] = ry
+            S[_RZ + k] = rz
+            S[_RW0 + k] = w0 * (F if dielectric else S[_SKR0 + k])
+            S[_RW1 + k] = w1 * (F if dielectric else S[_SKR1 + k])
+            S[_RW2 + k] = w2 * (F if dielectric else S[_SKR2 + k])
+            ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
+            S[_ROX + k] = ox
+            S[_ROY + k] = oy
+            S[_ROZ + k] = oz
+            r = eta_i / eta_t                           # Snell's law
+            kt = r * cos_i - cos_t
+            tx, ty, tz = _unit(r * dx + kt * nix, r * dy + kt * niy, r * dz + kt * niz)
+            S[_TX + k] = tx
+            S[_TY + k] = ty
+            S[_TZ + k] = tz
+            S[_TW0 + k] = w0 * (1 - F)
+            S[_TW1 + k] = w1 * (1 - F)
+            S[_TW2 + k] = w2 * (1 - F)
+            ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, tx, ty, tz, mag, offset)
+            S[_TOX + k] = ox
+            S[_TOY + k] = oy
+            S[_TOZ + k] = oz
+            S[_REFRACTS + k] = 1.0 if dielectric and not tir else 0.0
+        # -- pass 4c, in ray order: the rays above the contribution cut-off to their queues --
+        for k in range(n_spawning):
+            p = pix[_row(camera, order, lo + spawning[k])]
+            a0 = S[_RW0 + k]
+            a1 = S[_RW1 + k]
+            a2 = S[_RW2 + k]
             if max(a0, a1, a2) >= cutoff:
-                ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, rx, ry, rz, mag, offset)
-                _put_ray(nO, nD, nW, npix, n_refl, ox, oy, oz, rx, ry, rz, a0, a1, a2, p)
+                _put_ray(nO, nD, nW, npix, n_refl, S[_ROX + k], S[_ROY + k], S[_ROZ + k],
+                         S[_RX + k], S[_RY + k], S[_RZ + k], a0, a1, a2, p)
                 n_refl += 1
-            if not tir:
-                r = eta_i / eta_t                       # Snell's law
-                kt = r * cos_i - cos_t
-                tx, ty, tz = _unit(r * dx + kt * nix, r * dy + kt * niy, r * dz + kt * niz)
-                c0 = w0 * (1 - F)
-                c1 = w1 * (1 - F)
-                c2 = w2 * (1 - F)
-                if max(c0, c1, c2) >= cutoff:
-                    ox, oy, oz = offset_from_unit(Px, Py, Pz, gx, gy, gz, tx, ty, tz, mag, offset)
-                    _put_ray(sp_O, sp_D, sp_W, sp_pix, n_refr, ox, oy, oz, tx, ty, tz, c0, c1, c2,
-                             p)
-                    n_refr += 1
+            c0 = S[_TW0 + k]
+            c1 = S[_TW1 + k]
+            c2 = S[_TW2 + k]
+            if S[_REFRACTS + k] != 0 and max(c0, c1, c2) >= cutoff:
+                _put_ray(sp_O, sp_D, sp_W, sp_pix, n_refr, S[_TOX + k], S[_TOY + k],
+                         S[_TOZ + k], S[_TX + k], S[_TY + k], S[_TZ + k], c0, c1, c2, p)
+                n_refr += 1
     sp_cnt[0] = n_refl
     sp_cnt[1] = n_refr
     if do_spawn:
