@@ -29,6 +29,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -378,6 +379,28 @@ def release_buffers():
     release_kept_bounds()
 
 
+class SceneArrays(NamedTuple):
+    """A compiled scene as the shading kernel takes it, in the order of its arguments."""
+    face_n: np.ndarray                  # (n, 3) unit geometric normals, float64
+    shading_n: np.ndarray               # (n, 3, 3) vertex normals, float32
+    material: np.ndarray                # (n,) material per triangle
+    tri_mag: np.ndarray                 # (n,) largest |coordinate| per triangle
+    ambient_light: np.ndarray           # (m, 3) kd * ambient per material
+    direct: np.ndarray                  # (m,) takes direct light (not a dielectric)
+    spawns: np.ndarray                  # (m,) casts secondary rays (mirror or dielectric)
+    kd_pi: np.ndarray                   # (m, 3) kd / pi
+    ks: np.ndarray
+    shininess: np.ndarray
+    kr: np.ndarray
+    ior: np.ndarray                     # > 0: a dielectric
+    light_kind: np.ndarray              # the light table: stages.POINT or DIRECTIONAL
+    light_pos: np.ndarray
+    light_dir: np.ndarray               # toward a directional light
+    light_val: np.ndarray               # intensity or irradiance
+    background: np.ndarray
+    cutoff: float
+
+
 def _scene_arrays(scene, lights):
     """The compiled scene as the kernels read it: per-triangle unit geometric normals and
     coordinate magnitudes (for ray offsets), material tables, and a table of ``lights`` (the
@@ -404,11 +427,12 @@ def _scene_arrays(scene, lights):
     f64 = lambda a: np.ascontiguousarray(a, np.float64)
     kr, ior = f64(scene.kr), f64(scene.ior)
     dielectric = ior > 0                             # dielectrics take no direct light
-    return (face_n, np.ascontiguousarray(scene.normals, np.float32),
-            np.ascontiguousarray(scene.material, np.int32), tri_mag,
-            f64(scene.kd) * f64(scene.ambient), ~dielectric, dielectric | (kr.max(axis=1) > 0),
-            f64(scene.kd) / np.pi, f64(scene.ks), f64(scene.shininess), kr, ior, kind, pos,
-            ldir, val, f64(scene.background), float(scene.cutoff))
+    return SceneArrays(
+        face_n, np.ascontiguousarray(scene.normals, np.float32),
+        np.ascontiguousarray(scene.material, np.int32), tri_mag,
+        f64(scene.kd) * f64(scene.ambient), ~dielectric, dielectric | (kr.max(axis=1) > 0),
+        f64(scene.kd) / np.pi, f64(scene.ks), f64(scene.shininess), kr, ior, kind, pos, ldir, val,
+        f64(scene.background), float(scene.cutoff))
 
 
 def _band_jitter(words, npix, p0, p1, out):
@@ -724,7 +748,8 @@ def _render_band(fr, band):
                 lap("occluded")
                 rays["shadow"] += m
             stages.accumulate(film, sh_cnt, buf.cap, sh_C, sh_pix, blocked, pix, buf.contrib,
-                              n, bounce == 0, bounce == 0 and s == 0)
+                              n, bounce == 0, bounce == 0 and s == 0, h.prim, sa.material,
+                              sa.ambient_light, sa.background)
             lap("accumulate")
             if not spawn:
                 break

@@ -353,17 +353,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         #    each ray's own light, the background for a miss and the ambient light for a hit;
         #    which rays take direct light (hits on a non-dielectric) and which spawn. The
         #    spawning rays' slots go densely to ``spawning`` (each ray's slot is written, the
-        #    count moves on for those that spawn). The camera's queue has its own loop: its
-        #    contributions lie in ray order, so that loop runs in SIMD lanes --
-        if camera:
-            for j in range(nr):
-                i = lo + j
-                m = mat[j]
-                hit = hit_prim[i] >= 0
-                Cf[3 * i] = S[_W0 + j] * (ambient_light[m, 0] if hit else background[0])
-                Cf[3 * i + 1] = S[_W1 + j] * (ambient_light[m, 1] if hit else background[1])
-                Cf[3 * i + 2] = S[_W2 + j] * (ambient_light[m, 2] if hit else background[2])
-        else:
+        #    count moves on for those that spawn). A camera ray's own light, of weight 1, is
+        #    ``accumulate``'s to add from its hit --
+        if not camera:
             for j in range(nr):
                 i = lo + j
                 r = order[i]
@@ -683,22 +675,41 @@ def group_by_octant(n, O, D, Ot, Dt, order, start):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, n, camera, first):
-    """Into the film, in a fixed order per pixel: the queue's own contributions (``contrib[k]``
-    to ``film[pix[k]]`` for k < n, in order) and the light brought by each shadow ray that
-    reached its light, light by light in queue order (``blocked``: the joined queue's answers;
-    the rays of light l at l * stride onward in ``sh_C``/``sh_pix``, ``sh_cnt[l]`` of them).
-    For the camera's queue (``camera``) the own contributions come first, as in a path a
-    hit's own light comes before the light that reaches it; with ``first`` (the first sample
-    pass) they are each pixel's first sum, 0 + c whatever the film held, so the film needs no
-    clearing. For other queues the shadow rays' light comes first.
+def accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, n, camera, first,
+               hit_prim, material, ambient_light, background):
+    """Into the film, in a fixed order per pixel: the queue's own contributions and the light
+    brought by each shadow ray that reached its light, light by light in queue order
+    (``blocked``: the joined queue's answers; the rays of light l at l * stride onward in
+    ``sh_C``/``sh_pix``, ``sh_cnt[l]`` of them). The own contribution of ray k goes to
+    ``film[pix[k]]``, for k < n in order: ``contrib[k]`` from ``shade``, or for the camera's
+    queue (``camera``, rays of weight 1) the background for a miss and the ambient light of
+    the material hit, computed here from the hit's primitive (``hit_prim``). The camera's come first,
+    as in a path a hit's own light comes before the light that reaches it; with ``first``
+    (the first sample pass) they are each pixel's first sum, 0 + c whatever the film held, so
+    the film needs no clearing. For other queues the shadow rays' light comes first.
 
     The camera's own contributions reach the film here, not in ``shade``: a band's film is out
     of the cache after a trace, and going over it just before the shadow rays' light (the same
-    pixels in the same order) brings it in once instead of twice, 3-5 ms less over both threads
-    on the default scene."""
+    pixels in the same order) brings it in once instead of twice; and computed here from the
+    hit, they cost ``shade`` no writes and this stage no reads beyond the hit's primitive."""
     if camera:
-        _add_own(film, pix, contrib, n, first)
+        Ff = film.reshape(-1)
+        for k in range(n):
+            q = 3 * pix[k]
+            p = hit_prim[k]
+            m = material[max(p, 0)]
+            hit = p >= 0
+            c0 = ambient_light[m, 0] if hit else background[0]
+            c1 = ambient_light[m, 1] if hit else background[1]
+            c2 = ambient_light[m, 2] if hit else background[2]
+            if first:
+                Ff[q] = 0.0 + c0
+                Ff[q + 1] = 0.0 + c1
+                Ff[q + 2] = 0.0 + c2
+            else:
+                Ff[q] += c0
+                Ff[q + 1] += c1
+                Ff[q + 2] += c2
     start = 0
     for l in range(sh_cnt.shape[0]):
         src = l * stride
@@ -710,20 +721,9 @@ def accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, n, cam
                 film[q, 2] += sh_C[src + k, 2]
         start += sh_cnt[l]
     if not camera:
-        _add_own(film, pix, contrib, n, False)
-
-
-@njit(cache=True, inline="always")
-def _add_own(film, pix, contrib, n, first):
-    """film[pix[k]] += contrib[k] for k < n, in order; with ``first``, film[pix[k]] =
-    0 + contrib[k] (the pixel's first sum, whatever the film held)."""
-    for k in range(n):
-        q = pix[k]
-        if first:
-            film[q, 0] = 0.0 + contrib[k, 0]
-            film[q, 1] = 0.0 + contrib[k, 1]
-            film[q, 2] = 0.0 + contrib[k, 2]
-        else:
+        for k in range(n):
+            q = pix[k]
             film[q, 0] += contrib[k, 0]
             film[q, 1] += contrib[k, 1]
             film[q, 2] += contrib[k, 2]
+

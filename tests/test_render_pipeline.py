@@ -768,7 +768,8 @@ def test_accumulate_adds_in_a_fixed_order_per_pixel(camera, first, want):
     1e16 - 1e16 + 1 is 1. The camera's queue adds a ray's own contribution (1) before the
     light its shadow rays bring (1e16 from one light, -1e16 from the other); other queues add
     the shadow rays' light first. In the first sample pass the camera's own contribution is
-    the pixel's first sum, whatever the film held."""
+    the pixel's first sum, whatever the film held. (A camera ray's own contribution is the
+    ambient light of the material it hit, here 1; another queue's comes from ``shade``.)"""
     stride = 4
     film = np.full((3, 3), np.nan if first else 0.0)        # NaN: what a kept film may hold
     sh_cnt = np.array([1, 1], np.int64)                      # one shadow ray per light
@@ -778,11 +779,32 @@ def test_accumulate_adds_in_a_fixed_order_per_pixel(camera, first, want):
     blocked = np.zeros(2, np.bool_)
     pix = np.array([0], np.int64)
     contrib = np.ones((1, 3))
+    hit_prim = np.array([0], np.int32)                        # triangle 0, material 1
+    material = np.array([1], np.int32)
+    ambient_light = np.array([[0.5] * 3, [1.0] * 3])
     stages.accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, 1, camera,
-                      first)
+                      first, hit_prim, material, ambient_light, np.zeros(3))
     assert np.array_equal(film[0], np.full(3, want))
     if first:                                                 # only the queue's pixels
         assert np.isnan(film[1:]).all()
+
+
+def test_a_camera_rays_own_light_is_the_background_or_the_ambient_light_of_its_hit():
+    """The camera's queue carries no contributions from ``shade``: ``accumulate`` adds each
+    ray's own light from its hit, the background for a miss (primitive -1) and the ambient
+    light of the hit triangle's material otherwise."""
+    film = np.full((3, 3), np.nan)
+    pix = np.array([2, 0], np.int64)
+    hit_prim = np.array([-1, 1], np.int32)                   # a miss, then triangle 1
+    material = np.array([0, 1], np.int32)
+    ambient_light = np.array([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]])
+    background = np.array([7.0, 8.0, 9.0])
+    stages.accumulate(film, np.zeros(1, np.int64), 2, np.zeros((2, 3)), np.zeros(2, np.int64),
+                      np.zeros(0, np.bool_), pix, np.full((2, 3), np.nan), 2, True, True,
+                      hit_prim, material, ambient_light, background)
+    assert np.array_equal(film[2], background)
+    assert np.array_equal(film[0], ambient_light[1])
+    assert np.isnan(film[1]).all()
 
 
 def test_check_tracer_compares_triangles_as_the_units_hold_them():
