@@ -42,7 +42,7 @@ from traversal.api import ACCELS, PRECISIONS, release_kept_bounds  # noqa: F401 
 from traversal.tracers import check_tracer, run_as_tracer_allows
 from traversal.triangle_unit import coordinate_box, f32_unit_reach, span_of
 from . import pcg64, stages
-from .config import BAND_PIXELS, BLOCK, MIN_BANDS
+from .config import BAND_PIXELS, BLOCK, MAX_PIXELS, MIN_BANDS, PIXEL
 from hwbvh.parallel import run_ranges, usable_cores
 from .stages import fresnel_dielectric  # noqa: F401  (the shading model's Fresnel term)
 
@@ -300,8 +300,8 @@ class _Buffers:
 
     def _wavefront(self, cap):
         f = lambda: np.empty((cap, 3))
-        return [f(), f(), f(), np.empty(cap, np.int64), np.empty((cap, 3), self.rd),
-                np.empty((cap, 3), self.rd), np.empty(cap, np.int64)]
+        return [f(), f(), f(), np.empty(cap, PIXEL), np.empty((cap, 3), self.rd),
+                np.empty((cap, 3), self.rd), np.empty(cap, PIXEL)]
 
     def ensure_slots(self, n):
         if n <= self.cap:
@@ -310,9 +310,9 @@ class _Buffers:
         L = self.L
         f, r = (lambda *shape: np.empty(shape)), (lambda *shape: np.empty(shape, self.rd))
         self.contrib = f(S, 3)
-        self.sh = [r(L * S, 3), r(L * S, 3), r(L * S), f(L * S, 3), np.empty(L * S, np.int64),
+        self.sh = [r(L * S, 3), r(L * S, 3), r(L * S), f(L * S, 3), np.empty(L * S, PIXEL),
                    np.zeros(L, np.int64)]
-        self.sp = [f(S, 3), f(S, 3), f(S, 3), np.empty(S, np.int64), np.zeros(2, np.int64)]
+        self.sp = [f(S, 3), f(S, 3), f(S, 3), np.empty(S, PIXEL), np.zeros(2, np.int64)]
         self.cap = S
 
     def ensure_next(self, n):
@@ -556,6 +556,9 @@ def _check_render_arguments(scene, tracer, seed, progress):
         v = getattr(scene, key, None)
         if not is_integer(v) or v < 1:
             raise ParameterError(f"scene.{key}", f"must be a positive integer, got {v!r}")
+    if scene.width * scene.height > MAX_PIXELS:
+        raise ParameterError("scene.width", f"{scene.width} x {scene.height} pixels is more "
+                                            f"than the renderer's {MAX_PIXELS}")
     _check_camera(scene.camera)
     check_tracer(tracer, triangles=scene.triangles)
     if not is_integer(seed) or seed < 0:

@@ -826,9 +826,9 @@ def test_check_tracer_compares_triangles_as_the_units_hold_them():
 
 
 def test_a_scene_changed_after_compiling_is_checked_again_before_it_renders():
-    """compile_scene checks the depth and the camera; a scene changed after it (by
+    """compile_scene checks the film, the depth and the camera; a scene changed after it (by
     dataclasses.replace) is checked again by render, whose basis would be NaN and image
-    black."""
+    black, or whose pixel indices would not fit the wavefronts'."""
     import dataclasses
     from hwbvh.errors import ParameterError
     sc = compile_scene(load_scene("cornell", width=8, height=6, spp=1))
@@ -842,7 +842,9 @@ def test_a_scene_changed_after_compiling_is_checked_again_before_it_renders():
                             ({"camera": dict(cam, up=np.zeros(3))}, "scene.camera: needs"),
                             ({"camera": dict(cam, eye=np.array([np.nan, 0, 0]))},
                              "scene.camera.eye: must be 3 finite numbers"),
-                            ({"camera": {"eye": cam["eye"]}}, "scene.camera: expected the eye")):
+                            ({"camera": {"eye": cam["eye"]}}, "scene.camera: expected the eye"),
+                            ({"width": 2 ** 16, "height": 2 ** 15},  # past 32-bit pixel indices
+                             "scene.width: 65536 x 32768 pixels is more than the renderer's")):
         with pytest.raises(ParameterError, match=message):
             render(dataclasses.replace(sc, **change), tracer)
     assert (render(sc, tracer).prim >= 0).sum() > 30
