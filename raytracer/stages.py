@@ -11,7 +11,7 @@ rows at a time on a thread (``raytracer.render``); per bounce of a band:
 2. the tracer's ``intersect`` on the queue (our traversal or Embree: the only stage outside
    this module);
 3. ``shade``: per ray, the background for a miss; for a hit, the first-hit layers, ambient
-   light, one shadow ray per light with the light it brings if visible, and the secondary rays
+   light (a camera ray's is ``accumulate``'s to add), one shadow ray per light with the light it brings if visible, and the secondary rays
    (mirror reflection, dielectric reflection and refraction) with their weights. Each output
    goes densely, in ray order, to its queue: the shadow rays of each light straight into the
    tracer's shadow queue, in the order of the rays that cast them (tile order for the camera's:
@@ -271,7 +271,8 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
 
     ``camera``: the queue holds camera rays, whose origin is ``eye`` and weight 1 (O and wgt
     are not read). A ray's own contribution (background or ambient) goes to ``contrib`` at
-    its wavefront row (i for the camera's, ``order[i]`` for others) for ``accumulate``. The
+    its wavefront row ``order[i]`` for ``accumulate``, except a camera ray's, which
+    ``accumulate`` computes from its hit (``contrib`` is not written for the camera's queue). The
     shadow rays toward light l go densely to l * ``stride`` onward: origin, direction and
     t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its precision), the light brought
     if visible and the pixel in ``sh_C``, ``sh_pix``; ``sh_cnt[l]`` of them. Reflections go
