@@ -556,7 +556,7 @@ def _check_render_arguments(scene, tracer, seed, progress):
         v = getattr(scene, key, None)
         if not is_integer(v) or v < 1:
             raise ParameterError(f"scene.{key}", f"must be a positive integer, got {v!r}")
-    if scene.width * scene.height > MAX_PIXELS:
+    if int(scene.width) * int(scene.height) > MAX_PIXELS:
         raise ParameterError("scene.width", f"{scene.width} x {scene.height} pixels is more "
                                             f"than the renderer's {MAX_PIXELS}")
     _check_camera(scene.camera)
