@@ -282,12 +282,14 @@ def scene_passes(scene):
 class _Buffers:
     """One thread's wavefront arrays, allocated once and grown (never shrunk) when a bounce
     spawns more rays than they hold. ``cur``/``nxt``: the current and the next wavefront
-    (O, D, wgt, pix, Ot, Dt, order; see ``raytracer.stages``), swapped after each bounce.
-    Sized for ``cap`` rays of the current wavefront: its contributions ``contrib``, the shadow
-    queue ``sh`` (per light a region of ``cap``: the tracer's origin, direction and t_max, the
-    light brought, the pixel; then the counts per light) and the refractions ``sp`` (origin,
-    direction, weight, pixel; then the counts of reflections and refractions). ``jitter``: one
-    band's pixel offsets of one sample pass."""
+    (O, D, wgt, pix, Ot, Dt, order; see ``raytracer.stages``), swapped after each bounce; a
+    secondary wavefront holds its reflections from row 0 and its refractions from the row of
+    the last queue's length (``stages.shade``), so it is given twice that many rows, and its
+    contributions ``contrib`` a row each. Sized for ``cap`` rays of the current queue: the
+    shadow queue ``sh`` (per light a region of ``cap``: the tracer's origin, direction and
+    t_max, the light brought, the pixel; then the counts per light). ``spawned``: the counts
+    of reflections and refractions. ``jitter``: one band's pixel offsets of one sample
+    pass."""
 
     def __init__(self, n, n_lights, ray_dtype):
         self.L = n_lights
@@ -295,7 +297,9 @@ class _Buffers:
         self.cur = self._wavefront(n)
         self.nxt = self._wavefront(n)
         self.cap = 0
-        self.ensure_slots(n)
+        self.contrib = np.empty((0, 3))
+        self.ensure_slots(n, n)
+        self.spawned = np.zeros(2, np.int64)
         self.jitter = np.empty(2 * n)
 
     def _wavefront(self, cap):
@@ -303,16 +307,17 @@ class _Buffers:
         return [f(), f(), f(), np.empty(cap, PIXEL), np.empty((cap, 3), self.rd),
                 np.empty((cap, 3), self.rd), np.empty(cap, PIXEL)]
 
-    def ensure_slots(self, n):
+    def ensure_slots(self, n, rows):
+        """Room for a queue of ``n`` rays over ``rows`` wavefront rows."""
+        if rows > len(self.contrib):
+            self.contrib = np.empty((max(rows, int(len(self.contrib) * 1.5)), 3))
         if n <= self.cap:
             return
         S = stages.n_blocks(max(n, int(self.cap * 1.5))) * BLOCK
         L = self.L
-        f, r = (lambda *shape: np.empty(shape)), (lambda *shape: np.empty(shape, self.rd))
-        self.contrib = f(S, 3)
-        self.sh = [r(L * S, 3), r(L * S, 3), r(L * S), f(L * S, 3), np.empty(L * S, PIXEL),
-                   np.zeros(L, np.int64)]
-        self.sp = [f(S, 3), f(S, 3), f(S, 3), np.empty(S, PIXEL), np.zeros(2, np.int64)]
+        r = lambda *shape: np.empty(shape, self.rd)
+        self.sh = [r(L * S, 3), r(L * S, 3), r(L * S), np.empty((L * S, 3)),
+                   np.empty(L * S, PIXEL), np.zeros(L, np.int64)]
         self.cap = S
 
     def ensure_next(self, n):
@@ -340,7 +345,7 @@ def _buffers(n, n_lights, ray_dtype):
     if buf is None or buf.L != n_lights or buf.rd != ray_dtype:
         buf = _kept.buffers = _Buffers(n, n_lights, ray_dtype)
     else:
-        buf.ensure_slots(n)
+        buf.ensure_slots(n, n)
         buf.ensure_next(n)
         if len(buf.cur[3]) < n:
             buf.cur, buf.nxt = buf.nxt, buf.cur
@@ -723,18 +728,18 @@ def _render_band(fr, band):
         stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, scene.jitter, fr.camera_terms[s],
                                     eye, cu, cv, cw, D, pix, Ot, Dt)
         n = npix
+        gap, refr = n, 0             # the wavefront's rows: 0..n (then gap..gap + refr)
         rays["primary"] += n
         lap("generate")
         for bounce in range(passes["depth"]):
             if n == 0:
                 break
             spawn = bounce + 1 < passes["depth"]
-            buf.ensure_slots(n)
+            buf.ensure_slots(n, gap + refr)
             if spawn:
                 buf.ensure_next(2 * n)              # reflections, then refractions
             O, D, wgt, pix, Ot, Dt, order = buf.cur
             qO, qD, qT, sh_C, sh_pix, sh_cnt = buf.sh
-            sp_O, sp_D, sp_W, sp_pix, sp_cnt = buf.sp
             lap("queues")
             h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
             _checked_answers(tracer, n, ntri, hits=h)
@@ -742,7 +747,7 @@ def _render_band(fr, band):
             m = _shade(n, O, D, wgt, pix, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
                        bounce == 0, eye, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
                        fr.aov_prim, buf.contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, buf.cap,
-                       order, *buf.nxt, sp_O, sp_D, sp_W, sp_pix, sp_cnt)
+                       order, *buf.nxt, buf.spawned)
             lap("shade")
             blocked = NONE_BLOCKED
             if n_lights:
@@ -751,16 +756,16 @@ def _render_band(fr, band):
                 lap("occluded")
                 rays["shadow"] += m
             stages.accumulate(film, sh_cnt, buf.cap, sh_C, sh_pix, blocked, pix, buf.contrib,
-                              n, bounce == 0, bounce == 0 and s == 0, h.prim, sa.material,
-                              sa.ambient_light, sa.background)
+                              n - refr, gap, refr, bounce == 0, bounce == 0 and s == 0, h.prim,
+                              sa.material, sa.ambient_light, sa.background)
             lap("accumulate")
             if not spawn:
                 break
-            refl, refr = int(sp_cnt[0]), int(sp_cnt[1])
+            refl, refr = int(buf.spawned[0]), int(buf.spawned[1])
             rays["reflection"] += refl
             rays["refraction"] += refr
             buf.cur, buf.nxt = buf.nxt, buf.cur
-            n = refl + refr
+            gap, n = n, refl + refr
     # the film is float64 and the image float32: a pixel past float32's largest number
     # (3.4e38: lights at the largest values close to a surface) is +inf in the image
     over = int(stages.finish_band(q0, q1, film, scene.spp, fr.image))

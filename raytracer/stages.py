@@ -11,13 +11,14 @@ rows at a time on a thread (``raytracer.render``); per bounce of a band:
 2. the tracer's ``intersect`` on the queue (our traversal or Embree: the only stage outside
    this module);
 3. ``shade``: per ray, the background for a miss; for a hit, the first-hit layers, ambient
-   light (a camera ray's is ``accumulate``'s to add), one shadow ray per light with the light it brings if visible, and the secondary rays
-   (mirror reflection, dielectric reflection and refraction) with their weights. Each output
-   goes densely, in ray order, to its queue: the shadow rays of each light straight into the
-   tracer's shadow queue, in the order of the rays that cast them (tile order for the camera's:
-   coherent packets), and the reflections straight into the next wavefront. Before it
-   returns it joins the queues (``join_light_queues``: the other lights' shadow rays behind
-   the first's; ``append_refractions``: the refractions behind the reflections) and hands the
+   light (a camera ray's is ``accumulate``'s to add), one shadow ray per light with the light
+   it brings if visible, and the secondary rays (mirror reflection, dielectric reflection and
+   refraction) with their weights. Each output goes densely, in ray order, to its queue: the
+   shadow rays of each light straight into the tracer's shadow queue, in the order of the
+   rays that cast them (tile order for the camera's: coherent packets), and the secondary
+   rays straight into the next wavefront, reflections from its first row, refractions from
+   the row of this queue's length. Before it returns it joins the shadow queues
+   (``join_light_queues``: the other lights' shadow rays behind the first's) and hands the
    tracer the next wavefront grouped by direction octant (``group_by_octant``, see there),
    which ``shade`` then reads in that order through ``order``;
 4. the tracer's ``occluded`` on the shadow queue;
@@ -264,8 +265,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
           shininess, kr, ior, light_kind, light_pos, light_dir, light_val, background, cutoff,
           offset, do_shadow, do_spawn, camera, eye, first, aov_depth, aov_normal, aov_prim,
           contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, stride, order, nO, nD, nW, npix, nOt,
-          nDt, norder, sp_O, sp_D, sp_W, sp_pix, sp_cnt,
-          S, mat, lit, leaves, spawning, octant_start):
+          nDt, norder, spawned, S, mat, lit, leaves, spawning, octant_start):
     """Shade the ``n`` rays of a queue from their closest hits (see the module text), in
     blocks of BLOCK rays.
 
@@ -276,12 +276,13 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     shadow rays toward light l go densely to l * ``stride`` onward: origin, direction and
     t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its precision), the light brought
     if visible and the pixel in ``sh_C``, ``sh_pix``; ``sh_cnt[l]`` of them. Reflections go
-    densely to the next wavefront (``nO``, ``nD``, ``nW``, ``npix``), ``sp_cnt[0]`` of them;
-    refractions to ``sp_O``, ``sp_D``, ``sp_W``, ``sp_pix``, ``sp_cnt[1]`` of them, then
-    behind the reflections; ``group_by_octant`` then writes the tracer's copies ``nOt``,
-    ``nDt`` and ``norder``. A queue other than the camera's is shaded in the tracer's order:
-    its i-th ray has its hit at i, and its origin, direction, weight, pixel and ``contrib``
-    entry at row ``order[i]`` (the camera's queue passes ``order`` unread).
+    densely to the next wavefront (``nO``, ``nD``, ``nW``, ``npix``) from row 0,
+    ``spawned[0]`` of them; refractions densely from row ``n`` (no more rays spawn a
+    reflection than the queue holds), ``spawned[1]`` of them; ``group_by_octant`` then writes
+    the tracer's copies ``nOt``, ``nDt`` and ``norder`` from the octant counts kept in
+    ``octant_start`` as the rays are put. A queue other than the camera's is shaded in the
+    tracer's order: its i-th ray has its hit at i, and its origin, direction, weight, pixel
+    and ``contrib`` entry at row ``order[i]`` (the camera's queue passes ``order`` unread).
     Every output is in ray order, so the queues do not depend on anything but the rays.
     ``first`` (the first sample pass' camera rays) writes every pixel's first-hit layers
     (``aov_*``), so they need no clearing before (``accumulate`` stores the pixels' first
@@ -304,6 +305,8 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         sh_cnt[l] = 0
     n_refl = 0
     n_refr = 0
+    for c in range(8):
+        octant_start[c] = 0
     Df = D.reshape(-1)
     Of = O.reshape(-1)
     Wf = wgt.reshape(-1)
@@ -336,6 +339,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         # -- pass 1b (scalar: gathers from the hit triangles): the unit geometric normal (per
         #    face), the interpolated shading normal, the coordinate magnitude and material; a
         #    miss reads triangle 0 (render() refuses a scene without triangles), unused --
+        n_spawning = 0
         for j in range(nr):
             i = lo + j
             p = max(hit_prim[i], 0)
@@ -349,7 +353,12 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             S[_NY + j] = a * np.float64(shading_n[p, 0, 1]) + u * np.float64(shading_n[p, 1, 1]) + v * np.float64(shading_n[p, 2, 1])
             S[_NZ + j] = a * np.float64(shading_n[p, 0, 2]) + u * np.float64(shading_n[p, 1, 2]) + v * np.float64(shading_n[p, 2, 2])
             S[_MAG + j] = tri_mag[p]
-            mat[j] = material[p]
+            m = material[p]
+            mat[j] = m
+            hit = hit_prim[i] >= 0
+            lit[j] = hit & direct[m] & do_shadow
+            spawning[n_spawning] = j
+            n_spawning += hit & spawns[m] & do_spawn
         # -- pass 1c (branch-free: a miss and a hit differ by a choice of values, not of path):
         #    each ray's own light, the background for a miss and the ambient light for a hit;
         #    which rays take direct light (hits on a non-dielectric) and which spawn. The
@@ -365,13 +374,6 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 Cf[3 * r] = S[_W0 + j] * (ambient_light[m, 0] if hit else background[0])
                 Cf[3 * r + 1] = S[_W1 + j] * (ambient_light[m, 1] if hit else background[1])
                 Cf[3 * r + 2] = S[_W2 + j] * (ambient_light[m, 2] if hit else background[2])
-        n_spawning = 0
-        for j in range(nr):
-            m = mat[j]
-            hit = hit_prim[lo + j] >= 0
-            lit[j] = hit & direct[m] & do_shadow
-            spawning[n_spawning] = j
-            n_spawning += hit & spawns[m] & do_spawn
         # -- pass 2 (SIMD: it reads and writes the scratch only): the unit shading normal;
         #    both normals turned toward the incoming ray --
         for j in range(nr):
@@ -598,19 +600,20 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             if max(a0, a1, a2) >= cutoff:
                 _put_ray(nO, nD, nW, npix, n_refl, S[_ROX + k], S[_ROY + k], S[_ROZ + k],
                          S[_RX + k], S[_RY + k], S[_RZ + k], a0, a1, a2, p)
+                octant_start[octant(S[_RX + k], S[_RY + k], S[_RZ + k])] += 1
                 n_refl += 1
             c0 = S[_TW0 + k]
             c1 = S[_TW1 + k]
             c2 = S[_TW2 + k]
             if S[_REFRACTS + k] != 0 and max(c0, c1, c2) >= cutoff:
-                _put_ray(sp_O, sp_D, sp_W, sp_pix, n_refr, S[_TOX + k], S[_TOY + k],
+                _put_ray(nO, nD, nW, npix, n + n_refr, S[_TOX + k], S[_TOY + k],
                          S[_TOZ + k], S[_TX + k], S[_TY + k], S[_TZ + k], c0, c1, c2, p)
+                octant_start[octant(S[_TX + k], S[_TY + k], S[_TZ + k])] += 1
                 n_refr += 1
-    sp_cnt[0] = n_refl
-    sp_cnt[1] = n_refr
+    spawned[0] = n_refl
+    spawned[1] = n_refr
     if do_spawn:
-        append_refractions(sp_O, sp_D, sp_W, sp_pix, n_refr, nO, nD, nW, npix, n_refl)
-        group_by_octant(n_refl + n_refr, nO, nD, nOt, nDt, norder, octant_start)
+        group_by_octant(n_refl, n, n_refr, nO, nD, nOt, nDt, norder, octant_start)
     return join_light_queues(qO, qD, qT, sh_cnt, stride) if n_lights > 0 else 0
 
 
@@ -632,62 +635,53 @@ def join_light_queues(qO, qD, qT, sh_cnt, stride):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def append_refractions(sp_O, sp_D, sp_W, sp_pix, f, O, D, wgt, pix, r):
-    """The ``f`` refraction rays behind the ``r`` reflections already in the next wavefront."""
-    for k in range(f):
-        for c in range(3):
-            O[r + k, c] = sp_O[k, c]
-            D[r + k, c] = sp_D[k, c]
-            wgt[r + k, c] = sp_W[k, c]
-        pix[r + k] = sp_pix[k]
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def group_by_octant(n, O, D, Ot, Dt, order, start):
-    """The tracer's copies ``Ot``, ``Dt`` of the n rays of a wavefront (``O``, ``D``, in spawn
-    order) grouped by direction octant: octant 0's rays first, then octant 1's, and so on, each
-    group in spawn order; ``order[j]``: the wavefront row of the tracer's ray j, through which
-    ``shade`` reads the rest of the ray. ``start``: (8,) int64 scratch.
+def group_by_octant(n_first, gap, n_second, O, D, Ot, Dt, order, start):
+    """The tracer's copies ``Ot``, ``Dt`` of a wavefront's rays (``O``, ``D``: rows 0 to
+    ``n_first``, then rows ``gap`` to ``gap + n_second``, in spawn order) grouped by direction
+    octant: octant 0's rays first, then octant 1's, and so on, each group in spawn order;
+    ``order[j]``: the wavefront row of the tracer's ray j, through which ``shade`` reads the
+    rest of the ray. ``start``: (8,) int64, each octant's count of those rays on entry.
 
     The packet traversal takes 16 consecutive rays together only when they share an octant.
     Secondary rays from neighbouring pixels leave a curved mirror or glass in nearly the
     same direction, yet in spawn order a group of 16 of them straddles an axis plane often
     enough that most would go one by one (on marbles, 220k of its 370k secondary rays);
     grouped, nearly all go in packets. Only the tracer's copies move: the wavefront stays
-    where ``shade`` wrote it, so grouping costs two passes over the directions and an index
-    per ray."""
-    for c in range(8):
-        start[c] = 0
-    for k in range(n):
-        start[octant(D[k, 0], D[k, 1], D[k, 2])] += 1
+    where ``shade`` wrote it, which counted the octants as it put the rays, so grouping costs
+    one pass over the directions and an index per ray."""
     at = 0
     for c in range(8):
         m = start[c]
         start[c] = at
         at += m
-    for k in range(n):
-        o = octant(D[k, 0], D[k, 1], D[k, 2])
-        j = start[o]
-        start[o] = j + 1
-        order[j] = k
-        for c in range(3):
-            Ot[j, c] = O[k, c]
-            Dt[j, c] = D[k, c]
+    for part in range(2):
+        r0 = 0 if part == 0 else gap
+        r1 = n_first if part == 0 else gap + n_second
+        for k in range(r0, r1):
+            o = octant(D[k, 0], D[k, 1], D[k, 2])
+            j = start[o]
+            start[o] = j + 1
+            order[j] = k
+            for c in range(3):
+                Ot[j, c] = O[k, c]
+                Dt[j, c] = D[k, c]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, n, camera, first,
-               hit_prim, material, ambient_light, background):
+def accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, n, gap, n_second,
+               camera, first, hit_prim, material, ambient_light, background):
     """Into the film, in a fixed order per pixel: the queue's own contributions and the light
     brought by each shadow ray that reached its light, light by light in queue order
     (``blocked``: the joined queue's answers; the rays of light l at l * stride onward in
-    ``sh_C``/``sh_pix``, ``sh_cnt[l]`` of them). The own contribution of ray k goes to
-    ``film[pix[k]]``, for k < n in order: ``contrib[k]`` from ``shade``, or for the camera's
-    queue (``camera``, rays of weight 1) the background for a miss and the ambient light of
-    the material hit, computed here from the hit's primitive (``hit_prim``). The camera's come first,
-    as in a path a hit's own light comes before the light that reaches it; with ``first``
-    (the first sample pass) they are each pixel's first sum, 0 + c whatever the film held, so
-    the film needs no clearing. For other queues the shadow rays' light comes first.
+    ``sh_C``/``sh_pix``, ``sh_cnt[l]`` of them). The own contribution of wavefront row k goes
+    to ``film[pix[k]]``, for rows 0 to ``n`` then ``gap`` to ``gap + n_second`` (a secondary
+    wavefront's reflections and refractions, see ``shade``) in order: ``contrib[k]`` from
+    ``shade``, or for the camera's queue (``camera``, rays of weight 1, rows 0 to ``n``) the
+    background for a miss and the ambient light of the material hit, computed here from the
+    hit's primitive (``hit_prim``). The camera's come first, as in a path a hit's own light
+    comes before the light that reaches it; with ``first`` (the first sample pass) they are
+    each pixel's first sum, 0 + c whatever the film held, so the film needs no clearing. For
+    other queues the shadow rays' light comes first.
 
     The camera's own contributions reach the film here, not in ``shade``: a band's film is out
     of the cache after a trace, and going over it just before the shadow rays' light (the same
@@ -723,9 +717,12 @@ def accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, n, cam
                 film[q, 2] += sh_C[src + k, 2]
         start += sh_cnt[l]
     if not camera:
-        for k in range(n):
-            q = pix[k]
-            film[q, 0] += contrib[k, 0]
-            film[q, 1] += contrib[k, 1]
-            film[q, 2] += contrib[k, 2]
+        for part in range(2):
+            r0 = 0 if part == 0 else gap
+            r1 = n if part == 0 else gap + n_second
+            for k in range(r0, r1):
+                q = pix[k]
+                film[q, 0] += contrib[k, 0]
+                film[q, 1] += contrib[k, 1]
+                film[q, 2] += contrib[k, 2]
 

@@ -725,17 +725,25 @@ def test_warm_up_loads_the_wider_units_when_asked():
 
 
 def test_the_tracer_gets_a_wavefront_grouped_by_octant_in_spawn_order():
+    """A secondary wavefront's reflections lie at rows 0.., its refractions at rows gap..;
+    the tracer gets them all, grouped by octant, each group in spawn order (reflections
+    first), and ``order`` gives each one's row."""
     rng = np.random.default_rng(3)
-    n = 40
+    n_first, gap, n_second = 25, 30, 15
+    n = gap + n_second
     D = rng.normal(size=(n, 3))
     D[:6] = [[0.0, 1, 1], [-0.0, 1, 1], [1, -0.0, 1], [0.0, 0.0, -0.0], [-1, -1, -1],
              [1, 1, 1]]                                  # -0 counts as negative, as in packets
+    D[n_first:gap] = np.nan                              # rows between the two runs: unused
     O = rng.normal(size=(n, 3))
-    Ot, Dt = np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32)
-    order = np.full(n, -1, np.int64)
-    stages.group_by_octant(n, O, D, Ot, Dt, order, np.empty(8, np.int64))
-    sign = np.signbit(D)
-    want = np.argsort(sign[:, 0] + 2 * sign[:, 1] + 4 * sign[:, 2], kind="stable")
+    rows = np.r_[0:n_first, gap:n]
+    sign = np.signbit(D[rows])
+    key = sign[:, 0] + 2 * sign[:, 1] + 4 * sign[:, 2]
+    Ot, Dt = np.zeros((len(rows), 3), np.float32), np.zeros((len(rows), 3), np.float32)
+    order = np.full(len(rows), -1, np.int64)
+    stages.group_by_octant(n_first, gap, n_second, O, D, Ot, Dt, order,
+                           np.bincount(key, minlength=8).astype(np.int64))
+    want = rows[np.argsort(key, kind="stable")]
     assert np.array_equal(order, want)
     assert np.array_equal(Ot, O[want].astype(np.float32))
     assert np.array_equal(Dt, D[want].astype(np.float32))
@@ -782,8 +790,8 @@ def test_accumulate_adds_in_a_fixed_order_per_pixel(camera, first, want):
     hit_prim = np.array([0], np.int32)                        # triangle 0, material 1
     material = np.array([1], np.int32)
     ambient_light = np.array([[0.5] * 3, [1.0] * 3])
-    stages.accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, 1, camera,
-                      first, hit_prim, material, ambient_light, np.zeros(3))
+    stages.accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, 1, 1, 0,
+                      camera, first, hit_prim, material, ambient_light, np.zeros(3))
     assert np.array_equal(film[0], np.full(3, want))
     if first:                                                 # only the queue's pixels
         assert np.isnan(film[1:]).all()
@@ -800,11 +808,26 @@ def test_a_camera_rays_own_light_is_the_background_or_the_ambient_light_of_its_h
     ambient_light = np.array([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]])
     background = np.array([7.0, 8.0, 9.0])
     stages.accumulate(film, np.zeros(1, np.int64), 2, np.zeros((2, 3)), np.zeros(2, np.int64),
-                      np.zeros(0, np.bool_), pix, np.full((2, 3), np.nan), 2, True, True,
-                      hit_prim, material, ambient_light, background)
+                      np.zeros(0, np.bool_), pix, np.full((2, 3), np.nan), 2, 2, 0, True,
+                      True, hit_prim, material, ambient_light, background)
     assert np.array_equal(film[2], background)
     assert np.array_equal(film[0], ambient_light[1])
     assert np.isnan(film[1]).all()
+
+
+def test_a_secondary_wavefronts_contributions_come_from_its_two_runs_of_rows():
+    """A secondary wavefront holds its reflections at rows 0.. and its refractions at rows
+    gap..; ``accumulate`` adds the contributions of those rows and of no row between (what a
+    buffer holds there is stale)."""
+    film = np.zeros((2, 3))
+    pix = np.array([0, 1, 0, 0, 1], np.int64)
+    contrib = np.array([[1.0] * 3, [2.0] * 3, [np.nan] * 3, [4.0] * 3, [3.0] * 3])
+    stages.accumulate(film, np.zeros(1, np.int64), 2, np.zeros((2, 3)), np.zeros(2, np.int64),
+                      np.zeros(0, np.bool_), pix, contrib, 2, 3, 2, False, False,
+                      np.zeros(5, np.int32), np.zeros(1, np.int32), np.zeros((1, 3)),
+                      np.zeros(3))
+    assert np.array_equal(film[0], np.full(3, 5.0))          # rows 0 and 3, never row 2
+    assert np.array_equal(film[1], np.full(3, 5.0))          # rows 1 and 4
 
 
 def test_check_tracer_compares_triangles_as_the_units_hold_them():
