@@ -289,7 +289,7 @@ class _Buffers:
     shadow queue ``sh`` (per light a region of ``cap``: the tracer's origin, direction and
     t_max, the light brought, the pixel; then the counts per light). ``spawned``: the counts
     of reflections and refractions. ``jitter``: one band's pixel offsets of one sample
-    pass."""
+    pass; ``screen``: its camera rays' screen points (``stages.generate_camera_rays``)."""
 
     def __init__(self, n, n_lights, ray_dtype):
         self.L = n_lights
@@ -301,6 +301,7 @@ class _Buffers:
         self.ensure_slots(n, n)
         self.spawned = np.zeros(2, np.int64)
         self.jitter = np.empty(2 * n)
+        self.screen = np.empty(n), np.empty(n)
 
     def _wavefront(self, cap):
         f = lambda: np.empty((cap, 3))
@@ -352,6 +353,7 @@ def _buffers(n, n_lights, ray_dtype):
             buf.ensure_next(n)
         if len(buf.jitter) < 2 * n:
             buf.jitter = np.empty(2 * n)
+            buf.screen = np.empty(n), np.empty(n)
     return buf
 
 
@@ -726,7 +728,7 @@ def _render_band(fr, band):
             jx = jy = no_jitter
         O, D, wgt, pix, Ot, Dt, order = buf.cur
         stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, scene.jitter, fr.camera_terms[s],
-                                    eye, cu, cv, cw, D, pix, Ot, Dt)
+                                    eye, cu, cv, cw, D, pix, Ot, Dt, *buf.screen)
         n = npix
         gap, refr = n, 0             # the wavefront's rows: 0..n (then gap..gap + refr)
         rays["primary"] += n
