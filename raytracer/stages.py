@@ -256,8 +256,8 @@ def shade_scratch():
     octants' first slots for ``group_by_octant``. A kernel that allocated them itself would
     run at half the speed: Numba's reference counting then wraps its loops and LLVM no longer
     keeps the scratch in its SIMD passes."""
-    return (np.empty(_ROWS * _ROW), np.empty(BLOCK, np.int64), np.empty(BLOCK, np.bool_),
-            np.empty(BLOCK, np.bool_), np.empty(BLOCK, np.int64), np.empty(8, np.int64))
+    return (np.empty(_ROWS * _ROW), np.empty(BLOCK, np.uint32), np.empty(BLOCK, np.bool_),
+            np.empty(BLOCK, np.bool_), np.empty(BLOCK, np.uint32), np.empty(8, np.int64))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -475,7 +475,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             for j in range(nr):
                 if not (lit[j] and leaves[j]):
                     continue
-                m = mat[j]
+                m = np.uint64(mat[j])
                 spec = 0.0
                 kspec = ks[m]
                 if kspec > 0:                           # pow is the dearest step: only if used
@@ -486,17 +486,19 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                     ch = S[_FX + j] * hx + S[_FY + j] * hy + S[_FZ + j] * hz
                     spec = kspec * norm_spec * max(ch, 0.0) ** shin
                 c = S[_COS + j]
-                qOf[3 * s] = S[_OX + j]
-                qOf[3 * s + 1] = S[_OY + j]
-                qOf[3 * s + 2] = S[_OZ + j]
-                qDf[3 * s] = S[_LX + j]
-                qDf[3 * s + 1] = S[_LY + j]
-                qDf[3 * s + 2] = S[_LZ + j]
-                qT[s] = S[_TMAX + j]
-                sh_Cf[3 * s] = S[_W0 + j] * (S[_E0 + j] * c * (kd_pi[m, 0] + spec))
-                sh_Cf[3 * s + 1] = S[_W1 + j] * (S[_E1 + j] * c * (kd_pi[m, 1] + spec))
-                sh_Cf[3 * s + 2] = S[_W2 + j] * (S[_E2 + j] * c * (kd_pi[m, 2] + spec))
-                sh_pix[s] = pix[_row(camera, order, lo + j)]
+                u = np.uint64(s)
+                t = np.uint64(3) * u
+                qOf[t] = S[_OX + j]
+                qOf[t + np.uint64(1)] = S[_OY + j]
+                qOf[t + np.uint64(2)] = S[_OZ + j]
+                qDf[t] = S[_LX + j]
+                qDf[t + np.uint64(1)] = S[_LY + j]
+                qDf[t + np.uint64(2)] = S[_LZ + j]
+                qT[u] = S[_TMAX + j]
+                sh_Cf[t] = S[_W0 + j] * (S[_E0 + j] * c * (kd_pi[m, 0] + spec))
+                sh_Cf[t + np.uint64(1)] = S[_W1 + j] * (S[_E1 + j] * c * (kd_pi[m, 1] + spec))
+                sh_Cf[t + np.uint64(2)] = S[_W2 + j] * (S[_E2 + j] * c * (kd_pi[m, 2] + spec))
+                sh_pix[u] = pix[np.uint64(_row(camera, order, lo + j))]
                 s += 1
             sh_cnt[l] = s - l * stride
         # -- pass 4a (scalar): the spawning rays' values, side by side in slot order --

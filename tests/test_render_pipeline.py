@@ -866,8 +866,8 @@ def test_a_scene_changed_after_compiling_is_checked_again_before_it_renders():
                             ({"camera": dict(cam, eye=np.array([np.nan, 0, 0]))},
                              "scene.camera.eye: must be 3 finite numbers"),
                             ({"camera": {"eye": cam["eye"]}}, "scene.camera: expected the eye"),
-                            ({"width": 2 ** 16, "height": 2 ** 15},  # past 32-bit pixel indices
-                             "scene.width: 65536 x 32768 pixels is more than the renderer's")):
+                            ({"width": 2 ** 16, "height": 2 ** 16},  # past 32-bit pixel indices
+                             "scene.width: 65536 x 65536 pixels is more than the renderer's")):
         with pytest.raises(ParameterError, match=message):
             render(dataclasses.replace(sc, **change), tracer)
     assert (render(sc, tracer).prim >= 0).sum() > 30
