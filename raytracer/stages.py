@@ -350,9 +350,12 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             S[_GX + j] = face_n[p, 0]
             S[_GY + j] = face_n[p, 1]
             S[_GZ + j] = face_n[p, 2]
-            S[_NX + j] = a * np.float64(shading_n[p, 0, 0]) + u * np.float64(shading_n[p, 1, 0]) + v * np.float64(shading_n[p, 2, 0])
-            S[_NY + j] = a * np.float64(shading_n[p, 0, 1]) + u * np.float64(shading_n[p, 1, 1]) + v * np.float64(shading_n[p, 2, 1])
-            S[_NZ + j] = a * np.float64(shading_n[p, 0, 2]) + u * np.float64(shading_n[p, 1, 2]) + v * np.float64(shading_n[p, 2, 2])
+            S[_NX + j] = (a * np.float64(shading_n[p, 0, 0]) + u * np.float64(shading_n[p, 1, 0])
+                          + v * np.float64(shading_n[p, 2, 0]))
+            S[_NY + j] = (a * np.float64(shading_n[p, 0, 1]) + u * np.float64(shading_n[p, 1, 1])
+                          + v * np.float64(shading_n[p, 2, 1]))
+            S[_NZ + j] = (a * np.float64(shading_n[p, 0, 2]) + u * np.float64(shading_n[p, 1, 2])
+                          + v * np.float64(shading_n[p, 2, 2]))
             S[_MAG + j] = tri_mag[p]
             m = material[p]
             mat[j] = m
@@ -486,7 +489,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                     ch = S[_FX + j] * hx + S[_FY + j] * hy + S[_FZ + j] * hz
                     spec = kspec * norm_spec * max(ch, 0.0) ** shin
                 c = S[_COS + j]
-                u = np.uint64(s)
+                u = np.uint64(s)                        # unsigned: see config.PIXEL
                 t = np.uint64(3) * u
                 qOf[t] = S[_OX + j]
                 qOf[t + np.uint64(1)] = S[_OY + j]
@@ -601,15 +604,15 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             a1 = S[_RW1 + k]
             a2 = S[_RW2 + k]
             if max(a0, a1, a2) >= cutoff:
-                _put_ray(nO, nD, nW, npix, n_refl, S[_ROX + k], S[_ROY + k], S[_ROZ + k],
-                         S[_RX + k], S[_RY + k], S[_RZ + k], a0, a1, a2, p)
+                _put_ray(nO, nD, nW, npix, np.uint64(n_refl), S[_ROX + k], S[_ROY + k],
+                         S[_ROZ + k], S[_RX + k], S[_RY + k], S[_RZ + k], a0, a1, a2, p)
                 octant_start[octant(S[_RX + k], S[_RY + k], S[_RZ + k])] += 1
                 n_refl += 1
             c0 = S[_TW0 + k]
             c1 = S[_TW1 + k]
             c2 = S[_TW2 + k]
             if S[_REFRACTS + k] != 0 and max(c0, c1, c2) >= cutoff:
-                _put_ray(nO, nD, nW, npix, n + n_refr, S[_TOX + k], S[_TOY + k],
+                _put_ray(nO, nD, nW, npix, np.uint64(n + n_refr), S[_TOX + k], S[_TOY + k],
                          S[_TOZ + k], S[_TX + k], S[_TY + k], S[_TZ + k], c0, c1, c2, p)
                 octant_start[octant(S[_TX + k], S[_TY + k], S[_TZ + k])] += 1
                 n_refr += 1
@@ -664,6 +667,7 @@ def group_by_octant(n_first, gap, n_second, O, D, Ot, Dt, order, start):
             o = octant(D[k, 0], D[k, 1], D[k, 2])
             j = start[o]
             start[o] = j + 1
+            j = np.uint64(j)                            # unsigned: see config.PIXEL
             order[j] = k
             for c in range(3):
                 Ot[j, c] = O[k, c]
