@@ -12,8 +12,9 @@ BLOCK = 256
 # Numba wraps a negative index around the array's end, so an index of a signed type costs a
 # test at every access, which LLVM drops for an index it knows is not negative (2-3% more).
 # It bounds a frame to MAX_PIXELS pixels (a film of that many takes 100 GB for its radiance
-# sums alone), and a wavefront to as many rays (its arrays, 100 bytes and more a ray, would
-# not be allocated).
+# sums alone), and a wavefront to as many rows (a secondary wavefront's refractions start at
+# the row of the last queue's length; arrays of that many rows, 100 bytes and more a ray,
+# would not be allocated).
 PIXEL = np.uint32
 MAX_PIXELS = np.iinfo(PIXEL).max
 

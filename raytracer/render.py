@@ -730,7 +730,7 @@ def _render_band(fr, band):
         stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, scene.jitter, fr.camera_terms[s],
                                     eye, cu, cv, cw, D, pix, Ot, Dt, *buf.screen)
         n = npix
-        gap, refr = n, 0             # the wavefront's rows: 0..n (then gap..gap + refr)
+        gap, refr = n, 0             # the wavefront's rows: 0..n - refr, then gap..gap + refr
         rays["primary"] += n
         lap("generate")
         for bounce in range(passes["depth"]):

@@ -102,8 +102,8 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
     Two loops: the tile loops place each ray's screen point (in SX, SY), then one flat loop
     over the rays turns the points into unit directions, in SIMD lanes (with the arrays seen
     flat, so that a row is 3 words on from the last: a 2D index's run-time row length keeps
-    LLVM from vectorising); 30% faster than one loop doing both, and 15% faster again with
-    the points in arrays of their own (contiguous loads; parked in D's rows, strided). The
+    LLVM from vectorising); 30% faster than one loop doing both, and 14% faster again than
+    with the points parked in D's rows (strided loads). The
     tile loops are written out here, not read from the tile order: placing pixels from a
     list of indices made this stage 20-30% slower. A test keeps the two orders in step."""
     off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
@@ -212,7 +212,7 @@ def _put_ray(O, D, W, pix, k, ox, oy, oz, dx, dy, dz, w0, w1, w2, p):
 # the block). One 2D array rather than one per field: LLVM then proves the rows apart and
 # runs the passes over them in SIMD lanes. Rows lie one cache line more than BLOCK apart: at
 # BLOCK doubles (2 KB) apart, a ray's entries in every other row fall in one set of the L1
-# cache, and the passes that read 15-20 rows (the shadow records, the secondary rays)
+# cache, and the passes that read 15-23 rows (the shadow records, the secondary rays)
 # evicted their own lines; padded, they shade 4-7% faster.
 _ROWS = 72
 _ROW = BLOCK + 8
@@ -253,7 +253,8 @@ def shade_scratch():
     """The working arrays of one ``shade`` call (its last six arguments): the scratch ``S``
     (``_ROWS`` rows of ``_ROW``), and per ray of a block, its material, whether it takes direct
     light and whether the light is in front of it; the slots of the rays that spawn; the
-    octants' first slots for ``group_by_octant``. A kernel that allocated them itself would
+    counts of the next wavefront's rays per octant, which ``group_by_octant`` turns into the
+    octants' first slots. A kernel that allocated them itself would
     run at half the speed: Numba's reference counting then wraps its loops and LLVM no longer
     keeps the scratch in its SIMD passes."""
     return (np.empty(_ROWS * _ROW), np.empty(BLOCK, np.uint32), np.empty(BLOCK, np.bool_),
@@ -291,16 +292,18 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
 
     A block is shaded in passes over a structure-of-arrays scratch ``S``, so that the
     arithmetic runs in SIMD lanes: (1) the hit points of every ray of the block, its
-    triangle's data gathered (a miss computes values no later pass reads), each ray's own
-    light (background or ambient), and which rays take direct light or spawn; (2) the unit
+    triangle's data gathered (a miss computes values no later pass reads), which rays take
+    direct light or spawn, and each ray's own light (background or ambient) but a camera
+    ray's; (2) the unit
     normals, turned toward the ray, and the first-hit layers; (3) per light, the shadow ray of
     every ray of the block, then, in ray order, the records of the rays that take direct light
     and leave toward the light; (4) the spawning rays' values gathered side by side, both
     secondary rays of each, then, in ray order, those above the cut-off to their queues. A
     choice between a miss and a hit, or a mirror and a dielectric, is a choice of values, not
     of path, so that the passes run without branches. Every value is the float64 formula of a
-    ray-by-ray loop, so the passes do not change a bit of the result. Then the queues are
-    joined (module text). Returns the length of the joined shadow queue."""
+    ray-by-ray loop, so the passes do not change a bit of the result. Then the shadow queues
+    are joined and the next wavefront grouped by octant (module text). Returns the length of
+    the joined shadow queue."""
     n_lights = light_kind.shape[0]
     for l in range(n_lights):
         sh_cnt[l] = 0
@@ -339,7 +342,10 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                              Of[3 * r + 2], Wf[3 * r], Wf[3 * r + 1], Wf[3 * r + 2])
         # -- pass 1b (scalar: gathers from the hit triangles): the unit geometric normal (per
         #    face), the interpolated shading normal, the coordinate magnitude and material; a
-        #    miss reads triangle 0 (render() refuses a scene without triangles), unused --
+        #    miss reads triangle 0 (render() refuses a scene without triangles), unused. From
+        #    the material, which rays take direct light (hits on a non-dielectric) and which
+        #    spawn: the spawning rays' slots go densely to ``spawning`` (each ray's slot is
+        #    written, the count moves on for those that spawn) --
         n_spawning = 0
         for j in range(nr):
             i = lo + j
@@ -363,11 +369,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             lit[j] = hit & direct[m] & do_shadow
             spawning[n_spawning] = j
             n_spawning += hit & spawns[m] & do_spawn
-        # -- pass 1c (branch-free: a miss and a hit differ by a choice of values, not of path):
-        #    each ray's own light, the background for a miss and the ambient light for a hit;
-        #    which rays take direct light (hits on a non-dielectric) and which spawn. The
-        #    spawning rays' slots go densely to ``spawning`` (each ray's slot is written, the
-        #    count moves on for those that spawn). A camera ray's own light, of weight 1, is
+        # -- pass 1c (branch-free: a miss and a hit differ by a choice of values, not of path),
+        #    for a queue other than the camera's: each ray's own light, the background for a
+        #    miss and the ambient light for a hit. A camera ray's own light, of weight 1, is
         #    ``accumulate``'s to add from its hit --
         if not camera:
             for j in range(nr):

@@ -9,7 +9,7 @@ import pytest
 
 from raytracer import stages
 from raytracer import pcg64
-from raytracer.config import MIN_BANDS
+from raytracer.config import MIN_BANDS, PIXEL
 from raytracer.render import TILE, band_rows, make_tracer, render
 from traversal.camera import tile_order
 from scenes import compile_scene, load_scene
@@ -299,7 +299,7 @@ def test_a_bands_camera_rays_are_its_slots_of_the_tile_order():
         n = (y1 - y0) * W
         D = np.empty((n, 3))
         Ot, Dt = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
-        pix = np.empty(n, np.int64)
+        pix = np.empty(n, PIXEL)
         terms = stages.camera_terms(W, H, 0.5, 0, 0, 1, 1)
         stages.generate_camera_rays(y0, y1, W, TILE, np.zeros(0), np.zeros(0), False, terms,
                                     np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
@@ -321,7 +321,7 @@ def test_camera_rays_are_the_pinhole_formula_bit_for_bit():
         terms = stages.camera_terms(W, H, 0.7, 1, 0, 2, 2)
         D = np.empty((n, 3))
         Ot, Dt = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
-        pix = np.empty(n, np.int64)
+        pix = np.empty(n, PIXEL)
         stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, jitter, terms, eye, cu, cv, cw,
                                     D, pix, Ot, Dt, np.empty(n), np.empty(n))
         off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
@@ -740,7 +740,7 @@ def test_the_tracer_gets_a_wavefront_grouped_by_octant_in_spawn_order():
     sign = np.signbit(D[rows])
     key = sign[:, 0] + 2 * sign[:, 1] + 4 * sign[:, 2]
     Ot, Dt = np.zeros((len(rows), 3), np.float32), np.zeros((len(rows), 3), np.float32)
-    order = np.full(len(rows), -1, np.int64)
+    order = np.full(len(rows), np.iinfo(PIXEL).max, PIXEL)
     stages.group_by_octant(n_first, gap, n_second, O, D, Ot, Dt, order,
                            np.bincount(key, minlength=8).astype(np.int64))
     want = rows[np.argsort(key, kind="stable")]
@@ -783,9 +783,9 @@ def test_accumulate_adds_in_a_fixed_order_per_pixel(camera, first, want):
     sh_cnt = np.array([1, 1], np.int64)                      # one shadow ray per light
     sh_C = np.zeros((2 * stride, 3))
     sh_C[0], sh_C[stride] = 1e16, -1e16
-    sh_pix = np.zeros(2 * stride, np.int64)                   # both on pixel 0
+    sh_pix = np.zeros(2 * stride, PIXEL)                      # both on pixel 0
     blocked = np.zeros(2, np.bool_)
-    pix = np.array([0], np.int64)
+    pix = np.array([0], PIXEL)
     contrib = np.ones((1, 3))
     hit_prim = np.array([0], np.int32)                        # triangle 0, material 1
     material = np.array([1], np.int32)
@@ -802,12 +802,12 @@ def test_a_camera_rays_own_light_is_the_background_or_the_ambient_light_of_its_h
     ray's own light from its hit, the background for a miss (primitive -1) and the ambient
     light of the hit triangle's material otherwise."""
     film = np.full((3, 3), np.nan)
-    pix = np.array([2, 0], np.int64)
+    pix = np.array([2, 0], PIXEL)
     hit_prim = np.array([-1, 1], np.int32)                   # a miss, then triangle 1
     material = np.array([0, 1], np.int32)
     ambient_light = np.array([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]])
     background = np.array([7.0, 8.0, 9.0])
-    stages.accumulate(film, np.zeros(1, np.int64), 2, np.zeros((2, 3)), np.zeros(2, np.int64),
+    stages.accumulate(film, np.zeros(1, np.int64), 2, np.zeros((2, 3)), np.zeros(2, PIXEL),
                       np.zeros(0, np.bool_), pix, np.full((2, 3), np.nan), 2, 2, 0, True,
                       True, hit_prim, material, ambient_light, background)
     assert np.array_equal(film[2], background)
@@ -817,17 +817,18 @@ def test_a_camera_rays_own_light_is_the_background_or_the_ambient_light_of_its_h
 
 def test_a_secondary_wavefronts_contributions_come_from_its_two_runs_of_rows():
     """A secondary wavefront holds its reflections at rows 0.. and its refractions at rows
-    gap..; ``accumulate`` adds the contributions of those rows and of no row between (what a
-    buffer holds there is stale)."""
-    film = np.zeros((2, 3))
-    pix = np.array([0, 1, 0, 0, 1], np.int64)
-    contrib = np.array([[1.0] * 3, [2.0] * 3, [np.nan] * 3, [4.0] * 3, [3.0] * 3])
-    stages.accumulate(film, np.zeros(1, np.int64), 2, np.zeros((2, 3)), np.zeros(2, np.int64),
+    gap..; ``accumulate`` adds the contributions of those rows, reflections first, and of no
+    row between (what a buffer holds there is stale). A pixel's float64 sum depends on the
+    order of its terms: 1 + 2**53 - 2**53 is 0, 1 - 2**53 + 2**53 is 1."""
+    film = np.array([[1.0] * 3, [0.0] * 3])
+    pix = np.array([0, 1, 0, 0, 1], PIXEL)
+    contrib = np.array([[2.0 ** 53] * 3, [2.0] * 3, [np.nan] * 3, [-2.0 ** 53] * 3, [3.0] * 3])
+    stages.accumulate(film, np.zeros(1, np.int64), 2, np.zeros((2, 3)), np.zeros(2, PIXEL),
                       np.zeros(0, np.bool_), pix, contrib, 2, 3, 2, False, False,
                       np.zeros(5, np.int32), np.zeros(1, np.int32), np.zeros((1, 3)),
                       np.zeros(3))
-    assert np.array_equal(film[0], np.full(3, 5.0))          # rows 0 and 3, never row 2
-    assert np.array_equal(film[1], np.full(3, 5.0))          # rows 1 and 4
+    assert np.array_equal(film[0], np.zeros(3))            # rows 0 then 3, never row 2
+    assert np.array_equal(film[1], np.full(3, 5.0))        # rows 1 and 4
 
 
 def test_check_tracer_compares_triangles_as_the_units_hold_them():
