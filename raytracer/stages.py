@@ -103,9 +103,9 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
     over the rays turns the points into unit directions, in SIMD lanes (with the arrays seen
     flat, so that a row is 3 words on from the last: a 2D index's run-time row length keeps
     LLVM from vectorising); 30% faster than one loop doing both, and 14% faster again than
-    with the points parked in D's rows (strided loads). The
-    tile loops are written out here, not read from the tile order: placing pixels from a
-    list of indices made this stage 20-30% slower. A test keeps the two orders in step."""
+    with the points parked in D's rows (strided loads). The tile loops are written out here,
+    not read from the tile order: placing pixels from a list of indices made this stage
+    20-30% slower. A test keeps the two orders in step."""
     off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
     ex = np.float32(eye[0])
     ey = np.float32(eye[1])
@@ -254,9 +254,9 @@ def shade_scratch():
     (``_ROWS`` rows of ``_ROW``), and per ray of a block, its material, whether it takes direct
     light and whether the light is in front of it; the slots of the rays that spawn; the
     counts of the next wavefront's rays per octant, which ``group_by_octant`` turns into the
-    octants' first slots. A kernel that allocated them itself would
-    run at half the speed: Numba's reference counting then wraps its loops and LLVM no longer
-    keeps the scratch in its SIMD passes."""
+    octants' first slots. A kernel that allocated them itself would run at half the speed:
+    Numba's reference counting then wraps its loops and LLVM no longer keeps the scratch in
+    its SIMD passes. The material and slot arrays are unsigned (see config.PIXEL)."""
     return (np.empty(_ROWS * _ROW), np.empty(BLOCK, np.uint32), np.empty(BLOCK, np.bool_),
             np.empty(BLOCK, np.bool_), np.empty(BLOCK, np.uint32), np.empty(8, np.int64))
 
@@ -291,10 +291,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     radiance sums); ``offset``: traversal.offset strategy index; ``kd_pi``: kd / pi.
 
     A block is shaded in passes over a structure-of-arrays scratch ``S``, so that the
-    arithmetic runs in SIMD lanes: (1) the hit points of every ray of the block, its
-    triangle's data gathered (a miss computes values no later pass reads), which rays take
-    direct light or spawn, and each ray's own light (background or ambient) but a camera
-    ray's; (2) the unit
+    arithmetic runs in SIMD lanes: (1) the hit points of every ray of the block, its triangle's
+    data gathered (a miss computes values no later pass reads), which rays take direct light or
+    spawn, and each ray's own light (background or ambient) but a camera ray's; (2) the unit
     normals, turned toward the ray, and the first-hit layers; (3) per light, the shadow ray of
     every ray of the block, then, in ray order, the records of the rays that take direct light
     and leave toward the light; (4) the spawning rays' values gathered side by side, both
@@ -482,7 +481,7 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             for j in range(nr):
                 if not (lit[j] and leaves[j]):
                     continue
-                m = np.uint64(mat[j])
+                m = mat[j]
                 spec = 0.0
                 kspec = ks[m]
                 if kspec > 0:                           # pow is the dearest step: only if used

@@ -303,7 +303,8 @@ def test_a_bands_camera_rays_are_its_slots_of_the_tile_order():
         terms = stages.camera_terms(W, H, 0.5, 0, 0, 1, 1)
         stages.generate_camera_rays(y0, y1, W, TILE, np.zeros(0), np.zeros(0), False, terms,
                                     np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
-                                    np.array([0, 0, -1.0]), D, pix, Ot, Dt, np.empty(n), np.empty(n))
+                                    np.array([0, 0, -1.0]), D, pix, Ot, Dt, np.empty(n),
+                                    np.empty(n))
         assert np.array_equal(pix, order[y0 * W:y1 * W])
 
 
