@@ -113,6 +113,11 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
         if not is_integer(v) or not lo <= v <= hi:
             span = "a positive integer below 2^63" if hi == 2**63 - 1 else f"an integer in {lo}..{hi}"
             raise ParameterError(name, f"must be {span}, got {v!r}")
+    # as Python integers: a kernel is compiled once per argument type, so a NumPy integer of
+    # another width would compile the builder's kernels again
+    leaf_size, bins, capacity, subtree_builders, block_nodes = (
+        int(v) for v in (leaf_size, bins, capacity, subtree_builders, block_nodes))
+    task_prims = None if task_prims is None else int(task_prims)
     if builder == "hwbvh":
         _check_capacity(capacity, leaf_size)
     tris, src = _triangles(source, source_name)

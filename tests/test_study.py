@@ -209,7 +209,10 @@ def test_a_scheduler_without_workers_is_blamed_on_where_its_address_came_from(mo
     option, or on $HWRT_SCHEDULER when the address came from there."""
     from distributed import LocalCluster
     from hwbvh.errors import ParameterError
+    from hwrt import cluster as hwrt_cluster
     from hwrt.study import _timing
+
+    monkeypatch.setattr(hwrt_cluster, "CONNECT_TIMEOUT_S", 1)    # the wait for a worker
 
     with LocalCluster(n_workers=0, processes=False, dashboard_address=None,
                       silence_logs=50) as cluster:
