@@ -353,6 +353,7 @@ def _buffers(n, n_lights, ray_dtype):
             buf.ensure_next(n)
         if len(buf.jitter) < 2 * n:
             buf.jitter = np.empty(2 * n)
+        if len(buf.screen[0]) < n:
             buf.screen = np.empty(n), np.empty(n)
     return buf
 
