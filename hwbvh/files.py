@@ -223,8 +223,12 @@ def write_files(pairs):
     callable ``write(tmp_path)`` that creates the file itself (e.g. an image library's writer).
     Each file goes to a temporary file in its directory, named with the same extension (for
     writers that choose the format by it); the renames happen only when every write succeeded.
+    Missing directories are created; when the files do not all appear, those of them left
+    empty are removed again.
     """
     tmps = []
+    made = []                            # directories this call created, outermost first
+    done = False
     try:
         for path, data in pairs:
             path = os.fspath(path)
@@ -232,7 +236,7 @@ def write_files(pairs):
                 raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", path)
             d = os.path.dirname(os.path.abspath(path))
             try:
-                os.makedirs(d, exist_ok=True)
+                _make_directories(d, made)
                 with signals_held():        # a signal between creating and recording the
                     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(path)[1],
                                                dir=d)
@@ -255,10 +259,39 @@ def write_files(pairs):
                     os.replace(tmp, path)
                 except OSError as e:
                     raise OutputError(e.errno, e.strerror, path) from None
+        done = True
     finally:                             # a renamed temporary file no longer exists
         for tmp, _ in tmps:
             if os.path.exists(tmp):
                 os.unlink(tmp)
+        if not done:
+            for d in reversed(made):
+                try:
+                    os.rmdir(d)          # only if empty: another writer's files stay
+                except OSError:
+                    pass
+
+
+def _make_directories(d, made):
+    """Create the directory ``d`` and its missing parents, appending each one created to
+    ``made`` (outermost first) as it is created, so that a signal between two of them leaves
+    none unrecorded."""
+    missing = []
+    while not os.path.isdir(d):
+        missing.append(d)
+        parent = os.path.dirname(d)
+        if parent == d:
+            break
+        d = parent
+    for d in reversed(missing):
+        with signals_held():
+            try:
+                os.mkdir(d)
+            except FileExistsError:
+                if not os.path.isdir(d):
+                    raise
+                continue
+            made.append(d)
 
 
 def made_as_written(make):

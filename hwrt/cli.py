@@ -219,9 +219,9 @@ def cmd_build(args):
         embree_build_seconds(np.eye(3, dtype=np.float32), np.array([[0, 1, 2]], np.int32))
         startup = time.perf_counter() - t
         secs = embree_build_seconds(verts, faces)
-        result = {"triangles": int(len(faces)), "nodes": None, "leaves": None, "max_depth": None,
-                  "sah_cost": None, "build_seconds": secs, "startup_seconds": startup,
-                  "fallback_splits": None, "builder": "embree"}
+        result = {"builder": "embree", "triangles": int(len(faces)), "nodes": None,
+                  "leaves": None, "max_depth": None, "sah_cost": None, "fallback_splits": None,
+                  "build_seconds": secs, "startup_seconds": startup}
         return _emit(args, result, lambda r: _kv(r, r.keys()))
     startup = warm_up(args.builder, parallel=len(tris) > config.SEQUENTIAL_MAX_PRIMS)
     given = {dest: getattr(args, dest) for dest in BUILD_OPTION_READERS

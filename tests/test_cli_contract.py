@@ -244,6 +244,23 @@ def test_write_files_is_all_or_nothing(tmp_path):
     assert sorted(p.read_bytes() for p in tmp_path.iterdir()) == [b"a", b"b", b"c"]
 
 
+def test_directories_made_for_files_that_do_not_appear_are_removed(tmp_path):
+    """A failed or interrupted write removes the directories it created for its files, and
+    only those; a write that succeeds keeps them."""
+    from hwbvh.files import write_files
+
+    def fails(tmp):
+        raise KeyboardInterrupt
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        write_files([(tmp_path / "kept" / "new" / "a.bin", b"a"),
+                     (tmp_path / "made" / "deeper" / "b.exr", fails)])
+    assert [p.name for p in tmp_path.iterdir()] == ["kept"]
+    assert list((tmp_path / "kept").iterdir()) == []
+    write_files([(tmp_path / "made" / "deeper" / "b.txt", "b")])
+    assert (tmp_path / "made" / "deeper" / "b.txt").read_text() == "b"
+
+
 def test_an_interrupt_before_the_renames_leaves_nothing(tmp_path, monkeypatch):
     """An interrupt after every file is written but before they are renamed into place
     removes the temporary files."""
