@@ -236,11 +236,19 @@ def write_files(pairs):
                 raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", path)
             d = os.path.dirname(os.path.abspath(path))
             try:
-                _make_directories(d, made)
-                with signals_held():        # a signal between creating and recording the
-                    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(path)[1],
-                                               dir=d)
-                    tmps.append((tmp, path))  # temporary file would leave it behind
+                for attempt in range(3):
+                    _make_directories(d, made)
+                    try:
+                        with signals_held():    # a signal between creating and recording the
+                            fd, tmp = tempfile.mkstemp(       # temporary file would leave it
+                                prefix=".tmp-", suffix=os.path.splitext(path)[1], dir=d)
+                            tmps.append((tmp, path))          # behind
+                        break
+                    except FileNotFoundError:
+                        # another writer that failed removed the directory it had made as
+                        # this one found it: make it again
+                        if attempt == 2:
+                            raise
                 if callable(data):
                     os.close(fd)
                     data(tmp)
@@ -260,12 +268,14 @@ def write_files(pairs):
                 except OSError as e:
                     raise OutputError(e.errno, e.strerror, path) from None
         done = True
-    finally:                             # a renamed temporary file no longer exists
-        for tmp, _ in tmps:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-        if not done:
-            for d in reversed(made):
+    finally:
+        with signals_held():             # a second signal does not cut the clean-up short
+            for tmp, _ in tmps:          # (a renamed temporary file no longer exists)
+                try:
+                    os.unlink(tmp)
+                except OSError:
+                    pass
+            for d in reversed(made if not done else ()):
                 try:
                     os.rmdir(d)          # only if empty: another writer's files stay
                 except OSError:
@@ -288,8 +298,8 @@ def _make_directories(d, made):
             try:
                 os.mkdir(d)
             except FileExistsError:
-                if not os.path.isdir(d):
-                    raise
+                if not os.path.isdir(d):        # a file where a directory should be
+                    raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), d) from None
                 continue
             made.append(d)
 

@@ -247,7 +247,9 @@ def test_write_files_is_all_or_nothing(tmp_path):
 def test_directories_made_for_files_that_do_not_appear_are_removed(tmp_path):
     """A failed or interrupted write removes the directories it created for its files, and
     only those; a write that succeeds keeps them."""
-    from hwbvh.files import write_files
+    import errno
+    from hwbvh import files
+    write_files = files.write_files
 
     def fails(tmp):
         raise KeyboardInterrupt
@@ -259,6 +261,30 @@ def test_directories_made_for_files_that_do_not_appear_are_removed(tmp_path):
     assert list((tmp_path / "kept").iterdir()) == []
     write_files([(tmp_path / "made" / "deeper" / "b.txt", "b")])
     assert (tmp_path / "made" / "deeper" / "b.txt").read_text() == "b"
+    # a file where a directory should be: the error says so, for the path asked for
+    (tmp_path / "f").write_text("")
+    with pytest.raises(files.OutputError) as e:
+        write_files([(tmp_path / "new" / "a.bin", b"a"), (tmp_path / "f" / "sub" / "b.bin", b"b")])
+    assert (e.value.errno, e.value.filename) == (errno.ENOTDIR, str(tmp_path / "f" / "sub" / "b.bin"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f", "kept", "made"]
+
+
+def test_a_directory_another_writer_removes_is_made_again(tmp_path, monkeypatch):
+    """Another writer that made the same new directory and failed removes it again, between
+    this writer finding it and creating its temporary file there: this one makes it again."""
+    from hwbvh import files
+    real = files.tempfile.mkstemp
+    removed = []
+
+    def after_the_other_writer_failed(*args, dir, **kw):
+        if not removed:
+            os.rmdir(dir)
+            removed.append(dir)
+        return real(*args, dir=dir, **kw)
+    monkeypatch.setattr(files.tempfile, "mkstemp", after_the_other_writer_failed)
+    files.write_files([(tmp_path / "new" / "a.bin", b"a")])
+    assert removed == [str(tmp_path / "new")]
+    assert (tmp_path / "new" / "a.bin").read_bytes() == b"a"
 
 
 def test_an_interrupt_before_the_renames_leaves_nothing(tmp_path, monkeypatch):
@@ -276,7 +302,7 @@ def test_an_interrupt_before_the_renames_leaves_nothing(tmp_path, monkeypatch):
     monkeypatch.setattr(files, "signals_held", interrupted_at_the_renames)
     with pytest.raises(KeyboardInterrupt):
         files.write_files([(tmp_path / "a.bin", b"a"), (tmp_path / "b.txt", "b")])
-    assert len(entered) == 3 and list(tmp_path.iterdir()) == []
+    assert len(entered) == 4 and list(tmp_path.iterdir()) == []      # the fourth: the clean-up
 
 
 def test_a_signal_during_a_hold_is_acted_on_after_it_by_the_handler_in_place():
