@@ -239,14 +239,16 @@ def write_files(pairs):
                 for attempt in range(3):
                     _make_directories(d, made)
                     try:
-                        with signals_held():    # a signal between creating and recording the
-                            fd, tmp = tempfile.mkstemp(       # temporary file would leave it
+                        # held: a signal between creating and recording the temporary file
+                        # would leave it behind
+                        with signals_held():
+                            fd, tmp = tempfile.mkstemp(
                                 prefix=".tmp-", suffix=os.path.splitext(path)[1], dir=d)
-                            tmps.append((tmp, path))          # behind
+                            tmps.append((tmp, path))
                         break
                     except FileNotFoundError:
-                        # another writer that failed removed the directory it had made as
-                        # this one found it: make it again
+                        # another writer that failed removed the directory it had made just
+                        # as this one found it there: make it again
                         if attempt == 2:
                             raise
                 if callable(data):
@@ -299,7 +301,8 @@ def _make_directories(d, made):
                 os.mkdir(d)
             except FileExistsError:
                 if not os.path.isdir(d):        # a file where a directory should be
-                    raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), d) from None
+                    raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR),
+                                             d) from None
                 continue
             made.append(d)
 

@@ -561,7 +561,8 @@ def human(r):
     # resumed frames' rows (and their time to image) are the earlier run's; the wall time is
     # this run's alone
     wall = "this run" if start else "total"
-    lines.append(f"{r['rebuilds']} rebuild{'' if r['rebuilds'] == 1 else 's'}; time to image {r['time_to_image_seconds_total']:.2f} s; "
+    rebuilds = f"{r['rebuilds']} rebuild{'' if r['rebuilds'] == 1 else 's'}"
+    lines.append(f"{rebuilds}; time to image {r['time_to_image_seconds_total']:.2f} s; "
                  f"{wall} {r['total_seconds']:.2f} s; wrote {r['output']}")
     if start:
         lines.append(f"resumed: frames 0-{start - 1} of {len(r['frames'])} were on disk from an "
