@@ -40,7 +40,8 @@ def test_compiled_stages_match_the_numpy_reference(name):
 
 def test_wavefront_grows_when_dielectrics_double_the_rays():
     # a glass sphere filling the view: each hit spawns a reflection and a refraction, so later
-    # wavefronts outgrow the camera's (the queues must grow, not overflow)
+    # wavefronts outgrow the camera's (the queues must grow, not overflow); and blocks in which
+    # nearly every ray spawns, which the shading's pass 4 shades in place (stages.shade)
     d = load_scene("cornell", width=24, height=18, spp=1, max_depth=6)
     d["camera"] = {"eye": [0.42, 0.38, 1.0], "target": [0.42, 0.38, 0.25], "fov": 40.0}
     sc = compile_scene(d)
