@@ -389,13 +389,8 @@ def release_buffers():
 
 class SceneArrays(NamedTuple):
     """A compiled scene as the shading kernel takes it, in the order of its arguments."""
-    face_n: np.ndarray                  # (n, 3) unit geometric normals, float64
-    shading_n: np.ndarray               # (n, 3, 3) vertex normals, float32
-    material: np.ndarray                # (n,) material per triangle
-    tri_mag: np.ndarray                 # (n,) largest |coordinate| per triangle
+    tri_rec: np.ndarray                 # (n * stages.TRI_WORDS,) per-triangle shading records
     ambient_light: np.ndarray           # (m, 3) kd * ambient per material
-    direct: np.ndarray                  # (m,) takes direct light (not a dielectric)
-    spawns: np.ndarray                  # (m,) casts secondary rays (mirror or dielectric)
     kd_pi: np.ndarray                   # (m, 3) kd / pi
     ks: np.ndarray
     shininess: np.ndarray
@@ -410,14 +405,11 @@ class SceneArrays(NamedTuple):
 
 
 def _scene_arrays(scene, lights):
-    """The compiled scene as the kernels read it: per-triangle unit geometric normals and
-    coordinate magnitudes (for ray offsets), material tables, and a table of ``lights`` (the
-    scene's, or none when it needs no shadow rays: the shading kernel sizes its shadow slots
-    by this table)."""
+    """The compiled scene as the kernels read it: a shading record per triangle (normals,
+    coordinate magnitude for ray offsets, material and its flags: ``stages.TRI_WORDS``),
+    material tables, and a table of ``lights`` (the scene's, or none when it needs no shadow
+    rays: the shading kernel sizes its shadow slots by this table)."""
     tris = np.ascontiguousarray(scene.triangles, np.float32)
-    face_n = np.empty((len(tris), 3))
-    tri_mag = np.empty(len(tris))
-    run_ranges(stages.triangle_terms, len(tris), tris, face_n, tri_mag, min_items=4096)
     L = len(lights)
     kind = np.zeros(L, np.int64)
     pos = np.zeros((L, 3))
@@ -435,10 +427,13 @@ def _scene_arrays(scene, lights):
     f64 = lambda a: np.ascontiguousarray(a, np.float64)
     kr, ior = f64(scene.kr), f64(scene.ior)
     dielectric = ior > 0                             # dielectrics take no direct light
+    rec = np.empty(len(tris) * stages.TRI_WORDS)
+    run_ranges(stages.triangle_terms, len(tris), tris,
+               np.ascontiguousarray(scene.normals, np.float32),
+               np.ascontiguousarray(scene.material, np.int32), ~dielectric,
+               dielectric | (kr.max(axis=1) > 0), rec, min_items=4096)
     return SceneArrays(
-        face_n, np.ascontiguousarray(scene.normals, np.float32),
-        np.ascontiguousarray(scene.material, np.int32), tri_mag,
-        f64(scene.kd) * f64(scene.ambient), ~dielectric, dielectric | (kr.max(axis=1) > 0),
+        rec, f64(scene.kd) * f64(scene.ambient),
         f64(scene.kd) / np.pi, f64(scene.ks), f64(scene.shininess), kr, ior, kind, pos, ldir, val,
         f64(scene.background), float(scene.cutoff))
 
@@ -500,6 +495,7 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     frame = _Frame(
         scene=scene, passes=passes, n_lights=n_lights, code=STRATEGY_CODES[offset],
         sa=_scene_arrays(scene, scene.lights if n_lights else []),
+        material=np.ascontiguousarray(scene.material, np.uint32),       # see config.PIXEL
         # rays go to the tracer in its own precision (float32 for the hardware units), so it
         # reads them as they are
         ray_dtype=ray_dtype,
@@ -568,11 +564,27 @@ def _check_render_arguments(scene, tracer, seed, progress):
         raise ParameterError("scene.width", f"{scene.width} x {scene.height} pixels is more "
                                             f"than the renderer's {MAX_PIXELS}")
     _check_camera(scene.camera)
+    _check_materials(scene)
     check_tracer(tracer, triangles=scene.triangles)
     if not is_integer(seed) or seed < 0:
         raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
     if progress is not None and not callable(progress):
         raise ParameterError("progress", f"expected a callable or None, got {type(progress).__name__}")
+
+
+def _check_materials(scene):
+    """One material per triangle, each an index into the scene's material tables (as
+    ``compile_scene`` makes them; checked again, as the shading kernels index with them
+    unchecked)."""
+    mat = np.asarray(getattr(scene, "material", None))
+    n = len(np.asarray(getattr(scene, "kd", ())))
+    if mat.shape != (len(scene.triangles),) or mat.dtype.kind not in "iu":
+        raise ParameterError("scene.material", f"expected an integer per triangle "
+                                               f"({len(scene.triangles)}), got {mat.dtype} "
+                                               f"of shape {mat.shape}")
+    if mat.min() < 0 or mat.max() >= n:
+        raise ParameterError("scene.material", f"indices must lie in [0, {n}) (the scene's "
+                                               f"materials), got {int(mat.min())}..{int(mat.max())}")
 
 
 def _check_camera(cam):
@@ -682,6 +694,7 @@ class _Frame:
     n_lights: int
     code: int
     sa: tuple
+    material: np.ndarray              # per triangle, unsigned: accumulate's camera rays
     ray_dtype: np.dtype
     basis: tuple
     eye: np.ndarray
@@ -760,7 +773,7 @@ def _render_band(fr, band):
                 rays["shadow"] += m
             stages.accumulate(film, sh_cnt, buf.cap, sh_C, sh_pix, blocked, pix, buf.contrib,
                               n - refr, gap, refr, bounce == 0, bounce == 0 and s == 0, h.prim,
-                              sa.material, sa.ambient_light, sa.background)
+                              fr.material, sa.ambient_light, sa.background)
             lap("accumulate")
             if not spawn:
                 break

@@ -414,7 +414,11 @@ def test_render_refuses_bad_arguments_and_answers_before_shading_reads_them():
              ((scene, object()), {}, "tracer", "intersect and occluded"),
              ((scene, ours), {"seed": 1.5}, "seed", "integer"),
              ((scene, ours), {"progress": 5}, "progress", "callable"),
-             ((dataclasses.replace(scene, spp=0), ours), {}, "scene.spp", "positive integer")]
+             ((dataclasses.replace(scene, spp=0), ours), {}, "scene.spp", "positive integer"),
+             ((dataclasses.replace(scene, material=scene.material - 1), ours), {},
+              "scene.material", r"must lie in \[0, 5\).*got -1\.\.3"),
+             ((dataclasses.replace(scene, material=scene.material[1:]), ours), {},
+              "scene.material", "an integer per triangle")]
     for args, kw, parameter, words in cases:
         with pytest.raises(ParameterError, match=words) as e:
             render(*args, **kw)
