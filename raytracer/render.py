@@ -404,6 +404,13 @@ class SceneArrays(NamedTuple):
     cutoff: float
 
 
+def _aligned(words, align=64):
+    """An uninitialised float64 array of ``words`` whose first element starts a cache line."""
+    buf = np.empty(words + align // 8)
+    skip = (-buf.ctypes.data % align) // 8
+    return buf[skip:skip + words]
+
+
 def _scene_arrays(scene, lights):
     """The compiled scene as the kernels read it: a shading record per triangle (normals,
     coordinate magnitude for ray offsets, material and its flags: ``stages.TRI_WORDS``),
@@ -427,7 +434,7 @@ def _scene_arrays(scene, lights):
     f64 = lambda a: np.ascontiguousarray(a, np.float64)
     kr, ior = f64(scene.kr), f64(scene.ior)
     dielectric = ior > 0                             # dielectrics take no direct light
-    rec = np.empty(len(tris) * stages.TRI_WORDS)
+    rec = _aligned(len(tris) * stages.TRI_WORDS)
     run_ranges(stages.triangle_terms, len(tris), tris,
                np.ascontiguousarray(scene.normals, np.float32),
                np.ascontiguousarray(scene.material, np.int32), ~dielectric,
@@ -573,11 +580,17 @@ def _check_render_arguments(scene, tracer, seed, progress):
 
 
 def _check_materials(scene):
-    """One material per triangle, each an index into the scene's material tables (as
-    ``compile_scene`` makes them; checked again, as the shading kernels index with them
-    unchecked)."""
+    """One material per triangle, each an index into the scene's material tables, which all
+    have a row per material (as ``compile_scene`` makes them; checked again, as the shading
+    kernels index with them unchecked)."""
+    tables = ("kd", "ks", "shininess", "kr", "ior")
+    rows = {k: np.shape(getattr(scene, k, None))[:1] for k in tables}
+    if len(set(rows.values())) != 1 or rows["kd"] == ():
+        got = ", ".join(f"{k} {v[0] if v else 'none'}" for k, v in rows.items())
+        raise ParameterError("scene.kd", f"the material tables ({', '.join(tables)}) must "
+                                         f"have a row per material, got {got}")
+    n = rows["kd"][0]
     mat = np.asarray(getattr(scene, "material", None))
-    n = len(np.asarray(getattr(scene, "kd", ())))
     if mat.shape != (len(scene.triangles),) or mat.dtype.kind not in "iu":
         raise ParameterError("scene.material", f"expected an integer per triangle "
                                                f"({len(scene.triangles)}), got {mat.dtype} "

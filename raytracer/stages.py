@@ -49,11 +49,12 @@ def n_blocks(n):
     return (n + BLOCK - 1) // BLOCK
 
 
-# A triangle's shading record: TRI_WORDS float64 words, so that the shading's gather of a hit's
-# data reads one array at a constant stride (two cache lines), converts nothing, and looks
-# nothing up by material. Against separate arrays of normals (float64), vertex normals
-# (float32), magnitudes, materials and per-material flags: 6% off the shading on the default
-# scene and on marbles, for 128 bytes a triangle instead of 72.
+# A triangle's shading record: TRI_WORDS float64 words (the array aligned so that a record is
+# two cache lines), so that the shading's gather of a hit's data reads one array at a constant
+# stride, converts only the material index, and looks nothing up by material. The gather runs
+# 6% faster (of the shading, on the default scene and on marbles) than from separate arrays of
+# normals (float64), vertex normals (float32), magnitudes, materials and per-material flags,
+# for 128 bytes a triangle instead of 72.
 TRI_G = 0            # unit geometric normal e1 x e2 (3 words)
 TRI_MAG = 3          # largest coordinate magnitude: the scale of its rounding, for ray offsets
 TRI_N = 4            # vertex normals, 3 x 3 words (float32 values, exact in float64)
@@ -246,11 +247,12 @@ _ROW = BLOCK + 8
 
 
 # Pass 4b reads a spawning ray's values from the rows _SDX.._SKR2 (copied there side by side)
-# or, in a block where nearly every ray spawns, from its own rows _SPAWN rows before them:
-# _DX.._MAG in the same order, and the index of refraction and kr in _OX.._LX, which pass 3
-# is done with by then.
+# or, in a block where nearly every ray spawns, from its own rows, _SPAWN words (49 rows)
+# before them: _DX.._MAG in the same order, and the index of refraction and kr in _OX.._LX,
+# which pass 3 is done with by then.
 _SPAWN = _SDX - _DX
-assert _SMAG - _SDX == _MAG - _DX and (_SETA, _SKR2) == (_OX + _SPAWN, _LX + _SPAWN)
+if not (_SMAG - _SDX == _MAG - _DX and (_SETA, _SKR2) == (_OX + _SPAWN, _LX + _SPAWN)):
+    raise ImportError("stages: the spawning rows must mirror the rays' own rows")
 
 
 @njit(cache=True, inline="always")
@@ -285,7 +287,7 @@ def _spawn_pair(S, k, b, offset):
     facing shading normal (a mirror) or about the shading normal turned toward the ray (a
     dielectric), with its weight, w * kr or w * Fresnel; the refraction by Snell's law, weight
     w * (1 - Fresnel), which only a dielectric short of total internal reflection casts; each
-    ray's origin off the surface. Reads the ray's values ``b`` rows past the spawning rows
+    ray's origin off the surface. Reads the ray's values ``b`` words past the spawning rows
     (0, or -_SPAWN for its own rows). Inlined into a loop per ``b``, each with ``b`` a constant,
     so that LLVM runs both in SIMD lanes: with ``b`` known at run time only, LLVM kept the
     loop scalar (the shading 14% slower)."""
@@ -392,9 +394,10 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     radiance sums); ``offset``: traversal.offset strategy index; ``kd_pi``: kd / pi.
 
     A block is shaded in passes over a structure-of-arrays scratch ``S``, so that the
-    arithmetic runs in SIMD lanes: (1) the hit points of every ray of the block, its triangle's
-    data gathered (a miss computes values no later pass reads), which rays take direct light or
-    spawn, and each ray's own light (background or ambient) but a camera ray's; (2) the unit
+    arithmetic runs in SIMD lanes: (1) the hit points of every ray of the block, its
+    triangle's data gathered (a miss computes values whose results go unused), which rays take
+    direct light or spawn, and each ray's own light (background or ambient) but a camera
+    ray's; (2) the unit
     normals, turned toward the ray, and the first-hit layers; (3) per light, the shadow ray of
     every ray of the block, then, in ray order, the records of the rays that take direct light
     and leave toward the light; (4) the spawning rays' values gathered side by side (unless
@@ -611,9 +614,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         #    a block where at least 3/4 of the rays spawn (glass and mirrors fill most
         #    secondary wavefronts), none copied: pass 4b then runs on every ray of the block
         #    in its own rows (the others' results unread), with each ray's index of
-        #    refraction and kr put beside them. Copying 23 values per spawning ray took 9%
-        #    of the shading on the default scene; with dense blocks the shading is 5% faster
-        #    there (1/2 as the threshold: 3%; 7/8: the same as 3/4) --
+        #    refraction and kr put beside them. Copying 23 values per spawning ray is 9% of
+        #    the shading on the default scene; with dense blocks the shading is 5% faster
+        #    there than with every block copied (1/2 as the threshold: 3%; 7/8: as 3/4) --
         dense = n_spawning * 4 >= nr * 3
         if dense:
             for j in range(nr):

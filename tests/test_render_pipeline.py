@@ -418,7 +418,10 @@ def test_render_refuses_bad_arguments_and_answers_before_shading_reads_them():
              ((dataclasses.replace(scene, material=scene.material - 1), ours), {},
               "scene.material", r"must lie in \[0, 5\).*got -1\.\.3"),
              ((dataclasses.replace(scene, material=scene.material[1:]), ours), {},
-              "scene.material", "an integer per triangle")]
+              "scene.material", "an integer per triangle"),
+             ((dataclasses.replace(scene, ior=scene.ior[:-1]), ours), {}, "scene.kd",
+              "a row per material, got kd 5, ks 5, shininess 5, kr 5, ior 4"),
+             ((dataclasses.replace(scene, kd=0.5), ours), {}, "scene.kd", "got kd none")]
     for args, kw, parameter, words in cases:
         with pytest.raises(ParameterError, match=words) as e:
             render(*args, **kw)
