@@ -360,8 +360,9 @@ def test_pixel_offsets_are_numpys_stream_bit_for_bit(seed, sample):
 
 
 def test_release_buffers_frees_the_shading_scratch_too():
-    """Everything a thread keeps between renders (wavefronts, film, shading scratch) goes
-    with ``release_buffers``; a wrapper tracer renders every band on this thread."""
+    """Everything a thread keeps between renders (wavefronts, film, shading scratch, triangle
+    records) goes with ``release_buffers``; a wrapper tracer renders every band on this
+    thread."""
     from raytracer import render as renderer
     from traversal.tracers import RecordingTracer
     scene = small("cornell", 16, 12, 1)
@@ -369,9 +370,11 @@ def test_release_buffers_frees_the_shading_scratch_too():
     first = render(scene, RecordingTracer(tracer), seed=2)
     kept = renderer._kept_current()
     assert kept.scratch is not None and kept.buffers is not None and kept.film is not None
+    assert kept.records is not None and kept.records.ctypes.data % 64 == 0
     renderer.release_buffers()
     kept = renderer._kept_current()
     assert kept.scratch is None and kept.buffers is None and kept.film is None
+    assert kept.records is None
     again = render(scene, RecordingTracer(tracer), seed=2)
     assert np.array_equal(again.image, first.image)
 
