@@ -419,11 +419,12 @@ def _records(words, align=64):
     return rec[:words]
 
 
-def _scene_arrays(scene, lights):
+def _scene_arrays(scene, lights, material):
     """The compiled scene as the kernels read it: a shading record per triangle (normals,
     coordinate magnitude for ray offsets, material and its flags: ``stages.TRI_WORDS``),
     material tables, and a table of ``lights`` (the scene's, or none when it needs no shadow
-    rays: the shading kernel sizes its shadow slots by this table)."""
+    rays: the shading kernel sizes its shadow slots by this table). ``material``: the
+    scene's material per triangle, unsigned."""
     tris = np.ascontiguousarray(scene.triangles, np.float32)
     L = len(lights)
     kind = np.zeros(L, np.int64)
@@ -445,7 +446,7 @@ def _scene_arrays(scene, lights):
     rec = _records(len(tris) * stages.TRI_WORDS)
     run_ranges(stages.triangle_terms, len(tris), tris,
                np.ascontiguousarray(scene.normals, np.float32),
-               np.ascontiguousarray(scene.material, np.int32), ~dielectric,
+               material, ~dielectric,
                dielectric | (kr.max(axis=1) > 0), rec, min_items=4096)
     return SceneArrays(
         rec, f64(scene.kd) * f64(scene.ambient),
@@ -507,10 +508,11 @@ def render(scene, tracer, seed=0, progress=None, offset="relative"):
     gx = int(np.ceil(np.sqrt(spp)))            # sample passes on a gx x gy grid of strata
     gy = int(np.ceil(spp / gx))
     half = float(np.tan(np.radians(cam["fov"]) / 2))
+    material = np.ascontiguousarray(scene.material, np.uint32)      # see config.PIXEL
     frame = _Frame(
         scene=scene, passes=passes, n_lights=n_lights, code=STRATEGY_CODES[offset],
-        sa=_scene_arrays(scene, scene.lights if n_lights else []),
-        material=np.ascontiguousarray(scene.material, np.uint32),       # see config.PIXEL
+        sa=_scene_arrays(scene, scene.lights if n_lights else [], material),
+        material=material,
         # rays go to the tracer in its own precision (float32 for the hardware units), so it
         # reads them as they are
         ray_dtype=ray_dtype,

@@ -394,20 +394,18 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     radiance sums); ``offset``: traversal.offset strategy index; ``kd_pi``: kd / pi.
 
     A block is shaded in passes over a structure-of-arrays scratch ``S``, so that the
-    arithmetic runs in SIMD lanes: (1) the hit points of every ray of the block, its
-    triangle's data gathered (a miss computes values whose results go unused), which rays take
-    direct light or spawn, and each ray's own light (background or ambient) but a camera
-    ray's; (2) the unit
-    normals, turned toward the ray, and the first-hit layers; (3) per light, the shadow ray of
-    every ray of the block, then, in ray order, the records of the rays that take direct light
-    and leave toward the light; (4) the spawning rays' values gathered side by side (unless
-    nearly all of the block's rays spawn), both secondary rays of each, then, in ray order,
-    those above the cut-off to their queues. A
-    choice between a miss and a hit, or a mirror and a dielectric, is a choice of values, not
-    of path, so that the passes run without branches. Every value is the float64 formula of a
-    ray-by-ray loop, so the passes do not change a bit of the result. Then the shadow queues
-    are joined and the next wavefront grouped by octant (module text). Returns the length of
-    the joined shadow queue."""
+    arithmetic runs in SIMD lanes: (1) the hit points of every ray of the block, its triangle's
+    data gathered (a miss computes values whose results go unused), which rays take direct
+    light or spawn, and each ray's own light (background or ambient) but a camera ray's; (2)
+    the unit normals, turned toward the ray, and the first-hit layers; (3) per light, the
+    shadow ray of every ray of the block, then, in ray order, the records of the rays that take
+    direct light and leave toward the light; (4) the spawning rays' values gathered side by
+    side (unless nearly all of the block's rays spawn), both secondary rays of each, then, in
+    ray order, those above the cut-off to their queues. A choice between a miss and a hit, or a
+    mirror and a dielectric, is a choice of values, not of path, so that the passes run without
+    branches. Every value is the float64 formula of a ray-by-ray loop, so the passes do not
+    change a bit of the result. Then the shadow queues are joined and the next wavefront
+    grouped by octant (module text). Returns the length of the joined shadow queue."""
     n_lights = light_kind.shape[0]
     for l in range(n_lights):
         sh_cnt[l] = 0
