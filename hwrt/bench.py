@@ -489,9 +489,11 @@ def bench_render(args, commit=write_files):
 
     Every path is warm (one untimed build + render first); the paths alternate run by run, in an
     order that rotates each round, so drift in the machine's speed falls on all alike; figures
-    are medians of ``--repeat`` rounds. Beside each of our renders, the rays it traced (recorded
-    in the warm-up render) are traced again alone: render / trace-only is the renderer's
-    overhead over its traversal.
+    are medians of ``--repeat`` rounds. Right after each of our renders, the rays it traced
+    (recorded in the warm-up render) are traced again alone: render / trace-only, the
+    renderer's overhead over its traversal, is the median of the rounds' own ratios, so that a
+    drift in the machine's speed between rounds cancels in each round's ratio, where it would
+    not in a ratio of medians.
 
     Against Mitsuba, both renderers render the scene with ambient 0 and a black background
     (Mitsuba has neither), with its ``direct`` integrator (one emitter sample, no BSDF sample),
@@ -593,15 +595,17 @@ def _render_scene(spec, scene, variants, peer_info, repeat):
         rays = recorded[(builder, traversal)][1].stats["rays"]
         total_rays = int(sum(rays.values()))
         render_s, trace_s = med(r["render"]), med(r["trace"])
+        # each round's render over the same round's trace-only run
+        over_trace = [a / b for a, b in zip(r["render"], r["trace"])] if min(r["trace"]) > 0 \
+            else None
         rows.append({"builder": builder, "traversal": traversal,
                      "build_seconds": med(r["build"]), "render_seconds": render_s,
                      "total_seconds": med(np.add(r["build"], r["render"])),
                      "render_spread": [min(r["render"]), max(r["render"])],
                      "trace_only_seconds": trace_s,
-                     "render_over_trace_only": render_s / trace_s if trace_s > 0 else None,
-                     # each round's render over the same round's trace-only run, min and max
-                     "render_over_trace_only_spread": _spread(np.divide(r["render"], r["trace"]))
-                     if min(r["trace"]) > 0 else None,
+                     "render_over_trace_only": med(over_trace) if over_trace else None,
+                     "render_over_trace_only_rounds": over_trace,
+                     "render_over_trace_only_spread": _spread(over_trace) if over_trace else None,
                      # where the render's time goes: each stage's seconds summed over the
                      # threads, the median over the rounds
                      "stage_seconds": {st: med([x[st] for x in r["stages"]])
@@ -703,9 +707,9 @@ def _render_markdown(r, args=None):
     lines = ["# hwrt bench render", ""] + made_by_lines(command_of(args)) + [
              f"Time to image, `hwrt bench render`: medians of {r['repeat']} warm runs per path, "
              f"the paths alternating run by run. {m.get('cpu', '')}, {m.get('cores')} cores, "
-             f"{m.get('numba_threads')} Numba threads. Render / trace-only: the medians' ratio, "
-             f"and in brackets the lowest and highest of the rounds' own ratios (each round "
-             f"renders, then traces the same rays alone). Build: up to a tracer ready to "
+             f"{m.get('numba_threads')} Numba threads. Render / trace-only: the median of the rounds' "
+             f"own ratios (each round renders, then traces the same rays alone), and in "
+             f"brackets the lowest and highest of them. Build: up to a tracer ready to "
              f"trace (ours: the BVH build and the tracer's set-up, its triangle rows and "
              f"checks; Embree: building its scene).", ""]
     for s in r["scenes"]:
