@@ -707,9 +707,9 @@ def _render_markdown(r, args=None):
     lines = ["# hwrt bench render", ""] + made_by_lines(command_of(args)) + [
              f"Time to image, `hwrt bench render`: medians of {r['repeat']} warm runs per path, "
              f"the paths alternating run by run. {m.get('cpu', '')}, {m.get('cores')} cores, "
-             f"{m.get('numba_threads')} Numba threads. Render / trace-only: the median of the rounds' "
-             f"own ratios (each round renders, then traces the same rays alone), and in "
-             f"brackets the lowest and highest of them. Build: up to a tracer ready to "
+             f"{m.get('numba_threads')} Numba threads. Render / trace-only: the median of "
+             f"the rounds' own ratios (each round renders, then traces the same rays alone), "
+             f"and in brackets the lowest and highest of them. Build: up to a tracer ready to "
              f"trace (ours: the BVH build and the tracer's set-up, its triangle rows and "
              f"checks; Embree: building its scene).", ""]
     for s in r["scenes"]:
