@@ -65,6 +65,17 @@ BARY_TOL = 1e-4
 # closed surface, however grazing.
 BARY_ERR_K = 4.0
 BARY_TOL_MAX = 1e-2
+# A right answer's t may lie off its triangle's plane by the float32 unit's rounding of it,
+# which T_TOL_REL bounds on well-shaped triangles but not on slivers: t's numerator and the
+# determinant are triple products of e1, e2 and o - v0 (or d), each rounded by about
+# eps |e1| |e2| |o - v0| (or |d|) while their values shrink with |e1 x e2|, so the point at t
+# lies off the plane by about eps (|o - v0| + t |d|) |e1| |e2| / |e1 x e2|, eps float32's unit
+# roundoff: 1 / sin of the triangle's angle at v0 times what a well-shaped triangle shows. On
+# the staircase mesh (slivers down to sin 2e-4), float32 answers lay up to 0.4 times that
+# bound off the plane and up to 1.7 times T_TOL_REL. A t is accepted within T_ERR_K times it
+# (or T_TOL_REL, whichever is larger), never beyond T_TOL_MAX_REL of t + |o|_max / |d|.
+T_ERR_K = 4.0
+T_TOL_MAX_REL = 1e-2
 # Before the start of a ray's interval, a hit counts as a right answer only within
 # BEHIND_TOL_REL (4 float32 ulps) of t + |o|_max/|d|, far less than T_TOL_REL: a secondary ray
 # starts 2^-18 (32 ulps) of the coordinate magnitude off its own surface (OFFSET_REL), and

@@ -8,14 +8,15 @@ Each ray is classified:
   contains its hit point (barycentrics within ``BARY_TOL`` of the triangle, or within the
   float32 unit's own rounding of them where that is larger, as on rays grazing a triangle far
   smaller than its distance), the point at the t it reports lies within tol_t (times |d|) of
-  that triangle's plane, and no triangle that contains the ray strictly (by more than
+  that triangle's plane (or within the float32 unit's own rounding of t where that is larger,
+  as on slivers), and no triangle that contains the ray strictly (by more than
   ``BARY_TOL``) is hit closer. These are the rays through shared edges and vertices (two
   triangles, one t) and rays grazing an edge within the tolerance (one answer a hit on the
   edge, the other a miss);
 * ``mismatch``: anything else.
 
-The tolerances ``T_TOL_REL``, ``BEHIND_TOL_REL``, ``BARY_TOL`` and ``BARY_ERR_K`` live in
-``traversal.config`` with their reasons.
+The tolerances ``T_TOL_REL``, ``T_ERR_K``, ``BEHIND_TOL_REL``, ``BARY_TOL`` and ``BARY_ERR_K``
+live in ``traversal.config`` with their reasons.
 """
 import numpy as np
 from numba import njit
@@ -24,7 +25,8 @@ from hwbvh.errors import ParameterError, is_integer
 from hwbvh.parallel import run_ranges
 
 from .api import ACCELS, _interval, ray_arrays, real_array
-from .config import BARY_ERR_K, BARY_TOL, BARY_TOL_MAX, BEHIND_TOL_REL, MAX_RAYS, T_TOL_REL
+from .config import (BARY_ERR_K, BARY_TOL, BARY_TOL_MAX, BEHIND_TOL_REL, MAX_RAYS, T_ERR_K,
+                     T_TOL_MAX_REL, T_TOL_REL)
 
 BEHIND = BEHIND_TOL_REL / T_TOL_REL    # the slack before t_min, as a share of the t tolerance
 
@@ -89,6 +91,29 @@ def _answer_tol(tri, o, d):
 
 
 @njit(cache=True, error_model="numpy")
+def _plane_tol(tri, o, d, t, tol):
+    """How far off ``tri``'s plane (|t_reported - t| |cos|, as ``_verdict`` measures it) an
+    answer at t is still right: the float32 unit's rounding of t, eps (|o - v0| / |d| + |t|)
+    |e1| |e2| / |e1 x e2|, times T_ERR_K; at least ``tol`` (T_TOL_REL's), at most T_TOL_MAX_REL
+    / T_TOL_REL times it (``traversal.config``)."""
+    e1 = tri[1] - tri[0]
+    e2 = tri[2] - tri[0]
+    s = o - tri[0]
+    nx, ny, nz = _normal(tri)
+    area = np.sqrt(nx * nx + ny * ny + nz * nz)
+    dl = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    err = T_ERR_K * 2.0**-24 * (np.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / dl
+                                + abs(t)) * \
+        np.sqrt((e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2]) *
+                (e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2]))
+    most = tol * (T_TOL_MAX_REL / T_TOL_REL)
+    # err / area, without a division by zero
+    if not err < most * area:
+        return most
+    return max(tol, err / area)
+
+
+@njit(cache=True, error_model="numpy")
 def _margin(u, v):
     """Signed distance inside the triangle in barycentric units (>0 inside)."""
     return min(u, min(v, 1.0 - u - v))
@@ -116,7 +141,7 @@ def _verdict(tris, p, reported, o, d, tmin, tmax, scale, best):
         return BEYOND_END
     if best < t - tol:
         return CLOSER
-    if not abs(reported - t) * _cosine(tris[p], d) <= tol:
+    if not abs(reported - t) * _cosine(tris[p], d) <= _plane_tol(tris[p], o, d, t, tol):
         return OFF_PLANE
     return RIGHT
 
