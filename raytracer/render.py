@@ -421,7 +421,8 @@ def _records(words, align=64):
 
 def _scene_arrays(scene, lights, material):
     """The compiled scene as the kernels read it: a shading record per triangle (normals,
-    coordinate magnitude for ray offsets, material and its flags: ``stages.TRI_WORDS``),
+    plane, coordinate magnitude for ray offsets, material and what it does:
+    ``stages.TRI_WORDS``),
     material tables, and a table of ``lights`` (the scene's, or none when it needs no shadow
     rays: the shading kernel sizes its shadow slots by this table). ``material``: the
     scene's material per triangle, unsigned."""

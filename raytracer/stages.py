@@ -54,14 +54,16 @@ def n_blocks(n):
 # stride, converts only the material index, and looks nothing up by material. The gather runs
 # 6% faster (of the shading, on the default scene and on marbles) than from separate arrays of
 # normals (float64), vertex normals (float32), magnitudes, materials and per-material flags,
-# for 128 bytes a triangle instead of 72.
+# for 128 bytes a triangle instead of 72. Its plane puts each hit point on the triangle (see
+# shade's pass 2).
 TRI_G = 0            # unit geometric normal e1 x e2 (3 words)
 TRI_MAG = 3          # largest coordinate magnitude: the scale of its rounding, for ray offsets
 TRI_N = 4            # vertex normals, 3 x 3 words (float32 values, exact in float64)
 TRI_MATERIAL = 13    # material index
-TRI_DIRECT = 14      # 1 if its material takes direct light (not a dielectric), else 0
-TRI_SPAWNS = 15      # 1 if its material casts secondary rays, else 0
+TRI_KIND = 14        # what its material does: TAKES_LIGHT (not a dielectric) + CASTS_RAYS
+TRI_PLANE = 15       # the unit normal's dot product with vertex 0: the plane is G . x = this
 TRI_WORDS = 16
+TAKES_LIGHT, CASTS_RAYS = 1.0, 2.0      # TRI_KIND's terms (a sum of the two is exact)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -95,8 +97,10 @@ def triangle_terms(lo, hi, tris, normals, material, direct, spawns, rec):
         rec[r + TRI_MAG] = m
         k = material[j]
         rec[r + TRI_MATERIAL] = k
-        rec[r + TRI_DIRECT] = 1.0 if direct[k] else 0.0
-        rec[r + TRI_SPAWNS] = 1.0 if spawns[k] else 0.0
+        rec[r + TRI_KIND] = (TAKES_LIGHT if direct[k] else 0.0) + (CASTS_RAYS if spawns[k] else 0.0)
+        rec[r + TRI_PLANE] = (rec[r + TRI_G] * np.float64(tris[j, 0, 0]) +
+                              rec[r + TRI_G + 1] * np.float64(tris[j, 0, 1]) +
+                              rec[r + TRI_G + 2] * np.float64(tris[j, 0, 2]))
 
 
 def camera_terms(width, height, half, cell_x, cell_y, grid_x, grid_y):
@@ -236,14 +240,14 @@ def _put_ray(O, D, W, pix, k, ox, oy, oz, dx, dy, dz, w0, w1, w2, p):
 # BLOCK doubles (2 KB) apart, a ray's entries in every other row fall in one set of the L1
 # cache, and the passes that read 15-23 rows (the shadow records, the secondary rays)
 # evicted their own lines; padded, they shade 4-7% faster.
-_ROWS = 72
+_ROWS = 73
 _ROW = BLOCK + 8
 (_DX, _DY, _DZ, _PX, _PY, _PZ, _GX, _GY, _GZ, _FX, _FY, _FZ, _NX, _NY, _NZ, _W0, _W1, _W2, _MAG,
  _OX, _OY, _OZ, _LX, _LY, _LZ, _TMAX, _COS, _E0, _E1, _E2,
  _RX, _RY, _RZ, _RW0, _RW1, _RW2, _ROX, _ROY, _ROZ,
  _TX, _TY, _TZ, _TW0, _TW1, _TW2, _TOX, _TOY, _TOZ, _REFRACTS,
  _SDX, _SDY, _SDZ, _SPX, _SPY, _SPZ, _SGX, _SGY, _SGZ, _SFX, _SFY, _SFZ, _SNX, _SNY, _SNZ,
- _SW0, _SW1, _SW2, _SMAG, _SETA, _SKR0, _SKR1, _SKR2) = range(0, _ROWS * _ROW, _ROW)
+ _SW0, _SW1, _SW2, _SMAG, _SETA, _SKR0, _SKR1, _SKR2, _PLANE) = range(0, _ROWS * _ROW, _ROW)
 
 
 # Pass 4b reads a spawning ray's values from the rows _SDX.._SKR2 (copied there side by side)
@@ -443,12 +447,12 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 _put_hit_row(S, j, Df, r, np.float64(hit_t[i]), Of[3 * r], Of[3 * r + 1],
                              Of[3 * r + 2], Wf[3 * r], Wf[3 * r + 1], Wf[3 * r + 2])
         # -- pass 1b (scalar: gathers from the hit triangles' records, see TRI_WORDS): the unit
-        #    geometric normal (per face), the interpolated shading normal, the coordinate
-        #    magnitude and material; a miss reads triangle 0 (render() refuses a scene without
-        #    triangles), unused. From the record's flags, which rays take direct light (hits on
-        #    a non-dielectric) and which spawn: the spawning rays' slots go densely to
-        #    ``spawning`` (each ray's slot is written, the count moves on for those that
-        #    spawn) --
+        #    geometric normal (per face) and plane, the interpolated shading normal, the
+        #    coordinate magnitude and material; a miss reads triangle 0 (render() refuses a
+        #    scene without triangles), unused. From the record's kind, which rays take direct
+        #    light (hits on a non-dielectric) and which spawn: the spawning rays' slots go
+        #    densely to ``spawning`` (each ray's slot is written, the count moves on for those
+        #    that spawn) --
         n_spawning = 0
         for j in range(nr):
             i = lo + j
@@ -465,10 +469,12 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             S[_NY + j] = a * tri_rec[vn + 1] + u * tri_rec[vn + 4] + v * tri_rec[vn + 7]
             S[_NZ + j] = a * tri_rec[vn + 2] + u * tri_rec[vn + 5] + v * tri_rec[vn + 8]
             S[_MAG + j] = tri_rec[r + TRI_MAG]
+            S[_PLANE + j] = tri_rec[r + TRI_PLANE]
             mat[j] = np.uint32(tri_rec[r + TRI_MATERIAL])
-            lit[j] = hit & (tri_rec[r + TRI_DIRECT] != 0) & do_shadow
+            kind = tri_rec[r + TRI_KIND]
+            lit[j] = hit & ((kind == TAKES_LIGHT) | (kind == TAKES_LIGHT + CASTS_RAYS)) & do_shadow
             spawning[n_spawning] = j
-            n_spawning += hit & (tri_rec[r + TRI_SPAWNS] != 0) & do_spawn
+            n_spawning += hit & (kind >= CASTS_RAYS) & do_spawn
         # -- pass 1c (branch-free: a miss and a hit differ by a choice of values, not of path),
         #    for a queue other than the camera's: each ray's own light, the background for a
         #    miss and the ambient light for a hit. A camera ray's own light, of weight 1, is
@@ -482,8 +488,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
                 Cf[3 * r] = S[_W0 + j] * (ambient_light[m, 0] if hit else background[0])
                 Cf[3 * r + 1] = S[_W1 + j] * (ambient_light[m, 1] if hit else background[1])
                 Cf[3 * r + 2] = S[_W2 + j] * (ambient_light[m, 2] if hit else background[2])
-        # -- pass 2 (SIMD: it reads and writes the scratch only): the unit shading normal;
-        #    both normals turned toward the incoming ray --
+        # -- pass 2 (SIMD: it reads and writes the scratch only): the hit point onto its
+        #    triangle's plane; the unit shading normal; both normals turned toward the
+        #    incoming ray --
         for j in range(nr):
             dx = S[_DX + j]
             dy = S[_DY + j]
@@ -495,6 +502,16 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             ngx = S[_GX + j]
             ngy = S[_GY + j]
             ngz = S[_GZ + j]
+            # the hit point onto its triangle's plane: the float32 unit's t puts it off the
+            # plane by up to eps |o - v0| / sin(the angle at v0), which on a sliver exceeds
+            # the secondary rays' offset from the surface (rays then start behind it)
+            px = S[_PX + j]
+            py = S[_PY + j]
+            pz = S[_PZ + j]
+            off = px * ngx + py * ngy + pz * ngz - S[_PLANE + j]
+            S[_PX + j] = px - off * ngx
+            S[_PY + j] = py - off * ngy
+            S[_PZ + j] = pz - off * ngz
             facing = -1.0 if ngx * dx + ngy * dy + ngz * dz > 0 else 1.0
             gx = ngx * facing
             gy = ngy * facing

@@ -97,6 +97,11 @@ def naive_render(scene, tracer, seed=0, offset="relative"):
             v = h.v[hit].astype(np.float64)[:, None]
             P = O + D * t[:, None]
             ng = face_n[prim]
+            # onto the hit triangle's plane (ng . x = ng . v0), as the renderer does
+            v0 = tris64[prim, 0]
+            plane = ng[:, 0] * v0[:, 0] + ng[:, 1] * v0[:, 1] + ng[:, 2] * v0[:, 2]
+            off = P[:, 0] * ng[:, 0] + P[:, 1] * ng[:, 1] + P[:, 2] * ng[:, 2] - plane
+            P = P - off[:, None] * ng
             nsh = scene.normals[prim].astype(np.float64)
             ns = _unit((1 - u - v) * nsh[:, 0] + u * nsh[:, 1] + v * nsh[:, 2])
             if bounce == 0 and s == 0:

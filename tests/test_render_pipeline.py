@@ -884,3 +884,39 @@ def test_a_scene_changed_after_compiling_is_checked_again_before_it_renders():
         with pytest.raises(ParameterError, match=message):
             render(dataclasses.replace(sc, **change), tracer)
     assert (render(sc, tracer).prim >= 0).sum() > 30
+
+
+class _LateHits:
+    """Our tracer, its closest hits reported a little beyond the surface (t 1e-3 too long), as
+    the float32 unit's rounding of t can on a sliver seen from afar: the point at t then lies
+    behind the surface by more than the secondary rays' offset from it."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.dtype = inner.dtype
+
+    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
+        import dataclasses
+        h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals)
+        return dataclasses.replace(h, t=np.where(h.prim >= 0, h.t * np.float32(1.001), h.t))
+
+    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
+        return self.inner.occluded(origins, dirs, tmin, tmax)
+
+
+def test_shading_puts_each_hit_point_on_its_triangles_plane():
+    """Rays leave from the hit triangle's plane whatever the tracer's rounding of t: with
+    every hit reported 1e-3 of t beyond its surface, the shadow rays do not start behind it
+    (which would shadow every lit surface: 92% of the lit pixels lose half their light or
+    more): under 1% of them do (at wall corners, where a point moved along one wall passes the
+    other), and the median pixel changes by under 1% of its value."""
+    from scenes import with_frame
+    sc = compile_scene(with_frame(load_scene("cornell"), width=48, height=36, spp=1))
+    tracer, _, _ = make_tracer(sc)
+    right = render(sc, tracer).image.astype(np.float64)
+    late = render(sc, _LateHits(tracer)).image.astype(np.float64)
+    lit = right.sum(-1) > 0.05
+    assert lit.mean() > 0.5
+    darkened = late.sum(-1) < 0.5 * right.sum(-1)
+    assert (darkened & lit).sum() < 0.01 * lit.sum()
+    assert np.median(np.abs(late - right).sum(-1)[lit] / right.sum(-1)[lit]) < 0.01
