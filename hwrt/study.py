@@ -598,8 +598,8 @@ KNOBS = {
     "precision": ["float32", "float64"],
     "triangle_test": ["moller-trumbore", "watertight"],
     "offset": ["relative", "fixed", "none"],
-    # the same scene scaled: a fixed epsilon breaks, the relative offset does not. Up: 1e4,
-    # since from hit points on their triangles' planes a fixed 1e-4 still clears the float32
+    # the same scene scaled: a fixed epsilon breaks, the relative offset does not. Scaled up
+    # by 1e4: from hit points on their triangles' planes a fixed 1e-4 still clears the float32
     # unit's rounding at 1e3 (cornell: RMSE 0.0003 against the relative offset's 0.0007), not
     # at 1e4 (0.35)
     "offset_at_scale": ["relative@0.001", "fixed@0.001", "relative@10000", "fixed@10000"],

@@ -3,7 +3,7 @@ import numpy as np
 
 # Rays per shading block: the shading kernel works a block at a time in passes over a
 # structure-of-arrays scratch, so that its arithmetic runs in SIMD lanes; 256 keeps that
-# scratch (72 rows of 256 doubles, 150 KB) in the L2 cache beside the rays it reads.
+# scratch (73 rows of 256 doubles, 150 KB) in the L2 cache beside the rays it reads.
 BLOCK = 256
 
 # The type of the wavefronts' pixel and row indices: every ray carries its pixel through the

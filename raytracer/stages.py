@@ -503,8 +503,8 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             ngy = S[_GY + j]
             ngz = S[_GZ + j]
             # the hit point onto its triangle's plane: the float32 unit's t puts it off the
-            # plane by up to eps |o - v0| / sin(the angle at v0), which on a sliver exceeds
-            # the secondary rays' offset from the surface (rays then start behind it)
+            # plane by about eps (|o - v0| + t |d|) / sin(the angle at v0), which on a sliver
+            # exceeds the secondary rays' offset from the surface (rays then start behind it)
             px = S[_PX + j]
             py = S[_PY + j]
             pz = S[_PZ + j]

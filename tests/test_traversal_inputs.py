@@ -162,33 +162,47 @@ def test_classify_judges_the_reported_t_not_only_the_primitive():
 
 def test_a_t_within_the_units_rounding_on_a_sliver_is_right_but_not_beyond():
     """A sliver whose angle at v0 has sine 2.3e-4 (from the staircase mesh), hit from 3 units
-    away: the float32 unit puts the hit 6e-5 off the plane (t's numerator and determinant
-    cancel, about eps / sin(angle) of |o - v0| + t), more than T_TOL_REL's 4.2e-5 but within the
-    unit's rounding bound (4 times that estimate): ours and Embree's t are a tie, not a wrong
-    answer. A t 100 times as far off (6e-3, past the bound) is still a mismatch, and a
-    well-shaped triangle gets no such slack."""
+    away: the float32 unit puts the hit 6e-5 off the plane, more than T_TOL_REL's 4.2e-5 but
+    well within the unit's rounding estimate eps (|o - v0| / |d| + t) / sin(angle) (9e-4;
+    accepted within 4 times it): ours and Embree's t are a tie, not a wrong answer. A t 100
+    times as far off (6e-3, past the bound) is still a mismatch, and so is a t within the
+    bound but past the ray's t_max; a well-shaped triangle gets no such slack."""
     from traversal.config import T_TOL_REL
     sliver = [[-0.781453013420105, 2.6753320693969727, -3.2097508907318115],
               [0.5268409848213196, 1.4976019859313965, -3.2097508907318115],
               [0.5268409848213196, 1.4976019859313965, -3.2093400955200195]]
-    tris = np.array([sliver], np.float32)
-    v, f = tris.reshape(-1, 3).astype(np.float64), np.arange(3).reshape(1, 3)
     o = np.array([[-0.710060179, 0.682190299, -2.69211292]], np.float32)
     d = np.array([[0.521924436, 0.78387928, -0.336345255]], np.float32)
+    scale = np.abs(o).max() / np.linalg.norm(d)
+
+    def reference(tri):
+        """Embree's answer, and the triangle's |cos| to the ray."""
+        v = np.array(tri, np.float64)
+        te, pe, *_ = embree_intersect(embree_scene(v, np.arange(3).reshape(1, 3)), o, d)
+        n = np.cross(v[1] - v[0], v[2] - v[0])
+        return te, pe, abs(n @ d[0]) / np.linalg.norm(n) / np.linalg.norm(d[0])
+
+    tris = np.array([sliver], np.float32)
     h = Tracer(hwbvh.build(tris)).intersect(o, d)
-    te, pe, *_ = embree_intersect(embree_scene(v, f), o, d)
+    te, pe, cos = reference(sliver)
     assert h.prim[0] == pe[0] == 0
-    # the unit's t is off by more than T_TOL_REL allows, so only the rounding bound accepts it
-    assert abs(h.t[0] - te[0]) > T_TOL_REL * (te[0] + np.abs(o).max())
+    # the unit's point is off the plane by more than T_TOL_REL allows: only the rounding
+    # bound accepts it
+    assert abs(h.t[0] - te[0]) * cos > T_TOL_REL * (te[0] + scale)
     counts, _ = classify(tris, o, d, 0.0, np.inf, h.prim.astype(np.int64), h.t, pe, te)
     assert counts["mismatch"] == 0 and counts["tie"] == 1
     far = np.array([te[0] + 100 * (h.t[0] - te[0])])
     counts, _ = classify(tris, o, d, 0.0, np.inf, np.array([0]), far, pe, te)
     assert counts["mismatch"] == 1
-    # a well-shaped triangle at the same place and distance: 6e-5 off its plane is wrong
-    wide = np.array([[sliver[0], sliver[1], [0.0, 3.0, -3.2097508907318115]]], np.float32)
-    counts, _ = classify(wide, o, d, 0.0, np.inf, np.array([0]),
-                         np.array([te[0] + (h.t[0] - te[0])]), np.array([0]), te)
+    late = np.array([te[0] + 2e-3])                 # within the bound, past t_max
+    counts, _ = classify(tris, o, d, 0.0, np.array([te[0] + 1e-4]), np.array([0]), late, pe, te)
+    assert counts["mismatch"] == 1
+    # a well-shaped triangle through the same point: its point 6e-5 off its plane is wrong
+    wide = [sliver[0], sliver[1], [0.0, 3.0, -3.2097508907318115]]
+    tw, pw, cw = reference(wide)
+    assert pw[0] == 0
+    counts, _ = classify(np.array([wide], np.float32), o, d, 0.0, np.inf, np.array([0]),
+                         np.array([tw[0] + 6e-5 / cw]), pw, tw)
     assert counts["mismatch"] == 1
 
 

@@ -37,7 +37,8 @@ EDGE_EPS_F64 = 2.0**-40
 # --- Secondary-ray origins (offset) -----------------------------------------------------
 # Offset along the geometric normal, relative to the largest coordinate magnitude of the hit
 # point and its triangle: ~3.8e-6 = 32 float32 ulps (2^-23 each) of that magnitude, a bound on
-# the float32 error of the point and of the triangle's plane.
+# the float32 error of a point on the triangle's plane and of that plane (the renderer puts hit
+# points on it: the float32 unit's t alone is off by more on slivers).
 OFFSET_REL = 2.0**-18
 # The "fixed epsilon" strategy, for the accuracy study only (it breaks at other scene scales).
 FIXED_EPS = 1e-4
@@ -73,7 +74,9 @@ BARY_TOL_MAX = 1e-2
 # roundoff: 1 / sin of the triangle's angle at v0 times what a well-shaped triangle shows. On
 # the staircase mesh (slivers down to sin 2e-4), float32 answers lay up to 0.4 times that
 # bound off the plane and up to 1.7 times T_TOL_REL. A t is accepted within T_ERR_K times it
-# (or T_TOL_REL, whichever is larger), never beyond T_TOL_MAX_REL of t + |o|_max / |d|.
+# (or T_TOL_REL, whichever is larger), never beyond T_TOL_MAX_REL of t + |o|_max / |d| (as
+# BARY_TOL_MAX: a triangle so thin that its rounding passes 1% of the distance leaves no answer
+# on it right), and the reported t itself must lie in the ray's interval.
 T_ERR_K = 4.0
 T_TOL_MAX_REL = 1e-2
 # Before the start of a ray's interval, a hit counts as a right answer only within

@@ -9,10 +9,10 @@ Each ray is classified:
   float32 unit's own rounding of them where that is larger, as on rays grazing a triangle far
   smaller than its distance), the point at the t it reports lies within tol_t (times |d|) of
   that triangle's plane (or within the float32 unit's own rounding of t where that is larger,
-  as on slivers), and no triangle that contains the ray strictly (by more than
-  ``BARY_TOL``) is hit closer. These are the rays through shared edges and vertices (two
-  triangles, one t) and rays grazing an edge within the tolerance (one answer a hit on the
-  edge, the other a miss);
+  as on slivers) and in the ray's interval, and no triangle that contains the ray strictly (by
+  more than ``BARY_TOL``) is hit closer. These are the rays through shared edges and vertices
+  (two triangles, one t), rays grazing an edge within the tolerance (one answer a hit on the
+  edge, the other a miss) and a sliver hit at two t apart by the unit's rounding;
 * ``mismatch``: anything else.
 
 The tolerances ``T_TOL_REL``, ``T_ERR_K``, ``BEHIND_TOL_REL``, ``BARY_TOL`` and ``BARY_ERR_K``
@@ -141,7 +141,10 @@ def _verdict(tris, p, reported, o, d, tmin, tmax, scale, best):
         return BEYOND_END
     if best < t - tol:
         return CLOSER
-    if not abs(reported - t) * _cosine(tris[p], d) <= _plane_tol(tris[p], o, d, t, tol):
+    # the reported t itself in the ray's interval too: the plane's slack on a sliver is wider
+    # than the interval's
+    if not (abs(reported - t) * _cosine(tris[p], d) <= _plane_tol(tris[p], o, d, t, tol)
+            and reported >= tmin - tol * BEHIND and reported <= tmax + tol):
         return OFF_PLANE
     return RIGHT
 
