@@ -72,7 +72,7 @@ BARY_TOL_MAX = 1e-2
 # eps |e1| |e2| |o - v0| (or |d|) while their values shrink with |e1 x e2|, so the point at t
 # lies off the plane by about eps (|o - v0| + t |d|) |e1| |e2| / |e1 x e2|, eps float32's unit
 # roundoff: 1 / sin of the triangle's angle at v0 times what a well-shaped triangle shows. On
-# the staircase mesh (slivers down to sin 2e-4), float32 answers lay up to 0.4 times that
+# the staircase mesh (slivers down to sin 2e-4), float32 answers lie up to 0.4 times that
 # bound off the plane and up to 1.7 times T_TOL_REL. A t is accepted within T_ERR_K times it
 # (or T_TOL_REL, whichever is larger), never beyond T_TOL_MAX_REL of t + |o|_max / |d| (as
 # BARY_TOL_MAX: a triangle so thin that its rounding passes 1% of the distance leaves no answer
