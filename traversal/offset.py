@@ -7,8 +7,8 @@ ulps of its coordinates, so a secondary ray started exactly there can re-hit its
 along the geometric normal, to the side the new ray leaves on, by ``OFFSET_REL`` times the
 largest coordinate magnitude of the hit point and its triangle: a bound on the float32 error
 of the point and of the triangle's plane (pbrt-v4 offsets by a propagated error bound in the
-same way, ``OffsetRayOrigin``). It scales with the scene, so scaling a scene by 1e-3 or 1e3 scales the
-offset with it, and translating by 1e5 grows it to the float32 resolution there.
+same way, ``OffsetRayOrigin``). It scales with the scene, so scaling a scene by 1e-3 or 1e3
+scales the offset with it, and translating by 1e5 grows it to the float32 resolution there.
 """
 import numpy as np
 from numba import njit
