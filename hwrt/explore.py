@@ -604,7 +604,19 @@ def explore(meshes, grid=None, out_dir=None, *, scheduler=None, workers=None, us
         files = with_figures([(os.path.join(out_dir, n), d) for n, d in files])
         commit(files)
         result["files"] = [p for p, _ in files]
+        _remove_undrawn(out_dir, files)
     return result
+
+
+def _remove_undrawn(out_dir, files):
+    """Remove the figures of ours in ``out_dir`` that this run did not draw (a grid without
+    two values of a figure's knobs draws no figure of them): an earlier run's would be left
+    beside a summary that no longer shows it."""
+    written = {os.path.basename(p) for p, _ in files}
+    for name in OUTPUT_NAMES:
+        path = os.path.join(out_dir, name)
+        if name not in written and os.path.isfile(path):
+            os.remove(path)
 
 
 def human(result):

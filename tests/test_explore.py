@@ -156,6 +156,13 @@ def test_cells_resume_after_an_interruption(meshes, tmp_path):
     fresh = ex.explore(meshes, grid, out, use_dask=False, progress=False, fresh=True)
     assert fresh["computed"] == fresh["cells"]
     assert len(cells.read_text().splitlines()) == fresh["cells"]
+    # a grid that draws fewer figures: the earlier run's others go, not left beside its summary
+    fewer = ex.explore(meshes, {"w": [2, 4], "leaf_size": [4, 8]}, out, use_dask=False,
+                       progress=False)
+    drawn = {os.path.basename(p) for p in fewer["files"]}
+    assert "fig4_2_speedup.png" not in drawn and "fig4_3_leaf_size.png" in drawn
+    assert {p.name for p in out.iterdir() if p.suffix == ".png"} == \
+        {n for n in drawn if n.endswith(".png")}
 
 
 def test_meshes_are_named_as_the_benchmarks_name_them(tmp_path):
