@@ -71,6 +71,22 @@ def _normal(tri):
             e1[0] * e2[1] - e1[1] * e2[0])
 
 
+F32_ROUNDOFF = 2.0**-24               # float32's unit roundoff: the units' error estimates
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _length(x, y, z):
+    return np.sqrt(x * x + y * y + z * z)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _ratio_within(err, den, least, most):
+    """err / den within [least, most], without a division by zero (den 0: ``most``)."""
+    if not err < most * den:
+        return most
+    return max(least, err / den)
+
+
 @njit(cache=True, error_model="numpy")
 def _answer_tol(tri, o, d):
     """How far outside ``tri`` (in barycentric units) an answer on it is still right: the
@@ -80,14 +96,11 @@ def _answer_tol(tri, o, d):
     e2 = tri[2] - tri[0]
     s = o - tri[0]
     nx, ny, nz = _normal(tri)
-    dn = abs(nx * d[0] + ny * d[1] + nz * d[2]) / np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-    emax = np.sqrt(max(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2],
-                       e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2]))
-    err = BARY_ERR_K * 2.0**-24 * np.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) * emax
-    # |e1 x e2| cos = |n . d| / |d|: err / dn, without a division by zero
-    if not err < BARY_TOL_MAX * dn:
-        return BARY_TOL_MAX
-    return max(BARY_TOL, err / dn)
+    # |e1 x e2| cos = |n . d| / |d|
+    dn = abs(nx * d[0] + ny * d[1] + nz * d[2]) / _length(d[0], d[1], d[2])
+    emax = max(_length(e1[0], e1[1], e1[2]), _length(e2[0], e2[1], e2[2]))
+    err = BARY_ERR_K * F32_ROUNDOFF * _length(s[0], s[1], s[2]) * emax
+    return _ratio_within(err, dn, BARY_TOL, BARY_TOL_MAX)
 
 
 @njit(cache=True, error_model="numpy")
@@ -100,17 +113,10 @@ def _plane_tol(tri, o, d, t, tol):
     e2 = tri[2] - tri[0]
     s = o - tri[0]
     nx, ny, nz = _normal(tri)
-    area = np.sqrt(nx * nx + ny * ny + nz * nz)
-    dl = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-    err = T_ERR_K * 2.0**-24 * (np.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / dl
-                                + abs(t)) * \
-        np.sqrt((e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2]) *
-                (e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2]))
-    most = tol * (T_TOL_MAX_REL / T_TOL_REL)
-    # err / area, without a division by zero
-    if not err < most * area:
-        return most
-    return max(tol, err / area)
+    err = T_ERR_K * F32_ROUNDOFF * \
+        (_length(s[0], s[1], s[2]) / _length(d[0], d[1], d[2]) + abs(t)) * \
+        _length(e1[0], e1[1], e1[2]) * _length(e2[0], e2[1], e2[2])
+    return _ratio_within(err, _length(nx, ny, nz), tol, tol * (T_TOL_MAX_REL / T_TOL_REL))
 
 
 @njit(cache=True, error_model="numpy")
