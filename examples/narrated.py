@@ -6,7 +6,7 @@ import numpy as np
 
 import hwbvh
 from traversal.camera import primary_rays
-from traversal.offset import offset_origins
+from traversal.offset import offset_origins, points_on_planes
 from raytracer.output import write_exr
 from raytracer.render import RenderResult
 from scenes.meshes import grid_sheet, sphere
@@ -33,7 +33,9 @@ hit = tracer.intersect(o, d)
 m = hit.prim >= 0
 
 # 5. Shade: Lambert under a point light, hard shadows with one occluded() ray per hit.
-P = o[m] + d[m] * hit.t[m, None]
+# hit points onto their triangles' planes: the float32 unit's distance can leave a point off
+# a sliver's plane by more than the offset below
+P = points_on_planes(o[m] + d[m] * hit.t[m, None], tris, hit.prim[m])
 n = hit.ng[m].astype(np.float64)
 n /= np.linalg.norm(n, axis=1, keepdims=True)
 n *= -np.sign(np.einsum("ij,ij->i", n, d[m]))[:, None]      # face the viewer

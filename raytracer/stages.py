@@ -38,7 +38,7 @@ images agree with that reference to float rounding.
 import numpy as np
 from numba import njit
 
-from traversal.offset import offset_from_unit
+from traversal.offset import offset_from_unit, onto_plane, unit_normal_and_plane
 from traversal.packet import octant
 from .config import BLOCK
 
@@ -74,20 +74,11 @@ def triangle_terms(lo, hi, tris, normals, material, direct, spawns, rec):
     (n * TRI_WORDS,) float64."""
     for j in range(lo, hi):
         r = TRI_WORDS * j
-        ax = np.float64(tris[j, 1, 0]) - np.float64(tris[j, 0, 0])
-        ay = np.float64(tris[j, 1, 1]) - np.float64(tris[j, 0, 1])
-        az = np.float64(tris[j, 1, 2]) - np.float64(tris[j, 0, 2])
-        bx = np.float64(tris[j, 2, 0]) - np.float64(tris[j, 0, 0])
-        by = np.float64(tris[j, 2, 1]) - np.float64(tris[j, 0, 1])
-        bz = np.float64(tris[j, 2, 2]) - np.float64(tris[j, 0, 2])
-        nx = ay * bz - az * by
-        ny = az * bx - ax * bz
-        nz = ax * by - ay * bx
-        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
-        ln = ln if ln > 1e-300 else 1e-300
-        rec[r + TRI_G] = nx / ln
-        rec[r + TRI_G + 1] = ny / ln
-        rec[r + TRI_G + 2] = nz / ln
+        gx, gy, gz, plane = unit_normal_and_plane(tris, j)
+        rec[r + TRI_G] = gx
+        rec[r + TRI_G + 1] = gy
+        rec[r + TRI_G + 2] = gz
+        rec[r + TRI_PLANE] = plane
         m = 0.0
         for v in range(3):
             for c in range(3):
@@ -98,9 +89,6 @@ def triangle_terms(lo, hi, tris, normals, material, direct, spawns, rec):
         k = material[j]
         rec[r + TRI_MATERIAL] = k
         rec[r + TRI_KIND] = (TAKES_LIGHT if direct[k] else 0.0) + (CASTS_RAYS if spawns[k] else 0.0)
-        rec[r + TRI_PLANE] = (rec[r + TRI_G] * np.float64(tris[j, 0, 0]) +
-                              rec[r + TRI_G + 1] * np.float64(tris[j, 0, 1]) +
-                              rec[r + TRI_G + 2] * np.float64(tris[j, 0, 2]))
 
 
 def camera_terms(width, height, half, cell_x, cell_y, grid_x, grid_y):
@@ -502,16 +490,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             ngx = S[_GX + j]
             ngy = S[_GY + j]
             ngz = S[_GZ + j]
-            # the hit point onto its triangle's plane: the float32 unit's t puts it off the
-            # plane by about eps (|o - v0| + t |d|) / sin(the angle at v0), which on a sliver
-            # exceeds the secondary rays' offset from the surface (rays then start behind it)
-            px = S[_PX + j]
-            py = S[_PY + j]
-            pz = S[_PZ + j]
-            off = px * ngx + py * ngy + pz * ngz - S[_PLANE + j]
-            S[_PX + j] = px - off * ngx
-            S[_PY + j] = py - off * ngy
-            S[_PZ + j] = pz - off * ngz
+            # the hit point onto its triangle's plane (see traversal.offset)
+            S[_PX + j], S[_PY + j], S[_PZ + j] = onto_plane(S[_PX + j], S[_PY + j], S[_PZ + j],
+                                                            ngx, ngy, ngz, S[_PLANE + j])
             facing = -1.0 if ngx * dx + ngy * dy + ngz * dz > 0 else 1.0
             gx = ngx * facing
             gy = ngy * facing

@@ -1,7 +1,8 @@
 """Robust origins for secondary rays.
 
-A hit point on its triangle's plane (the renderer puts it there: the float32 unit's t alone
-can put it farther off on a sliver) is off the float32 surface the traversal tests by a few
+A hit point on its triangle's plane (``onto_plane``: the float32 unit's t alone can put it
+farther off on a sliver, by about eps (|o - v0| + t |d|) / sin(the angle at v0), beyond the
+offset below, so that rays would start behind the surface) is off the float32 surface the traversal tests by a few
 ulps of its coordinates, so a secondary ray started exactly there can re-hit its own triangle
 (shadow acne, speckled reflections). A fixed epsilon breaks at other scene scales. We offset
 along the geometric normal, to the side the new ray leaves on, by ``OFFSET_REL`` times the
@@ -40,6 +41,59 @@ def offset_from_unit(px, py, pz, nx, ny, nz, dx, dy, dz, tri_mag, strategy):
     return px + nx * k, py + ny * k, pz + nz * k
 
 
+@njit(cache=True, inline="always")
+def onto_plane(px, py, pz, gx, gy, gz, plane):
+    """The point (px, py, pz) moved along the unit normal (gx, gy, gz) onto the plane
+    g . x = ``plane``."""
+    off = px * gx + py * gy + pz * gz - plane
+    return px - off * gx, py - off * gy, pz - off * gz
+
+
+@njit(cache=True, inline="always")
+def unit_normal_and_plane(tris, j):
+    """Triangle j of (n, 3, 3) ``tris``: its unit geometric normal e1 x e2 and its plane
+    (the normal's dot product with vertex 0), in float64: (gx, gy, gz, plane)."""
+    ax = np.float64(tris[j, 1, 0]) - np.float64(tris[j, 0, 0])
+    ay = np.float64(tris[j, 1, 1]) - np.float64(tris[j, 0, 1])
+    az = np.float64(tris[j, 1, 2]) - np.float64(tris[j, 0, 2])
+    bx = np.float64(tris[j, 2, 0]) - np.float64(tris[j, 0, 0])
+    by = np.float64(tris[j, 2, 1]) - np.float64(tris[j, 0, 1])
+    bz = np.float64(tris[j, 2, 2]) - np.float64(tris[j, 0, 2])
+    nx = ay * bz - az * by
+    ny = az * bx - ax * bz
+    nz = ax * by - ay * bx
+    ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+    ln = ln if ln > 1e-300 else 1e-300
+    gx = nx / ln
+    gy = ny / ln
+    gz = nz / ln
+    return gx, gy, gz, (gx * np.float64(tris[j, 0, 0]) + gy * np.float64(tris[j, 0, 1]) +
+                        gz * np.float64(tris[j, 0, 2]))
+
+
+@njit(cache=True, error_model="numpy")
+def _onto_planes_batch(p, tris, prim, out):
+    for i in range(p.shape[0]):
+        gx, gy, gz, plane = unit_normal_and_plane(tris, prim[i])
+        out[i, 0], out[i, 1], out[i, 2] = onto_plane(p[i, 0], p[i, 1], p[i, 2], gx, gy, gz,
+                                                     plane)
+
+
+def points_on_planes(points, triangles, prim):
+    """Hit points (n, 3) moved onto the planes of their triangles, ``triangles[prim]`` of
+    (m, 3, 3) ``triangles``, in float64, as the renderer shades them: where secondary rays
+    start from (``offset_origins``). Returns float64 points."""
+    p = np.ascontiguousarray(points, np.float64)
+    prim = np.ascontiguousarray(prim, np.int64)
+    if p.ndim != 2 or p.shape[1] != 3 or prim.shape != (len(p),):
+        raise ValueError("points_on_planes: points must be (n, 3) with one primitive each")
+    if len(prim) and (prim.min() < 0 or prim.max() >= len(triangles)):
+        raise ValueError("points_on_planes: a primitive index outside the triangles (a miss?)")
+    out = np.empty_like(p)
+    _onto_planes_batch(p, np.ascontiguousarray(triangles), prim, out)
+    return out
+
+
 @njit(cache=True, error_model="numpy")
 def offset_origin(px, py, pz, nx, ny, nz, dx, dy, dz, tri_mag, strategy):
     """``offset_from_unit`` for a normal of any length."""
@@ -57,7 +111,8 @@ def _offset_batch(p, n, d, tri_mag, strategy, out):
 
 
 def offset_origins(points, ng, dirs, tri_mag, strategy="relative"):
-    """points (n,3), ng (n,3) geometric normals (any length), dirs (n,3) outgoing directions,
+    """points (n,3) (on their triangles' planes: ``points_on_planes``), ng (n,3) geometric
+    normals (any length), dirs (n,3) outgoing directions,
     tri_mag (n,) largest |coordinate| of each hit triangle. Returns float64 origins.
     ``strategy``: "relative" (the default, above), "fixed" (1e-4 along the normal, what breaks
     at other scales) or "none" (start on the surface), the last two for comparison."""

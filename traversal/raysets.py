@@ -7,7 +7,7 @@ no first ray hits can give fewer (``len`` of the result says how many).
 import numpy as np
 
 from .camera import directions_through, frame_bounds, look_at_basis, tile_pixels
-from .offset import offset_origins
+from .offset import offset_origins, points_on_planes
 
 
 def bounds_of(tris):
@@ -102,9 +102,10 @@ def light_position(tris):
     return (lo + hi) / 2 + np.array([0.3, 1.0, 0.6]) * np.linalg.norm(hi - lo)
 
 
-def hit_points(tracer, tri_mag, chunks, keep_dirs=False, enough=None):
-    """First hits of the rays of ``chunks`` (slices of (origins, dirs)) with our tracer:
-    (rays drawn, points (float64, along the rays as given), normals (float32), the hit
+def hit_points(tracer, tris, tri_mag, chunks, keep_dirs=False, enough=None):
+    """First hits of the rays of ``chunks`` (slices of (origins, dirs)) with our tracer on
+    triangles ``tris``: (rays drawn, points (float64, at t along the rays as given, then onto
+    their triangles' planes as the renderer puts them), normals (float32), the hit
     triangles' ``tri_mag``, and with ``keep_dirs`` their rays' directions, as given). A slice
     at a time, so that only the hits' arrays grow with the set; with ``enough``, no slice is
     traced once that many hits are in."""
@@ -116,7 +117,9 @@ def hit_points(tracer, tri_mag, chunks, keep_dirs=False, enough=None):
         h = tracer.intersect(o, d)
         hit = h.prim >= 0
         dc = d[hit]
-        points = o[hit].astype(np.float64) + dc.astype(np.float64) * h.t[hit, None].astype(np.float64)
+        points = points_on_planes(
+            o[hit].astype(np.float64) + dc.astype(np.float64) * h.t[hit, None].astype(np.float64),
+            tris, h.prim[hit])
         for field, x in zip(fields, (points, h.ng[hit], tri_mag[h.prim[hit]],
                                      dc if keep_dirs else dc[:0])):
             field.append(x)
@@ -142,9 +145,10 @@ def _n_hits(tracer, tris, n, first_rays, spread, keep_dirs=False):
     # held in float32: the scale of a triangle's rounding, for offsets (exact for the float32
     # triangles the tracers take), in half the memory a set of 2^26 hits holds
     tri_mag = np.abs(np.asarray(tris, np.float64)).reshape(-1, 9).max(axis=1).astype(np.float32)
+    tris = np.asarray(tris, np.float32)             # as the tracers take them
     for _ in range(HIT_ROUNDS + 1):
         # the first n hits are all a set that is not spread takes
-        _, p, ng, mag, di = hit_points(tracer, tri_mag, first_rays(m), keep_dirs,
+        _, p, ng, mag, di = hit_points(tracer, tris, tri_mag, first_rays(m), keep_dirs,
                                        None if spread else n)
         k = len(p)
         if k >= n:
