@@ -304,8 +304,8 @@ class _Buffers:
         self.screen = np.empty(n), np.empty(n)
 
     def _wavefront(self, cap):
-        f = lambda: np.empty((cap, 3))
-        return [f(), f(), f(), np.empty(cap, PIXEL), np.empty((cap, 3), self.rd),
+        f = lambda: np.empty((cap, 3), self.rd)
+        return [f(), f(), np.empty((cap, 3)), np.empty(cap, PIXEL), np.empty((cap, 3), self.rd),
                 np.empty((cap, 3), self.rd), np.empty(cap, PIXEL)]
 
     def ensure_slots(self, n, rows):
@@ -764,9 +764,9 @@ def _render_band(fr, band):
             jx, jy = _band_jitter(fr.streams[s], W * H, q0, q1, buf.jitter)
         else:
             jx = jy = no_jitter
-        O, D, wgt, pix, Ot, Dt, order = buf.cur
+        _, _, wgt, pix, Ot, Dt, order = buf.cur
         stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, scene.jitter, fr.camera_terms[s],
-                                    eye, cu, cv, cw, D, pix, Ot, Dt, *buf.screen)
+                                    eye, cu, cv, cw, pix, Ot, Dt, *buf.screen)
         n = npix
         gap, refr = n, 0             # the wavefront's rows: 0..n - refr, then gap..gap + refr
         rays["primary"] += n
@@ -778,14 +778,14 @@ def _render_band(fr, band):
             buf.ensure_slots(n, gap + refr)
             if spawn:
                 buf.ensure_next(2 * n)              # reflections, then refractions
-            O, D, wgt, pix, Ot, Dt, order = buf.cur
+            _, _, wgt, pix, Ot, Dt, order = buf.cur
             qO, qD, qT, sh_C, sh_pix, sh_cnt = buf.sh
             lap("queues")
             h = tracer.intersect(Ot[:n], Dt[:n], normals=False)
             _checked_answers(tracer, n, ntri, hits=h)
             lap("intersect")
-            m = _shade(n, O, D, wgt, pix, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
-                       bounce == 0, eye, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
+            m = _shade(n, Ot, Dt, wgt, pix, h.prim, h.t, h.u, h.v, *sa, code, n_lights > 0, spawn,
+                       bounce == 0, bounce == 0 and s == 0, fr.aov_depth, fr.aov_normal,
                        fr.aov_prim, buf.contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, buf.cap,
                        order, *buf.nxt, buf.spawned)
             lap("shade")

@@ -1,10 +1,13 @@
 """The stages of one Whitted wavefront, as Numba kernels (after pbrt-v4's wavefront integrator).
 
 A wavefront is a queue of rays in structure-of-arrays form: origins ``O`` and directions ``D``
-(n, 3) float64 for shading, path weights ``wgt`` (n, 3) and film pixels ``pix`` (n,), and the
-same rays in the tracer's precision and order (``Ot``, ``Dt``: float32 for the hardware units,
-so the tracer reads them without a conversion; a secondary wavefront's ray j for the tracer is
-row ``order[j]`` of the others, see ``group_by_octant``). The renderer runs one band of image
+(n, 3) as ``shade`` spawns them, path weights ``wgt`` (n, 3) float64 and film pixels ``pix``
+(n,), and the same rays in the tracer's order (``Ot``, ``Dt``; a secondary wavefront's ray j
+for the tracer is row ``order[j]`` of the others, see ``group_by_octant``; the camera's rays
+go straight to ``Ot``, ``Dt``). Origins and directions are held in the tracer's precision
+(float32 for the hardware units), so the tracer reads them without a conversion, and shading
+starts from the rays as the tracer traced them: a hit point is the traced origin plus t times
+the traced direction, in float64. The renderer runs one band of image
 rows at a time on a thread (``raytracer.render``); per bounce of a band:
 
 1. ``generate_camera_rays``: the camera's rays for one sample pass, in 4x4 pixel tiles;
@@ -104,20 +107,20 @@ def camera_terms(width, height, half, cell_x, cell_y, grid_x, grid_y):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, cu, cv, cw,
-                         D, pix, Ot, Dt, SX, SY):
+                         pix, Ot, Dt, SX, SY):
     """Camera rays of one sample pass for image rows y0..y1 (y0 a multiple of ``tile``), in
     ``tile`` x ``tile`` pixel tiles (``traversal.camera.tile_order``, whose slots y0 * width
     onward these are): slot k from 0. A pixel is placed by ``terms`` (``camera_terms``) with
     its uniform offsets jit_x/jit_y (pixel p at p - y0 * width) when ``jitter``. Camera
-    basis (cu, cv, cw). Writes D, pix and the tracer's copies Ot, Dt; ``shade`` takes the
-    origin (the eye) and the weight (1) of camera rays as given, so O and wgt are not
-    written. ``SX``, ``SY``: float64 scratch, one of each per ray.
+    basis (cu, cv, cw). Writes pix and the rays in the tracer's precision, Ot (the eye) and
+    Dt (the float64 unit direction, rounded), which ``shade`` reads too; the weight (1) of
+    camera rays it takes as given. ``SX``, ``SY``: float64 scratch, one of each per ray.
 
     Two loops: the tile loops place each ray's screen point (in SX, SY), then one flat loop
     over the rays turns the points into unit directions, in SIMD lanes (with the arrays seen
     flat, so that a row is 3 words on from the last: a 2D index's run-time row length keeps
     LLVM from vectorising); 30% faster than one loop doing both, and 14% faster again than
-    with the points parked in D's rows (strided loads). The tile loops are written out here,
+    with the points parked in Dt's rows (strided loads). The tile loops are written out here,
     not read from the tile order: placing pixels from a list of indices made this stage
     20-30% slower. A test keeps the two orders in step."""
     off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
@@ -125,7 +128,6 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
     ey = np.float32(eye[1])
     ez = np.float32(eye[2])
     base = y0 * width
-    Df = D.reshape(-1)
     Of = Ot.reshape(-1)
     Dtf = Dt.reshape(-1)
     n = (y1 - y0) * width
@@ -166,9 +168,6 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
         Dtf[3 * k] = dx
         Dtf[3 * k + 1] = dy
         Dtf[3 * k + 2] = dz
-        Df[3 * k] = dx                  # O and wgt are implied (eye, 1)
-        Df[3 * k + 1] = dy
-        Df[3 * k + 2] = dz
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -256,11 +255,12 @@ def _row(camera, order, i):
 
 @njit(cache=True, inline="always")
 def _put_hit_row(S, j, Df, i, t, ox, oy, oz, w0, w1, w2):
-    """Column j of the scratch from ray i (direction in ``Df``, seen flat): its direction, its
-    hit point at t from origin (ox, oy, oz), and its weight."""
-    dx = Df[3 * i]
-    dy = Df[3 * i + 1]
-    dz = Df[3 * i + 2]
+    """Column j of the scratch from ray i (direction in ``Df``, seen flat, in the tracer's
+    precision): its direction, its hit point at t from origin (ox, oy, oz), and its weight,
+    in float64."""
+    dx = np.float64(Df[3 * i])
+    dy = np.float64(Df[3 * i + 1])
+    dz = np.float64(Df[3 * i + 2])
     S[_DX + j] = dx
     S[_DY + j] = dy
     S[_DZ + j] = dz
@@ -357,17 +357,18 @@ def shade_scratch():
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
+def shade(n, Ot, Dt, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
           tri_rec, ambient_light, kd_pi, ks,
           shininess, kr, ior, light_kind, light_pos, light_dir, light_val, background, cutoff,
-          offset, do_shadow, do_spawn, camera, eye, first, aov_depth, aov_normal, aov_prim,
+          offset, do_shadow, do_spawn, camera, first, aov_depth, aov_normal, aov_prim,
           contrib, qO, qD, qT, sh_C, sh_pix, sh_cnt, stride, order, nO, nD, nW, npix, nOt,
           nDt, norder, spawned, S, mat, lit, leaves, spawning, octant_start):
     """Shade the ``n`` rays of a queue from their closest hits (see the module text), in
     blocks of BLOCK rays.
 
-    ``camera``: the queue holds camera rays, whose origin is ``eye`` and weight 1 (O and wgt
-    are not read). A ray's own contribution (background or ambient) goes to ``contrib`` at
+    The queue's rays are read from the tracer's copies ``Ot``, ``Dt``, in its order.
+    ``camera``: the queue holds camera rays, whose origin is the eye (``Ot``'s first row) and
+    weight 1 (``wgt`` is not read). A ray's own contribution (background or ambient) goes to ``contrib`` at
     its wavefront row ``order[i]`` for ``accumulate``, except a camera ray's, which
     ``accumulate`` computes from its hit (``contrib`` is not written for the camera's queue). The
     shadow rays toward light l go densely to l * ``stride`` onward: origin, direction and
@@ -378,8 +379,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     reflection than the queue holds), ``spawned[1]`` of them; ``group_by_octant`` then writes
     the tracer's copies ``nOt``, ``nDt`` and ``norder`` from the octant counts kept in
     ``octant_start`` as the rays are put. A queue other than the camera's is shaded in the
-    tracer's order: its i-th ray has its hit at i, and its origin, direction, weight, pixel
-    and ``contrib`` entry at row ``order[i]`` (the camera's queue passes ``order`` unread).
+    tracer's order: its i-th ray has its hit, origin and direction at i, and its weight,
+    pixel and ``contrib`` entry at row ``order[i]`` (the camera's queue passes ``order``
+    unread).
     Every output is in ray order, so the queues do not depend on anything but the rays.
     ``first`` (the first sample pass' camera rays) writes every pixel's first-hit layers
     (``aov_*``), so they need no clearing before (``accumulate`` stores the pixels' first
@@ -405,25 +407,26 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     n_refr = 0
     for c in range(8):
         octant_start[c] = 0
-    Df = D.reshape(-1)
-    Of = O.reshape(-1)
+    Df = Dt.reshape(-1)
+    Of = Ot.reshape(-1)
     Wf = wgt.reshape(-1)
     Cf = contrib.reshape(-1)
     qOf = qO.reshape(-1)
     qDf = qD.reshape(-1)
     sh_Cf = sh_C.reshape(-1)
-    ex = eye[0]
-    ey = eye[1]
-    ez = eye[2]
+    # a camera ray's origin: the eye as the tracer took it (every row of the camera's O)
+    ex = np.float64(Of[0]) if camera and n > 0 else 0.0
+    ey = np.float64(Of[1]) if camera and n > 0 else 0.0
+    ez = np.float64(Of[2]) if camera and n > 0 else 0.0
     for b in range((n + BLOCK - 1) // BLOCK):
         lo = b * BLOCK
         hi = min(n, lo + BLOCK)
         nr = hi - lo
-        # -- pass 1a (branch-free, contiguous reads of the queue only): direction, hit point and
-        #    weight; the camera's rays start at the eye with weight 1. A loop per case, over
-        #    the (C-contiguous) arrays seen flat, 3 words a row, so that LLVM runs them in SIMD
-        #    lanes: a per-ray choice of origin array, or 2D indexing with its run-time row
-        #    length, keeps a loop scalar --
+        # -- pass 1a (branch-free): direction, hit point and weight; the camera's rays start at
+        #    the eye with weight 1, the others' weights are read at their rows. A loop per
+        #    case, over the (C-contiguous) arrays seen flat, 3 words a row, so that LLVM runs
+        #    them in SIMD lanes: a per-ray choice of origin array, or 2D indexing with its
+        #    run-time row length, keeps a loop scalar --
         if camera:
             for j in range(nr):
                 i = lo + j
@@ -432,8 +435,9 @@ def shade(n, O, D, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
             for j in range(nr):
                 i = lo + j
                 r = order[i]
-                _put_hit_row(S, j, Df, r, np.float64(hit_t[i]), Of[3 * r], Of[3 * r + 1],
-                             Of[3 * r + 2], Wf[3 * r], Wf[3 * r + 1], Wf[3 * r + 2])
+                _put_hit_row(S, j, Df, i, np.float64(hit_t[i]), np.float64(Of[3 * i]),
+                             np.float64(Of[3 * i + 1]), np.float64(Of[3 * i + 2]),
+                             Wf[3 * r], Wf[3 * r + 1], Wf[3 * r + 2])
         # -- pass 1b (scalar: gathers from the hit triangles' records, see TRI_WORDS): the unit
         #    geometric normal (per face) and plane, the interpolated shading normal, the
         #    coordinate magnitude and material; a miss reads triangle 0 (render() refuses a

@@ -52,6 +52,7 @@ def naive_render(scene, tracer, seed=0, offset="relative"):
     prim_aov = np.full(npix, -1, np.int32)
     rays = {"primary": 0, "shadow": 0, "reflection": 0, "refraction": 0}
     tris64 = scene.triangles.astype(np.float64)
+    ray_dtype = np.dtype(getattr(tracer, "dtype", np.float32))
     tri_mag = np.abs(scene.triangles).reshape(-1, 9).max(axis=1).astype(np.float64)
     e1 = tris64[:, 1] - tris64[:, 0]
     e2 = tris64[:, 2] - tris64[:, 0]
@@ -84,6 +85,9 @@ def naive_render(scene, tracer, seed=0, offset="relative"):
                 break
             if kind == "primary":
                 rays["primary"] += len(O)
+            # shading starts from the rays as the tracer takes them (in its precision)
+            O = O.astype(ray_dtype).astype(np.float64)
+            D = D.astype(ray_dtype).astype(np.float64)
             h = trace(O, D, "closest")
             hit = h.prim >= 0
             # -- misses see the background --

@@ -298,13 +298,12 @@ def test_a_bands_camera_rays_are_its_slots_of_the_tile_order():
     for y0 in range(0, H, rows):
         y1 = min(H, y0 + rows)
         n = (y1 - y0) * W
-        D = np.empty((n, 3))
         Ot, Dt = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
         pix = np.empty(n, PIXEL)
         terms = stages.camera_terms(W, H, 0.5, 0, 0, 1, 1)
         stages.generate_camera_rays(y0, y1, W, TILE, np.zeros(0), np.zeros(0), False, terms,
                                     np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
-                                    np.array([0, 0, -1.0]), D, pix, Ot, Dt, np.empty(n),
+                                    np.array([0, 0, -1.0]), pix, Ot, Dt, np.empty(n),
                                     np.empty(n))
         assert np.array_equal(pix, order[y0 * W:y1 * W])
 
@@ -321,11 +320,10 @@ def test_camera_rays_are_the_pinhole_formula_bit_for_bit():
     for jitter in (False, True):
         jx, jy = (rng.random(n), rng.random(n)) if jitter else (np.zeros(0), np.zeros(0))
         terms = stages.camera_terms(W, H, 0.7, 1, 0, 2, 2)
-        D = np.empty((n, 3))
         Ot, Dt = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
         pix = np.empty(n, PIXEL)
         stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, jitter, terms, eye, cu, cv, cw,
-                                    D, pix, Ot, Dt, np.empty(n), np.empty(n))
+                                    pix, Ot, Dt, np.empty(n), np.empty(n))
         off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
         x, y = pix % W, pix // W
         if jitter:
@@ -336,7 +334,7 @@ def test_camera_rays_are_the_pinhole_formula_bit_for_bit():
         sx, sy = px * kx - bx, by - py * ky
         d = sx[:, None] * cu + sy[:, None] * cv + cw
         d = d * (1.0 / np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]))[:, None]
-        assert np.array_equal(D, d) and np.array_equal(Dt, d.astype(np.float32))
+        assert np.array_equal(Dt, d.astype(np.float32))
         assert np.array_equal(Ot, np.tile(eye.astype(np.float32), (n, 1)))
 
 
