@@ -477,6 +477,8 @@ def load_mesh_arrays(path):
     if not path.lower().endswith(MESH_EXTENSIONS):
         raise InputError(path, "unknown mesh file type (expected " + "/".join(MESH_EXTENSIONS)
                          + ")")
+    if os.path.getsize(path) == 0:
+        raise InputError(path, "empty file")
     declared = _ply_declared(path) or {}
     if "face" in declared:
         check_count(declared["face"], path)
@@ -494,6 +496,8 @@ def load_mesh_arrays(path):
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if isinstance(exc, KeyError):          # a reader looked up what the file does not hold
             msg = f"it has no {msg}"
+        elif isinstance(exc, IndexError):      # a reader ran past what the file holds
+            msg = "cut short or malformed"
         ext = os.path.splitext(path)[1].lower()
         raise InputError(path, f"not a readable {ext[1:].upper()} file ({msg})") from None
     faces = getattr(mesh, "faces", None)

@@ -582,8 +582,9 @@ def cmd_render(args):
     from scenes.loader import scene_inputs
 
     t_start = time.perf_counter()
-    if args.accel != "bvh" and (args.builder not in (None, "hwbvh")
-                                or args.traversal not in (None, "numba")):
+    # a grid or kd-tree is built by its own builder (a --builder, even the default's name, would
+    # be ignored) and walked by our units (--traversal numba says just that)
+    if args.accel != "bvh" and (args.builder is not None or args.traversal not in (None, "numba")):
         raise InputError("--accel", f"--accel {args.accel} builds and traverses its own structure: "
                          "it takes no --builder and no --traversal embree")
     # Embree's tree is traversed by Embree only, and Embree traverses only its own tree: one
@@ -1325,11 +1326,17 @@ class Terminated(KeyboardInterrupt):
     progress remove their temporary files."""
 
 
+# Signals ignored when the process started stay ignored (a shell's background job ignores
+# SIGINT, so that a ^C meant for the foreground does not stop it), as Python itself leaves them.
+_IGNORED_AT_START = frozenset(sig for sig in (signal.SIGINT, signal.SIGTERM)
+                              if signal.getsignal(sig) is signal.SIG_IGN)
+
+
 def _set_handlers(interrupt, terminate):
     """SIGINT's and SIGTERM's handlers, where Python set them (a handler set outside Python
-    stays)."""
+    stays, and so does a signal ignored when the process started)."""
     for sig, handler in ((signal.SIGINT, interrupt), (signal.SIGTERM, terminate)):
-        if signal.getsignal(sig) is not None:
+        if signal.getsignal(sig) is not None and sig not in _IGNORED_AT_START:
             signal.signal(sig, handler)
 
 

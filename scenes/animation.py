@@ -540,6 +540,8 @@ def from_scene_dict(d, source=None, fps=None):
             pat = sh.get("pattern")
             if not isinstance(pat, str) or not pat:
                 _fail(source, f"{path}.pattern", "missing, empty or not a string")
+            if "\0" in pat:
+                _fail(source, f"{path}.pattern", "a path cannot hold a NUL byte")
             smooth = sh.get("smooth", False)
             if not isinstance(smooth, (bool, np.bool_)):
                 _fail(source, f"{path}.smooth", f"expected true or false, got {written(smooth)}")
@@ -1053,7 +1055,11 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
         return anim
     extra = [k for k, v in params.items() if v is not None]
     if extra:
-        raise ParameterError(extra[0], f"only built-in animations ({', '.join(ANIMATIONS)}) take it")
+        import inspect
+        takers = [name for name, fn in ANIMATIONS.items()
+                  if extra[0] in inspect.signature(fn).parameters]
+        raise ParameterError(extra[0], f"only the built-in animation{'s' if len(takers) > 1 else ''} "
+                                       f"{' and '.join(takers)} take{'' if len(takers) > 1 else 's'} it")
     if is_pattern(spec) and not os.path.exists(spec):
         d = pattern_scene(spec)
     elif not os.path.exists(spec) and spec not in BUILTIN:

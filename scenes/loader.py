@@ -197,7 +197,12 @@ def _load_scene_file(spec):
         if is_pattern(spec):
             raise InputError(spec, "a frame sequence (a %d or glob pattern of mesh files): "
                                    "render it with hwrt animate")
+        from .animation import ANIMATIONS           # (animation imports this module)
+        if spec in ANIMATIONS:
+            raise InputError(spec, "a built-in animation: render it with hwrt animate")
         raise InputError(spec, "no such scene or file (built-in scenes: " + ", ".join(BUILTIN) + ")")
+    if os.path.isdir(spec):
+        raise InputError(spec, "is a directory, not a scene or mesh file")
     low = spec.lower()
     if low.endswith(".json"):
         try:
@@ -297,9 +302,9 @@ def check_name(source, name):
     renders/animate-<name>-<strategy>/), so a separator or a "." / ".." would write elsewhere."""
     if not isinstance(name, str) or not name:
         problem = f"expected a non-empty string, got {written(name)}"
-    elif name in (".", "..") or any(c in name for c in "/\\\0"):
+    elif name in (".", "..") or any(c in "/\\" or ord(c) < 32 or ord(c) == 127 for c in name):
         problem = (f"{written(name)} is not a plain file name (outputs are named after it: no '/', "
-                   "'\\' or NUL, not '.' or '..')")
+                   "'\\', NUL or other control characters, not '.' or '..')")
     else:
         return
     raise InputError(source, f"key 'name': {problem}")
@@ -879,6 +884,8 @@ def _shape(ctx, sh, i, scene_dir):
         fn = sh.get("filename")
         if not isinstance(fn, str) or not fn:
             ctx.fail(f"{path}.filename", "missing, empty or not a string")
+        if "\0" in fn:
+            ctx.fail(f"{path}.filename", "a path cannot hold a NUL byte")
         full = fn if os.path.isabs(fn) else os.path.join(scene_dir, fn)
         smooth = ctx.flag(sh, "smooth", path, False)
         tf = sh.get("transform", {})

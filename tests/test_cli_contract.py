@@ -1484,3 +1484,31 @@ def test_replay_text_says_which_answer_is_wrong_and_why():
         "  ray 1: mismatch; ours triangle 7 at t = 1.25, Embree triangle 3 at t = 0.5; origin "
         "(1e-08, 2, 3), direction (0, 1, 0), t_max 5",
         "    our answer is wrong: it misses triangle 3, which the ray enters at t = 0.5"]
+
+
+def test_a_signal_ignored_at_start_stays_ignored():
+    """A shell's background job starts with SIGINT ignored (a ^C is for the foreground): the
+    command's handlers leave it so, and still take SIGTERM."""
+    code = ("import os, signal\n"
+            "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+            "from hwrt import cli\n"
+            "cli._set_handlers(cli._raise_interrupted, cli._raise_terminated)\n"
+            "os.kill(os.getpid(), signal.SIGINT)\n"
+            "print(signal.getsignal(signal.SIGINT) is signal.SIG_IGN,"
+            " signal.getsignal(signal.SIGTERM) is cli._raise_terminated)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.split() == ["True", "True"], out.stderr
+
+
+@pytest.mark.parametrize("argv,line", [
+    (["render", "exploding"], "hwrt: error: exploding: a built-in animation: render it with hwrt animate"),
+    (["render", "{dir}"], "hwrt: error: {dir}: is a directory, not a scene or mesh file"),
+    (["animate", "{dir}"], "hwrt: error: {dir}: is a directory, not a scene or mesh file"),
+    (["animate", "{dir}/scene.json", "--physics", "bullet"],
+     "hwrt: error: --physics: only the built-in animation marbles takes it"),
+])
+def test_a_scene_that_is_not_one_says_what_it_is(capsys, tmp_path, argv, line):
+    d = tmp_path / "looks.json"                # a directory named like a scene file
+    d.mkdir()
+    rc, out, err = call(capsys, *[a.format(dir=d) for a in argv])
+    assert rc == 2 and out == "" and one_line_error(err) == line.format(dir=d)

@@ -225,6 +225,9 @@ def write_ply_header_only(path, faces):
     (lambda d: d / "missing.ply", "no such file"),
     (lambda d: (d / "garbage.ply").write_bytes(b"\x00\x01 not a mesh") and d / "garbage.ply", "not a readable PLY file"),
     (lambda d: (d / "empty.obj").write_text("# nothing\n") and d / "empty.obj", "no triangles"),
+    (lambda d: (d / "zero.ply").write_bytes(b"") or d / "zero.ply", "zero.ply: empty file$"),
+    (lambda d: (d / "hdr.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 9\np")
+     and d / "hdr.ply", "hdr.ply: not a readable PLY file \\(cut short or malformed\\)$"),
     (lambda d: (d / "nan.obj").write_text("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n") and d / "nan.obj", "NaN"),
     (lambda d: write_ply_header_only(d / "big.ply", (1 << 24) + 1) or d / "big.ply", "2\\^24"),
     (lambda d: (d / "short.obj").write_text("v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n") and d / "short.obj",

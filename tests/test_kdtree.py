@@ -211,6 +211,9 @@ def test_cli_accel(tmp_path, capsys):
     assert main(["render", "cornell", "--accel", "kdtree", "--builder", "sweep"]) == 2
     err = capsys.readouterr().err.strip()
     assert "--accel" in err and "\n" not in err
+    # a builder the kd-tree would not use is refused even when it names the default
+    assert main(["render", "cornell", "--accel", "kdtree", "--builder", "hwbvh"]) == 2
+    assert "--accel" in capsys.readouterr().err
     out = tmp_path / "c.exr"
     assert main(["render", "cornell", "--accel", "kdtree", "-o", str(out), "--width", "16",
                  "--height", "12", "--spp", "1", "--json"]) in (0, None)

@@ -75,7 +75,8 @@ def test_the_frame_limit_is_one_number_for_the_key_the_option_and_the_library(tm
 # --------------------------------------------------------------------------------------
 # name: the default outputs are named after it
 # --------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name", ["", "../../evil", "a/b", "a\\b", ".", "..", "x\0y", 5, [1], None])
+@pytest.mark.parametrize("name", ["", "../../evil", "a/b", "a\\b", ".", "..", "x\0y", "a\nb", "a\x7fb",
+                                  5, [1], None])
 @pytest.mark.parametrize("command", ["render", "animate"])
 def test_a_name_that_is_not_a_plain_file_name_is_refused(tmp_path, capsys, monkeypatch, name,
                                                          command):
@@ -85,6 +86,18 @@ def test_a_name_that_is_not_a_plain_file_name_is_refused(tmp_path, capsys, monke
     d = scene_dict(name=name)
     with pytest.raises(InputError, match="key 'name'"):
         compile_scene(d, source="dict")
+
+
+@pytest.mark.parametrize("shape", [{"type": "mesh", "filename": "a\0b.ply", "material": "white"},
+                                   {"type": "frames", "pattern": "f\0_%04d.ply",
+                                    "material": "white"}])
+def test_a_path_with_a_nul_byte_is_refused_as_such(tmp_path, capsys, monkeypatch, shape):
+    extra = {"animation": {"frames": 2}} if shape["type"] == "frames" else {}
+    p = write_scene(tmp_path, scene_dict(shapes=[shape], **extra))
+    command = "animate" if shape["type"] == "frames" else "render"
+    line = refused(capsys, tmp_path, monkeypatch, command, p, "--width", 8, "--height", 8)
+    key = "filename" if shape["type"] == "mesh" else "pattern"
+    assert line == f"hwrt: error: {p}: key 'shapes[0].{key}': a path cannot hold a NUL byte"
 
 
 def test_a_plain_name_names_the_default_output(tmp_path, monkeypatch):
