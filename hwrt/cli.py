@@ -786,6 +786,8 @@ BENCH_QUICK_HELP = {
                 "each, fewer rays checked",
     "animation": "a short run: fewer frames of fewer triangles"}
 
+# The benchmarks whose MESH arguments may be scenes too (SCENE on their help pages)
+BENCH_TAKES_SCENES = ("render", "trees", "contention")
 # The MESH arguments of a benchmark (None: of those not listed)
 BENCH_MESHES = {None: "mesh files (default: every mesh in --mesh-dir)",
                 "accuracy": "mesh files studied beside the scenes cornell, marbles and cloth "
@@ -1055,14 +1057,31 @@ def _bench_page(parser, what):
     page = _Parser(prog=f"{parser.prog} {what}", add_help=False,
                    description=f"{text[0].upper()}{text[1:]}. Runs for {duration}. An option "
                                f"not listed here is an error.")
+    from .animate import BENCH_FRAMES, BENCH_QUICK_FRAMES
     reads = set(BENCH_OPTIONS[what]) | {"json"}
+    # where bench's own page speaks of several benchmarks, this one's words
+    dask = "a running Dask scheduler, tcp://HOST:PORT, whose workers run the cells"
+    own = {"scheduler": f"{dask}, timed one at a time on one host (default: $HWRT_SCHEDULER, "
+                        "else a local cluster of one worker with every core)"
+           if what in ("tti", "accuracy") else
+           f"{dask} (default: $HWRT_SCHEDULER, else a local cluster of one worker per core)",
+           "frames": f"frames per animation (default: {BENCH_FRAMES}; with --quick: "
+                     f"{BENCH_QUICK_FRAMES})"}
     for action in parser._actions:
         if not (isinstance(action, argparse._HelpAction) or action.dest in reads):
             continue
-        if action.dest in BENCH_OPTION_HELP or action.dest in ("meshes", "accel"):
+        if action.dest in BENCH_OPTION_HELP or action.dest in ("meshes", "accel", "frames"):
             action = copy.copy(action)
-            action.help = BENCH_MESHES.get(what, BENCH_MESHES[None]) if action.dest == "meshes" \
-                else _accel_help(what) if action.dest == "accel" else _bench_help(action.dest, what)
+            if action.dest == "meshes":
+                action.help = BENCH_MESHES.get(what, BENCH_MESHES[None])
+                if what in BENCH_TAKES_SCENES:
+                    action.metavar = "SCENE"
+            elif action.dest == "accel":
+                action.help = _accel_help(what)
+            elif action.dest in own:
+                action.help = own[action.dest]
+            else:
+                action.help = _bench_help(action.dest, what)
         page._add_action(action)
     return page.format_help()
 

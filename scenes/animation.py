@@ -47,8 +47,8 @@ from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, is_integer
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
-from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, MAX_TRANSLATION_ROUNDING, check_scale,
-                     compile_scene, finite, flat_normals, is_pattern, load_scene, mesh_scene,
+from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, MAX_TRANSLATION_ROUNDING, SCENE_KEYS,
+                     Ctx, check_scale, compile_scene, finite, flat_normals, is_pattern, load_scene, mesh_scene,
                      smooth_normals, spec_path, vector_ok, with_frame, written)
 
 DEFAULT_FPS = 30.0
@@ -92,7 +92,7 @@ def _check_keys(source, obj, allowed, path):
         _fail(source, path, "expected an object")
     for k in obj:
         if k not in allowed:
-            _fail(source, f"{path}.{k}", f"unknown key (allowed: {', '.join(allowed)})")
+            _fail(source, f"{path}.{k}", f"unknown key (known keys: {', '.join(allowed)})")
 
 
 def _number(source, v, path, lo=None, positive=False, hi=None):
@@ -340,8 +340,11 @@ class Animation:
                                               f"a frame count)")
             raise ParameterError("frames", too_many_frames(frames))
         if self.max_frames is not None and frames > self.max_frames:
-            raise InputError(self.source, f"{frames} frames asked for, but the sequence has "
-                                          f"only {self.max_frames}")
+            if frames != self.frames:               # a count given later (--frames)
+                raise ParameterError("frames", f"{frames} asked for, but the sequence of "
+                                               f"{self.source} has only {self.max_frames}")
+            raise InputError(self.source, f"key 'animation.frames': {frames} frames asked for, "
+                                          f"but the sequence has only {self.max_frames}")
         times = np.arange(frames) / self.fps
         tri_mag = np.zeros(frames)
         for p in self.parts:
@@ -515,6 +518,7 @@ def from_scene_dict(d, source=None, fps=None):
     """An Animation from a scene dict whose shapes may carry ``keyframes`` or be ``frames``
     sequences (see the module docstring)."""
     source = source or d.get("_source", "<scene>")
+    Ctx(source).keys(d, SCENE_KEYS + ("animation",), "")      # a moving scene's top level
     anim = d.get("animation", {})
     _check_keys(source, anim, ANIMATION_KEYS, "animation")
     frames = anim.get("frames")

@@ -360,7 +360,7 @@ def with_frame(d, width=None, height=None, spp=None, max_depth=None):
     given = {"width": width, "height": height, "spp": spp}
     # the values replaced are checked as written, so a bad file is refused whatever the
     # options (the others are checked with the scene)
-    ctx = _Ctx(d.get("_source", "<scene>"))
+    ctx = Ctx(d.get("_source", "<scene>"))
     for key in given:
         if given[key] is not None and key in film:
             _film_setting(ctx, film, "film", key)
@@ -533,7 +533,10 @@ def _at(path, key):
     return f"{path}.{key}" if path else str(key)
 
 
-class _Ctx:
+class Ctx:
+    """Checks of one scene source's values: each failure an InputError naming the source and
+    the key."""
+
     def __init__(self, source):
         self.source = source
 
@@ -974,7 +977,7 @@ def compile_scene(d, source=None, first_shape=0):
         raise InputError(source or "<scene>", f"a scene must be an object (a dict), got "
                                               f"{type(d).__name__}")
     source = source or d.get("_source", "<scene>")
-    ctx = _Ctx(source)
+    ctx = Ctx(source)
     shapes = d.get("shapes")
     moving = ["animation"] if "animation" in d else [
         f"shapes[{i}].{'keyframes' if 'keyframes' in sh else 'type'}"

@@ -711,6 +711,31 @@ def test_frame_sequence_errors_name_the_pattern_key(tmp_path, capsys, monkeypatc
     assert rc == 0, err
     assert sorted(f.name for f in (tmp_path / "out").glob("*.exr")) == ["frame_0000.exr",
                                                                       "frame_0001.exr"]
+    # more frames than the sequence holds: --frames is blamed when it asked for them, the
+    # scene's key when the scene did
+    monkeypatch.setattr(scenes.animation, "MAX_FRAMES", 120)
+    rc, _, err = _run_cli(capsys, "animate", p, "--frames", 5, "-o", tmp_path / "out5")
+    assert rc == 2 and err.strip() == \
+        f"hwrt: error: --frames: 5 asked for, but the sequence of {p} has only 3", err
+    p5 = _scene_file(tmp_path, [shape], {"frames": 5})
+    rc, _, err = _run_cli(capsys, "animate", p5, "-o", tmp_path / "out5")
+    assert rc == 2 and err.strip() == (f"hwrt: error: {p5}: key 'animation.frames': 5 frames "
+                                       "asked for, but the sequence has only 3"), err
+    assert not (tmp_path / "out5").exists()
+
+
+def test_an_unknown_key_of_a_moving_scene_lists_animation_among_the_known(tmp_path, capsys):
+    p = _scene_file(tmp_path, [BOX], {"frames": 2})
+    d = json.loads(p.read_text())
+    d["bogus"] = 1
+    p.write_text(json.dumps(d))
+    rc, _, err = _run_cli(capsys, "animate", p, "-o", tmp_path / "out")
+    assert rc == 2 and f"{p}: key 'bogus': unknown key (known keys: " in err
+    assert err.strip().endswith("shapes, animation)"), err
+    d["animaton"] = d.pop("bogus")
+    p.write_text(json.dumps(d))
+    rc, _, err = _run_cli(capsys, "animate", p, "-o", tmp_path / "out")
+    assert rc == 2 and "key 'animaton': unknown key (did you mean 'animation'?)" in err
 
 
 @pytest.mark.parametrize("fps", [0, -5, 1e6, float("nan"), True, "30"])

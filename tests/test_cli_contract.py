@@ -1135,6 +1135,14 @@ def test_each_benchmark_has_a_page_of_its_own(capsys):
     assert len(set(pages.values())) == len(pages)
     assert "no peer" in pages["scale"] and "Embree" in pages["build"]
     assert "(default: 5)" in pages["build"] and "(default: 3)" in pages["scale"]   # --repeat
+    # a page speaks of its own benchmark only: no "read by", no other benchmark's defaults
+    for what, page in pages.items():
+        flat = " ".join(page.split())
+        assert "read by" not in flat and "not read by" not in flat, what
+        others = [w for w in ("tti", "accuracy", "model") if w != what]
+        if "--scheduler" in page:
+            assert not any(f"for {w}" in flat or f"{w} and" in flat for w in others), what
+        assert ("[SCENE ...]" in page) == (what in ("render", "trees", "contention")), what
     rc, generic, _ = call(capsys, "bench", "--help")
     flat = " ".join(generic.split())
     assert rc == 0 and all(f"{what} {BENCHMARKS[what][0]}" in flat for what in BENCHMARKS)
