@@ -1125,7 +1125,8 @@ def make_parser():
                         "embree: Embree's own build (timing only)")
     # defaults None: an option a builder does not read is refused only when given
     b.add_argument("--leaf-size", type=_positive,
-                   help=f"primitives per leaf, hwbvh only (default: {config.DEFAULT_LEAF_SIZE})")
+                   help=f"primitives per leaf, hwbvh only: 1..{config.MAX_LEAF_SIZE} (default: "
+                        f"{config.DEFAULT_LEAF_SIZE})")
     b.add_argument("--bins", type=_positive,
                    help=f"SAH bins per axis, hwbvh only: {config.MIN_BINS}.."
                         f"{config.MAX_SOFTWARE_BINS} (the hardware has at most "
@@ -1135,7 +1136,8 @@ def make_parser():
                    help=f"subtree capacity w*Psize, at least the leaf size; placement only (the "
                         f"tree never changes); hwbvh and sweep (default: {config.DEFAULT_CAPACITY})")
     b.add_argument("--subtree-builders", type=_positive,
-                   help="subtree builders, placement only; hwbvh and sweep (default: 1)")
+                   help=f"subtree builders, placement only; hwbvh and sweep: "
+                        f"1..{config.LAYOUT_KNOB_RANGES['subtree_builders'][1]} (default: 1)")
     b.add_argument("--block-nodes", type=_positive,
                    help=f"nodes per block of the upper builder's pool, placement only; hwbvh "
                         f"and sweep (default: {config.DEFAULT_BLOCK_NODES})")
@@ -1161,8 +1163,13 @@ def make_parser():
                        ("psize", "primitives per buffer (capacity w * psize)"),
                        ("subtree-builders", "subtree builders"), ("ram-pairs", "DRAM channel pairs"),
                        ("leaf-size", "primitives per leaf"), ("bins", "SAH bins per axis")):
-        s.add_argument(f"--{name}", type=_positive, help=f"{text} (default: the preset's)")
-    s.add_argument("--clock-mhz", type=_positive_float, help="clock (default: the preset's)")
+        lo, hi = config.KNOB_RANGES[name.replace("-", "_")]
+        power = ", a power of two" if name in config.POWER_OF_TWO_KNOBS else ""
+        s.add_argument(f"--{name}", type=_positive,
+                       help=f"{text}: {lo}..{hi}{power} (default: the preset's)")
+    lo, hi = config.KNOB_RANGES["clock_mhz"]
+    s.add_argument("--clock-mhz", type=_positive_float,
+                   help=f"clock: {lo:g}..{hi:g} MHz (default: the preset's)")
     s.add_argument("--control-latency", type=_non_negative, metavar="CYCLES",
                    help=f"control cycles per split beyond Table 3.3 (default: the calibrated "
                         f"value, {config.CONTROL_LATENCY}; 0 = the text-only model)")

@@ -1520,3 +1520,18 @@ def test_a_scene_that_is_not_one_says_what_it_is(capsys, tmp_path, argv, line):
     d.mkdir()
     rc, out, err = call(capsys, *[a.format(dir=d) for a in argv])
     assert rc == 2 and out == "" and one_line_error(err) == line.format(dir=d)
+
+
+def test_simulate_help_gives_each_knobs_range_as_checked(capsys):
+    from hwbvh import config
+    rc, out, _ = call(capsys, "simulate", "--help")
+    flat = " ".join(out.split())
+    for knob, (lo, hi) in config.KNOB_RANGES.items():
+        option = "--" + knob.replace("_", "-")
+        text = flat.split(f"{option} ", 2)[2].split(" --")[0]     # after the usage line
+        shown = f"{lo:g}..{hi:g}" if isinstance(lo, float) else f"{lo}..{hi}"
+        assert shown in text, (option, text)
+    # and the check refuses just past the range it gives
+    rc, _, err = call(capsys, "simulate", "no.ply", "--ram-pairs",
+                      str(config.KNOB_RANGES["ram_pairs"][1] + 1))
+    assert rc == 2 and "--ram-pairs" in one_line_error(err)
