@@ -208,8 +208,10 @@ def cmd_build(args):
     if args.dump_handoff:
         planned += [args.dump_handoff, args.dump_handoff + ".json"]
     if args.builder == "embree" and planned:
-        raise InputError("--builder", "Embree's tree is internal to Embree: --out and the dumps "
-                         "need --builder hwbvh or sweep")
+        given = next(o for o, v in (("--out", args.out), ("--dump-aabbs", args.dump_aabbs),
+                                    ("--dump-handoff", args.dump_handoff)) if v)
+        raise InputError(given, "needs a tree of ours (--builder hwbvh or sweep): Embree's "
+                                "tree stays inside Embree")
     check_outputs(planned, inputs=[args.mesh])
     verts, faces = load_mesh_arrays(args.mesh)
     tris = as_triangles(verts[faces], source=args.mesh)

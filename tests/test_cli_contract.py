@@ -1535,3 +1535,12 @@ def test_simulate_help_gives_each_knobs_range_as_checked(capsys):
     rc, _, err = call(capsys, "simulate", "no.ply", "--ram-pairs",
                       str(config.KNOB_RANGES["ram_pairs"][1] + 1))
     assert rc == 2 and "--ram-pairs" in one_line_error(err)
+
+
+@pytest.mark.parametrize("option", ["--out", "--dump-aabbs", "--dump-handoff"])
+def test_an_output_embree_cannot_give_names_its_option(capsys, tmp_path, tetra, option):
+    rc, out, err = call(capsys, "build", tetra, "--builder", "embree", option, str(tmp_path / "t"))
+    assert rc == 2 and out == "" and one_line_error(err) == (
+        f"hwrt: error: {option}: needs a tree of ours (--builder hwbvh or sweep): Embree's tree "
+        "stays inside Embree")
+    assert [f.name for f in tmp_path.iterdir()] == ["tetra.obj"]      # the mesh alone
