@@ -1354,17 +1354,17 @@ class Terminated(KeyboardInterrupt):
     progress remove their temporary files."""
 
 
-# Signals ignored when the process started stay ignored (a shell's background job ignores
-# SIGINT, so that a ^C meant for the foreground does not stop it), as Python itself leaves them.
-_IGNORED_AT_START = frozenset(sig for sig in (signal.SIGINT, signal.SIGTERM)
-                              if signal.getsignal(sig) is signal.SIG_IGN)
+# The signals ignored when the run began (``_main``), which stay ignored: a shell's background
+# job ignores SIGINT, so that a ^C meant for the foreground does not stop it, and Python itself
+# leaves it so.
+_ignored_on_entry = set()
 
 
 def _set_handlers(interrupt, terminate):
     """SIGINT's and SIGTERM's handlers, where Python set them (a handler set outside Python
-    stays, and so does a signal ignored when the process started)."""
+    stays, and so does a signal ignored when the run began)."""
     for sig, handler in ((signal.SIGINT, interrupt), (signal.SIGTERM, terminate)):
-        if signal.getsignal(sig) is not None and sig not in _IGNORED_AT_START:
+        if signal.getsignal(sig) is not None and sig not in _ignored_on_entry:
             signal.signal(sig, handler)
 
 
@@ -1497,6 +1497,8 @@ def _main(argv, last_act):
     _signal_raised[0] = None
     try:
         previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+        _ignored_on_entry.clear()
+        _ignored_on_entry.update(sig for sig, h in previous.items() if h is signal.SIG_IGN)
         _set_handlers(_raise_interrupted, _raise_terminated)
     except ValueError:                        # not the main thread: leave signals alone
         previous = None

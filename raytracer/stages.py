@@ -124,9 +124,9 @@ def generate_camera_rays(y0, y1, width, tile, jit_x, jit_y, jitter, terms, eye, 
     not read from the tile order: placing pixels from a list of indices made this stage
     20-30% slower. A test keeps the two orders in step."""
     off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
-    ex = np.float32(eye[0])
-    ey = np.float32(eye[1])
-    ez = np.float32(eye[2])
+    ex = eye[0]                     # rounded to the tracer's precision as Ot stores it
+    ey = eye[1]
+    ez = eye[2]
     base = y0 * width
     Of = Ot.reshape(-1)
     Dtf = Dt.reshape(-1)
@@ -368,8 +368,8 @@ def shade(n, Ot, Dt, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
 
     The queue's rays are read from the tracer's copies ``Ot``, ``Dt``, in its order.
     ``camera``: the queue holds camera rays, whose origin is the eye (``Ot``'s first row) and
-    weight 1 (``wgt`` is not read). A ray's own contribution (background or ambient) goes to ``contrib`` at
-    its wavefront row ``order[i]`` for ``accumulate``, except a camera ray's, which
+    weight 1 (``wgt`` is not read). A ray's own contribution (background or ambient) goes to
+    ``contrib`` at its wavefront row ``order[i]`` for ``accumulate``, except a camera ray's, which
     ``accumulate`` computes from its hit (``contrib`` is not written for the camera's queue). The
     shadow rays toward light l go densely to l * ``stride`` onward: origin, direction and
     t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its precision), the light brought
@@ -414,7 +414,7 @@ def shade(n, Ot, Dt, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     qOf = qO.reshape(-1)
     qDf = qD.reshape(-1)
     sh_Cf = sh_C.reshape(-1)
-    # a camera ray's origin: the eye as the tracer took it (every row of the camera's O)
+    # a camera ray's origin: the eye as the tracer took it (every row of the camera's Ot)
     ex = np.float64(Of[0]) if camera and n > 0 else 0.0
     ey = np.float64(Of[1]) if camera and n > 0 else 0.0
     ez = np.float64(Of[2]) if camera and n > 0 else 0.0

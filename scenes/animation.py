@@ -35,6 +35,7 @@ missing frame in the middle of a sequence and NaN vertices are each a one-line
 :class:`~hwbvh.errors.InputError` naming the file and key.
 """
 import glob
+import inspect
 import math
 import os
 import re
@@ -48,8 +49,8 @@ from hwbvh.errors import InputError, ParameterError, is_integer
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
 from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, MAX_TRANSLATION_ROUNDING, SCENE_KEYS,
-                     Ctx, check_scale, compile_scene, finite, flat_normals, is_pattern, load_scene, mesh_scene,
-                     smooth_normals, spec_path, vector_ok, with_frame, written)
+                     Ctx, check_scale, compile_scene, finite, flat_normals, is_pattern, load_scene,
+                     mesh_scene, smooth_normals, spec_path, vector_ok, with_frame, written)
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
@@ -1037,7 +1038,6 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
                                     f"{fps!r}")
     if spec in ANIMATIONS:
         fn = ANIMATIONS[spec]
-        import inspect
         accepted = inspect.signature(fn).parameters
         for k in params:
             if params[k] is not None and k not in accepted:
@@ -1059,11 +1059,11 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
         return anim
     extra = [k for k, v in params.items() if v is not None]
     if extra:
-        import inspect
         takers = [name for name, fn in ANIMATIONS.items()
                   if extra[0] in inspect.signature(fn).parameters]
-        raise ParameterError(extra[0], f"only the built-in animation{'s' if len(takers) > 1 else ''} "
-                                       f"{' and '.join(takers)} take{'' if len(takers) > 1 else 's'} it")
+        raise ParameterError(extra[0], "no built-in animation takes it" if not takers else
+                             f"only the built-in animation{'s' if len(takers) > 1 else ''} "
+                             f"{' and '.join(takers)} take{'' if len(takers) > 1 else 's'} it")
     if is_pattern(spec) and not os.path.exists(spec):
         d = pattern_scene(spec)
     elif not os.path.exists(spec) and spec not in BUILTIN:

@@ -11,6 +11,7 @@ import json
 import math
 import os
 import re
+import unicodedata
 from dataclasses import dataclass
 
 import numpy as np
@@ -302,7 +303,7 @@ def check_name(source, name):
     renders/animate-<name>-<strategy>/), so a separator or a "." / ".." would write elsewhere."""
     if not isinstance(name, str) or not name:
         problem = f"expected a non-empty string, got {written(name)}"
-    elif name in (".", "..") or any(c in "/\\" or ord(c) < 32 or ord(c) == 127 for c in name):
+    elif name in (".", "..") or any(c in "/\\" or unicodedata.category(c) == "Cc" for c in name):
         problem = (f"{written(name)} is not a plain file name (outputs are named after it: no '/', "
                    "'\\', NUL or other control characters, not '.' or '..')")
     else:

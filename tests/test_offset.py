@@ -7,6 +7,7 @@ import pytest
 import hwbvh
 from scenes.meshes import grid_sheet, sphere
 from traversal import Tracer, raysets
+from hwbvh.errors import ParameterError
 from traversal.offset import offset_origins, points_on_planes
 
 
@@ -32,12 +33,17 @@ def test_points_on_planes_lands_on_the_plane(shift):
     assert np.abs(p - off).max() > 1e-4
 
 
-def test_points_on_planes_refuses_a_miss():
+def test_points_on_planes_refuses_what_it_cannot_place():
     tris = np.eye(3, dtype=np.float32)[None]
-    with pytest.raises(ValueError, match="primitive"):
-        points_on_planes(np.zeros((1, 3)), tris, np.array([-1]))
-    with pytest.raises(ValueError, match="primitive"):
-        points_on_planes(np.zeros((2, 3)), tris, np.array([0]))
+    for points, triangles, prim, name, text in (
+            (np.zeros((1, 3)), tris, np.array([-1]), "prim", "holds -1, outside 0..0 (a miss?)"),
+            (np.zeros((2, 3)), tris, np.array([0]), "prim", "one integer per point (2)"),
+            (np.zeros((1, 3)), tris, np.array([0.0]), "prim", "one integer per point"),
+            (np.zeros((1, 3)), tris.reshape(1, 9), np.array([0]), "triangles", "(m, 3, 3)"),
+            (np.zeros((1, 2)), tris, np.array([0]), "points", "(n, 3)")):
+        with pytest.raises(ParameterError) as e:
+            points_on_planes(points, triangles, prim)
+        assert e.value.parameter == name and text in str(e.value)
 
 
 class _LateHits:

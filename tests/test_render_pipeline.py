@@ -25,10 +25,11 @@ def small(name, w=48, h=36, spp=2, **kw):
     return compile_scene(d)
 
 
-@pytest.mark.parametrize("name", list(BUILTIN))
-def test_compiled_stages_match_the_numpy_reference(name):
+@pytest.mark.parametrize("name,precision", [(name, "float32") for name in BUILTIN] +
+                         [("cornell", "float64"), ("marbles", "float64")])
+def test_compiled_stages_match_the_numpy_reference(name, precision):
     sc = small(name)
-    tracer, _, _ = make_tracer(sc)
+    tracer, _, _ = make_tracer(sc, precision=precision)
     res = render(sc, tracer, seed=5)
     image, rays, depth, normal, prim = naive_render(sc, tracer, seed=5)
     assert res.stats["rays"] == rays
@@ -309,18 +310,18 @@ def test_a_bands_camera_rays_are_its_slots_of_the_tile_order():
 
 
 def test_camera_rays_are_the_pinhole_formula_bit_for_bit():
-    """The directions (float64 and the tracer's float32 copy) and origins of one band, with
-    and without jitter, against the formula evaluated ray by ray in NumPy in the kernel's
-    order of operations."""
+    """The directions and origins of one band in the tracer's precision (float32 and
+    float64), with and without jitter, against the formula evaluated ray by ray in NumPy in
+    the kernel's order of operations, rounded to that precision."""
     W, H, y0, y1 = 37, 30, 8, 16
     eye = np.array([0.3, 1.1, 4.0])
     cu, cv, cw = np.array([0.8, 0.0, -0.6]), np.array([0.0, 1.0, 0.0]), np.array([-0.6, 0.0, -0.8])
     n = (y1 - y0) * W
     rng = np.random.default_rng(5)
-    for jitter in (False, True):
+    for jitter, dtype in ((False, np.float32), (True, np.float32), (True, np.float64)):
         jx, jy = (rng.random(n), rng.random(n)) if jitter else (np.zeros(0), np.zeros(0))
         terms = stages.camera_terms(W, H, 0.7, 1, 0, 2, 2)
-        Ot, Dt = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+        Ot, Dt = np.empty((n, 3), dtype), np.empty((n, 3), dtype)
         pix = np.empty(n, PIXEL)
         stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, jitter, terms, eye, cu, cv, cw,
                                     pix, Ot, Dt, np.empty(n), np.empty(n))
@@ -334,8 +335,8 @@ def test_camera_rays_are_the_pinhole_formula_bit_for_bit():
         sx, sy = px * kx - bx, by - py * ky
         d = sx[:, None] * cu + sy[:, None] * cv + cw
         d = d * (1.0 / np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]))[:, None]
-        assert np.array_equal(Dt, d.astype(np.float32))
-        assert np.array_equal(Ot, np.tile(eye.astype(np.float32), (n, 1)))
+        assert np.array_equal(Dt, d.astype(dtype))
+        assert np.array_equal(Ot, np.tile(eye.astype(dtype), (n, 1)))
 
 
 @pytest.mark.parametrize("seed,sample", [(0, 0), (3, 1), (2 ** 40, 9)])

@@ -76,7 +76,7 @@ def test_the_frame_limit_is_one_number_for_the_key_the_option_and_the_library(tm
 # name: the default outputs are named after it
 # --------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name", ["", "../../evil", "a/b", "a\\b", ".", "..", "x\0y", "a\nb", "a\x7fb",
-                                  5, [1], None])
+                                  "a\x85b", 5, [1], None])
 @pytest.mark.parametrize("command", ["render", "animate"])
 def test_a_name_that_is_not_a_plain_file_name_is_refused(tmp_path, capsys, monkeypatch, name,
                                                          command):

@@ -1,10 +1,11 @@
 """Robust origins for secondary rays.
 
-A hit point on its triangle's plane (``onto_plane``: the float32 unit's t alone can put it
-farther off on a sliver, by about eps (|o - v0| + t |d|) / sin(the angle at v0), beyond the
-offset below, so that rays would start behind the surface) is off the float32 surface the traversal tests by a few
-ulps of its coordinates, so a secondary ray started exactly there can re-hit its own triangle
-(shadow acne, speckled reflections). A fixed epsilon breaks at other scene scales. We offset
+A secondary ray starts from its hit point put onto the triangle's plane (``onto_plane``):
+the point at the float32 unit's t can lie off a sliver's plane by about
+eps (|o - v0| + t |d|) / sin(the angle at v0), beyond the offset below, and rays would then
+start behind the surface. A point on the plane is off the float32 surface the traversal
+tests by a few ulps of its coordinates, so a secondary ray started exactly there can re-hit
+its own triangle (shadow acne, speckled reflections). A fixed epsilon breaks at other scene scales. We offset
 along the geometric normal, to the side the new ray leaves on, by ``OFFSET_REL`` times the
 largest coordinate magnitude of the hit point and its triangle: a bound on the float32 error
 of the point and of the triangle's plane (pbrt-v4 offsets by a propagated error bound in the
@@ -13,6 +14,8 @@ scales the offset with it, and translating by 1e5 grows it to the float32 resolu
 """
 import numpy as np
 from numba import njit
+
+from hwbvh.errors import ParameterError
 
 from .config import FIXED_EPS, OFFSET_REL   # the offsets, with their reasons
 
@@ -84,13 +87,21 @@ def points_on_planes(points, triangles, prim):
     (m, 3, 3) ``triangles``, in float64, as the renderer shades them: where secondary rays
     start from (``offset_origins``). Returns float64 points."""
     p = np.ascontiguousarray(points, np.float64)
-    prim = np.ascontiguousarray(prim, np.int64)
-    if p.ndim != 2 or p.shape[1] != 3 or prim.shape != (len(p),):
-        raise ValueError("points_on_planes: points must be (n, 3) with one primitive each")
-    if len(prim) and (prim.min() < 0 or prim.max() >= len(triangles)):
-        raise ValueError("points_on_planes: a primitive index outside the triangles (a miss?)")
+    tris = np.ascontiguousarray(triangles)
+    prim = np.asarray(prim)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ParameterError("points", f"must be (n, 3), got shape {p.shape}")
+    if tris.ndim != 3 or tris.shape[1:] != (3, 3) or tris.dtype.kind != "f":
+        raise ParameterError("triangles", f"must be (m, 3, 3) floats, got {tris.dtype} of "
+                                          f"shape {tris.shape}")
+    if prim.shape != (len(p),) or prim.dtype.kind not in "iu":
+        raise ParameterError("prim", f"must be one integer per point ({len(p)}), got "
+                                     f"{prim.dtype} of shape {prim.shape}")
+    bad = (prim < 0) | (prim >= len(tris))
+    if bad.any():
+        raise ParameterError("prim", f"holds {prim[bad][0]}, outside 0..{len(tris) - 1} (a miss?)")
     out = np.empty_like(p)
-    _onto_planes_batch(p, np.ascontiguousarray(triangles), prim, out)
+    _onto_planes_batch(p, tris, prim.astype(np.int64, copy=False), out)
     return out
 
 
