@@ -7,8 +7,8 @@ for the tracer is row ``order[j]`` of the others, see ``group_by_octant``; the c
 go straight to ``Ot``, ``Dt``). Origins and directions are held in the tracer's precision
 (float32 for the hardware units), so the tracer reads them without a conversion, and shading
 starts from the rays as the tracer traced them: a hit point is the traced origin plus t times
-the traced direction, in float64. The renderer runs one band of image
-rows at a time on a thread (``raytracer.render``); per bounce of a band:
+the traced direction, in float64. The renderer runs one band of image rows at a time on a
+thread (``raytracer.render``); per bounce of a band:
 
 1. ``generate_camera_rays``: the camera's rays for one sample pass, in 4x4 pixel tiles;
 2. the tracer's ``intersect`` on the queue (our traversal or Embree: the only stage outside
@@ -369,11 +369,11 @@ def shade(n, Ot, Dt, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
     The queue's rays are read from the tracer's copies ``Ot``, ``Dt``, in its order.
     ``camera``: the queue holds camera rays, whose origin is the eye (``Ot``'s first row) and
     weight 1 (``wgt`` is not read). A ray's own contribution (background or ambient) goes to
-    ``contrib`` at its wavefront row ``order[i]`` for ``accumulate``, except a camera ray's, which
-    ``accumulate`` computes from its hit (``contrib`` is not written for the camera's queue). The
-    shadow rays toward light l go densely to l * ``stride`` onward: origin, direction and
-    t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its precision), the light brought
-    if visible and the pixel in ``sh_C``, ``sh_pix``; ``sh_cnt[l]`` of them. Reflections go
+    ``contrib`` at its wavefront row ``order[i]`` for ``accumulate``, except a camera ray's,
+    which ``accumulate`` computes from its hit (``contrib`` is not written for the camera's
+    queue). The shadow rays toward light l go densely to l * ``stride`` onward: origin,
+    direction and t_max in the tracer's queue (``qO``, ``qD``, ``qT``, in its precision), the
+    light brought if visible and the pixel in ``sh_C``, ``sh_pix``; ``sh_cnt[l]`` of them. Reflections go
     densely to the next wavefront (``nO``, ``nD``, ``nW``, ``npix``) from row 0,
     ``spawned[0]`` of them; refractions densely from row ``n`` (no more rays spawn a
     reflection than the queue holds), ``spawned[1]`` of them; ``group_by_octant`` then writes

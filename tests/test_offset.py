@@ -1,14 +1,14 @@
 """Where secondary rays start: hit points on their triangles' planes, then offset off them."""
-import dataclasses
-
 import numpy as np
 import pytest
 
 import hwbvh
+from hwbvh.errors import ParameterError
 from scenes.meshes import grid_sheet, sphere
 from traversal import Tracer, raysets
-from hwbvh.errors import ParameterError
 from traversal.offset import offset_origins, points_on_planes
+
+from .late_hits import LateHits
 
 
 def _unit(v):
@@ -46,21 +46,6 @@ def test_points_on_planes_refuses_what_it_cannot_place():
         assert e.value.parameter == name and text in str(e.value)
 
 
-class _LateHits:
-    """A tracer whose closest hits lie 1e-3 of t beyond the surface, as the float32 unit's t
-    can on a sliver seen from afar."""
-
-    def __init__(self, inner):
-        self.inner = inner
-
-    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
-        h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals)
-        return dataclasses.replace(h, t=np.where(h.prim >= 0, h.t * np.float32(1.001), h.t))
-
-    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
-        return self.inner.occluded(origins, dirs, tmin, tmax)
-
-
 def test_verification_shadow_rays_start_in_front_of_their_surface():
     """verify's shadow rays leave from the hit triangle's plane, not from the point at the
     tracer's t: with every hit reported 1e-3 of t beyond its surface, the rays toward the
@@ -74,7 +59,7 @@ def test_verification_shadow_rays_start_in_front_of_their_surface():
         o, d, tmax = raysets.shadow(t, tris, 4000, np.float32)
         return tracer.occluded(o, d, 0.0, tmax)
 
-    exact, late = blocked(tracer), blocked(_LateHits(tracer))
+    exact, late = blocked(tracer), blocked(LateHits(tracer))
     assert 0.05 < exact.mean() < 0.5
     assert abs(late.mean() - exact.mean()) < 0.01
 

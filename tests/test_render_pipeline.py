@@ -17,6 +17,7 @@ from scenes.builtin import BUILTIN
 from traversal.embree_ref import EmbreeTracer
 from traversal.tracers import CountingTracer, RecordingTracer, VerifyingTracer
 
+from .late_hits import LateHits
 from .naive_whitted import naive_render
 
 
@@ -885,24 +886,6 @@ def test_a_scene_changed_after_compiling_is_checked_again_before_it_renders():
     assert (render(sc, tracer).prim >= 0).sum() > 30
 
 
-class _LateHits:
-    """Our tracer, its closest hits reported a little beyond the surface (t 1e-3 too long), as
-    the float32 unit's rounding of t can on a sliver seen from afar: the point at t then lies
-    behind the surface by more than the secondary rays' offset from it."""
-
-    def __init__(self, inner):
-        self.inner = inner
-        self.dtype = inner.dtype
-
-    def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
-        import dataclasses
-        h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals)
-        return dataclasses.replace(h, t=np.where(h.prim >= 0, h.t * np.float32(1.001), h.t))
-
-    def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
-        return self.inner.occluded(origins, dirs, tmin, tmax)
-
-
 def test_shading_puts_each_hit_point_on_its_triangles_plane():
     """Rays leave from the hit triangle's plane whatever the tracer's rounding of t: with
     every hit reported 1e-3 of t beyond its surface, the shadow rays do not start behind it
@@ -913,7 +896,7 @@ def test_shading_puts_each_hit_point_on_its_triangles_plane():
     sc = compile_scene(with_frame(load_scene("cornell"), width=48, height=36, spp=1))
     tracer, _, _ = make_tracer(sc)
     right = render(sc, tracer).image.astype(np.float64)
-    late = render(sc, _LateHits(tracer)).image.astype(np.float64)
+    late = render(sc, LateHits(tracer)).image.astype(np.float64)
     lit = right.sum(-1) > 0.05
     assert lit.mean() > 0.5
     darkened = late.sum(-1) < 0.5 * right.sum(-1)

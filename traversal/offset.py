@@ -5,11 +5,11 @@ the point at the float32 unit's t can lie off a sliver's plane by about
 eps (|o - v0| + t |d|) / sin(the angle at v0), beyond the offset below, and rays would then
 start behind the surface. A point on the plane is off the float32 surface the traversal
 tests by a few ulps of its coordinates, so a secondary ray started exactly there can re-hit
-its own triangle (shadow acne, speckled reflections). A fixed epsilon breaks at other scene scales. We offset
-along the geometric normal, to the side the new ray leaves on, by ``OFFSET_REL`` times the
-largest coordinate magnitude of the hit point and its triangle: a bound on the float32 error
-of the point and of the triangle's plane (pbrt-v4 offsets by a propagated error bound in the
-same way, ``OffsetRayOrigin``). It scales with the scene, so scaling a scene by 1e-3 or 1e3
+its own triangle (shadow acne, speckled reflections). A fixed epsilon breaks at other scene
+scales. We offset along the geometric normal, to the side the new ray leaves on, by
+``OFFSET_REL`` times the largest coordinate magnitude of the hit point and its triangle: a
+bound on the float32 error of the point and of the triangle's plane (pbrt-v4 offsets by a
+propagated error bound in the same way, ``OffsetRayOrigin``). It scales with the scene, so scaling a scene by 1e-3 or 1e3
 scales the offset with it, and translating by 1e5 grows it to the float32 resolution there.
 """
 import numpy as np
