@@ -758,8 +758,7 @@ BENCH_QUICK = {"tti": {"repeat": 1, "width": 160, "height": 120},     # --quick:
 BENCH_NONE = {"mesh_dir": "$HWRT_MESHES, else ../shared/meshes if it is there, else generated meshes",
               "out_dir": "no files", "width": "the scene's", "height": "the scene's",
               "spp": "the scene's", "max_depth": "the scene's",
-              "scheduler": "$HWRT_SCHEDULER, else a local cluster: for tti and accuracy one "
-                           "worker with every core, for model one worker per core"}
+              "scheduler": None}        # filled in below, from BENCH_LOCAL_CLUSTER
 BENCH_COMMON = {"repeat": 5, "rays": 500_000, "out_dir": "renders/bench", "width": 320,
                 "height": 240, "spp": 1, "max_depth": 5}
 BENCH_WRITES_OUT_DIR = ("tti", "accuracy")
@@ -768,14 +767,49 @@ BENCH_REPORTS = ("build", "scale", "trace", "model", "contention", "trees")  # -
 BENCH_COMMITS = ("render", "tti", "accuracy", "animation")
 
 
+# The cell benchmarks' Dask cluster when no scheduler is given, and those that time their
+# cells one at a time on one host
+BENCH_LOCAL_CLUSTER = {"tti": "one worker with every core",
+                       "accuracy": "one worker with every core", "model": "one worker per core"}
+BENCH_TIMES_ONE_AT_A_TIME = ("tti", "accuracy")
+DASK_HELP = "a running Dask scheduler, tcp://HOST:PORT, whose workers run the cells"
+
+
+def _local_clusters():
+    """--scheduler's default on bench's page: the local cluster of each cell benchmark."""
+    clusters = {}
+    for what, cluster in BENCH_LOCAL_CLUSTER.items():
+        clusters.setdefault(cluster, []).append(what)
+    return "$HWRT_SCHEDULER, else a local cluster: " + ", ".join(
+        f"for {' and '.join(ws)} {c}" for c, ws in clusters.items())
+
+
+BENCH_NONE["scheduler"] = _local_clusters()
+
+
+def _scheduler_help(what):
+    """--scheduler's help on the page of cell benchmark ``what``."""
+    timed = ", timed one at a time on one host" if what in BENCH_TIMES_ONE_AT_A_TIME else ""
+    return (f"{DASK_HELP}{timed} (default: $HWRT_SCHEDULER, else a local cluster of "
+            f"{BENCH_LOCAL_CLUSTER[what]})")
+
+
+def _frames_help(on_its_page=False):
+    """--frames' help: on bench's page, or on bench animation's own."""
+    from .animate import BENCH_FRAMES, BENCH_QUICK_FRAMES
+    reader = "" if on_its_page else "read by animation; "
+    return (f"frames per animation ({reader}default: {BENCH_FRAMES}; with --quick: "
+            f"{BENCH_QUICK_FRAMES})")
+
+
 BENCH_OPTION_HELP = {
     "mesh_dir": "directory of meshes", "repeat": "timed runs; figures are their medians",
     "rays": "rays per set",
     "quick": "a short run: tti and accuracy, a few small cells (seconds); animation, fewer "
              "frames of fewer triangles",
     "fresh": "start over, ignoring finished cells", "out_dir": "where result files go",
-    "scheduler": "a running Dask scheduler, tcp://HOST:PORT, whose workers run the cells "
-                 "(tti and accuracy time theirs one at a time on one host)",
+    "scheduler": f"{DASK_HELP} ({' and '.join(BENCH_TIMES_ONE_AT_A_TIME)} time theirs one at "
+                 "a time on one host)",
     "width": "image width", "height": "image height", "spp": "samples per pixel",
     "max_depth": "longest reflection/refraction path"}
 
@@ -1059,16 +1093,9 @@ def _bench_page(parser, what):
     page = _Parser(prog=f"{parser.prog} {what}", add_help=False,
                    description=f"{text[0].upper()}{text[1:]}. Runs for {duration}. An option "
                                f"not listed here is an error.")
-    from .animate import BENCH_FRAMES, BENCH_QUICK_FRAMES
     reads = set(BENCH_OPTIONS[what]) | {"json"}
     # where bench's own page speaks of several benchmarks, this one's words
-    dask = "a running Dask scheduler, tcp://HOST:PORT, whose workers run the cells"
-    own = {"scheduler": f"{dask}, timed one at a time on one host (default: $HWRT_SCHEDULER, "
-                        "else a local cluster of one worker with every core)"
-           if what in ("tti", "accuracy") else
-           f"{dask} (default: $HWRT_SCHEDULER, else a local cluster of one worker per core)",
-           "frames": f"frames per animation (default: {BENCH_FRAMES}; with --quick: "
-                     f"{BENCH_QUICK_FRAMES})"}
+    own = {"scheduler": lambda: _scheduler_help(what), "frames": lambda: _frames_help(True)}
     for action in parser._actions:
         if not (isinstance(action, argparse._HelpAction) or action.dest in reads):
             continue
@@ -1081,7 +1108,7 @@ def _bench_page(parser, what):
             elif action.dest == "accel":
                 action.help = _accel_help(what)
             elif action.dest in own:
-                action.help = own[action.dest]
+                action.help = own[action.dest]()
             else:
                 action.help = _bench_help(action.dest, what)
         page._add_action(action)
@@ -1340,10 +1367,7 @@ def make_parser():
                     help=_bench_help("max_depth"))
     be.add_argument("--accel", action="append", choices=ACCELS, metavar="NAME",
                     help=_accel_help())
-    from .animate import BENCH_FRAMES, BENCH_QUICK_FRAMES
-    be.add_argument("--frames", type=_frames,
-                    help=f"frames per animation (read by animation; default {BENCH_FRAMES}, "
-                         f"with --quick {BENCH_QUICK_FRAMES})")
+    be.add_argument("--frames", type=_frames, help=_frames_help())
     be.add_argument("--json", action="store_true", help="print one JSON object")
     be.set_defaults(func=cmd_bench)
     return p
