@@ -8,12 +8,14 @@ as a mesh: its build time is almost all subtree-builder time, so it gives the RT
 primitive for subtrees of ~4k primitives, and the fit matches the model's rate on subtrees of
 that size cut from real meshes. Bunny and Sponza then serve as checks, not inputs.
 """
+import math
+
 import numpy as np
 
 from . import config
 from .config import (AABB_BYTES, LAT_BINNING, LAT_PARTITION, LAT_SAH, PRIMITIVE_RECORD_BYTES,
                      THESIS_ACTIVE_POWER_W, WORD_BYTES)
-from .cycle_model import PRESETS, _upper_plan, simulate_subtree, unit_positions
+from .cycle_model import PRESETS, _upper_plan, footprint_bytes, simulate_subtree, unit_positions
 
 # Table 4.11: energy (J) of the core logic per build, (HWBVH-C, HWBVH-HP)
 THESIS_ENERGY_J = {
@@ -22,20 +24,53 @@ THESIS_ENERGY_J = {
     "Conference": (0.2320, 0.2349), "Armadillo": (0.2101, 0.2082), "Dragon": (0.6243, 0.6170),
     "Buddha": (0.8004, 0.7986),
 }
+# Table 4.4: SAH cost (KI = KT = 1) and nodes of the hardware's tree and of the full sweep
+# builder's: (HWBVH SAH, HWBVH nodes, sweep SAH, sweep nodes)
+THESIS_TREES = {
+    "Marbles": (125.6, 5_827, 124.2, 6_009), "Sponza": (118.4, 43_057, 115.7, 42_903),
+    "Bunny": (57.85, 42_469, 57.24, 49_157), "Cloth": (46.52, 59_501, 46.0, 63_445),
+    "Fairy Forest": (50.43, 112_059, 49.0, 106_387), "DragonBun": (32.8, 168_407, 31.4, 175_553),
+    "Conference": (79.0, 185_221, 69.4, 177_255), "Armadillo": (52.8, 208_089, 52.6, 253_565),
+    "Dragon": (90.2, 575_971, 88.8, 575_571), "Buddha": (102.0, 719_903, 100.6, 715_635),
+}
+# Table 4.3, its HWBVH column: the hardware tree's SAH cost over the sweep builder's, in %
+THESIS_SAH_PERCENT_OF_SWEEP = {
+    "Marbles": 101, "Sponza": 103, "Bunny": 101, "Cloth": 101, "Fairy Forest": 103,
+    "DragonBun": 105, "Conference": 114, "Armadillo": 100, "Dragon": 101, "Buddha": 102,
+}
 # our mesh files that are the thesis' scenes (same model; Sponza is another conversion of it)
 THESIS_SCENE_OF_MESH = {"bunny": "Bunny", "sponza_dabrovic": "Sponza"}
-# Marbles has "8k" triangles (Fig. 4.1). It needs the upper builder: HWBVH-HP, with two subtree
-# builders, takes half the cycles of HWBVH-C, so it was cut into two subtrees, N > 8192.
-MARBLES_TRIANGLES = (8193, 8500)
+# Table 4.2: memory footprint of construction, 2 x 27 bytes per primitive, in MiB (binary
+# megabytes: Buddha's 1,087,716, Armadillo's 345,944 and Exp. Dragon's 252,572 triangles give
+# 56.02, 17.82 and 13.01 only so, rounded to the hundredth)
+THESIS_FOOTPRINT_MIB = {
+    "Marbles": 0.45, "Sponza": 3.47, "Bunny": 3.57, "Fairy Forest": 8.89, "Exp. Dragon": 13.01,
+    "Conference": 14.56, "Armadillo": 17.82, "Dragon": 44.90, "Buddha": 56.02,
+}
+
+
+def triangles_of_footprint(mib):
+    """(fewest, most) primitives whose footprint (``cycle_model.footprint_bytes``) rounds to
+    ``mib`` MiB at two decimals, as Table 4.2 prints it."""
+    per = footprint_bytes(1)
+    lo = math.ceil((mib - 0.005) * 2**20 / per)
+    hi = math.ceil((mib + 0.005) * 2**20 / per) - 1
+    return lo, hi
+
+
+# Marbles' size: "8k" triangles in Fig. 4.1, which Table 4.2's 0.45 MiB narrows to 8,641-8,835
+# (more than one subtree's 8192, as HWBVH-HP's half-time build of it shows: two subtrees).
+MARBLES_TRIANGLES = triangles_of_footprint(THESIS_FOOTPRINT_MIB["Marbles"])
 
 
 def fit_cost_model():
-    """The cost model's four constants from the two presets (thesis Tables 4.5-4.10): the gates
+    """The cost model's five constants from the two presets (thesis Tables 4.5-4.10): the gates
     of a floating-point core (comparators apart) and of a storage bit, solved so that the model's
-    gates equal InCyte's total equivalent gates; then area per gate and active power per gate and
-    hertz, each one constant fitted in log space. Returns the constants and, per preset, the
-    ratio of the fitted constant's area and power to the thesis' (the fit's error)."""
-    from .resources import gates, resources
+    gates equal InCyte's total equivalent gates; area per gate, one constant fitted in log
+    space; active power per gate and hertz at the reference clock and its exponent in the
+    clock, solved from the two presets' powers (config's reasons). Returns the constants and,
+    per preset, the ratio of the model's area and power to the thesis' (the fit's error)."""
+    from .resources import active_power_w, gates, resources
 
     names = list(PRESETS)
     rows, rhs = [], []
@@ -48,13 +83,19 @@ def fit_cost_model():
         rhs.append(config.THESIS_TOTAL_GATES[name] - none["total"])
     per_core, per_bit = np.linalg.solve(np.array(rows), np.array(rhs))
     g = {n: config.THESIS_TOTAL_GATES[n] for n in names}
-    hz = {n: PRESETS[n].clock_mhz * 1e6 for n in names}
+    mhz = {n: PRESETS[n].clock_mhz for n in names}
     area = float(np.exp(np.mean([np.log(config.THESIS_AREA_MM2[n] / g[n]) for n in names])))
-    power = float(np.exp(np.mean([np.log(config.THESIS_ACTIVE_POWER_W[n] / (g[n] * hz[n])) for n in names])))
+    # price per gate and hertz of each preset, then the power law through both
+    price = {n: config.THESIS_ACTIVE_POWER_W[n] / (g[n] * mhz[n] * 1e6) for n in names}
+    (a, b) = names
+    exponent = float(np.log(price[b] / price[a]) / np.log(mhz[b] / mhz[a]))
+    power = float(price[a] * (config.POWER_REFERENCE_MHZ / mhz[a]) ** exponent)
     return {"gates_per_fp_core": float(per_core), "gates_per_storage_bit": float(per_bit),
             "area_mm2_per_gate": area, "active_w_per_gate_hz": power,
+            "power_clock_exponent": exponent,
             "area_ratio": {n: area * g[n] / config.THESIS_AREA_MM2[n] for n in names},
-            "power_ratio": {n: power * g[n] * hz[n] / config.THESIS_ACTIVE_POWER_W[n] for n in names}}
+            "power_ratio": {n: active_power_w(g[n], mhz[n], power, exponent)
+                            / config.THESIS_ACTIVE_POWER_W[n] for n in names}}
 
 
 def thesis_seconds(scene, preset):

@@ -58,10 +58,12 @@ THREAD_SWITCH = 2        # 3.3.2: "within two cycles" the partitioning unit swit
 AABB_BYTES = 24          # a float32 AABB alone: the initial scene-AABB pass reads one per primitive
 # Control latency per split that the RTL spends and Table 3.3 does not list (bin-collector dump
 # and merge, READY/GO hand-shakes, FIFOs, thread-context reads). Not derived from the text:
-# fitted (hwbvh.calibration.fit_control_latency) so that subtrees of ~4.4k primitives take the
-# ~14.5 cycles per primitive that the thesis' Marbles build implies (Table 4.11 energies / Table
-# 4.10 powers). Bunny and Sponza are then predictions, not fits. 0 gives the text-only model.
-CONTROL_LATENCY = 148
+# fitted (hwbvh.calibration.fit_control_latency, `hwrt bench model` on the meshes of
+# ../shared/meshes) so that subtrees of 3.5k-5.5k primitives take the 14.6 cycles per primitive
+# that the thesis' Marbles build implies (Table 4.11 energies / Table 4.10 powers, Marbles'
+# size from Table 4.2). Bunny and Sponza are then predictions, not fits. 0 gives the text-only
+# model.
+CONTROL_LATENCY = 128
 
 # --- Resources per unit (thesis 4.3.4, Tables 4.5-4.8) ------------------------------------
 # Floating-point cores of one unit, by type (the columns of Tables 4.5-4.7; the same in the
@@ -113,13 +115,21 @@ MISC_LOGIC_SHARE = 0.20  # 4.3.4: miscellaneous logic "to consume 20% of the cor
 # at one gate count, every register or SRAM bit at another. The two unknowns are solved from
 # InCyte's total equivalent gates of the two presets (Table 4.10), which the model therefore
 # reproduces; the presets' resources differ by about one factor of two throughout, so two points
-# cannot separate more kinds. Then one constant each maps gates to area and gates x clock to
-# active power (least squares in log space over the two presets). hwbvh.calibration.fit_cost_model
-# computes all four; the two points disagree by +-1.7% (area) and +-4.3% (power) about the fit.
+# cannot separate more kinds (an area or a power per kind solved from them comes out negative
+# for one kind). Then one constant maps gates to area (least squares in log space over the two
+# presets, which it meets within +-1.7%), and active power is gates x clock x a price per gate
+# and hertz that grows with the clock, (f / POWER_REFERENCE_MHZ) ** POWER_CLOCK_EXPONENT:
+# HWBVH-HP (500 MHz) spends 9% more per gate and hertz than HWBVH-C (250 MHz), as a faster
+# design does in stronger cells. One price for both would miss each preset's power by 4.4% and
+# turn the presets' energy per build (power x time) the wrong way round against Table 4.11
+# (Bunny: HWBVH-C 0.0356 J, HWBVH-HP 0.0367 J); so fitted, both presets draw exactly Table
+# 4.10's active power. hwbvh.calibration.fit_cost_model computes all five constants.
 GATES_PER_FP_CORE = 6210.3
 GATES_PER_STORAGE_BIT = 0.67868
 AREA_MM2_PER_GATE = 4.0813e-6
-ACTIVE_W_PER_GATE_HZ = 1.8292e-15
+ACTIVE_W_PER_GATE_HZ = 1.75142e-15       # at POWER_REFERENCE_MHZ
+POWER_REFERENCE_MHZ = 250.0
+POWER_CLOCK_EXPONENT = 0.125371
 
 # --- Hardware ranges of the configuration knobs (checked before any simulation) ---------
 # Thesis 3.3: w and Tsize are powers of two, Psize any positive integer. The studies of 4.2.1
@@ -136,7 +146,7 @@ KNOB_RANGES = {
     "clock_mhz": (1.0, 1000.0),
 }
 POWER_OF_TWO_KNOBS = ("w", "tsize")
-# Control latency (above) is a calibrated cycle count per split (148). A million cycles is far
+# Control latency (above) is a calibrated cycle count per split (128). A million cycles is far
 # beyond any controller, and keeps cycle totals (at most 2^25 splits) well inside int64.
 MAX_CONTROL_LATENCY = 1_000_000
 

@@ -452,13 +452,16 @@ def _sweep_kernel(cleft, cright, ccount, cstart, unit_pos_by_w, root, ws, ts, ct
     return out
 
 
-def subtree_design_space(mesh, out_dir, leaf_sizes=(4, 8, 16, 32, 64), grid=(2, 4, 8, 16), jobs=None,
-          n_subtrees=5, lo=4096, hi=8192, control_latency=CONTROL_LATENCY):
-    """Design-space exploration like thesis 4.2.1 on subtrees of lo..hi primitives cut from a
-    real mesh: a CSV of cycles per (leaf size, w, Tsize) and plots in the style of Figs. 4.2
-    (speedup over w = Tsize = 2) and 4.3 (cycles against leaf size). Cycles include the fill
-    through the w ports; ``fill_share`` compares that fill with the build itself, as thesis 4.2
-    does (3.6% on average, 8.8% at most)."""
+def subtree_design_space(mesh, out_dir, leaf_sizes=(4, 8, 32, 64), grid=(2, 4, 8, 16), jobs=None,
+          n_subtrees=5, lo=4096, hi=8192, control_latency=CONTROL_LATENCY, write=True):
+    """Design-space exploration as thesis 4.2.1 runs it, on subtrees of lo..hi primitives cut
+    from a real mesh (the upper builder's hand-offs): the subtree builder alone, its capacity
+    held (Psize = capacity / w), w and Tsize over ``grid``, the thesis' leaf sizes 4, 8, 32 and
+    64; a CSV of cycles per (leaf size, w, Tsize) and Figs. 4.2 (speedup over w = Tsize = 2)
+    and 4.3 (cycles against leaf size). As in the thesis, the fill is factored out of the
+    cycles; ``fill_share`` compares the fill through the w ports with the build (thesis: 3.6%
+    on average, 8.8% at most). ``write``: write the files into ``out_dir`` (else the result's
+    ``files`` holds them, ``hwbvh.files.write_files`` pairs)."""
     import csv
     import io
     import os
@@ -490,7 +493,7 @@ def subtree_design_space(mesh, out_dir, leaf_sizes=(4, 8, 16, 32, 64), grid=(2, 
             build = _sweep_kernel(sub.left, sub.right, sub.count, sub.start, upw, int(sub.root),
                                   ws, ts, int(control_latency))
             fill = -(-len(ids) // ws)[:, None]             # the fill through w ports
-            total += build + fill
+            total += build
             shares.append((fill / build).ravel())
         ref = total[0, 0]
         for a, w in enumerate(ws):
@@ -501,15 +504,19 @@ def subtree_design_space(mesh, out_dir, leaf_sizes=(4, 8, 16, 32, 64), grid=(2, 
     wr = csv.DictWriter(buf, fieldnames=list(rows[0]))
     wr.writeheader()
     wr.writerows(rows)
-    os.makedirs(out_dir, exist_ok=True)
     csv_path = os.path.join(out_dir, "subtree_design_space.csv")
-    plots = _sweep_plots(rows, out_dir, leaf_sizes, grid)
-    write_files([(csv_path, buf.getvalue())] + plots)
+    files = [(csv_path, buf.getvalue())] + _sweep_plots(rows, out_dir, leaf_sizes, grid)
+    if write:
+        write_files(files)
     shares = np.concatenate(shares)
-    return {"csv": csv_path, "plots": [p for p, _ in plots], "subtrees": [int(base.count[c]) for c in cands],
-            "rows": rows, "mesh": src, "control_latency": int(control_latency),
-            "fill_share": {"mean": float(shares.mean()), "max": float(shares.max()),
-                           "thesis_mean": 0.036, "thesis_max": 0.088}}
+    out = {"csv": csv_path, "plots": [p for p, _ in files[1:]],
+           "subtrees": [int(base.count[c]) for c in cands],
+           "rows": rows, "mesh": src, "control_latency": int(control_latency),
+           "fill_share": {"mean": float(shares.mean()), "max": float(shares.max()),
+                          "thesis_mean": 0.036, "thesis_max": 0.088}}
+    if not write:
+        out["files"] = files
+    return out
 
 
 
@@ -547,7 +554,7 @@ def _sweep_plots(rows, out_dir, leaf_sizes, grid):
         ax.set_xticks(list(leaf_sizes), [str(l) for l in leaf_sizes])
         ax.set_title(f"Tsize = {t}")
         ax.set_xlabel("leaf size")
-        ax.set_ylabel("cycles (sum over subtrees)")
+        ax.set_ylabel("cycles (sum over subtrees, fill factored out)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     files.append((os.path.join(out_dir, "fig4_3_leaf_size.png"), figure_png(fig, dpi=110)))

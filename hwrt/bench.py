@@ -247,6 +247,7 @@ def human(what):
                       if "thesis_seconds" in m else f"{'-':>14}")
                 lines.append(f"{m['mesh']:<16}{m['preset']:<10}{m['text_only_seconds']*1e3:>13.2f}"
                              f"{m['calibrated_seconds']*1e3:>15.2f}{th}{ra}")
+            lines += _thesis_table_lines(r)
             fs = r["fill_share"]
             if fs:
                 lines.append(f"fill share on {fs['mesh']} (thesis 3.6% mean, 8.8% max): text-only "
@@ -774,6 +775,7 @@ def _model_rows(name, stem, tris):
     tree = build_canonical(primitive_boxes(tris))
     scene = cal.THESIS_SCENE_OF_MESH.get(stem)
     rows = []
+    tables = None
     for preset, p in PRESETS.items():
         row = {"mesh": name, "triangles": int(len(tris)), "preset": preset}
         for key, ctl in (("text_only", 0), ("calibrated", CONTROL_LATENCY)):
@@ -787,24 +789,90 @@ def _model_rows(name, stem, tris):
             row["thesis_seconds"] = cal.thesis_seconds(scene, preset)
             row["text_only_ratio"] = row["text_only_seconds"] / row["thesis_seconds"]
             row["calibrated_ratio"] = row["calibrated_seconds"] / row["thesis_seconds"]
+            # Table 4.11: the calibrated build's energy (a preset draws Table 4.10's power)
+            row["energy_joules"] = r["energy_joules"]
+            row["thesis_energy_joules"] = cal.THESIS_ENERGY_J[scene][0 if preset == "HWBVH-C" else 1]
         rows.append(row)
-    return rows
+    if scene:
+        tables = _thesis_tree_tables(name, scene, tris)
+    return {"rows": rows, "thesis_tables": tables}
 
 
-def bench_model(args):
+def _thesis_tree_tables(name, scene, tris):
+    """A thesis scene's footprint (Table 4.2) and trees (Tables 4.3-4.4), ours beside the
+    thesis': the hardware's tree and the sweep builder's."""
+    import hwbvh
+    from hwbvh import calibration as cal
+    from hwbvh.cycle_model import footprint_bytes
+
+    hw, sweep = (hwbvh.build(tris, builder=b).meta for b in ("hwbvh", "sweep"))
+    hw_sah, hw_nodes, sw_sah, sw_nodes = cal.THESIS_TREES[scene]
+    return {"mesh": name, "thesis_scene": scene,
+            "footprint_mib": footprint_bytes(len(tris)) / 2**20,
+            "thesis_footprint_mib": cal.THESIS_FOOTPRINT_MIB.get(scene),
+            "hwbvh_sah": hw["sah_cost"], "hwbvh_nodes": int(hw["nodes"]),
+            "sweep_sah": sweep["sah_cost"], "sweep_nodes": int(sweep["nodes"]),
+            "thesis_hwbvh_sah": hw_sah, "thesis_hwbvh_nodes": hw_nodes,
+            "thesis_sweep_sah": sw_sah, "thesis_sweep_nodes": sw_nodes,
+            "sah_percent_of_sweep": 100 * hw["sah_cost"] / sweep["sah_cost"],
+            "thesis_sah_percent_of_sweep": cal.THESIS_SAH_PERCENT_OF_SWEEP[scene]}
+
+
+def _thesis_table_lines(result):
+    """``bench model``'s lines for the meshes that are thesis scenes: Tables 4.2-4.4 and 4.11,
+    ours beside the thesis'."""
+    tables = result.get("thesis_tables") or []
+    energies = [m for m in result["rows"] if "thesis_energy_joules" in m]
+    if not (tables or energies):
+        return []
+    lines = ["", "thesis tables, where a mesh is a thesis scene (ours | thesis):",
+             f"{'mesh':<16}{'table':<7}{'quantity':<28}{'ours':>18}{'thesis':>18}"]
+
+    def add(mesh, table, what, ours, theirs):
+        lines.append(f"{mesh:<16}{table:<7}{what:<28}{ours:>18}{theirs:>18}")
+
+    for t in tables:
+        m = t["mesh"]
+        if t["thesis_footprint_mib"] is not None:
+            add(m, "4.2", "footprint MiB", f"{t['footprint_mib']:.2f}",
+                f"{t['thesis_footprint_mib']:.2f}")
+        add(m, "4.4", "HWBVH SAH / nodes", f"{t['hwbvh_sah']:.2f} / {t['hwbvh_nodes']:,}",
+            f"{t['thesis_hwbvh_sah']:.2f} / {t['thesis_hwbvh_nodes']:,}")
+        add(m, "4.4", "sweep SAH / nodes", f"{t['sweep_sah']:.2f} / {t['sweep_nodes']:,}",
+            f"{t['thesis_sweep_sah']:.2f} / {t['thesis_sweep_nodes']:,}")
+        add(m, "4.3", "HWBVH SAH, % of sweep's", f"{t['sah_percent_of_sweep']:.1f}%",
+            f"{t['thesis_sah_percent_of_sweep']}%")
+    for e in energies:
+        add(e["mesh"], "4.11", f"energy mJ, {e['preset']}", f"{e['energy_joules'] * 1e3:.1f}",
+            f"{e['thesis_energy_joules'] * 1e3:.1f}")
+    return lines
+
+
+MODEL_FIGURES = ("subtree_design_space.csv", "fig4_2_speedup.png", "fig4_3_leaf_size.png")
+
+
+def bench_model(args, commit=write_files):
     """The hardware model against the thesis: the fit of its one calibrated constant (on
     subtrees cut from the given meshes, against Marbles' rate), then whole-scene build times
     for HWBVH-C and HWBVH-HP with the text-only model (control latency 0) and the calibrated
-    one, beside the thesis' times where the mesh is a thesis scene, and the fill share of the
-    design-space sweep (thesis 4.2: 3.6% on average)."""
-    import tempfile
+    one, beside the thesis' times, energies, footprints and trees where the mesh is a thesis
+    scene, and the subtree builder's design space as thesis 4.2.1 explores it (Figs. 4.2-4.3,
+    on subtrees of the bunny, or else of the first mesh) with the fill share (thesis: 3.6% on
+    average). With ``args.out_dir``, model.md, model.json, the figures and their CSV are
+    written in one set through ``commit(files)``."""
+    import json
     import uuid
+    from hwbvh.files import check_output_dir, jsonable
     from hwbvh import calibration as cal
     from hwbvh.cycle_model import CONTROL_LATENCY, subtree_design_space
     from hwbvh.primitives import as_triangles
     from .cluster import dask_client, run_cells
     from .explore import warm_up
 
+    out_dir = getattr(args, "out_dir", None)
+    if out_dir:
+        check_output_dir(out_dir, ["model.md", "model.json", *MODEL_FIGURES],
+                         inputs=[str(m) for m in args.meshes])
     meshes = []
     for mesh in progress_over(mesh_inputs(args), "bench model: load", "mesh"):
         verts, faces = mesh.load()
@@ -824,12 +892,41 @@ def bench_model(args):
     if cells:
         with dask_client(getattr(args, "scheduler", None), warm_up=warm_up) as client:
             run_cells(cells, done.__setitem__, client, desc="bench model: simulate")
-    rows = [row for key, _, _ in cells for row in done[key]]
-    fill = {}
+    rows = [row for key, _, _ in cells for row in done[key]["rows"]]
+    tables = [done[key]["thesis_tables"] for key, _, _ in cells if done[key]["thesis_tables"]]
+    fill, figures = {}, []
     if meshes:
         name, _, tris = next((m for m in meshes if m[1] == "bunny"), meshes[0])
-        with tempfile.TemporaryDirectory() as d:
-            for key, ctl in (("text_only", 0), ("calibrated", CONTROL_LATENCY)):
-                fill[key] = subtree_design_space(tris, d, control_latency=ctl)["fill_share"]
+        for key, ctl in (("text_only", 0), ("calibrated", CONTROL_LATENCY)):
+            space = subtree_design_space(tris, out_dir or ".", control_latency=ctl, write=False)
+            fill[key] = space["fill_share"]
         fill["mesh"] = name
-    return {"fit": fit, "rows": rows, "fill_share": fill, "machine": machine()}
+        fill["subtrees"] = space["subtrees"]
+        figures = space["files"]                  # the calibrated model's
+    result = jsonable({"fit": fit, "rows": rows, "thesis_tables": tables, "fill_share": fill,
+                       "machine": machine()})
+    if out_dir:
+        files = [(os.path.join(out_dir, "model.json"), json.dumps(result, indent=1) + "\n"),
+                 (os.path.join(out_dir, "model.md"), _model_markdown(result, args,
+                                                                      [p for p, _ in figures]))]
+        commit(files + figures)
+        result["files"] = [p for p, _ in files + figures]
+    return result
+
+
+def _model_markdown(result, args, figures):
+    from .report import command_of, made_by_lines
+    fs = result["fill_share"]
+    lines = ["# hwrt bench model", ""] + made_by_lines(command_of(args)) + [
+        "```text", human("model")(result), "```", ""]
+    if figures:
+        sizes = ", ".join(f"{n:,}" for n in fs["subtrees"])
+        lines += [f"The subtree builder's design space as thesis 4.2.1 explores it (Figs. 4.2 and "
+                  f"4.3), on subtrees of {fs['mesh']} that the upper builder hands off ({sizes} "
+                  f"primitives; the whole mesh when it has no hand-off of 4,096-8,192): the "
+                  f"subtree builder alone, its capacity held as w varies, the fill factored out, "
+                  f"the calibrated model. Cycles per point: {os.path.basename(figures[0])}.", ""]
+        for p in figures[1:]:
+            name = os.path.basename(p)
+            lines += [f"![{os.path.splitext(name)[0].replace('_', ' ')}]({name})", ""]
+    return "\n".join(lines) + "\n"

@@ -762,9 +762,9 @@ BENCH_NONE = {"mesh_dir": "$HWRT_MESHES, else ../shared/meshes if it is there, e
 BENCH_COMMON = {"repeat": 5, "rays": 500_000, "out_dir": "renders/bench", "width": 320,
                 "height": 240, "spp": 1, "max_depth": 5}
 BENCH_WRITES_OUT_DIR = ("tti", "accuracy")
-BENCH_REPORTS = ("build", "scale", "trace", "model", "contention", "trees")  # --out-dir: OUT/<what>.md, .json   # checked here; bench render checks its own files
+BENCH_REPORTS = ("build", "scale", "trace", "contention", "trees")  # --out-dir: OUT/<what>.md, .json   # checked here; bench render checks its own files
 # The benchmarks that write their own files (with --out-dir), the last set through ``commit``
-BENCH_COMMITS = ("render", "tti", "accuracy", "animation")
+BENCH_COMMITS = ("render", "tti", "accuracy", "animation", "model")
 
 
 # The cell benchmarks' Dask cluster when no scheduler is given, and those that time their

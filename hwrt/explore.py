@@ -53,7 +53,7 @@ ROW_NUMBERS = ("triangles", "cycles", "seconds", "energy_joules", "area_mm2", "a
                "traffic_total_bytes", "footprint_bytes", "sah_cost", "handoffs")
 ROW_OTHERS = ("mesh", "config", "traffic_bytes", "utilisation", "upper_builder_used")
 OUTPUT_NAMES = ("explore.csv", "explore.json", "explore.md", "pareto_time_area.png",
-                "pareto_energy_area.png", "fig4_2_speedup.png", "fig4_3_leaf_size.png")
+                "pareto_energy_area.png")
 
 
 # --------------------------------------------------------------------------------------
@@ -368,7 +368,8 @@ def _csv(rows):
 
 def plots(rows, summary, meshes, configs, grid):
     """Pareto plots (time and energy against area: every configuration in grey, the fronts in
-    colour, the presets marked) and, when the grid spans them, Fig. 4.2/4.3-style plots."""
+    colour, the presets marked). The thesis' Figs. 4.2-4.3 study the subtree builder alone
+    at a fixed capacity (``hwrt bench model`` draws them); this grid's builds are whole scenes."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -413,59 +414,6 @@ def plots(rows, summary, meshes, configs, grid):
             ax.axis("off")
         axes.ravel()[0].legend(fontsize=6, loc="upper right")
         files.append((name, figure_png(fig)))
-    files += _thesis_plots(by_cfg, meshes, grid)
-    return files
-
-
-def _slice_value(grid, k):
-    vals = grid.get(k, [getattr(BASE, k)])
-    return getattr(BASE, k) if getattr(BASE, k) in vals else vals[0]
-
-
-def _thesis_plots(by_cfg, meshes, grid):
-    import matplotlib.pyplot as plt
-
-    ws, ts, leaves = (grid.get(k, []) for k in ("w", "tsize", "leaf_size"))
-    fixed = {k: _slice_value(grid, k) for k in KNOBS}
-
-    def cycles(**kw):
-        cfg = dict(fixed, **kw)
-        rs = by_cfg[tuple(cfg[k] for k in KNOBS)]
-        return _geomean([rs[m["name"]]["cycles"] for m in meshes])
-
-    files = []
-    if len(ws) > 1 and len(ts) > 1:
-        # Fig. 4.2: speedup over the smallest w and Tsize against Tsize, one line per w
-        shown = [l for l in (leaves or [fixed["leaf_size"]])][:4]
-        fig, axes = plt.subplots(1, len(shown), figsize=(4.5 * len(shown), 3.8), squeeze=False)
-        for ax, leaf in zip(axes.ravel(), shown):
-            ref = cycles(w=min(ws), tsize=min(ts), leaf_size=leaf)
-            for w in ws:
-                ax.plot(ts, [ref / cycles(w=w, tsize=t, leaf_size=leaf) for t in ts], "-o", label=f"w = {w}")
-            ax.set_xscale("log", base=2)
-            ax.set_xticks(ts, [str(t) for t in ts])
-            ax.set_title(f"leaf size {leaf}")
-            ax.set_xlabel("Tsize")
-            ax.set_ylabel(f"speedup over w = {min(ws)}, Tsize = {min(ts)}")
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=8)
-        files.append(("fig4_2_speedup.png", figure_png(fig)))
-    if len(leaves) > 1:
-        # Fig. 4.3: cycles against leaf size, one panel per Tsize, one line per w
-        tshow = (ts or [fixed["tsize"]])[:4]
-        fig, axes = plt.subplots(1, len(tshow), figsize=(4.5 * len(tshow), 3.8), squeeze=False)
-        for ax, t in zip(axes.ravel(), tshow):
-            for w in (ws or [fixed["w"]]):
-                ax.plot(leaves, [cycles(w=w, tsize=t, leaf_size=l) for l in leaves], "-o", label=f"w = {w}")
-            ax.set_xscale("log", base=2)
-            ax.set_yscale("log")
-            ax.set_xticks(leaves, [str(l) for l in leaves])
-            ax.set_title(f"Tsize = {t}")
-            ax.set_xlabel("leaf size")
-            ax.set_ylabel("cycles (geometric mean over meshes)")
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=8)
-        files.append(("fig4_3_leaf_size.png", figure_png(fig)))
     return files
 
 
@@ -486,9 +434,11 @@ def markdown(result, command=None):
              f"(comparators {config.COMPARATOR_GATES}), {f['gates_per_storage_bit']:.3f} per register "
              f"or SRAM bit, {config.MISC_LOGIC_SHARE:.0%} miscellaneous logic; "
              f"{f['area_mm2_per_gate'] * 1e6:.3f} um^2 per gate and "
-             f"{f['active_w_per_gate_hz'] * 1e15:.3f} fW per gate and Hz (90 nm), fitted on HWBVH-C "
-             f"and HWBVH-HP (area within {max(abs(v - 1) for v in f['area_ratio'].values()):.1%}, "
-             f"power within {max(abs(v - 1) for v in f['power_ratio'].values()):.1%} of thesis Table 4.10).\n"]
+             f"{f['active_w_per_gate_hz'] * 1e15:.3f} fW per gate and Hz at "
+             f"{config.POWER_REFERENCE_MHZ:.0f} MHz, times (clock / {config.POWER_REFERENCE_MHZ:.0f} "
+             f"MHz)^{f['power_clock_exponent']:.3f} (90 nm), fitted on HWBVH-C and HWBVH-HP (area "
+             f"within {max(abs(v - 1) for v in f['area_ratio'].values()):.1%} of thesis Table 4.10, "
+             f"power within {max(abs(v - 1) for v in f['power_ratio'].values()):.1%}).\n"]
     for group in result["pareto"]:
         tk = {k: group[k] for k in TREE_KNOBS}
         lines += [f"## Leaf size {tk['leaf_size']}, {tk['bins']} bins\n",
@@ -604,19 +554,7 @@ def explore(meshes, grid=None, out_dir=None, *, scheduler=None, workers=None, us
         files = with_figures([(os.path.join(out_dir, n), d) for n, d in files])
         commit(files)
         result["files"] = [p for p, _ in files]
-        _remove_undrawn(out_dir, files)
     return result
-
-
-def _remove_undrawn(out_dir, files):
-    """Remove the figures of ours in ``out_dir`` that this run did not draw (a grid without
-    two values of a figure's knobs draws no figure of them): an earlier run's would be left
-    beside a summary that no longer shows it."""
-    written = {os.path.basename(p) for p, _ in files}
-    for name in OUTPUT_NAMES:
-        path = os.path.join(out_dir, name)
-        if name not in written and os.path.isfile(path):
-            os.remove(path)
 
 
 def human(result):

@@ -141,9 +141,16 @@ def _animate(tmp_path, tetra, mesh_dir):
                                    "frame_0001.exr"]))
 
 
+def _bench_model(tmp_path, tetra, mesh_dir):
+    from hwrt.bench import MODEL_FIGURES
+    out = tmp_path / "out"
+    return (["bench", "model", tetra, "--out-dir", out], "model.md", out,
+            sorted(["model.md", "model.json", *MODEL_FIGURES]))
+
+
 RUNS = {"build": _build, "explore": _explore, "bench tti": _tti, "bench accuracy": _accuracy,
         "bench render": _bench_render, "bench build": _bench_report,
-        "bench animation": _bench_animation, "animate": _animate}
+        "bench animation": _bench_animation, "bench model": _bench_model, "animate": _animate}
 
 
 @pytest.mark.parametrize("command", RUNS)

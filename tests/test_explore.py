@@ -121,7 +121,7 @@ def test_cells_resume_after_an_interruption(meshes, tmp_path):
     out = tmp_path / "out"
     grid = {"w": [2, 4], "tsize": [2, 8], "leaf_size": [4, 8]}
     first = ex.explore(meshes, grid, out, use_dask=False, progress=False)
-    assert first["computed"] == first["cells"] and len(first["files"]) == 7
+    assert first["computed"] == first["cells"] and len(first["files"]) == 5
     for name in ex.OUTPUT_NAMES:
         assert (out / name).exists(), name
     again = ex.explore(meshes, grid, out, use_dask=False, progress=False)
@@ -156,13 +156,10 @@ def test_cells_resume_after_an_interruption(meshes, tmp_path):
     fresh = ex.explore(meshes, grid, out, use_dask=False, progress=False, fresh=True)
     assert fresh["computed"] == fresh["cells"]
     assert len(cells.read_text().splitlines()) == fresh["cells"]
-    # a grid that draws fewer figures: the earlier run's others go, not left beside its summary
-    fewer = ex.explore(meshes, {"w": [2, 4], "leaf_size": [4, 8]}, out, use_dask=False,
-                       progress=False)
-    drawn = {os.path.basename(p) for p in fewer["files"]}
-    assert "fig4_2_speedup.png" not in drawn and "fig4_3_leaf_size.png" in drawn
-    assert {p.name for p in out.iterdir() if p.suffix == ".png"} == \
-        {n for n in drawn if n.endswith(".png")}
+    # the thesis' Figs. 4.2-4.3 are the subtree builder's alone (``hwrt bench model``), not
+    # drawn from a grid of whole-scene builds
+    drawn = {os.path.basename(p) for p in fresh["files"]}
+    assert drawn == set(ex.OUTPUT_NAMES) and not any(n.startswith("fig4") for n in drawn)
 
 
 def test_meshes_are_named_as_the_benchmarks_name_them(tmp_path):
