@@ -106,12 +106,13 @@ def thesis_seconds(scene, preset):
 
 def _upper_overhead(n, p, ctl):
     """Cycles of a two-subtree build that are not subtree building, on the critical path: the
-    AABB pass, the root's binning and partition passes and the fills (as ``simulate`` counts
-    them). With one subtree builder both fills are on the path; with two, the builds overlap and
+    AABB pass, the root's binning pass and split, its partition pass and the fills (as
+    ``simulate`` counts them; the two hand-offs wait for no split of the upper builder's).
+    With one subtree builder both fills are on the path; with two, the builds overlap and
     only the second build's start matters."""
     R = p.ram_pairs
     rec = R * WORD_BYTES / PRIMITIVE_RECORD_BYTES
-    t = n * AABB_BYTES / (R * WORD_BYTES) + 2 * n / rec + 2 * (LAT_BINNING + LAT_SAH + ctl)
+    t = n * AABB_BYTES / (R * WORD_BYTES) + 2 * n / rec + LAT_BINNING + LAT_SAH + ctl
     t += LAT_PARTITION
     fill = max(n / 2 / rec, n / 2 / p.w)
     return t + 2 * fill

@@ -259,12 +259,20 @@ def simulate(tree, params, node_count=None):
     sub_cycles_total = 0
     records_sub = 0
     handoff_sizes = []
+    # when each upper node's split is known: the root's after its binning pass (above); a
+    # child's once its parent's partition pass, which bins the children as it goes, has
+    # drained through the binning units and the SAH calculators. A node popped from the
+    # stack finds its split there (3.3.2: "the required split information will be present
+    # on the stack"), so the builder waits only where the split is not yet known.
+    split_known = {int(tree.root): t}
     for kind, i in events:
         c = int(tree.count[i])
         if kind == "upper":
+            t = max(t, split_known[i])
             # one streaming partition pass: read and write every record once
-            t += (math.ceil(c / prims_per_cycle_dram) + LAT_PARTITION + LAT_BINNING + LAT_SAH
-                  + p.control_latency)
+            t += math.ceil(c / prims_per_cycle_dram) + LAT_PARTITION
+            known = t + LAT_BINNING + LAT_SAH + p.control_latency
+            split_known[int(tree.left[i])] = split_known[int(tree.right[i])] = known
             traffic["upper_sort"] += 2 * c * RECORD_BYTES
             upper_write_bytes += c * RECORD_BYTES
             upper_nodes += 1

@@ -272,3 +272,26 @@ def test_the_presets_cannot_be_changed_only_varied():
         simulate(hwbvh.build(random_soup(100, seed=3)).tree,
                  dataclasses.replace(PRESETS["HWBVH-C"], w=0))
     assert e.value.parameter == "w"
+
+def test_the_upper_builder_waits_for_a_split_only_where_it_is_not_yet_known(big):
+    """Thesis 3.3.2: a node popped from the stack has its split there; only the root and a
+    node taken straight after its parent (its left child) wait for the binning units and SAH
+    calculators to drain. With a control latency far above any pass, the upper builder's clock
+    grows by it once per such node, not once per pass."""
+    from dataclasses import replace
+    from hwbvh.cycle_model import _upper_plan
+    tris, tree = big
+    p = replace(PRESETS["HWBVH-HP"], subtree_builders=64)        # never a stall
+    events = _upper_plan(tree, p.capacity)
+    upper = [i for kind, i in events if kind == "upper"]
+    straight_after = sum(1 for (k0, i), (k1, j) in zip(events, events[1:])
+                         if k0 == k1 == "upper" and j == tree.left[i])
+    assert len(upper) >= 3 and straight_after < len(upper) - 1
+    K = 10**6
+    ends = [simulate(tree, replace(p, control_latency=c))["upper_builder"]["finished_at_cycle"]
+            for c in (0, K)]
+    waits = (ends[1] - ends[0]) / K
+    # the root and each left child taken straight after its parent wait in full; a right
+    # child at most as long as its sibling's fill took less. A wait after every pass would
+    # be len(upper) + 1 of them.
+    assert 1 + straight_after <= waits <= len(upper)
