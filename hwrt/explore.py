@@ -438,7 +438,7 @@ def markdown(result, command=None):
              f"{config.POWER_REFERENCE_MHZ:.0f} MHz, times (clock / {config.POWER_REFERENCE_MHZ:.0f} "
              f"MHz)^{f['power_clock_exponent']:.3f} (90 nm), fitted on HWBVH-C and HWBVH-HP (area "
              f"within {max(abs(v - 1) for v in f['area_ratio'].values()):.1%} of thesis Table 4.10, "
-             f"power within {max(abs(v - 1) for v in f['power_ratio'].values()):.1%}).\n"]
+             f"power as it: within {max(abs(v - 1) for v in f['power_ratio'].values()):.0e}).\n"]
     for group in result["pareto"]:
         tk = {k: group[k] for k in TREE_KNOBS}
         lines += [f"## Leaf size {tk['leaf_size']}, {tk['bins']} bins\n",
