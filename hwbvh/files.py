@@ -93,6 +93,18 @@ def file_identity(path):
     return st.st_dev, st.st_ino
 
 
+def content_digest(path):
+    """The first 16 hex digits of the SHA-256 of a file's bytes (read a MiB at a time): what
+    the resumable studies key a mesh's results by, so that a file given new contents under
+    the same name is computed again."""
+    import hashlib
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()[:16]
+
+
 def check_outputs(outputs, inputs=()):
     """Fail before any work unless every path in ``outputs`` can be written and none of them
     is one of ``inputs`` (or one another). Paths are reported as given. Raises InputError.

@@ -461,6 +461,14 @@ def _obj_short_vertex(path):
     return None
 
 
+def _utf8_name(path):
+    try:
+        path.encode("utf-8")
+        return True
+    except UnicodeEncodeError:
+        return False
+
+
 def load_mesh_arrays(path):
     """Read a mesh file with trimesh; return (vertices float32 (v,3), faces int64 (f,3))."""
     trimesh = trimesh_module()
@@ -484,6 +492,12 @@ def load_mesh_arrays(path):
         check_count(declared["face"], path)
     obj = path.lower().endswith(".obj")
     load_args = _obj_load_args(path) if obj else {"file_obj": path}
+    if load_args["file_obj"] is path and not _utf8_name(path) and not path.lower().endswith(".gltf"):
+        # trimesh encodes a name it opens as UTF-8; a name in another encoding (bytes no
+        # UTF-8 reading takes) is read here and handed over as its bytes
+        with open(path, "rb") as f:
+            load_args = {"file_obj": io.BytesIO(f.read()),
+                         "file_type": os.path.splitext(path)[1][1:].lower()}
     try:
         # trimesh derives normals and the like on load, and warns of overflow there for a
         # coordinate too large; the coordinates themselves are checked after, with one message

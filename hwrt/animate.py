@@ -267,12 +267,13 @@ def _check_output_dir(out_dir, anim, frames):
     return os.path.abspath(out_dir)
 
 
-def _load_state(out_dir, params):
+def _load_state(out_dir, params, frames):
     path = os.path.join(out_dir, STATE_NAME)
     if not os.path.exists(path):
-        # a run writes its CSV and preview only after its state: without a state they are
-        # someone else's files, which a run would replace
-        theirs = [n for n in (CSV_NAME, PREVIEW_NAME) if os.path.exists(os.path.join(out_dir, n))]
+        # a run writes each frame with its state, and its CSV and preview after: without a
+        # state they are someone else's files, which a run would replace
+        names = [FRAME_NAME.format(i) for i in range(frames)] + [CSV_NAME, PREVIEW_NAME]
+        theirs = [n for n in names if os.path.exists(os.path.join(out_dir, n))]
         if theirs:
             raise InputError(out_dir, f"holds {theirs[0]} but no {STATE_NAME} of an hwrt animate "
                                       f"run: a run would replace it; choose another output "
@@ -315,10 +316,15 @@ def _frame_intact(out_dir, i, width, height):
     return px is not None and px.shape[:2] == (height, width) and meta.get("frame") == i
 
 
-def _write_state(out_dir, params, rows):
+def _state_file(out_dir, params, rows):
+    """The run's state as a ``write_files`` pair."""
     state = {"parameters": params, "frames": [rows[k] for k in sorted(rows)]}
-    write_files([(os.path.join(out_dir, STATE_NAME),
-                  json_text(state, indent=1) + "\n")])
+    return os.path.join(out_dir, STATE_NAME), json_text(state, indent=1) + "\n"
+
+
+def _write_state(out_dir, params, rows, with_files=()):
+    """The run's state, and ``with_files`` (``write_files`` pairs) in the same set."""
+    write_files(list(with_files) + [_state_file(out_dir, params, rows)])
 
 
 def _csv_text(rows):
@@ -410,7 +416,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     rows, beyond = {}, {}
     if out_dir is not None:
         out_dir = _check_output_dir(out_dir, anim, frames)
-        rows = _load_state(out_dir, params)
+        rows = _load_state(out_dir, params, frames)
         # frames of this run past the last asked for stay in its state (not orphaned on disk):
         # a longer rerun resumes them
         beyond = {k: v for k, v in rows.items() if k >= frames}
@@ -453,7 +459,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
                                                      "same_image")}
             out["verify"]["by_query"] = {k: summary[k] for k in ("closest", "shadow")}
         if out_dir is not None:
-            from raytracer.output import write_exr
+            from raytracer.output import exr_writer
             t = time.perf_counter()
             path = os.path.join(out_dir, FRAME_NAME.format(i))
             meta = {"scene": anim.name, "accel": accel,
@@ -465,11 +471,12 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
             meta.update({f"rays_{k}": v for k, v in res.stats["rays"].items()})
             if out["sah_cost"] is not None:
                 meta["sah_cost"] = out["sah_cost"]
-            write_exr(path, res, meta)
             out["output"] = path
-            out["write_seconds"] = time.perf_counter() - t
             rows[i] = jsonable(out)
-            _write_state(out_dir, params, rows | beyond)
+            # the frame and the state that lists it appear together: a frame on disk is
+            # always in a state, so one without a state is someone else's
+            _write_state(out_dir, params, rows | beyond, [(path, exr_writer(path, res, meta))])
+            rows[i]["write_seconds"] = out["write_seconds"] = time.perf_counter() - t
         else:
             rows[i] = jsonable(out)
         if inspect is not None:
@@ -500,7 +507,9 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         preview_path = os.path.join(out_dir, PREVIEW_NAME)
         csv_text = _csv_text([{k: v for k, v in r.items() if k != "rays"} |
                               {f"rays.{k}": v for k, v in r["rays"].items()} for r in ordered])
-        commit([(csv_path, csv_text), (preview_path, _preview(out_dir, frames, anim.fps))])
+        # the state again, now with the last frame's write time
+        commit([_state_file(out_dir, params, rows | beyond), (csv_path, csv_text),
+                (preview_path, _preview(out_dir, frames, anim.fps))])
         result["files"] = {"frames": os.path.join(out_dir, "frame_%04d.exr"),
                            "preview": preview_path, "csv": csv_path,
                            "state": os.path.join(out_dir, STATE_NAME)}

@@ -59,6 +59,17 @@ class MeshInput(NamedTuple):
         return self.name if self.path is None else str(self.path)
 
 
+def check_distinct_scenes(specs):
+    """Refuse a scene or file given twice among a benchmark's SCENE arguments (built-in names
+    or files, a file however it is spelled): its rows would be the same scene's twice."""
+    seen = set()
+    for spec in specs:
+        key = os.path.realpath(spec) if os.path.exists(spec) else str(spec)
+        if key in seen:
+            raise InputError(spec, "given twice")
+        seen.add(key)
+
+
 def mesh_names(paths, base=None):
     """Each mesh file's name: its stem, unless another of ``paths`` shares the stem (a/bunny.ply
     and b/bunny.ply, bunny.ply and bunny.obj), then its path (relative to ``base``, the
@@ -115,6 +126,9 @@ def mesh_inputs(args):
     from scenes.builtin import BUILTIN
 
     paths = [Path(m) for m in args.meshes]
+    if paths and getattr(args, "mesh_dir", None):
+        raise ParameterError("mesh_dir", "not read when mesh files are given: give the files "
+                                         "or the directory")
     for p in paths:
         if not p.exists():
             raise InputError(p, "no such file" + (
@@ -512,6 +526,7 @@ def bench_render(args, commit=write_files):
     from . import mitsuba_peer as mp
 
     specs = [str(s) for s in args.meshes] or ["cornell"]
+    check_distinct_scenes(specs)
     if args.repeat < 1:
         raise InputError("--repeat", f"must be at least 1, got {args.repeat}")
     out_dir = getattr(args, "out_dir", None)

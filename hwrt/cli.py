@@ -17,7 +17,8 @@ import signal
 import sys
 from functools import partial
 
-from .progress import progress_bar
+from .config import env_flag
+from .progress import PROGRESS_ENV, progress_bar
 
 DESCRIPTION = ("hwrt simulates the hardware BVH builder of M. J. Doyle's thesis (HWBVH) bit for "
                "bit and renders scenes with a Whitted ray tracer on exactly the trees it builds, "
@@ -36,7 +37,7 @@ EXIT_BAD_INPUT = 2
 EXIT_SIGINT = 128 + signal.SIGINT
 EXIT_SIGTERM = 128 + signal.SIGTERM
 EXIT_SIGPIPE = 128 + signal.SIGPIPE     # the reader of stdout went away (`hwrt ... | head`)
-DEBUG_ENV = "HWRT_DEBUG"           # set: an internal error is re-raised with its traceback
+DEBUG_ENV = "HWRT_DEBUG"           # on: an internal error is re-raised with its traceback
 
 
 # The exception of a SIGINT or SIGTERM that a library may have swallowed: llvmlite calls into
@@ -119,6 +120,11 @@ def _write_stdout(text):
             data = data[os.write(fd, data):]
         except BlockingIOError:             # a descriptor left non-blocking by our parent
             select.select([], [fd], [])
+        except BrokenPipeError:
+            raise
+        except OSError as e:                # a full disk or a device error: not ours
+            from hwbvh.files import OutputError
+            raise OutputError(e.errno, e.strerror, "<standard output>") from None
 
 
 def _warn_beyond_float32(result):
@@ -133,9 +139,12 @@ def _warn_beyond_float32(result):
 
 def _shown(v):
     """A value as the human-readable output shows it (``--json`` has it exact): six
-    significant digits, "n/a" for what does not apply (JSON null), lists and tables inline."""
+    significant digits, "n/a" for what does not apply (JSON null), yes or no for a truth value,
+    lists and tables inline."""
     if v is None:
         return "n/a"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
     if isinstance(v, float):
         return f"{v:.6g}"
     if isinstance(v, dict):
@@ -382,7 +391,7 @@ def _replay(path, scene, tris, verts, faces):
     """Re-trace the rays of a mismatch file with the structure and query its run checked,
     with Embree and the float64 reference, on the triangles it was made on."""
     import numpy as np
-    from hwbvh.errors import InputError
+    from hwbvh.errors import InputError, ParameterError
     from traversal.embree_ref import embree_intersect, embree_occluded, embree_scene
     from traversal.verify import diagnose, diagnose_occluded, query_of
 
@@ -395,13 +404,20 @@ def _replay(path, scene, tris, verts, faces):
     reference = embree_scene(verts, faces)
     rays = [{"origin": O[i].tolist(), "dir": D[i].tolist(), "tmax": float(tmax[i])}
             for i in range(len(O))]
-    if query_of(run["kind"]) == "occluded":
-        blocked = tracer.occluded(O, D, 0.0, tmax)
+    occluded = query_of(run["kind"]) == "occluded"
+    try:
+        ours = tracer.occluded(O, D, 0.0, tmax) if occluded else tracer.intersect(O, D, 0.0, tmax)
+    except ParameterError as e:                 # rays no run of the float32 units traced
+        problem = re.split(r"[;:(]? ?\(?trace with traversal\.Tracer", e.problem)[0].rstrip(" :;(")
+        raise InputError(path, f"its rays are beyond the float32 units ({e.parameter}: "
+                               f"{problem}): no hwrt verify run wrote them") from None
+    if occluded:
+        blocked = ours
         ref = embree_occluded(reference, O, D, tmax)
         found = diagnose_occluded(tris, O, D, 0.0, tmax, blocked, ref)
         answers = [{"ours": bool(blocked[i]), "embree": bool(ref[i])} for i in range(len(O))]
     else:
-        h = tracer.intersect(O, D, 0.0, tmax)
+        h = ours
         te, pe, *_ = embree_intersect(reference, O, D, None if np.isinf(tmax).all() else tmax)
         found = diagnose(tris, O, D, 0.0, tmax, h.prim.astype(np.int64), h.t, pe, te)
         answers = [{"ours": [int(h.prim[i]), float(h.t[i])],
@@ -1129,6 +1145,14 @@ class _Parser(argparse.ArgumentParser):
             message = message[len("argument "):]
         self.exit(EXIT_BAD_INPUT, f"hwrt: error: {message}\n")
 
+    def _print_message(self, message, file=None):
+        # --help and --version as every result is written: all of it, or 141 for a reader
+        # gone and one line for a full disk (_run), never a silent 0
+        if message and (file is None or file is sys.stdout):
+            _write_stdout(message)
+        else:
+            super()._print_message(message, file)
+
 
 def _version():
     from importlib.metadata import PackageNotFoundError, version
@@ -1199,9 +1223,11 @@ def make_parser():
     lo, hi = config.KNOB_RANGES["clock_mhz"]
     s.add_argument("--clock-mhz", type=_positive_float,
                    help=f"clock: {lo:g}..{hi:g} MHz (default: the preset's)")
-    s.add_argument("--control-latency", type=_non_negative, metavar="CYCLES",
-                   help=f"control cycles per split beyond Table 3.3 (default: the calibrated "
-                        f"value, {config.CONTROL_LATENCY}; 0 = the text-only model)")
+    s.add_argument("--control-latency", type=_int_at_least(0, config.MAX_CONTROL_LATENCY),
+                   metavar="CYCLES",
+                   help=f"control cycles per split beyond Table 3.3: 0..{config.MAX_CONTROL_LATENCY} "
+                        f"(default: the calibrated value, {config.CONTROL_LATENCY}; 0 = the "
+                        f"text-only model)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.set_defaults(func=cmd_simulate)
 
@@ -1478,16 +1504,21 @@ def _run(argv, signals_owned):
     from hwbvh.files import OutputError
     from hwbvh.parallel import check_threading
     parser = make_parser()
-    args, extra = parser.parse_known_args(argv)
-    if args.command == "bench" and extra:
-        # argparse gives a benchmark's meshes the empty list where options come between its
-        # name and them ("bench tti --quick MESH"); they are meshes all the same
-        args.meshes = args.meshes + _late_meshes(parser, extra)
-    elif extra:
-        parser.error(f"unrecognized arguments: {' '.join(extra)}")
-    args.argv = argv
-    args.signals_owned = signals_owned
+    args = None
     try:
+        args, extra = parser.parse_known_args(argv)
+        if args.command == "bench" and extra:
+            # argparse gives a benchmark's meshes the empty list where options come between
+            # its name and them ("bench tti --quick MESH"); they are meshes all the same
+            args.meshes = args.meshes + _late_meshes(parser, extra)
+        elif extra:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        args.argv = argv
+        args.signals_owned = signals_owned
+        for name in (PROGRESS_ENV, DEBUG_ENV):
+            if env_flag(name) is None:
+                raise InputError(f"${name}", f"unknown value {os.environ[name]!r} (choose 1 or 0; "
+                                             f"true/false, yes/no and on/off are taken too)")
         check_threading()
         args.func(args)
         _answer_swallowed_signal()
@@ -1510,7 +1541,7 @@ def _run(argv, signals_owned):
     except Exception as e:  # anything else is our fault, not the input's
         _answer_swallowed_signal()       # or a library's that swallowed an interrupt
         print(f"hwrt: internal error: {type(e).__name__}: {e}", file=sys.stderr)
-        if os.environ.get(DEBUG_ENV):
+        if env_flag(DEBUG_ENV) is not False:       # on, or a word _run refused (in-process use)
             raise
         return 1
     return 0

@@ -27,7 +27,7 @@ from collections import OrderedDict
 from dataclasses import replace
 from pathlib import Path
 
-from hwbvh.files import figure_png, write_files
+from hwbvh.files import content_digest, figure_png, write_files
 from hwbvh import config
 from hwbvh.cycle_model import PRESETS, check_params
 from hwbvh.errors import InputError, ParameterError
@@ -140,14 +140,6 @@ def labeller(result):
 # --------------------------------------------------------------------------------------
 # meshes and the model's identity
 # --------------------------------------------------------------------------------------
-def _digest(path):
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()[:16]
-
-
 def mesh_specs(paths):
     """``[{"name", "path", "digest", "triangles"}]`` for the mesh files, each loaded once here
     so a bad file fails before any cell runs. Named as the benchmarks name them
@@ -162,7 +154,7 @@ def mesh_specs(paths):
     for name, path in zip(mesh_names(paths), paths):
         verts, faces = load_mesh_arrays(path)
         tris = as_triangles(verts[faces], source=path)
-        digest = _digest(path)
+        digest = content_digest(path)
         if digest in by_digest:                 # cells are keyed by contents: one set of rows
             raise InputError(path, f"has the same contents as {by_digest[digest]}: give one "
                                    f"of them")
@@ -203,7 +195,7 @@ def _tree(mesh, bins, leaf_size):
     if key in _TREES:
         _TREES.move_to_end(key)
         return _TREES[key]
-    if _digest(mesh["path"]) != mesh["digest"]:
+    if content_digest(mesh["path"]) != mesh["digest"]:
         raise InputError(mesh["path"], "is not the file the exploration was planned on (it changed, "
                                        "or a worker sees another file at this path)")
     verts, faces = load_mesh_arrays(mesh["path"])

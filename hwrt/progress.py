@@ -1,12 +1,13 @@
 """Progress bars of the command line."""
-import os
 import sys
 
-PROGRESS_ENV = "HWRT_PROGRESS"     # set: progress bars even where stderr is not a terminal
+from .config import env_flag
+
+PROGRESS_ENV = "HWRT_PROGRESS"     # on: progress bars even where stderr is not a terminal
 
 
 def _hidden():
-    return not sys.stderr.isatty() and not os.environ.get(PROGRESS_ENV)
+    return not sys.stderr.isatty() and not env_flag(PROGRESS_ENV)
 
 
 def progress_bar(total, desc, unit, initial=0, show=True, **options):

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from hwbvh.errors import InputError
-from hwbvh.files import OutputError, json_text, write_files
+from hwbvh.files import OutputError, content_digest, json_text, write_files
 from .report import command_of, made_by_block, with_figures
 from .bench import machine, mesh_inputs, round_order
 
@@ -339,8 +339,16 @@ def warm_up_tti():
         warm_up_accel(accel)
 
 
-def _tti_key(name, builder, W, H, spp, depth, repeat):
-    return json.dumps([name, builder, W, H, spp, depth, repeat])
+def scene_identity(spec):
+    """What a study keys one scene's cells by: the name of a built-in scene or a generated
+    mesh; a mesh file's name with its contents' digest, so that a file given other contents
+    under the same name is timed again rather than answered from the old file's cells."""
+    name, kind, source = spec
+    return [name, content_digest(source)] if kind == "mesh" else name
+
+
+def _tti_key(scene, builder, W, H, spp, depth, repeat):
+    return json.dumps([scene, builder, W, H, spp, depth, repeat])
 
 
 def tti_scene_cell(spec, trees, W, H, spp, depth, repeat):
@@ -419,7 +427,9 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
     jobs, keys = [], {}
     structures = tti_structures(getattr(args, "accel", None))
     trees = [(b, t, "bvh", b) for b, t in TTI_TREES] + [("hwbvh", "numba", a, a) for a in structures]
-    cell_keys = {spec[0]: {t[3]: _tti_key(spec[0], t[3], W, H, spp, depth, repeat) for t in trees}
+    scenes = {spec[0]: scene_identity(spec) for spec in specs}
+    cell_keys = {spec[0]: {t[3]: _tti_key(scenes[spec[0]], t[3], W, H, spp, depth, repeat)
+                           for t in trees}
                  for spec in specs}
     for spec in specs:                  # a job per scene: the trees whose cells are missing
         missing = {name: key for name, key in cell_keys[spec[0]].items() if not cells.get(key)}
@@ -438,7 +448,7 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
         with _timing(getattr(args, "scheduler", None), use_dask, warm_up_tti) as timing:
             timing.run(jobs, save, "bench tti", progress)
             where = timing.machine()
-    rows, summary = _tti_rows(cells, specs, W, H, spp, depth, repeat, structures)
+    rows, summary = _tti_rows(cells, specs, scenes, W, H, spp, depth, repeat, structures)
     used = sum(1 for by_tree in cell_keys.values() for key in by_tree.values() if cells.get(key))
     timed = sum(len(k) for k in keys.values())        # cells, not scenes
     provenance = _provenance(args, use_dask, timed, used, cells)
@@ -451,15 +461,16 @@ def bench_tti(args, *, use_dask=True, progress=True, commit=write_files):
                            "cells": provenance}, where, commit)
 
 
-def _tti_rows(cells, specs, W, H, spp, depth, repeat, structures=()):
+def _tti_rows(cells, specs, scenes, W, H, spp, depth, repeat, structures=()):
+    """``scenes``: each spec's name to its ``scene_identity``."""
     from raytracer.render import simulated_ready_seconds
     rows, summary = [], []
     for name, _, _ in specs:
-        got = {b: cells.get(_tti_key(name, b, W, H, spp, depth, repeat))
+        got = {b: cells.get(_tti_key(scenes[name], b, W, H, spp, depth, repeat))
                for b, _ in TTI_TREES}
         if not all(got.values()):
             continue
-        others = {a: cells.get(_tti_key(name, a, W, H, spp, depth, repeat))
+        others = {a: cells.get(_tti_key(scenes[name], a, W, H, spp, depth, repeat))
                   for a in structures}
         hw = got["hwbvh"]
         # a simulated hardware build still leaves our tracer's set-up to software
@@ -723,7 +734,8 @@ def bench_accuracy(args, *, use_dask=True, progress=True, commit=write_files):
     cells = Cells(os.path.join(args.out_dir, "accuracy.jsonl"), fresh=args.fresh,
                   schema=ACCURACY_ROW)
     work = [(spec, knob, val) for spec in specs for knob, vals in KNOBS.items() for val in vals]
-    key_of = lambda spec, knob, val: json.dumps([spec[0], knob, val, W, H, repeat])
+    scenes = {spec[0]: scene_identity(spec) for spec in specs}
+    key_of = lambda spec, knob, val: json.dumps([scenes[spec[0]], knob, val, W, H, repeat])
     pending = [(spec, knob, val) for spec, knob, val in work if not cells.get(key_of(spec, knob, val))]
     where = None
     if pending:

@@ -68,6 +68,9 @@ def bench_trees(args):
     from raytracer.render import make_tracer, render, warm_up
     from traversal.tracers import CountingTracer, RecordingTracer
 
+    from .bench import check_distinct_scenes
+
+    check_distinct_scenes([str(s) for s in args.meshes])
     warm_up("hwbvh", "numba", parallel_build=True)
     rows = []
     for spec in args.meshes or DEFAULT_SCENES:

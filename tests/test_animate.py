@@ -819,16 +819,19 @@ def test_a_keyframe_moving_a_shape_too_far_for_float32_is_refused_before_any_fra
     assert load_animation(p).check(3) is not None
 
 
-def test_a_directory_holding_another_programs_csv_is_refused(tmp_path, capsys):
+@pytest.mark.parametrize("theirs", ["frames.csv", "frame_0001.exr"])
+def test_a_directory_holding_another_programs_file_is_refused(tmp_path, capsys, theirs):
+    """A frame, like the CSV, is only ever on disk with the state that lists it (written in
+    one set): without a state it is someone else's."""
     out = tmp_path / "mine"
     out.mkdir()
-    (out / "frames.csv").write_text("my,data\n")
+    (out / theirs).write_text("my,data\n")
     rc, _, err = _run_cli(capsys, "animate", "cloth", "--triangles", 200, "--frames", 2,
                           "--width", 16, "--height", 12, "-o", out)
-    assert rc == 2 and err.strip() == (f"hwrt: error: --output {out}: holds frames.csv but no "
+    assert rc == 2 and err.strip() == (f"hwrt: error: --output {out}: holds {theirs} but no "
                                        f"animation.json of an hwrt animate run: a run would "
                                        f"replace it; choose another output directory")
-    assert (out / "frames.csv").read_text() == "my,data\n" and len(list(out.iterdir())) == 1
+    assert (out / theirs).read_text() == "my,data\n" and len(list(out.iterdir())) == 1
 
 
 def test_animate_verify_warns_naming_the_frames_whose_check_made_another_image(

@@ -1547,3 +1547,73 @@ def test_an_output_embree_cannot_give_names_its_option(capsys, tmp_path, tetra, 
         f"hwrt: error: {option}: needs a tree of ours (--builder hwbvh or sweep): Embree's tree "
         "stays inside Embree")
     assert [f.name for f in tmp_path.iterdir()] == ["tetra.obj"]      # the mesh alone
+
+
+@pytest.mark.parametrize("argv", [["bench", "render", "cornell", "cornell"],
+                                  ["bench", "trees", "cornell", "cornell"]])
+def test_a_scene_given_twice_to_a_benchmark_is_refused(argv, capsys):
+    rc, out, err = call(capsys, *argv)
+    assert (rc, out) == (2, "") and one_line_error(err) == "hwrt: error: cornell: given twice"
+
+
+def test_control_latency_takes_the_range_its_help_gives(capsys):
+    rc, out, err = call(capsys, "simulate", "m.ply", "--control-latency", 10**6 + 1)
+    assert rc == 2 and one_line_error(err) == \
+        "hwrt: error: --control-latency: must be at most 1000000, got 1000001"
+
+
+@pytest.mark.parametrize("name", ["HWRT_PROGRESS", "HWRT_DEBUG"])
+def test_environment_switches_take_words_for_off_and_refuse_others(name, tmp_path):
+    import os
+    env = dict(os.environ)
+    for word in ("0", "false", "No", "off", ""):        # taken: the run goes on to the scene
+        env[name] = word
+        r = run("render", tmp_path / "none.json", env=env)
+        assert r.returncode == 2 and one_line_error(r.stderr).startswith(
+            f"hwrt: error: {tmp_path / 'none.json'}"), (word, r.stderr)
+    env[name] = "junk"
+    r = run("render", "cornell", "--width", 8, "--height", 8, "-o", tmp_path / "x.exr", env=env)
+    assert r.returncode == 2 and one_line_error(r.stderr) == (
+        f"hwrt: error: ${name}: unknown value 'junk' (choose 1 or 0; true/false, yes/no and "
+        f"on/off are taken too)")
+    assert not (tmp_path / "x.exr").exists()
+    from hwrt.config import env_flag
+    for word, on in (("1", True), ("TRUE", True), ("yes", True), ("0", False), ("off", False)):
+        os.environ[name] = word
+        try:
+            assert env_flag(name) is on
+        finally:
+            del os.environ[name]
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["simulate", "TETRA", "--json"]])
+def test_a_full_standard_output_is_a_one_line_error_not_a_silent_success(argv, tetra):
+    argv = [str(tetra) if a == "TETRA" else a for a in argv]
+    with open("/dev/full", "w") as full:
+        p = subprocess.run([sys.executable, "-m", "hwrt.cli", *argv], stdout=full,
+                           stderr=subprocess.PIPE, text=True, timeout=600)
+    assert p.returncode == 1 and one_line_error(p.stderr) == \
+        "hwrt: cannot write <standard output>: No space left on device"
+
+
+def test_replay_of_rays_beyond_the_float32_units_names_the_file(tmp_path, capsys, tetra):
+    """Rays no run of the float32 units traced (origins past float32's reach) are the file's
+    problem, said of the file, with no Python remedy; a t_max past float32 is infinity there,
+    without a warning."""
+    far = tmp_path / "far.npz"
+    np.savez(far, origins=np.array([[1e38, 0.2, -1.0]]), dirs=np.array([[0.0, 0.0, 1.0]]),
+             tmax=np.array([np.inf]))
+    rc, out, err = call(capsys, "verify", tetra, "--replay", far)
+    line = one_line_error(err)
+    assert (rc, out) == (2, "") and line.startswith(f"hwrt: error: --replay {far}: its rays are "
+                                                     f"beyond the float32 units (origins: ")
+    assert "Tracer" not in line and line.endswith("no hwrt verify run wrote them")
+    long = tmp_path / "long.npz"
+    np.savez(long, origins=np.array([[0.2, 0.2, -1.0]]), dirs=np.array([[0.0, 0.0, 1.0]]),
+             tmax=np.array([1e300]))
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rc, out, err = call(capsys, "verify", tetra, "--replay", long, "--json")
+    assert rc == 0 and err == "" and strict_json(out)["replayed"][0]["ours"][0] >= 0

@@ -312,6 +312,19 @@ def test_a_mesh_directory_asked_for_must_exist_and_hold_meshes(tmp_path, monkeyp
         assert (e.value.source, e.value.problem) == (f"$HWRT_MESHES {d}", problem)
 
 
+def test_a_mesh_directory_beside_mesh_files_is_refused_not_ignored(tmp_path):
+    from hwbvh.errors import ParameterError
+    from hwrt.bench import mesh_inputs
+    (tmp_path / "d").mkdir()
+    with pytest.raises(ParameterError) as e:
+        mesh_inputs(_mesh_args(tmp_path / "d", [tmp_path / "m.ply"]))
+    assert e.value.parameter == "mesh_dir" and "mesh files are given" in e.value.problem
+    r = _hwrt("bench", "build", tmp_path / "m.ply", "--mesh-dir", tmp_path / "d", "--repeat", 1)
+    assert r.returncode == 2 and r.stderr.splitlines() == [
+        "hwrt: error: --mesh-dir: not read when mesh files are given: give the files or the "
+        "directory"]
+
+
 def test_generated_meshes_only_when_no_directory_is_asked_for_or_there(tmp_path, monkeypatch):
     import hwrt.bench as bench
     from hwbvh.errors import InputError

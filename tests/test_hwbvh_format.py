@@ -336,3 +336,19 @@ def test_build_names_its_out_prefix_when_the_directory_cannot_be_made(tmp_path, 
     assert main(["build", str(p), "--out", str(prefix)]) == 2
     assert capsys.readouterr().err == (f"hwrt: error: --out {prefix}: cannot create a directory "
                                        f"under {tmp_path / 'file'}: it is a file\n")
+
+
+@pytest.mark.parametrize("ext", [".ply", ".obj", ".stl"])
+def test_a_mesh_whose_file_name_is_not_utf8_is_read(tmp_path, ext):
+    """File names are bytes; one that no UTF-8 reading takes (Latin-1 from another system)
+    names a file all the same."""
+    import trimesh
+    from hwbvh.primitives import load_mesh_arrays
+    tris = sphere(4, 8)
+    data = trimesh.Trimesh(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3),
+                           process=False).export(file_type=ext[1:])
+    name = os.fsdecode(os.fsencode(tmp_path) + b"/caf\xe9" + ext.encode())
+    with open(name, "wb") as f:
+        f.write(data.encode() if isinstance(data, str) else data)
+    v, f = load_mesh_arrays(name)
+    assert len(f) == len(tris) and np.allclose(v[f], tris, atol=1e-6)

@@ -321,3 +321,35 @@ def test_a_mesh_named_as_a_built_in_scene_the_study_runs_is_refused(tmp_path, me
         f"hwrt: error: {same}: named 'cornell', as a built-in scene the study also runs, whose "
         f"results are kept by name: rename the file"]
     assert (out / "accuracy.jsonl").read_text() == '{"key": "kept"}\n'
+
+
+def test_a_mesh_file_given_new_contents_is_timed_again_not_resumed(tmp_path):
+    """The studies keep their cells by scene: a mesh file's by its name and its contents, so
+    a file rewritten under the same name is a new scene to them."""
+    import trimesh
+    from hwrt import study
+    from scenes.meshes import sphere
+    d = tmp_path / "meshes"
+    d.mkdir()
+
+    def write(rings):
+        tris = sphere(rings, 2 * rings)
+        trimesh.Trimesh(tris.reshape(-1, 3), np.arange(len(tris) * 3).reshape(-1, 3),
+                        process=False).export(d / "ball.ply")
+        return len(tris)
+
+    args = Namespace(quick=True, width=16, height=12, spp=1, max_depth=1, repeat=1, fresh=False,
+                     meshes=[str(d / "ball.ply")], mesh_dir=None, out_dir=str(tmp_path / "tti"),
+                     accel=["bvh"])
+    first_n = write(8)
+    first = study.bench_tti(args, use_dask=False, progress=False)
+    again = study.bench_tti(args, use_dask=False, progress=False)
+    assert again["cells"]["timed"] == 0
+    second_n = write(12)
+    third = study.bench_tti(args, use_dask=False, progress=False)
+    ball = lambda res: {r["triangles"] for r in res["rows"] if r["scene"] == "ball"}
+    assert ball(first) == {first_n} and ball(third) == {second_n} != {first_n}
+    # cornell's cells stay; the ball's are timed again
+    assert third["cells"]["timed"] == len(study.TTI_TREES) and third["cells"]["resumed"] > 0
+    spec = ("ball", "mesh", str(d / "ball.ply"))
+    assert study.scene_identity(spec)[0] == "ball" and study.scene_identity(("cornell", "builtin", "cornell")) == "cornell"

@@ -99,7 +99,10 @@ def real_array(x, name, dtype=None):
     if a is None or a.dtype.kind not in "fiu":
         got = "None" if a is None else str(a.dtype)
         raise ParameterError(name, f"must be real numbers, got {got}")
-    return a if dtype is None else np.asarray(a, dtype=dtype)
+    if dtype is None:
+        return a
+    with np.errstate(over="ignore"):     # callers that cannot take infinity check for it
+        return np.asarray(a, dtype=dtype)
 
 
 def _nan_bound_error(name, a):
