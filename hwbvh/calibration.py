@@ -58,7 +58,7 @@ def triangles_of_footprint(mib):
     return lo, hi
 
 
-# Marbles' size: "8k" triangles in Fig. 4.1, which Table 4.2's 0.45 MiB narrows to 8,641-8,835
+# Marbles' size: "8k" triangles in Fig. 4.1, which Table 4.2's 0.45 MiB narrows to 8,642-8,835
 # (more than one subtree's 8192, as HWBVH-HP's half-time build of it shows: two subtrees).
 MARBLES_TRIANGLES = triangles_of_footprint(THESIS_FOOTPRINT_MIB["Marbles"])
 
