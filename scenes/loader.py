@@ -748,8 +748,10 @@ def _not_coarse(ctx, tris, key, what):
     translation is refused): a unit box at x = 1e9 would be traced as a flat or empty one."""
     if not len(tris):
         return
+    # a shape of no extent at all is one that rounded to a point (a sphere's radius of 1e-18
+    # beside a centre at 1): as coarse as can be
     size, step = _extent(tris), _float32_step(tris)
-    if size > 0 and step / 2 > MAX_TRANSLATION_ROUNDING * size:
+    if step / 2 > MAX_TRANSLATION_ROUNDING * size:
         ctx.fail(key, f"{what} collapses: this far from the origin its coordinates round to "
                       f"float32 numbers {step:.3g} apart, coarse against its size of {size:.3g}")
 

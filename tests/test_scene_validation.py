@@ -665,3 +665,15 @@ def test_vectors_take_numbers_only_and_integers_past_float64_are_named():
         compile_scene(d)
     with pytest.raises(InputError, match="a coordinate is too large"):
         hwbvh.build([[[0, 0, 0], [1, 0, 0], [0, 1, 10 ** 400]]])
+
+
+@pytest.mark.parametrize("radius", [1e-7, 1e-18, 1e-30])
+def test_a_sphere_too_small_for_its_place_is_refused_however_small(radius, tmp_path, capsys,
+                                                                    monkeypatch):
+    """Beside a centre at about 1 a radius of 1e-7 rounds to a float32 step, one of 1e-18 to no
+    extent at all: both collapse, and are said to, rather than the smaller rendering as
+    nothing."""
+    shape = {"type": "sphere", "center": [1.2, 0.4, 0.6], "radius": radius, "material": "m"}
+    p = write_scene(tmp_path, scene_dict([shape]))
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
+    assert f"{p}: key 'shapes[0].center': the sphere collapses" in line
