@@ -782,12 +782,12 @@ def _model_rows(name, stem, tris):
     text-only model (control latency 0) and the calibrated one. ``name`` names the rows (a
     path when stems collide); the thesis scene is looked up by the file's ``stem``."""
     from dataclasses import replace
+    import hwbvh
     from hwbvh import calibration as cal
-    from hwbvh.builder import build_canonical
     from hwbvh.cycle_model import CONTROL_LATENCY, PRESETS, simulate
-    from hwbvh.primitives import primitive_boxes
 
-    tree = build_canonical(primitive_boxes(tris))
+    bvh = hwbvh.build(tris)              # its tree for the model, its nodes for Table 4.4
+    tree = bvh.tree
     scene = cal.THESIS_SCENE_OF_MESH.get(stem)
     rows = []
     tables = None
@@ -809,18 +809,18 @@ def _model_rows(name, stem, tris):
             row["thesis_energy_joules"] = cal.THESIS_ENERGY_J[scene][0 if preset == "HWBVH-C" else 1]
         rows.append(row)
     if scene:
-        tables = _thesis_tree_tables(name, scene, tris)
+        tables = _thesis_tree_tables(name, scene, tris, bvh.meta)
     return {"rows": rows, "thesis_tables": tables}
 
 
-def _thesis_tree_tables(name, scene, tris):
+def _thesis_tree_tables(name, scene, tris, hw):
     """A thesis scene's footprint (Table 4.2) and trees (Tables 4.3-4.4), ours beside the
-    thesis': the hardware's tree and the sweep builder's."""
+    thesis': the hardware's tree (``hw``, its build's meta) and the sweep builder's."""
     import hwbvh
     from hwbvh import calibration as cal
     from hwbvh.cycle_model import footprint_bytes
 
-    hw, sweep = (hwbvh.build(tris, builder=b).meta for b in ("hwbvh", "sweep"))
+    sweep = hwbvh.build(tris, builder="sweep").meta
     hw_sah, hw_nodes, sw_sah, sw_nodes = cal.THESIS_TREES[scene]
     return {"mesh": name, "thesis_scene": scene,
             "footprint_mib": footprint_bytes(len(tris)) / 2**20,
