@@ -15,6 +15,7 @@ from hwbvh.files import write_files
 from hwbvh.primitives import MESH_EXTENSIONS
 from .paths import MESH_DIR_ENV, default_mesh_dir, mesh_files
 from .progress import progress_over
+from .report import name_width
 
 
 def machine():
@@ -211,9 +212,10 @@ def bench_build(args):
 def human(what):
     def fmt(r):
         if what == "build":
-            lines = [f"{'mesh':<18}{'tris':>10}{'hwbvh ms':>11}{'embree ms':>11}{'ratio':>8}{'SAH':>9}"]
+            w = name_width([m["mesh"] for m in r["meshes"]], 18)
+            lines = [f"{'mesh':<{w}}{'tris':>10}{'hwbvh ms':>11}{'embree ms':>11}{'ratio':>8}{'SAH':>9}"]
             for m in r["meshes"]:
-                lines.append(f"{m['mesh']:<18}{m['triangles']:>10}{m['hwbvh_seconds']*1e3:>11.1f}"
+                lines.append(f"{m['mesh']:<{w}}{m['triangles']:>10}{m['hwbvh_seconds']*1e3:>11.1f}"
                              f"{m['embree_seconds']*1e3:>11.1f}{m['ratio']:>8.2f}{m['sah_cost']:>9.2f}")
             lines.append(f"times: medians of {r['repeat']} runs each, the two builders alternating "
                          "run by run; ratio: the median of the runs' hwbvh / embree")
@@ -228,21 +230,22 @@ def human(what):
         if what == "render":
             return _render_human(r)
         if what == "trace":
-            lines = [f"{'mesh':<14}{'set':<12}{'rays':>9}{'ours Mr/s':>11}{'embreex':>9}{'ratio':>7}{'open3d':>8}"]
+            w = name_width([m["mesh"] for m in r["meshes"]], 14)
+            lines = [f"{'mesh':<{w}}{'set':<12}{'rays':>9}{'ours Mr/s':>11}{'embreex':>9}{'ratio':>7}{'open3d':>8}"]
             for m in r["meshes"]:
                 for k, s in m["sets"].items():
                     o3 = f"{s['open3d_mrays']:>8.2f}" if "open3d_mrays" in s else f"{'-':>8}"
-                    lines.append(f"{m['mesh']:<14}{k:<12}{s['rays']:>9}{s['ours_mrays']:>11.2f}"
+                    lines.append(f"{m['mesh']:<{w}}{k:<12}{s['rays']:>9}{s['ours_mrays']:>11.2f}"
                                  f"{s['embreex_mrays']:>9.2f}{s['ratio_vs_embreex']:>7.2f}{o3}")
             lines.append(f"rates: medians of {r['repeat']} runs each, ours and embreex alternating "
                          "run by run; ratio: the median of the runs' ours / embreex rate")
             if r.get("accels"):
-                lines += ["", f"{'mesh':<14}{'accel':<8}{'build ms':>10}{'x sweep':>8}{'MiB':>8}"
+                lines += ["", f"{'mesh':<{w}}{'accel':<8}{'build ms':>10}{'x sweep':>8}{'MiB':>8}"
                               f"{'refs/tri':>9}{'set':>12}{'Mr/s':>8}{'vs bvh':>8}"]
                 for m in r["meshes"]:
                     for a, st in m["accels"].items():
                         for k, s in st["sets"].items():
-                            lines.append(f"{m['mesh']:<14}{a:<8}{st['build_seconds']*1e3:>10.1f}"
+                            lines.append(f"{m['mesh']:<{w}}{a:<8}{st['build_seconds']*1e3:>10.1f}"
                                          f"{st['build_vs_sweep_bvh']:>8.2f}"
                                          f"{st['memory_bytes']/2**20:>8.2f}"
                                          f"{st['references_per_triangle']:>9.2f}{k:>12}"
@@ -250,16 +253,17 @@ def human(what):
             return "\n".join(lines)
         if what == "model":
             f = r["fit"]
+            w = name_width([m["mesh"] for m in r["rows"]], 16)
             lines = [f"control latency: shipped {f['shipped']}, fitted here {f.get('fitted', '-')} "
                      f"(range {f.get('fitted_range', '-')}) on {f['subtrees']} subtrees; Marbles rate "
                      f"{f['target_cycles_per_primitive']:.2f} cycles/primitive",
-                     f"{'mesh':<16}{'preset':<10}{'text-only ms':>13}{'calibrated ms':>15}{'thesis ms':>11}"
+                     f"{'mesh':<{w}}{'preset':<10}{'text-only ms':>13}{'calibrated ms':>15}{'thesis ms':>11}"
                      f"{'ratios':>14}"]
             for m in r["rows"]:
                 th = f"{m['thesis_seconds']*1e3:>11.2f}" if "thesis_seconds" in m else f"{'-':>11}"
                 ra = (f"{m['text_only_ratio']:>7.2f}{m['calibrated_ratio']:>7.2f}"
                       if "thesis_seconds" in m else f"{'-':>14}")
-                lines.append(f"{m['mesh']:<16}{m['preset']:<10}{m['text_only_seconds']*1e3:>13.2f}"
+                lines.append(f"{m['mesh']:<{w}}{m['preset']:<10}{m['text_only_seconds']*1e3:>13.2f}"
                              f"{m['calibrated_seconds']*1e3:>15.2f}{th}{ra}")
             lines += _thesis_table_lines(r)
             fs = r["fill_share"]
@@ -840,11 +844,12 @@ def _thesis_table_lines(result):
     energies = [m for m in result["rows"] if "thesis_energy_joules" in m]
     if not (tables or energies):
         return []
+    w = name_width([t["mesh"] for t in tables] + [m["mesh"] for m in energies], 16)
     lines = ["", "thesis tables, where a mesh is a thesis scene (ours | thesis):",
-             f"{'mesh':<16}{'table':<7}{'quantity':<28}{'ours':>18}{'thesis':>18}"]
+             f"{'mesh':<{w}}{'table':<7}{'quantity':<28}{'ours':>18}{'thesis':>18}"]
 
     def add(mesh, table, what, ours, theirs):
-        lines.append(f"{mesh:<16}{table:<7}{what:<28}{ours:>18}{theirs:>18}")
+        lines.append(f"{mesh:<{w}}{table:<7}{what:<28}{ours:>18}{theirs:>18}")
 
     for t in tables:
         m = t["mesh"]

@@ -1143,7 +1143,7 @@ class _Parser(argparse.ArgumentParser):
         # as every other error is written: "hwrt: error: --w: must be ...", the option first
         if message.startswith("argument "):
             message = message[len("argument "):]
-        self.exit(EXIT_BAD_INPUT, f"hwrt: error: {message}\n")
+        self.exit(EXIT_BAD_INPUT, f"hwrt: error: {one_line(message)}\n")
 
     def _print_message(self, message, file=None):
         # --help and --version as every result is written: all of it, or 141 for a reader
@@ -1463,6 +1463,13 @@ def _option_valued(parser, args, value):
     return None
 
 
+def one_line(text):
+    """``text`` as one line of a terminal: each character that would break the line or move
+    the cursor (a newline in a file's name, a carriage return, any other control character
+    or line separator) written as its escape, as Python writes it in a string."""
+    return "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in text)
+
+
 def _input_message(parser, args, e):
     """The line of InputError ``e``, naming what the user typed: the option that sets a
     library parameter, or whose value (a path) the error names; the film size options for a
@@ -1524,7 +1531,7 @@ def _run(argv, signals_owned):
         _answer_swallowed_signal()
     except InputError as e:
         _answer_swallowed_signal()
-        print(f"hwrt: error: {_input_message(parser, args, e)}", file=sys.stderr)
+        print(f"hwrt: error: {one_line(_input_message(parser, args, e))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except BrokenPipeError:
         # as a command killed by SIGPIPE would end, silently; stdout goes nowhere from here, so
@@ -1536,11 +1543,11 @@ def _run(argv, signals_owned):
         return EXIT_SIGPIPE
     except OutputError as e:      # checked writable, then not writable: the disk, not us
         _answer_swallowed_signal()
-        print(f"hwrt: cannot write {e.filename}: {e.strerror}", file=sys.stderr)
+        print(one_line(f"hwrt: cannot write {e.filename}: {e.strerror}"), file=sys.stderr)
         return 1
     except Exception as e:  # anything else is our fault, not the input's
         _answer_swallowed_signal()       # or a library's that swallowed an interrupt
-        print(f"hwrt: internal error: {type(e).__name__}: {e}", file=sys.stderr)
+        print(one_line(f"hwrt: internal error: {type(e).__name__}: {e}"), file=sys.stderr)
         if env_flag(DEBUG_ENV) is not False:       # on, or a word _run refused (in-process use)
             raise
         return 1

@@ -1,5 +1,6 @@
 """What a generated docs page carries besides its tables: the line it opens with (the command
-that made it, so that a reader can make the page again) and the figures written with it."""
+that made it, so that a reader can make the page again) and the figures written with it; and
+the width of a table's name column."""
 import os
 import shlex
 
@@ -37,3 +38,10 @@ def with_figures(files):
         f"![{os.path.splitext(name)[0].replace('_', ' ')}]({name})\n\n" for name in pngs)
     return [(path, data.rstrip("\n") + "\n" + section if path.endswith(".md") else data)
             for path, data in files]
+
+
+def name_width(names, least):
+    """The width of a text table's column of ``names``: ``least``, or wider for a long name
+    (a mesh named by its path when two files share a stem), two spaces past the longest, so that
+    the columns after it stay aligned."""
+    return max([least] + [len(str(n)) + 2 for n in names])

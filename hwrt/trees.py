@@ -28,6 +28,8 @@ import time
 
 import numpy as np
 
+from .report import name_width
+
 DEFAULT_SCENES = ("cornell", "marbles")
 BUILDERS = ("hwbvh", "sweep")
 
@@ -291,18 +293,18 @@ def _by_path(tracers, recordings, repeat):
     return out
 
 
-def _class_rows(r):
+def _class_rows(r, w):
     """(row head, class) for each class of each scene's time split; the scene named on its
-    first class only."""
+    first class only, in a column ``w`` wide."""
     for x in r["rows"]:
         for k, c in enumerate(x.get("by_path", [])):
-            yield f"{x['scene'] if k == 0 else '':<10}{c['kind'] + ', ' + c['path']:<20}", c
+            yield f"{x['scene'] if k == 0 else '':<{w}}{c['kind'] + ', ' + c['path']:<20}", c
 
 
-def _class_table(title, *columns):
+def _class_table(title, w, *columns):
     """A blank line, ``title`` and the two heading lines of a table of classes (``_class_rows``)
-    whose columns after the scene and the class are (top, bottom, format spec)."""
-    columns = (("scene", "", "<10"), ("class", "", "<20")) + columns
+    whose columns after the scene (``w`` wide) and the class are (top, bottom, format spec)."""
+    columns = (("scene", "", f"<{w}"), ("class", "", "<20")) + columns
     return ["", title] + ["".join(f"{c[i]:{c[2]}}" for c in columns) for i in (0, 1)]
 
 
@@ -315,15 +317,16 @@ def _percent(x):
 
 
 def human(r):
-    lines = [f"{'scene':<10}{'SAH hw/sweep':>14}  {'path':<11}{'work/ray hw':>12}{'sweep':>7}"
+    w = name_width([x["scene"] for x in r["rows"]], 10)
+    lines = [f"{'scene':<{w}}{'SAH hw/sweep':>14}  {'path':<11}{'work/ray hw':>12}{'sweep':>7}"
              f"{'work':>7}{'render':>7}{'trace':>7}{'render vs':>10}{'trace vs':>9}",
-             f"{'':<10}{'':>14}  {'':<11}{'':>12}{'':>7}{'ratio':>7}{'ratio':>7}{'ratio':>7}"
+             f"{'':<{w}}{'':>14}  {'':<11}{'':>12}{'':>7}{'ratio':>7}{'ratio':>7}{'ratio':>7}"
              f"{'work':>10}{'work':>9}"]
     for x in r["rows"]:
         for k, mode in enumerate(("packets", "single_ray")):
             m = x[mode]
-            head = f"{x['scene']:<10}{x['sah_cost']['hwbvh']:>7.1f}/{x['sah_cost']['sweep']:<6.1f}" \
-                if k == 0 else " " * 24
+            head = f"{x['scene']:<{w}}{x['sah_cost']['hwbvh']:>7.1f}/{x['sah_cost']['sweep']:<6.1f}" \
+                if k == 0 else " " * (w + 14)
             lines.append(f"{head}  {mode.replace('_', '-'):<11}"
                          f"{m['work']['hwbvh']['work_per_ray']:>12.1f}{m['work']['sweep']['work_per_ray']:>7.1f}"
                          f"{_ratio(m['work_ratio']):>7}{m['render_ratio']:>7.3f}{m['trace_ratio']:>7.3f}"
@@ -332,12 +335,12 @@ def human(r):
                  "path runs them (a packet's rays each count the packet's tests), over closest-hit "
                  "and shadow rays; trace = the render's rays traced again alone")
     lines += _class_table("where the trace time goes (the packet render's queries by kind and "
-                          "path, traced again class by class):",
+                          "path, traced again class by class):", w,
                           ("rays", "", ">9"), ("share of", "hw trace", ">10"),
                           ("ns per", "unit hw", ">8"), ("work/ray hw", "", ">12"),
                           ("sweep", "", ">7"), ("work", "ratio", ">7"), ("trace", "ratio", ">7"),
                           ("trace vs", "work", ">9"))
-    for head, c in _class_rows(r):
+    for head, c in _class_rows(r, w):
         share = "-" if c["time_share"] is None else f"{100 * c['time_share']:.0f}%"
         unit = "-" if c["ns_per_unit"] is None else f"{c['ns_per_unit']:.2f}"
         gap = _percent(_gap(c["trace_ratio"], c["work_ratio"]))
@@ -349,13 +352,13 @@ def human(r):
                  "each class pays a fixed cost per query, which dominates a class of few rays")
     lines += _class_table("what a unit costs (each query of both trees timed alone on one "
                           "thread, fitted as nodes x a + triangles x b + rays x c + d with no "
-                          "price below 0):",
+                          "price below 0):", w,
                           ("queries", "", ">8"), ("a ns per", "node", ">9"),
                           ("b ns per", "triangle", ">9"), ("c ns per", "ray", ">9"),
                           ("d us per", "query", ">9"), ("R2", "", ">6"), ("nodes", "ratio", ">7"),
                           ("triangles", "ratio", ">10"), ("priced", "ratio", ">7"),
                           ("1-thread", "ratio", ">9"))
-    for head, c in _class_rows(r):
+    for head, c in _class_rows(r, w):
         f = c.get("cost_fit")
         ratios = f"{_ratio(c['nodes_ratio']):>7}{_ratio(c['triangles_ratio']):>10}"
         if f is None:

@@ -243,8 +243,10 @@ def _load_scene_file(spec):
         raise InputError(spec, "a scene file must hold an object at the top level")
     _refuse_internal_keys(spec, d)
     d["_source"] = spec
-    d.setdefault("name", os.path.splitext(os.path.basename(spec))[0])
-    check_name(spec, d["name"])
+    if "name" in d:
+        check_name(spec, d["name"])
+    else:
+        d["name"] = name_of_file(spec, "or give the scene a key 'name'")
     return d
 
 
@@ -303,12 +305,34 @@ def check_name(source, name):
     renders/animate-<name>-<strategy>/), so a separator or a "." / ".." would write elsewhere."""
     if not isinstance(name, str) or not name:
         problem = f"expected a non-empty string, got {written(name)}"
-    elif name in (".", "..") or any(c in "/\\" or unicodedata.category(c) == "Cc" for c in name):
+    elif not _plain_name(name):
         problem = (f"{written(name)} is not a plain file name (outputs are named after it: no '/', "
                    "'\\', NUL or other control characters, not '.' or '..')")
     else:
         return
     raise InputError(source, f"key 'name': {problem}")
+
+
+def name_of_file(path, remedy=None):
+    """The name a scene takes from its file: the file's name without its scene or mesh
+    extension (``a.ply`` is 'a', ``a.b.toml`` 'a.b'). Refused (InputError naming the file)
+    when that is not a plain file name (a file named ``..toml``, or with a newline in it), as
+    the outputs are named after it; ``remedy``: a second way out besides renaming the file."""
+    base = os.path.basename(path)
+    ext = next((e for e in SCENE_EXTENSIONS + MESH_EXTENSIONS if base.lower().endswith(e)), "")
+    name = base[:len(base) - len(ext)]
+    if _plain_name(name):
+        return name
+    raise InputError(path, f"its file name makes the scene's name {written(name)}, which is not a "
+                           f"plain file name (outputs are named after it): rename the file"
+                           + (f" {remedy}" if remedy else ""))
+
+
+def _plain_name(name):
+    """Whether ``name`` can name output files: a non-empty string, not '.' or '..', with no
+    separator or control character."""
+    return isinstance(name, str) and bool(name) and name not in (".", "..") and not any(
+        c in "/\\" or unicodedata.category(c) == "Cc" for c in name)
 
 
 def vector_ok(v, a, bound=MAX_COORDINATE):
@@ -457,7 +481,7 @@ def mesh_scene(path):
     light = (lo + hi) / 2 + np.array([0.4, 1.0, 0.8]) * diag
     dist2 = float(np.sum((light - (lo + hi) / 2) ** 2))
     return {
-        "type": "scene", "name": os.path.splitext(os.path.basename(path))[0], "_source": path,
+        "type": "scene", "name": name_of_file(path), "_source": path,
         "camera": {"type": "perspective", "eye": eye.tolist(), "target": target.tolist(),
                    "up": up.tolist(), "fov": 40.0},
         "film": {"width": 640, "height": 480, "spp": 1},

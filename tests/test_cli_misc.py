@@ -266,12 +266,37 @@ def test_bench_trace_tells_meshes_of_one_stem_apart_and_errors_name_the_file(tmp
         paths.append(p)
     r = _hwrt("bench", "trace", *paths, "--rays", 200, "--repeat", 1, "--json")
     assert r.returncode == 0, r.stderr
-    assert [m["mesh"] for m in json.loads(r.stdout)["meshes"]] == [str(paths[0]), str(paths[1]), "other"]
+    result = json.loads(r.stdout)
+    assert [m["mesh"] for m in result["meshes"]] == [str(paths[0]), str(paths[1]), "other"]
+    from hwrt.bench import human
+    rows = 1 + sum(len(m["sets"]) for m in result["meshes"])
+    table = human("trace")(result).splitlines()[:rows]
+    assert len({len(line) for line in table}) == 1, table      # a path as name keeps the columns
     bad = tmp_path / "nan.obj"
     bad.write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n")
     r = _hwrt("bench", "trace", bad, "--rays", 200, "--repeat", 1)
     assert r.returncode == 2 and r.stderr.splitlines() == [
         f"hwrt: error: {bad}: triangle 0 has a NaN or infinite coordinate"]
+
+
+def test_long_mesh_and_scene_names_keep_the_tables_aligned():
+    from pathlib import Path
+    from hwrt import trees
+    from hwrt.bench import human
+    long = "meshes/of/one/stem/bunny.ply"
+    row = {"mesh": long, "triangles": 10, "hwbvh_seconds": 0.001, "embree_seconds": 0.002,
+           "ratio": 0.5, "sah_cost": 12.0}
+    build = human("build")({"meshes": [row, dict(row, mesh="bunny")], "repeat": 1}).splitlines()
+    assert len({len(line) for line in build[:3]}) == 1, build
+    result = json.loads((Path(__file__).parents[1] / "docs" / "trees.json").read_text())
+    result["rows"][0]["scene"] = long
+    lines = trees.human(result).splitlines()
+    first = lines[:2 + 2 * len(result["rows"])]
+    assert len({len(line) for line in first}) == 1, first
+    classes = sum(len(x["by_path"]) for x in result["rows"])
+    where = lines.index(next(line for line in lines if line.startswith("where the trace time")))
+    split = lines[where + 1:where + 3 + classes]
+    assert len({len(line) for line in split}) == 1, split
 
 
 def test_bench_refuses_a_missing_mesh_or_a_directory_before_any_work(tmp_path):

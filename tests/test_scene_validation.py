@@ -677,3 +677,36 @@ def test_a_sphere_too_small_for_its_place_is_refused_however_small(radius, tmp_p
     p = write_scene(tmp_path, scene_dict([shape]))
     line = refused(capsys, tmp_path, monkeypatch, "render", p, "-o", tmp_path / "o.exr")
     assert f"{p}: key 'shapes[0].center': the sphere collapses" in line
+
+
+@pytest.mark.parametrize("file", ["..json", "a\nb.json", "..toml"])
+def test_a_scene_file_whose_name_is_not_plain_needs_a_name_key(tmp_path, capsys, monkeypatch,
+                                                               file):
+    d = scene_dict()
+    p = tmp_path / file
+    p.write_text(json.dumps(d) if file.endswith(".json") else
+                 "[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n")
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "--width", 8, "--height", 8)
+    assert "key 'name'" not in line.split(": ", 2)[1]          # the file is blamed, not a key
+    assert line.endswith("not a plain file name (outputs are named after it): rename the file "
+                         "or give the scene a key 'name'"), line
+    if file.endswith(".json"):
+        p.write_text(json.dumps(dict(d, name="given")))
+        assert load_scene(str(p))["name"] == "given"
+
+
+@pytest.mark.parametrize("file, name", [("a.b.json", "a.b"), ("Scene.JSON", "Scene"),
+                                        ("x.toml.json", "x.toml")])
+def test_a_scene_is_named_after_its_file_without_the_extension(tmp_path, file, name):
+    p = tmp_path / file
+    p.write_text(json.dumps(scene_dict()))
+    assert load_scene(str(p))["name"] == name
+
+
+def test_a_mesh_file_whose_name_is_not_plain_is_refused_naming_it(tmp_path, capsys, monkeypatch):
+    import trimesh
+    p = tmp_path / "..ply"
+    trimesh.creation.box().export(p)
+    line = refused(capsys, tmp_path, monkeypatch, "render", p, "--width", 8, "--height", 8)
+    assert line.endswith("its file name makes the scene's name '.', which is not a plain file "
+                         "name (outputs are named after it): rename the file"), line
