@@ -17,11 +17,16 @@ class InputError(ValueError):
 
 class ParameterError(InputError):
     """A function argument out of range. ``parameter`` is the argument's name as the function
-    spells it (``leaf_size``); a command line reports its own option for it (``--leaf-size``)."""
+    spells it (``leaf_size``); a command line reports its own option for it (``--leaf-size``).
+    ``remedy``: what a caller of the library can do about it, written after the finding
+    (``problem`` holds both); ``finding`` is the problem without it, for a caller whose way out
+    is another (a command's own option, or none)."""
 
-    def __init__(self, parameter, problem):
+    def __init__(self, parameter, problem, remedy=None):
         self.parameter = str(parameter)
-        super().__init__(parameter, problem)
+        self.finding = str(problem)
+        self.remedy = remedy
+        super().__init__(parameter, problem if remedy is None else f"{problem}: {remedy}")
 
 
 def is_integer(v):

@@ -408,9 +408,8 @@ def _replay(path, scene, tris, verts, faces):
     try:
         ours = tracer.occluded(O, D, 0.0, tmax) if occluded else tracer.intersect(O, D, 0.0, tmax)
     except ParameterError as e:                 # rays no run of the float32 units traced
-        problem = re.split(r"[;:(]? ?\(?trace with traversal\.Tracer", e.problem)[0].rstrip(" :;(")
         raise InputError(path, f"its rays are beyond the float32 units ({e.parameter}: "
-                               f"{problem}): no hwrt verify run wrote them") from None
+                               f"{e.finding}): no hwrt verify run wrote them") from None
     if occluded:
         blocked = ours
         ref = embree_occluded(reference, O, D, tmax)
@@ -737,7 +736,7 @@ BENCHMARKS = {
     "accuracy": ("what each accuracy knob (bins, leaf size, builder, precision, triangle test, "
                  "ray offset, depth, spp) costs in time and buys in image error against a "
                  "float64 reference, in hits that disagree with Embree's and in holes",
-                 "minutes; --quick: seconds"),
+                 "minutes; --quick: under a minute"),
     "model": ("the cycle model's build times for HWBVH-C and HWBVH-HP against the thesis' "
               "published times, and the fit of its one calibrated constant", "minutes"),
     "contention": ("how much a busy competitor on every core slows our build + render, against "
@@ -821,7 +820,8 @@ def _frames_help(on_its_page=False):
 BENCH_OPTION_HELP = {
     "mesh_dir": "directory of meshes", "repeat": "timed runs; figures are their medians",
     "rays": "rays per set",
-    "quick": "a short run: tti and accuracy, a few small cells (seconds); animation, fewer "
+    "quick": "a short run: tti and accuracy, a few small cells (tti seconds, accuracy under a "
+             "minute); animation, fewer "
              "frames of fewer triangles",
     "fresh": "start over, ignoring finished cells", "out_dir": "where result files go",
     "scheduler": f"{DASK_HELP} ({' and '.join(BENCH_TIMES_ONE_AT_A_TIME)} time theirs one at "
@@ -835,7 +835,7 @@ BENCH_QUICK_HELP = {
     "tti": "a short run: the cornell scene and the smallest mesh, small cells, one run each "
            "(seconds)",
     "accuracy": "a short run: the cornell scene (and the meshes named), small cells, one run "
-                "each, fewer rays checked",
+                "each, fewer rays checked (under a minute)",
     "animation": "a short run: fewer frames of fewer triangles"}
 
 # The benchmarks whose MESH arguments may be scenes too (SCENE on their help pages)

@@ -506,8 +506,12 @@ def test_float32_rays_are_checked_against_the_units_range():
     hit = tr.intersect(o, D).prim
     assert (hit >= 0).all()
     with pytest.raises(ParameterError, match=r"^dirs: directions up to 1e\+30 long take the "
-                                             r"float32 unit's products to .*precision='float64'"):
+                                             r"float32 unit's products to .*precision='float64'") \
+            as caught:
         tr.intersect(o, D * np.float32(1e30))
+    e = caught.value               # the way out apart, for a caller whose way out is another
+    assert e.remedy.startswith("trace with traversal.Tracer(precision='float64')")
+    assert e.finding.endswith("(hits would be lost)") and e.problem == f"{e.finding}: {e.remedy}"
     tr.unit_range = None
     assert (tr.intersect(o, D * np.float32(1e30)).prim == hit).mean() < 0.5
     tr = Tracer(hwbvh.build(big))

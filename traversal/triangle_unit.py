@@ -196,8 +196,8 @@ class Float32Range:
                                               f"|e1| |e2| of its triangles is {self.edges:.3g}, "
                                               f"below the {self.MIN_EDGES:.3g} that keeps a unit "
                                               f"direction's determinant a normal number (hits "
-                                              f"would be lost): "
-                                              f"{self.REMEDY.replace('down', 'up')}")
+                                              f"would be lost)",
+                                              remedy=self.REMEDY.replace('down', 'up'))
         # the usual batch in one comparison: directions no coordinate of which passes 1 (at
         # most sqrt(3) long), origins within this magnitude; -1 when no batch is that simple
         k = np.sqrt(3.0)
@@ -251,7 +251,7 @@ class Float32Range:
         to = f"to {got:.3g}" if got < np.inf else "to infinity"
         raise ParameterError(name, f"{why} take the {self.UNIT} unit's products {to}, beyond "
                                    f"the {self.MAX_PRODUCT:.3g} they stay within (hits would be "
-                                   f"lost): {self.REMEDY}")
+                                   f"lost)", remedy=self.REMEDY)
 
 
 class Float64Range(Float32Range):
