@@ -260,10 +260,15 @@ def _run_params(anim, strategy, threshold, scene, accel="bvh", seed=0, written=F
     return jsonable(p)
 
 
+def _written_beside_state(frames):
+    """The files a run of ``frames`` frames writes besides its state: each frame, then the
+    CSV and the preview."""
+    return [FRAME_NAME.format(i) for i in range(frames)] + [CSV_NAME, PREVIEW_NAME]
+
+
 def _check_output_dir(out_dir, anim, frames):
     """Fail before any work unless every output can be written and none is an input."""
-    names = [FRAME_NAME.format(i) for i in range(frames)] + [STATE_NAME, CSV_NAME, PREVIEW_NAME]
-    check_output_dir(out_dir, names, anim.inputs)
+    check_output_dir(out_dir, _written_beside_state(frames) + [STATE_NAME], anim.inputs)
     return os.path.abspath(out_dir)
 
 
@@ -272,8 +277,8 @@ def _load_state(out_dir, params, frames):
     if not os.path.exists(path):
         # a run writes each frame with its state, and its CSV and preview after: without a
         # state they are someone else's files, which a run would replace
-        names = [FRAME_NAME.format(i) for i in range(frames)] + [CSV_NAME, PREVIEW_NAME]
-        theirs = [n for n in names if os.path.exists(os.path.join(out_dir, n))]
+        theirs = [n for n in _written_beside_state(frames)
+                  if os.path.exists(os.path.join(out_dir, n))]
         if theirs:
             raise InputError(out_dir, f"holds {theirs[0]} but no {STATE_NAME} of an hwrt animate "
                                       f"run: a run would replace it; choose another output "
