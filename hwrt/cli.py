@@ -640,7 +640,13 @@ def cmd_render(args):
     if args.precision == "float32":     # with the remedy this command takes
         wider = args.accel == "bvh" and not embree and not args.verify
         check_float32_reach(scene, float64="add --precision float64" if wider else None)
-    startup_s = warm_up(args.builder, args.traversal, precision=args.precision)
+    from hwbvh.config import SEQUENTIAL_MAX_PRIMS
+    # a mesh past SEQUENTIAL_MAX_PRIMS builds with the data-parallel kernels: compiled now, so
+    # that the build time is the build's, not the compiler's
+    large = args.accel == "bvh" and args.builder == "hwbvh" and \
+        len(scene.triangles) > SEQUENTIAL_MAX_PRIMS
+    startup_s = warm_up(args.builder, args.traversal, parallel_build=large,
+                        precision=args.precision)
     if args.accel == "grid":
         from traversal.grid import warm_up_grid
         startup_s += warm_up_grid()

@@ -766,16 +766,18 @@ def _no_collapse(ctx, mesh, scaled, moved, path):
                  f"float32 numbers {step:.3g} apart, coarse against its size of {size:.3g}")
 
 
-def _not_coarse(ctx, tris, key, what):
+def _not_coarse(ctx, tris, key, what, sized=False):
     """Refuse a shape placed so far from the origin, against its size, that float32 rounds its
     coordinates by more than ``MAX_TRANSLATION_ROUNDING`` of that size (as a mesh's
-    translation is refused): a unit box at x = 1e9 would be traced as a flat or empty one."""
+    translation is refused): a unit box at x = 1e9 would be traced as a flat or empty one.
+    A shape given no extent (a box with min = max, a sheet of size 0) has none to lose and
+    renders nothing; one whose keys give it an extent (``sized``: a sphere's radius is above
+    0) and that has none left has rounded to a point (a radius of 1e-18 beside a centre at
+    1): as coarse as can be."""
     if not len(tris):
         return
-    # a shape of no extent at all is one that rounded to a point (a sphere's radius of 1e-18
-    # beside a centre at 1): as coarse as can be
     size, step = _extent(tris), _float32_step(tris)
-    if step / 2 > MAX_TRANSLATION_ROUNDING * size:
+    if (size > 0 or sized) and step / 2 > MAX_TRANSLATION_ROUNDING * size:
         ctx.fail(key, f"{what} collapses: this far from the origin its coordinates round to "
                       f"float32 numbers {step:.3g} apart, coarse against its size of {size:.3g}")
 
@@ -879,7 +881,7 @@ def _shape(ctx, sh, i, scene_dir):
         V, F = uv_sphere(sub[0], sub[1])
         tris = V[F] * r + c
         _bounded(ctx, tris, f"{path}.radius", "the sphere")
-        _not_coarse(ctx, tris, f"{path}.center", "the sphere")
+        _not_coarse(ctx, tris, f"{path}.center", "the sphere", sized=True)
         normals = V[F]                                   # radial, outward
     elif typ == "sheet":
         res = _as_list(sh.get("resolution", [64, 64]))

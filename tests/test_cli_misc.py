@@ -661,3 +661,35 @@ def test_a_page_shows_the_figures_written_with_it():
     assert got["d/a.md"] == "# A\n\ntable\n\n## Figures\n\n![a b](a_b.png)\n\n![c](c.png)\n\n"
     assert got["d/a.csv"] == "x\n" and got["d/c.png"] == b"png"
     assert with_figures(files[:2]) == files[:2]          # no figure: the page as it was
+
+
+@pytest.mark.parametrize("subdiv, builder, parallel", [([64, 96], "hwbvh", True),
+                                                       ([16, 32], "hwbvh", False),
+                                                       ([64, 96], "sweep", False)])
+def test_render_compiles_the_builder_a_large_scene_takes_before_its_build_is_timed(
+        tmp_path, monkeypatch, capsys, subdiv, builder, parallel):
+    """A scene past SEQUENTIAL_MAX_PRIMS builds with the data-parallel kernels: render warms
+    them up first, so that build_seconds is the build's, not the compiler's."""
+    import raytracer.render as render_module
+    from hwbvh.config import SEQUENTIAL_MAX_PRIMS
+    from hwrt.cli import main
+    seen = []
+    real = render_module.warm_up
+
+    def recording(*args, **kwargs):
+        seen.append(kwargs.get("parallel_build", False))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(render_module, "warm_up", recording)
+    scene = {"camera": {"eye": [0, 0, 4], "target": [0, 0, 0]},
+             "film": {"width": 16, "height": 12, "spp": 1},
+             "materials": {"m": {"type": "diffuse"}},
+             "shapes": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m",
+                         "subdiv": subdiv}]}
+    p = tmp_path / "s.json"
+    p.write_text(json.dumps(scene))
+    assert main(["render", str(p), "--builder", builder, "-o", str(tmp_path / "o.exr"),
+                 "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert (result["triangles"] > SEQUENTIAL_MAX_PRIMS) == (subdiv == [64, 96])
+    assert seen == [parallel]

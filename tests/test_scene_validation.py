@@ -710,3 +710,19 @@ def test_a_mesh_file_whose_name_is_not_plain_is_refused_naming_it(tmp_path, caps
     line = refused(capsys, tmp_path, monkeypatch, "render", p, "--width", 8, "--height", 8)
     assert line.endswith("its file name makes the scene's name '.', which is not a plain file "
                          "name (outputs are named after it): rename the file"), line
+
+
+@pytest.mark.parametrize("shape", [
+    {"type": "sheet", "size": 0, "wave": 0, "resolution": [2, 2]},
+    {"type": "box", "min": [1, 2, 3], "max": [1, 2, 3]},
+    {"type": "quad", "corners": [[1, 1, 1]] * 4},
+    {"type": "triangles", "data": [[[0.5, 0.5, 0.5]] * 3]}])
+def test_a_shape_given_no_extent_is_taken_and_renders_nothing(shape):
+    """What its keys say has no size has none to lose: it is not refused as collapsing, as a
+    sphere that rounds to a point is (above), and no ray hits it."""
+    from raytracer.render import make_tracer, render
+    d = scene_dict([dict(shape, material="white")])
+    scene = compile_scene(d, source="dict")
+    assert (scene.triangles == scene.triangles[0, 0]).all()
+    res = render(scene, make_tracer(scene)[0])
+    assert (res.prim == -1).all()
