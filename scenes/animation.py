@@ -230,9 +230,13 @@ def camera_track(source, keys, path, base):
 # --------------------------------------------------------------------------------------
 # Frame sequences
 # --------------------------------------------------------------------------------------
+class NoFrameFiles(InputError):
+    """A frame pattern that matches no file at all."""
+
+
 def expand_pattern(pattern, source=None):
     """The frame files of a printf or glob pattern, in frame order. Raises InputError naming
-    the pattern when nothing matches, and the missing file when a frame in the middle of the
+    the pattern when nothing matches (NoFrameFiles), and the missing file when a frame in the middle of the
     numbered sequence is absent."""
     source = source or pattern
     pattern = os.fspath(pattern)
@@ -253,7 +257,7 @@ def expand_pattern(pattern, source=None):
         nums = sorted({int(mm.group(1)) for nm in names if (mm := rx.match(nm))
                        and nm == base % int(mm.group(1))})
         if not nums:
-            raise InputError(source, f"pattern {pattern!r} matches no file")
+            raise NoFrameFiles(source, f"pattern {pattern!r} matches no file")
         files = []
         for k in range(nums[0], nums[-1] + 1):
             f = pattern % k
@@ -264,7 +268,7 @@ def expand_pattern(pattern, source=None):
         return files
     files = [f for f in glob.glob(pattern) if os.path.isfile(f)]
     if not files:
-        raise InputError(source, f"pattern {pattern!r} matches no file")
+        raise NoFrameFiles(source, f"pattern {pattern!r} matches no file")
     numbered = [(re.findall(r"\d+", os.path.basename(f)), f) for f in files]
     if all(n for n, _ in numbered):
         keyed = sorted((int(n[-1]), n[-1], f) for n, f in numbered)

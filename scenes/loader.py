@@ -195,10 +195,18 @@ def load_scene(spec, **overrides):
 def _load_scene_file(spec):
     """The scene dict of a scene file or a mesh file."""
     if not os.path.exists(spec):
+        # (animation imports this module)
+        from .animation import ANIMATIONS, NoFrameFiles, expand_pattern
         if is_pattern(spec):
+            try:
+                expand_pattern(spec)
+            except NoFrameFiles:
+                raise InputError(spec, "no such file, nor mesh files it names as a frame "
+                                       "sequence (a %d or glob pattern)") from None
+            except InputError:                  # files it names, with a frame missing
+                pass
             raise InputError(spec, "a frame sequence (a %d or glob pattern of mesh files): "
                                    "render it with hwrt animate")
-        from .animation import ANIMATIONS           # (animation imports this module)
         if spec in ANIMATIONS:
             raise InputError(spec, "a built-in animation: render it with hwrt animate")
         raise InputError(spec, "no such scene or file (built-in scenes: " + ", ".join(BUILTIN) + ")")

@@ -424,6 +424,12 @@ def test_a_value_is_quoted_as_the_scene_file_spells_it(tmp_path, capsys, monkeyp
 def test_a_frame_pattern_given_to_a_still_command_points_to_animate(tmp_path, capsys,
                                                                     monkeypatch, command, pattern):
     line = refused(capsys, tmp_path, monkeypatch, command, pattern)
+    assert line == (f"hwrt: error: {pattern}: no such file, nor mesh files it names as a frame "
+                    f"sequence (a %d or glob pattern)")
+    (tmp_path / "seq").mkdir()
+    for k in (0, 2):                                 # frame 1 missing: a sequence all the same
+        (tmp_path / "seq" / f"b_{k:04d}.ply").write_bytes(b"")
+    line = refused(capsys, tmp_path, monkeypatch, command, pattern)
     assert line == (f"hwrt: error: {pattern}: a frame sequence (a %d or glob pattern of mesh "
                     f"files): render it with hwrt animate")
 
