@@ -671,6 +671,7 @@ def cmd_render(args):
               "precision": args.precision,
               "triangles": int(len(scene.triangles)), "width": scene.width, "height": scene.height,
               "spp": scene.spp, "max_depth": scene.max_depth,
+              "seed": args.seed, "jitter": bool(scene.jitter),
               "build_seconds": build_s, "render_seconds": render_s,
               "time_to_image_seconds": build_s + render_s,
               "simulated_build_seconds": info.get("simulated_build_seconds"),
@@ -687,7 +688,8 @@ def cmd_render(args):
         result["verify"], result["verify_seconds"] = checked
     meta = {"scene": scene.name, "accel": args.accel, "precision": args.precision,
             "build_seconds": build_s,
-            "render_seconds": render_s, "spp": scene.spp, "max_depth": scene.max_depth}
+            "render_seconds": render_s, "spp": scene.spp, "max_depth": scene.max_depth,
+            "seed": args.seed, "jitter": int(bool(scene.jitter))}
     if bvh:
         meta.update(builder=args.builder, traversal=args.traversal)
     meta.update({f"rays_{k}": v for k, v in res.stats["rays"].items()})

@@ -693,3 +693,19 @@ def test_render_compiles_the_builder_a_large_scene_takes_before_its_build_is_tim
     result = json.loads(capsys.readouterr().out)
     assert (result["triangles"] > SEQUENTIAL_MAX_PRIMS) == (subdiv == [64, 96])
     assert seen == [parallel]
+
+
+def test_a_render_records_its_seed_and_jitter_so_its_image_can_be_made_again(tmp_path, capsys):
+    from hwrt.cli import main
+    from raytracer.output import read_exr
+    images = []
+    for seed in (0, 7):
+        out = tmp_path / f"s{seed}.exr"
+        assert main(["render", "cornell", "--width", "32", "--height", "24", "--spp", "2",
+                     "--seed", str(seed), "-o", str(out), "--json"]) == 0
+        result = json.loads(capsys.readouterr().out)
+        pixels, _, meta = read_exr(out)
+        assert (result["seed"], result["jitter"]) == (seed, True)
+        assert (meta["seed"], meta["jitter"]) == (seed, 1)
+        images.append(pixels)
+    assert not np.array_equal(images[0], images[1])        # the seed is what made the image
