@@ -491,8 +491,10 @@ def test_float32_rays_are_checked_against_the_units_range():
     check (it misses), and so does an infinite one; a finite one far enough is refused."""
     from traversal.triangle_unit import ray_magnitudes
     x = np.array([np.nan, -np.inf, -123.5, 2.0, np.inf, -0.0], np.float32)
-    assert ray_magnitudes(x, x[3:4]) == (123.5, 2.0)
-    assert ray_magnitudes(x[:2], x[:0]) == (0.0, 0.0)
+    dirs = np.array([2.0, -0.0, 1.0, np.nan, 9.0, 1.0, 0.0, 0.0, 0.0, 0.0, -0.5, 0.25],
+                    np.float32)         # rows: (2, -0, 1), a NaN row, a zero row, (0, -0.5, 0.25)
+    assert ray_magnitudes(x, dirs) == (123.5, 2.0, 0.5)
+    assert ray_magnitudes(x[:2], x[:0]) == (0.0, 0.0, np.inf)
     tr = Tracer(hwbvh.build(TRIS))
     far = O.copy()
     far[:, 2] = np.float32(1e30)
@@ -642,3 +644,36 @@ def test_a_tree_not_from_the_builder_is_validated_before_it_is_traced():
         assert Tracer(tree).intersect([[0.5, 0.5, 5.0]], [[0, 0, -1.0]]).prim[0] >= 0
     assert refitted._invariants_hold and not getattr(
         dataclasses.replace(bvh, nodes=shrunk), "_invariants_hold", False)
+
+
+@pytest.mark.parametrize("make", ["bvh", "grid", "kdtree"])
+def test_directions_too_short_for_the_float32_unit_are_refused_not_traced_to_lost_hits(make):
+    """The unit's determinant is at most |d| |e1| |e2|: directions short enough take it below
+    float32's normal numbers and lose hits (at 1e-36 on unit-sized triangles, unchecked, a
+    third and more of them); such a batch is refused naming ``dirs``, as the triangles' own
+    floor is for unit directions. The float64 units trace them; a zero direction (it hits
+    nothing anywhere) is passed over, as are directions of a tiny scene of about unit
+    length."""
+    from traversal.grid import GridTracer
+    from traversal.kdtree import KdTreeTracer
+    tracer = {"bvh": lambda t: Tracer(hwbvh.build(t)), "grid": GridTracer,
+              "kdtree": KdTreeTracer}[make]
+    tr = tracer(TRIS)
+    hits = tr.intersect(O, D).prim
+    assert (hits >= 0).sum() > 10
+    for call in (lambda d: tr.intersect(O, d), lambda d: tr.occluded(O, d)):
+        with pytest.raises(ParameterError, match=r"^dirs: directions as short as .* would leave "
+                                                 r"float32's normal numbers \(hits would be "
+                                                 r"lost\): give directions of about unit length"):
+            call(D * np.float32(1e-36))
+    from types import SimpleNamespace
+    tr.unit_range = SimpleNamespace(check=lambda o, d: None)   # unchecked: the hits it loses
+    assert (tr.intersect(O, D * np.float32(1e-36)).prim != hits).sum() > 0
+    if make == "bvh":
+        wide = Tracer(hwbvh.build(TRIS), precision="float64")
+        np.testing.assert_array_equal(wide.intersect(O, D * 1e-36).prim, wide.intersect(O, D).prim)
+    still = D.copy()
+    still[0] = 0
+    np.testing.assert_array_equal(tracer(TRIS).intersect(O, still).prim[1:], hits[1:])
+    tiny = tracer(TRIS * np.float32(1e-12))
+    np.testing.assert_array_equal(tiny.intersect(O * np.float32(1e-12), D).prim, hits)

@@ -158,12 +158,36 @@ def _largest_finite_f32(x):
     return np.float64(np.array([m], np.uint32).view(np.float32)[0])
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _direction_extremes_f32(d):
+    """(largest finite |coordinate|, shortest direction) of float32 directions ``d``, rows of
+    3 seen flat; a direction's length is taken as its largest |coordinate| (within sqrt(3) of
+    it). A direction with a NaN or infinite coordinate, or of length 0 (it hits nothing in
+    any unit), is passed over; none left: infinity as the shortest. On the bit patterns, as
+    ``_largest_finite_f32``."""
+    bits = d.view(np.uint32)
+    inf = np.uint32(0x7F800000)
+    big = np.uint32(0)
+    short = inf
+    for k in range(bits.shape[0] // 3):
+        a = bits[3 * k] & np.uint32(0x7FFFFFFF)
+        b = bits[3 * k + 1] & np.uint32(0x7FFFFFFF)
+        c = bits[3 * k + 2] & np.uint32(0x7FFFFFFF)
+        m = max(a, max(b, c))
+        m = m if m < inf else np.uint32(0)
+        big = max(big, m)
+        short = min(short, m if m != 0 else inf)
+    return (np.float64(np.array([big], np.uint32).view(np.float32)[0]),
+            np.float64(np.array([short], np.uint32).view(np.float32)[0]))
+
+
 @njit(cache=True, nogil=True)
 def ray_magnitudes(o, d):
-    """(largest finite |coordinate| of the origins, of the directions), from float32 rows
-    seen flat: a ray with a NaN or infinite coordinate misses in the kernels whatever the
-    range, so it is passed over."""
-    return _largest_finite_f32(o), _largest_finite_f32(d)
+    """(largest finite |coordinate| of the origins, of the directions, shortest direction),
+    from float32 rows seen flat (``_direction_extremes_f32``): a ray with a NaN or infinite
+    coordinate misses in the kernels whatever the range, so it is passed over."""
+    big, short = _direction_extremes_f32(d)
+    return _largest_finite_f32(o), big, short
 
 
 class Float32Range:
@@ -207,7 +231,8 @@ class Float32Range:
                 self.MAX_PRODUCT / worst / k - self.box[2]
 
     def _magnitudes(self, o, d):
-        """(largest finite |coordinate| of the origins, of the directions)."""
+        """(largest finite |coordinate| of the origins, of the directions, the shortest
+        direction: ``ray_magnitudes``)."""
         return ray_magnitudes(o.reshape(-1), d.reshape(-1))
 
     def _largest(self, dist, dlen):
@@ -221,7 +246,17 @@ class Float32Range:
         could take a product past the bound."""
         if self.edges == 0 or len(o) == 0:          # no triangle can be hit / no ray
             return
-        om, dm = self._magnitudes(o, d)
+        om, dm, shortest = self._magnitudes(o, d)
+        # the determinant is at most |d| |e1| |e2|: as the triangles' own floor (__init__),
+        # for the shortest direction, whose length is at most sqrt(3) its largest coordinate
+        if np.sqrt(3.0) * shortest * self.edges < self.MIN_EDGES:
+            raise ParameterError("dirs", f"directions as short as {shortest:.3g} take the "
+                                         f"{self.UNIT} unit's determinant below "
+                                         f"{self.MIN_EDGES:.3g} with these triangles (whose "
+                                         f"largest |e1| |e2| is {self.edges:.3g}): it would leave "
+                                         f"float32's normal numbers (hits would be lost)",
+                                 remedy="give directions of about unit length, or "
+                                        + self.REMEDY.replace("down", "up"))
         if om <= self.origin_limit and dm <= 1.0:
             return
         k = np.sqrt(3.0)
@@ -264,9 +299,11 @@ class Float64Range(Float32Range):
     REMEDY = "scale the scene down"
 
     def _magnitudes(self, o, d):
+        """As ``Float32Range``'s, but the shortest direction: infinity, as float64's products
+        of float32 triangles stay normal whatever it is (``MIN_EDGES`` 0)."""
         with np.errstate(invalid="ignore"):
             return tuple(float(np.fmax.reduce(np.where(np.isfinite(a), np.abs(a), np.nan),
-                                              axis=None, initial=0.0)) for a in (o, d))
+                                              axis=None, initial=0.0)) for a in (o, d)) + (np.inf,)
 
 
 def band_eps2(dtype):
