@@ -94,9 +94,22 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
           source_name=None):
     """Build a BVH over a mesh path or an ``(n, 3, 3)`` triangle array.
 
-    builder : "hwbvh" (the hardware's binned SAH, exact) or "sweep" (full SAH reference).
+    builder : "hwbvh" (the hardware's binned SAH, exact) or "sweep" (full SAH reference,
+        which makes its leaves where the SAH stops splitting: it takes no leaf size or bins).
+    leaf_size : the most triangles a leaf holds (1..``config.MAX_LEAF_SIZE``).
+    bins : SAH bins per axis (``config.MIN_BINS``..``config.MAX_SOFTWARE_BINS``; the hardware's
+        binning units have at most ``config.MAX_HARDWARE_BINS``).
     capacity, subtree_builders, block_nodes : where nodes land (never what the tree is).
+    validate_tree : check the written tree's invariants after the build (as ``validate``).
+    task_prims : the fewest primitives a parallel build task takes (None: the default); it
+        changes how the work is shared out, never the tree.
     source_name : what errors and ``meta["source"]`` call an array source (e.g. its file).
+
+    An array that is already C-contiguous float32 is kept, not copied: ``Bvh.triangles`` (and
+    a ``traversal.Tracer`` over it) is the caller's array, so change it in place and the tree
+    no longer holds it (``refit``, or build again). ``meta["build_seconds"]`` times the build
+    alone, but the first build in a process also loads (or, the first time ever, compiles) its
+    kernels: ``warm_up`` first when the time matters.
     """
     if builder not in BUILDERS:
         raise ParameterError("builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
@@ -104,6 +117,12 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     if source_name is not None:
         source_name = _path_of(source_name, "source_name")
     check_params(leaf_size, bins)
+    if builder == "sweep":
+        for name, v, default in (("leaf_size", leaf_size, config.DEFAULT_LEAF_SIZE),
+                                 ("bins", bins, config.DEFAULT_BINS)):
+            if v != default:
+                raise ParameterError(name, f"the sweep builder takes none: it makes its leaves "
+                                           f"where the full SAH stops splitting, got {v!r}")
     check_task_prims(task_prims)
     check_threading()
     ranges = config.LAYOUT_KNOB_RANGES
@@ -239,8 +258,14 @@ def _described(a):
 
 def load(prefix, triangles=None):
     """Read PREFIX.nodes / .indices / .json and validate every invariant. ``triangles``
-    (optional (N, 3, 3)) also checks that leaf boxes contain their primitives."""
+    (optional (N, 3, 3)) also checks that leaf boxes contain their primitives. A prefix given
+    as one of the three files (``x.nodes``) names its tree, unless a tree is saved under that
+    name itself."""
     prefix = _path_of(prefix, "prefix")
+    stem, ext = os.path.splitext(prefix)
+    if ext in TREE_EXTENSIONS and not os.path.exists(prefix + ".json") and \
+            os.path.exists(stem + ".json"):
+        prefix = stem
     try:
         with open(prefix + ".json", encoding="utf-8") as f:
             meta = json.load(f)

@@ -226,7 +226,9 @@ def simulate(tree, params, node_count=None):
     """Simulate one build of ``tree`` (a CanonicalTree from the functional builder: a Bvh's
     ``bvh.tree``) on the instantiation ``params`` (a HwParams or a preset's name), which must
     have the tree's leaf size and bins. ``node_count``: the nodes written (default: the tree's).
-    Returns a dict with the SPEC-8 keys and more."""
+    Returns a dict of the cycles, seconds, traffic, footprint, energy and more; not the tree's
+    SAH cost, which the simulation does not change (``bvh.meta["sah_cost"]``; ``simulate_mesh``
+    adds it)."""
     p = as_params(params)
     check_tree(tree, p)
     n = int(tree.n_prims)
@@ -361,11 +363,12 @@ def check_tree(tree, params):
 
     if isinstance(tree, Bvh):
         hint = ("pass bvh.tree" if tree.tree is not None
-                else "this Bvh was loaded from files and has no build tree: rebuild it")
+                else "this Bvh was loaded from files or refitted and has no build tree: "
+                     "build it")
         raise ParameterError("tree", f"expected the build tree, got a Bvh ({hint})")
     if tree is None:
-        raise ParameterError("tree", "got None: a Bvh loaded from files has no build tree "
-                                     "(bvh.tree); rebuild it")
+        raise ParameterError("tree", "got None: a Bvh loaded from files or refitted has no "
+                                     "build tree (bvh.tree); build it")
     if not isinstance(tree, CanonicalTree):
         raise ParameterError("tree", f"expected the build tree (a CanonicalTree, bvh.tree), "
                                      f"got {type(tree).__name__}")

@@ -556,6 +556,13 @@ def verified_render(scene, tracer, seed=0, image=None, offset="relative", progre
     from traversal.tracers import VerifyingTracer
 
     _check_render_arguments(scene, tracer, seed, progress)
+    if image is not None:
+        shape = (scene.height, scene.width, 3)
+        if not isinstance(image, np.ndarray) or image.shape != shape or image.dtype != np.float32:
+            got = (f"a {image.dtype} array of shape {image.shape}" if isinstance(image, np.ndarray)
+                   else type(image).__name__)
+            raise ParameterError("image", f"expected the render's image, a float32 array of "
+                                          f"shape {shape}, got {got}")
     checked = VerifyingTracer(tracer, scene.triangles, scene.vertices, scene.faces)
     t = time.perf_counter()
     res = render(scene, checked, seed=seed, offset=offset, progress=progress)

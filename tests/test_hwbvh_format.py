@@ -79,6 +79,11 @@ def test_save_load_roundtrip(tmp_path):
     assert np.array_equal(back.indices, bvh.indices)
     with open(files[2]) as f:
         assert json.load(f)["sah_cost"] == bvh.meta["sah_cost"]
+    for ext in (".nodes", ".indices", ".json"):         # one of its files names the tree
+        named = hwbvh.load(str(tmp_path / "s") + ext)
+        assert named.nodes.tobytes() == bvh.nodes.tobytes()
+    with pytest.raises(InputError, match=r"s\.txt\.json"):
+        hwbvh.load(str(tmp_path / "s") + ".txt")
 
 
 def corrupt(bvh, fn):

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from hwbvh.errors import InputError
+from hwbvh.errors import InputError, ParameterError
 from traversal.camera import look_at_basis, primary_rays
 from raytracer.output import read_exr, write_exr
 from raytracer.render import fresnel_dielectric, make_tracer, render
@@ -242,6 +242,11 @@ def test_a_verified_render_is_a_second_render_checked_apart():
     assert not verified_render(sc, tracer, 5, other)[0]["same_image"]
     # another seed's rays make another image
     assert not verified_render(sc, tracer, 6, res.image)[0]["same_image"]
+    # an image that cannot be the render's is refused, not reported as another image
+    for wrong in (np.zeros(3, np.float32), res.image.astype(np.float64), res.image[:, :-1],
+                  res.image.tolist()):
+        with pytest.raises(ParameterError, match="^image: expected the render's image"):
+            verified_render(sc, tracer, 5, wrong)
 
 
 def test_render_verify_reports_the_check_apart(tmp_path, capsys):

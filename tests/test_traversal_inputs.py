@@ -677,3 +677,40 @@ def test_directions_too_short_for_the_float32_unit_are_refused_not_traced_to_los
     np.testing.assert_array_equal(tracer(TRIS).intersect(O, still).prim[1:], hits[1:])
     tiny = tracer(TRIS * np.float32(1e-12))
     np.testing.assert_array_equal(tiny.intersect(O * np.float32(1e-12), D).prim, hits)
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda r: r.primary(TRIS, -1), "n"), (lambda r: r.primary(TRIS, 1.5), "n"),
+    (lambda r: r.primary(TRIS, True), "n"), (lambda r: r.primary_chunks(TRIS, 0), "n"),
+    (lambda r: r.incoherent(np.zeros((3, 3)), 5), "tris"),
+    (lambda r: r.incoherent(TRIS[:0], 5), "tris"),
+    (lambda r: r.incoherent(TRIS.astype(bool), 5), "tris"),
+    (lambda r: r.incoherent(TRIS, 10, seed=True), "seed"),
+    (lambda r: r.incoherent_chunks(TRIS, 10, seed=-1), "seed"),
+    (lambda r: r.primary(TRIS, 4, dtype=np.int32), "dtype"),
+    (lambda r: r.shadow(Tracer(hwbvh.build(TRIS)), TRIS, 0), "n"),
+    (lambda r: r.bounces(Tracer(hwbvh.build(TRIS)), TRIS, 5, seed=1.0), "seed")])
+def test_ray_sets_name_a_bad_argument_before_any_work(call, name):
+    from traversal import raysets
+    with pytest.raises(ParameterError) as caught:
+        call(raysets)
+    assert caught.value.parameter == name
+
+
+def test_verify_mesh_refuses_triangles_its_mesh_does_not_index_before_building():
+    from traversal.verify import verify_mesh
+    V = TRIS.reshape(-1, 3)
+    F = np.arange(len(V)).reshape(-1, 3)
+    with pytest.raises(ParameterError, match="^faces: vertices\\[faces\\] are not the triangles"):
+        verify_mesh(TRIS[:10], V, F, n=100)
+    counts = verify_mesh(TRIS, V, F, n=100)[0]
+    assert counts["mismatch"] == 0
+
+
+def test_the_sweep_builder_refuses_the_knobs_it_does_not_take():
+    with pytest.raises(ParameterError, match="^leaf_size: the sweep builder takes none"):
+        hwbvh.build(TRIS, builder="sweep", leaf_size=8)
+    with pytest.raises(ParameterError, match="^bins: the sweep builder takes none"):
+        hwbvh.build(TRIS, builder="sweep", bins=2)
+    assert hwbvh.build(TRIS, builder="sweep", leaf_size=hwbvh.config.DEFAULT_LEAF_SIZE).meta[
+        "builder"] == "sweep"

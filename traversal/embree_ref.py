@@ -47,6 +47,17 @@ def indexed_mesh(vertices, faces):
     return V, F
 
 
+def mesh_of(triangles, vertices, faces):
+    """``indexed_mesh`` of ``vertices``/``faces``, refused (ParameterError naming ``faces``)
+    unless ``vertices[faces]`` are ``triangles`` (float32 (n, 3, 3)) as float32: Embree would
+    trace other geometry than the tracer it checks."""
+    V, F = indexed_mesh(vertices, faces)
+    if len(F) != len(triangles) or not np.array_equal(V[F], triangles):
+        raise ParameterError("faces", "vertices[faces] are not the triangles checked: Embree "
+                                      "would trace other geometry than the tracer")
+    return V, F
+
+
 def _commit(V, F, robust):
     """An Embree scene of a checked mesh (``indexed_mesh``), built and committed."""
     from embreex import rtcore_scene as rs

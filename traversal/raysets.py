@@ -6,8 +6,31 @@ no first ray hits can give fewer (``len`` of the result says how many).
 """
 import numpy as np
 
+from hwbvh.errors import ParameterError, is_integer
+from hwbvh.primitives import checked_coordinates
 from .camera import directions_through, frame_bounds, look_at_basis, tile_pixels
+from .config import MAX_RAYS
 from .offset import offset_origins, points_on_planes
+
+
+def _checked_set(tris, n, seed=0, dtype=np.float64):
+    """A ray set's arguments, refused with a ParameterError naming the argument: ``tris``
+    (m, 3, 3) real coordinates (m >= 1) within the builder's bound, ``n`` an integer of rays
+    in 1..``MAX_RAYS``, ``seed`` a non-negative integer, ``dtype`` float32 or float64.
+    Returns the triangles as an array."""
+    t = np.asarray(tris)
+    if t.dtype.kind not in "fiu":
+        raise ParameterError("tris", f"must be real numbers, got {t.dtype}")
+    if t.ndim != 3 or t.shape[1:] != (3, 3) or len(t) == 0:
+        raise ParameterError("tris", f"must be (m, 3, 3) with m >= 1, got shape {t.shape}")
+    t = checked_coordinates(t, "tris")
+    if not is_integer(n) or not 1 <= n <= MAX_RAYS:
+        raise ParameterError("n", f"must be an integer from 1 to {MAX_RAYS} (rays), got {n!r}")
+    if not is_integer(seed) or seed < 0:
+        raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
+    if np.dtype(dtype) not in (np.float32, np.float64):
+        raise ParameterError("dtype", f"must be float32 or float64, got {np.dtype(dtype)}")
+    return t
 
 
 def bounds_of(tris):
@@ -46,6 +69,11 @@ def points_beyond(tris):
 
 def primary_chunks(tris, n, dtype=np.float64):
     """``primary``'s rays, a slice of up to ``MAKE_CHUNK`` at a time: (origins, dirs)."""
+    return _primary_chunks(_checked_set(tris, n, dtype=dtype), n, dtype)
+
+
+def _primary_chunks(tris, n, dtype):
+    """``primary_chunks`` of checked arguments."""
     n = int(n)
     eye, basis, w, h = _primary_view(tris, n)
     for a in range(0, n, MAKE_CHUNK):
@@ -59,13 +87,18 @@ def primary(tris, n, dtype=np.float64):
     """n camera rays of a 4:3 view framing the mesh, in 4x4 pixel tiles (the image is the
     smallest 4:3 one with at least n pixels; the last tiles are left out). The rays are
     computed in float64 and stored in ``dtype`` (float32: as the float32 tracers take them)."""
-    return _joined(primary_chunks(tris, n, dtype), n, dtype)
+    return _joined(_primary_chunks(_checked_set(tris, n, dtype=dtype), n, dtype), n, dtype)
 
 
 def incoherent_chunks(tris, n, seed=0, dtype=np.float64):
     """``incoherent``'s rays, a slice of up to ``MAKE_CHUNK`` at a time: (origins, dirs). The
     stream holds the n origins, then the n directions: the directions come from a second
     generator advanced past the origins' 3n draws (one 64-bit draw per uniform)."""
+    return _incoherent_chunks(_checked_set(tris, n, seed, dtype), n, seed, dtype)
+
+
+def _incoherent_chunks(tris, n, seed, dtype):
+    """``incoherent_chunks`` of checked arguments."""
     n = int(n)
     lo, hi = bounds_of(tris)
     rng_o = np.random.default_rng(seed)
@@ -83,7 +116,8 @@ def incoherent(tris, n, seed=0, dtype=np.float64):
     """n rays from uniform points of the mesh's box in uniform directions: the stream of
     ``default_rng(seed)``, n origins then n directions, computed in float64 and stored in
     ``dtype``."""
-    return _joined(incoherent_chunks(tris, n, seed, dtype), n, dtype)
+    return _joined(_incoherent_chunks(_checked_set(tris, n, seed, dtype), n, seed, dtype), n,
+                   dtype)
 
 
 def _joined(chunks, n, dtype):
@@ -163,7 +197,8 @@ def _n_hits(tracer, tris, n, first_rays, spread, keep_dirs=False):
 def shadow(tracer, tris, n, dtype=np.float64):
     """n rays from first hits of primary rays toward a point light (tmax = the light), stored
     in ``dtype`` (computed in float64, a slice at a time)."""
-    p, ng, mag, _ = _n_hits(tracer, tris, n, lambda m: primary_chunks(tris, m, np.float32),
+    tris = _checked_set(tris, n, dtype=dtype)
+    p, ng, mag, _ = _n_hits(tracer, tris, n, lambda m: _primary_chunks(tris, m, np.float32),
                             spread=True)
     L = light_position(tris)
     k = len(p)
@@ -181,8 +216,9 @@ def bounces(tracer, tris, n, seed=1, dtype=np.float64):
     """n secondary rays: mirror reflections of incoherent first hits plus random directions,
     from offset origins (self-intersection is part of what is verified); stored in ``dtype``
     (computed in float64, a slice at a time)."""
+    tris = _checked_set(tris, n, seed, dtype)
     p, ng, mag, di = _n_hits(tracer, tris, n,
-                             lambda m: incoherent_chunks(tris, m, seed, np.float32),
+                             lambda m: _incoherent_chunks(tris, m, seed, np.float32),
                              spread=False, keep_dirs=True)
     k = len(p)
     half = k // 2

@@ -108,18 +108,14 @@ class VerifyingTracer(_Tally):
     ("closest", "shadow"), the rays checked and how many agree, tie or mismatch."""
 
     def __init__(self, inner, triangles, vertices, faces):
-        from .embree_ref import embree_scene, indexed_mesh
+        from .embree_ref import embree_scene, mesh_of
 
         self.checked_triangles = np.asarray(triangles, np.float32)
         if self.checked_triangles.ndim != 3 or self.checked_triangles.shape[1:] != (3, 3):
             raise ParameterError("triangles", f"expected an (n, 3, 3) array, got shape "
                                               f"{self.checked_triangles.shape}")
         check_tracer(inner, name="inner", triangles=self.checked_triangles)
-        vertices, faces = indexed_mesh(vertices, faces)
-        if len(faces) != len(self.checked_triangles) or \
-                not np.array_equal(vertices[faces], self.checked_triangles):
-            raise ParameterError("faces", "vertices[faces] are not the triangles checked: Embree "
-                                          "would trace other geometry than the tracer")
+        vertices, faces = mesh_of(self.checked_triangles, vertices, faces)
         self.inner = inner
         self.reference = embree_scene(vertices, faces)
         zero = {"rays": 0, "agree": 0, "tie": 0, "mismatch": 0}
