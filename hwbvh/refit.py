@@ -178,11 +178,13 @@ class Refitter:
 
     def tree(self, nodes, tris, sah_cost):
         """The :class:`hwbvh.Bvh` of ``nodes`` that ``refit_nodes`` made for ``tris``, whose SAH
-        cost is ``sah_cost`` (a caller that times the refit and the cost apart passes it)."""
+        cost is ``sah_cost`` (a caller that times the refit and the cost apart passes it). Its
+        meta is the built tree's, marked ``refitted``, with no ``build_seconds``: the refit
+        built nothing, and the build's time is not its own."""
         from .api import Bvh
 
         bvh = Bvh(nodes=nodes, indices=self.indices.astype(np.uint32), triangles=tris,
-                  meta=dict(self.meta, sah_cost=sah_cost, refitted=True))
+                  meta=dict(self.meta, sah_cost=sah_cost, refitted=True, build_seconds=None))
         bvh._invariants_hold = self._invariants_hold
         return bvh
 

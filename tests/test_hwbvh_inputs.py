@@ -175,6 +175,11 @@ def test_the_refit_module_example_runs(tris, bvh):
     for line in lines:
         exec(line, ns)
     assert ns["c"]["seconds"] > 0 and ns["moved"].meta["refitted"]
+    # the refit built nothing: no build time of its own, and the model says why it takes none
+    assert ns["moved"].meta["build_seconds"] is None and bvh.meta["build_seconds"] > 0
+    from hwbvh.cycle_model import simulate
+    with pytest.raises(ParameterError, match="loaded from files or refitted"):
+        simulate(ns["moved"], "HWBVH-C")
 
 
 # --- build knobs -----------------------------------------------------------------------
