@@ -225,6 +225,13 @@ def check_params(leaf_size, bins):
                                  f"(the hardware has at most {config.MAX_HARDWARE_BINS}), got {bins!r}")
 
 
+def builds_in_parallel(n_prims):
+    """Whether a build of ``n_prims`` primitives (task_prims at its default) runs the
+    data-parallel kernels: above ``config.SEQUENTIAL_MAX_PRIMS``, so a caller timing such a
+    build loads them first (``hwbvh.warm_up(parallel=True)``)."""
+    return n_prims > config.SEQUENTIAL_MAX_PRIMS
+
+
 def check_task_prims(task_prims):
     """``task_prims`` (None for the default) must be an integer >= 1."""
     if task_prims is not None and not (is_integer(task_prims) and task_prims >= 1):
@@ -249,7 +256,7 @@ def build_canonical(boxes, leaf_size=config.DEFAULT_LEAF_SIZE, bins=config.DEFAU
     nthreads = get_num_threads()
     if task_prims is None:
         task_prims = max(config.TASK_MIN_PRIMS, n // (config.TASKS_PER_THREAD * nthreads))
-        if n <= config.SEQUENTIAL_MAX_PRIMS:
+        if not builds_in_parallel(n):
             task_prims = n
     # A node of at most leaf_size primitives is a leaf. The upper phase below splits every node
     # above task_prims, so a smaller grain would split such nodes and change the tree; as a

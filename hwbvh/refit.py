@@ -179,7 +179,7 @@ class Refitter:
     def tree(self, nodes, tris, sah_cost):
         """The :class:`hwbvh.Bvh` of ``nodes`` that ``refit_nodes`` made for ``tris``, whose SAH
         cost is ``sah_cost`` (a caller that times the refit and the cost apart passes it). Its
-        meta is the built tree's, marked ``refitted``, with no ``build_seconds``: the refit
+        meta is the built tree's, marked ``refitted``, with ``build_seconds`` None: the refit
         built nothing, and the build's time is not its own."""
         from .api import Bvh
 

@@ -188,6 +188,7 @@ def cmd_build(args):
     import numpy as np
     from hwbvh import config
     from hwbvh.api import build, tree_files, tree_paths, warm_up
+    from hwbvh.builder import builds_in_parallel
     from hwbvh.errors import InputError
     from hwbvh.files import check_outputs, directory_problem, json_text, made_as_written
     from hwbvh.primitives import as_triangles, load_mesh_arrays, pack_records, primitive_boxes
@@ -234,7 +235,7 @@ def cmd_build(args):
                   "leaves": None, "max_depth": None, "sah_cost": None, "fallback_splits": None,
                   "build_seconds": secs, "startup_seconds": startup}
         return _emit(args, result, lambda r: _kv(r, r.keys()))
-    startup = warm_up(args.builder, parallel=len(tris) > config.SEQUENTIAL_MAX_PRIMS)
+    startup = warm_up(args.builder, parallel=builds_in_parallel(len(tris)))
     given = {dest: getattr(args, dest) for dest in BUILD_OPTION_READERS
              if getattr(args, dest) is not None}           # the others: the library's defaults
     bvh = build(tris, builder=args.builder, validate_tree=True, source_name=args.mesh, **given)
@@ -267,12 +268,12 @@ def _scene_geometry(name):
     from hwbvh.primitives import as_triangles, load_mesh_arrays
     import numpy as np
     from scenes import is_scene, load_scene_geometry
+    from scenes.loader import name_of_file
     if is_scene(name) or not os.path.exists(name):     # the scene loader names a missing one
         return load_scene_geometry(name)
     verts, faces = load_mesh_arrays(name)
     tris = as_triangles(verts[faces], source=name)
-    return os.path.splitext(os.path.basename(name))[0], tris, verts.astype(np.float32), \
-        faces.astype(np.int32)
+    return name_of_file(name), tris, verts.astype(np.float32), faces.astype(np.int32)
 
 
 # The arrays of a mismatch file (hwrt verify writes them) that --replay reads: key -> the
@@ -538,8 +539,8 @@ def cmd_verify(args):
         _commit(args, [(out, buf.getvalue())])
         result["mismatch_file"] = out
     elif os.path.exists(out):
-        print(f"hwrt: note: no mismatches, so {out} was not written: the file there is an "
-              f"earlier run's", file=sys.stderr)
+        print(one_line(f"hwrt: note: no mismatches, so {out} was not written: the file there "
+                       f"is an earlier run's"), file=sys.stderr)
     _emit(args, result, lambda r: _kv(r, ["scene", "accel", "kind", "query", "rays",
                                           "rays_requested", "hit", "agree", "tie", "mismatch",
                                           "mismatch_ours_wrong", "mismatch_embree_wrong",
@@ -640,11 +641,11 @@ def cmd_render(args):
     if args.precision == "float32":     # with the remedy this command takes
         wider = args.accel == "bvh" and not embree and not args.verify
         check_float32_reach(scene, float64="add --precision float64" if wider else None)
-    from hwbvh.config import SEQUENTIAL_MAX_PRIMS
-    # a mesh past SEQUENTIAL_MAX_PRIMS builds with the data-parallel kernels: compiled now, so
-    # that the build time is the build's, not the compiler's
+    from hwbvh.builder import builds_in_parallel
+    # a large mesh builds with the data-parallel kernels: loaded now, so that the build time
+    # is the build's, not the compiler's
     large = args.accel == "bvh" and args.builder == "hwbvh" and \
-        len(scene.triangles) > SEQUENTIAL_MAX_PRIMS
+        builds_in_parallel(len(scene.triangles))
     startup_s = warm_up(args.builder, args.traversal, parallel_build=large,
                         precision=args.precision)
     if args.accel == "grid":

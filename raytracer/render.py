@@ -199,11 +199,12 @@ def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=DEFAULT_LEA
     if not hasattr(scene, "triangles"):
         raise ParameterError("scene", f"expected a compiled scene (scenes.compile_scene), got "
                                       f"{type(scene).__name__}")
-    if (accel != "bvh" or builder == "embree") and \
+    if (accel != "bvh" or builder != "hwbvh") and \
             (leaf_size, bins) != (DEFAULT_LEAF_SIZE, DEFAULT_BINS):
         raise ParameterError("leaf_size" if leaf_size != DEFAULT_LEAF_SIZE else "bins",
-                             "applies to our BVH builders only (accel 'bvh', builder 'hwbvh' "
-                             "or 'sweep')")
+                             "applies to the hardware's builder only (accel 'bvh', builder "
+                             "'hwbvh'; the sweep builder makes its leaves where the full SAH "
+                             "stops splitting)")
     if precision == "float32":              # every structure but the float64 BVH
         check_float32_reach(scene)
     if accel in ("grid", "kdtree"):

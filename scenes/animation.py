@@ -50,7 +50,8 @@ from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, 
 from .builtin import BUILTIN
 from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, MAX_TRANSLATION_ROUNDING, SCENE_KEYS,
                      Ctx, check_scale, compile_scene, finite, flat_normals, is_pattern, load_scene,
-                     mesh_scene, smooth_normals, spec_path, vector_ok, with_frame, written)
+                     mesh_scene, named_after_file, smooth_normals, spec_path, vector_ok,
+                     with_frame, written)
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
@@ -231,36 +232,44 @@ def camera_track(source, keys, path, base):
 # Frame sequences
 # --------------------------------------------------------------------------------------
 class NoFrameFiles(InputError):
-    """A frame pattern that matches no file at all."""
+    """A frame pattern that names no frame file: none matches it, or it is not a pattern
+    frames can be numbered by."""
+
+
+def _with_frame(text, field, k):
+    """``text`` with its frame field (the FRAME_FIELD match ``field``) replaced by frame
+    ``k``; any other '%' in it stays as it is (a file may be named 50%_0001.ply)."""
+    return text[:field.start()] + field.group(0) % k + text[field.end():]
 
 
 def expand_pattern(pattern, source=None):
-    """The frame files of a printf or glob pattern, in frame order. Raises InputError naming
-    the pattern when nothing matches (NoFrameFiles), and the missing file when a frame in the middle of the
-    numbered sequence is absent."""
+    """The frame files of a printf or glob pattern, in frame order. Raises NoFrameFiles naming
+    the pattern when nothing matches or it cannot number frames, and InputError naming the
+    missing file when a frame in the middle of the numbered sequence is absent."""
     source = source or pattern
     pattern = os.fspath(pattern)
     if len(FRAME_FIELD.findall(pattern)) > 1:
-        raise InputError(source, f"pattern {pattern!r} has more than one %d field")
+        raise NoFrameFiles(source, f"pattern {pattern!r} has more than one %d field")
     m = FRAME_FIELD.search(pattern)
     if m:
         d = os.path.dirname(pattern) or "."
         base = os.path.basename(pattern)
         bm = FRAME_FIELD.search(base)
         if bm is None:
-            raise InputError(source, f"pattern {pattern!r}: the %d field must be in the file name")
+            raise NoFrameFiles(source, f"pattern {pattern!r}: the %d field must be in the file "
+                                       f"name")
         rx = re.compile("^" + re.escape(base[:bm.start()]) + r"(\d+)" + re.escape(base[bm.end():]) + "$")
         try:
             names = os.listdir(d)
         except OSError:
             names = []
         nums = sorted({int(mm.group(1)) for nm in names if (mm := rx.match(nm))
-                       and nm == base % int(mm.group(1))})
+                       and nm == _with_frame(base, bm, int(mm.group(1)))})
         if not nums:
             raise NoFrameFiles(source, f"pattern {pattern!r} matches no file")
         files = []
         for k in range(nums[0], nums[-1] + 1):
-            f = pattern % k
+            f = _with_frame(pattern, m, k)
             if not os.path.isfile(f):
                 raise InputError(f, f"missing frame {k} of the sequence {nums[0]}..{nums[-1]} "
                                     f"({pattern})")
@@ -603,9 +612,8 @@ def pattern_scene(pattern, smooth=False):
     """A scene dict for a frame pattern of mesh files: framed on the first frame, a point
     light, a plain diffuse material (as a mesh file alone)."""
     files = expand_pattern(pattern)
-    d = mesh_scene(files[0])
-    d["name"] = re.sub(r"[_\-.]*(%0?\d*d|[*?\[].*)$", "", os.path.splitext(os.path.basename(pattern))[0]) \
-        or "frames"
+    stem = re.sub(r"[_\-.]*(%0?\d*d|[*?\[].*)$", "", os.path.splitext(os.path.basename(pattern))[0])
+    d = mesh_scene(files[0], name=named_after_file(pattern, stem or "frames"))
     d["shapes"] = [{"type": "frames", "pattern": os.path.abspath(pattern), "material": "default",
                     "smooth": smooth}]
     d["_source"] = pattern

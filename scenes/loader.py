@@ -203,7 +203,7 @@ def _load_scene_file(spec):
             except NoFrameFiles:
                 raise InputError(spec, "no such file, nor mesh files it names as a frame "
                                        "sequence (a %d or glob pattern)") from None
-            except InputError:                  # files it names, with a frame missing
+            except InputError:                  # the files of a sequence with a frame missing
                 pass
             raise InputError(spec, "a frame sequence (a %d or glob pattern of mesh files): "
                                    "render it with hwrt animate")
@@ -328,7 +328,12 @@ def name_of_file(path, remedy=None):
     the outputs are named after it; ``remedy``: a second way out besides renaming the file."""
     base = os.path.basename(path)
     ext = next((e for e in SCENE_EXTENSIONS + MESH_EXTENSIONS if base.lower().endswith(e)), "")
-    name = base[:len(base) - len(ext)]
+    return named_after_file(path, base[:len(base) - len(ext)], remedy)
+
+
+def named_after_file(path, name, remedy=None):
+    """``name``, which a scene takes from the name of ``path`` (a file or a frame pattern),
+    when it is a plain file name; else InputError naming ``path`` (``name_of_file``)."""
     if _plain_name(name):
         return name
     raise InputError(path, f"its file name makes the scene's name {written(name)}, which is not a "
@@ -474,11 +479,13 @@ def _mesh_arrays(path):
     return verts, faces
 
 
-def mesh_scene(path):
-    """A mesh alone: default camera framing it, a point light, a plain diffuse material."""
+def mesh_scene(path, name=None):
+    """A mesh alone: default camera framing it, a point light, a plain diffuse material; named
+    ``name``, else after the file (``name_of_file``)."""
     from traversal.camera import frame_bounds
 
     path = spec_path(path, "path", "a mesh file path")
+    name = name_of_file(path) if name is None else name
     verts, faces = _mesh_arrays(path)
     used = verts[np.unique(faces)]
     lo, hi = used.min(0), used.max(0)
@@ -489,7 +496,7 @@ def mesh_scene(path):
     light = (lo + hi) / 2 + np.array([0.4, 1.0, 0.8]) * diag
     dist2 = float(np.sum((light - (lo + hi) / 2) ** 2))
     return {
-        "type": "scene", "name": name_of_file(path), "_source": path,
+        "type": "scene", "name": name, "_source": path,
         "camera": {"type": "perspective", "eye": eye.tolist(), "target": target.tolist(),
                    "up": up.tolist(), "fov": 40.0},
         "film": {"width": 640, "height": 480, "spp": 1},

@@ -84,6 +84,9 @@ def test_save_load_roundtrip(tmp_path):
         assert named.nodes.tobytes() == bvh.nodes.tobytes()
     with pytest.raises(InputError, match=r"s\.txt\.json"):
         hwbvh.load(str(tmp_path / "s") + ".txt")
+    other = hwbvh.build(sphere(8, 12))          # a tree saved under a name such as t.nodes
+    hwbvh.save(other, tmp_path / "s.nodes")
+    assert hwbvh.load(tmp_path / "s.nodes").nodes.tobytes() == other.nodes.tobytes()
 
 
 def corrupt(bvh, fn):

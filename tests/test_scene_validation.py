@@ -693,7 +693,10 @@ def test_a_scene_file_whose_name_is_not_plain_needs_a_name_key(tmp_path, capsys,
     p.write_text(json.dumps(d) if file.endswith(".json") else
                  "[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n")
     line = refused(capsys, tmp_path, monkeypatch, "render", p, "--width", 8, "--height", 8)
-    assert "key 'name'" not in line.split(": ", 2)[1]          # the file is blamed, not a key
+    from hwrt.cli import one_line
+    # the file is blamed (its name escaped to one line), not a key the file never had
+    assert line.startswith(f"hwrt: error: {one_line(str(p))}: its file name makes the scene's "
+                           f"name "), line
     assert line.endswith("not a plain file name (outputs are named after it): rename the file "
                          "or give the scene a key 'name'"), line
     if file.endswith(".json"):
@@ -732,3 +735,17 @@ def test_a_shape_given_no_extent_is_taken_and_renders_nothing(shape):
     assert (scene.triangles == scene.triangles[0, 0]).all()
     res = render(scene, make_tracer(scene)[0])
     assert (res.prim == -1).all()
+
+
+def test_a_frame_pattern_may_hold_a_percent_sign_beside_its_field(tmp_path, capsys, monkeypatch):
+    """Only the frame field is formatted: a '%' elsewhere in the name (50%_0001.ply) is part of
+    it, not a format error."""
+    import trimesh
+    from scenes.animation import expand_pattern
+    for k in range(3):
+        trimesh.creation.box().export(tmp_path / f"50%_{k:04d}.ply")
+    pattern = str(tmp_path / "50%_%04d.ply")
+    assert expand_pattern(pattern) == [str(tmp_path / f"50%_{k:04d}.ply") for k in range(3)]
+    line = refused(capsys, tmp_path, monkeypatch, "render", pattern)
+    assert line.endswith("a frame sequence (a %d or glob pattern of mesh files): render it with "
+                         "hwrt animate")

@@ -662,9 +662,10 @@ def test_directions_too_short_for_the_float32_unit_are_refused_not_traced_to_los
     hits = tr.intersect(O, D).prim
     assert (hits >= 0).sum() > 10
     for call in (lambda d: tr.intersect(O, d), lambda d: tr.occluded(O, d)):
-        with pytest.raises(ParameterError, match=r"^dirs: directions as short as .* would leave "
-                                                 r"float32's normal numbers \(hits would be "
-                                                 r"lost\): give directions of about unit length"):
+        with pytest.raises(ParameterError, match=r"^dirs: directions whose largest coordinate "
+                                                 r"is as small as 1e-36.* too close to float32's "
+                                                 r"subnormal numbers \(hits would be lost\): give "
+                                                 r"directions of about unit length"):
             call(D * np.float32(1e-36))
     from types import SimpleNamespace
     tr.unit_range = SimpleNamespace(check=lambda o, d: None)   # unchecked: the hits it loses
@@ -688,6 +689,7 @@ def test_directions_too_short_for_the_float32_unit_are_refused_not_traced_to_los
     (lambda r: r.incoherent(TRIS, 10, seed=True), "seed"),
     (lambda r: r.incoherent_chunks(TRIS, 10, seed=-1), "seed"),
     (lambda r: r.primary(TRIS, 4, dtype=np.int32), "dtype"),
+    (lambda r: r.incoherent(TRIS, 4, dtype="foo"), "dtype"),
     (lambda r: r.shadow(Tracer(hwbvh.build(TRIS)), TRIS, 0), "n"),
     (lambda r: r.bounces(Tracer(hwbvh.build(TRIS)), TRIS, 5, seed=1.0), "seed")])
 def test_ray_sets_name_a_bad_argument_before_any_work(call, name):

@@ -186,9 +186,7 @@ def _converted(x, name, dtype):
             big = float(np.abs(a[lost]).max())
             raise ParameterError(name, f"holds {big:.3g}, beyond {out.dtype}'s range "
                                        f"({float(np.finfo(out.dtype).max):.3g}): as infinity its "
-                                       f"ray would miss (trace with "
-                                       f"traversal.Tracer(precision='float64'), or scale the "
-                                       f"scene down)")
+                                       f"ray would miss ({Float32Range.REMEDY})")
     return out
 
 
@@ -430,7 +428,11 @@ class Tracer(PacketCount):
         """Closest hit per ray in [tmin, tmax] (scalars or (n,) arrays). ``normals=False``
         skips the geometric normals (ng is then None) for callers that look them up. A ray
         with a NaN or infinite coordinate, a zero direction or tmin > tmax misses (prim -1),
-        as in Embree: a batch may hold such rays without failing as a whole.
+        as in Embree: a batch may hold such rays without failing as a whole. A batch whose rays
+        would take the units' products out of their range (origins far from the triangles
+        against their size, directions far longer or shorter than unit length) is refused
+        whole, with a ParameterError naming ``origins`` or ``dirs``, rather than traced to lost
+        hits.
         ``counters``: nodes visited and triangles tested per ray, by the single-ray unit; with
         ``as_run`` as the query actually runs them (a packet's rays each count every node and
         triangle the packet tests)."""

@@ -14,10 +14,11 @@ from .offset import offset_origins, points_on_planes
 
 
 def _checked_set(tris, n, seed=0, dtype=np.float64):
-    """A ray set's arguments, refused with a ParameterError naming the argument: ``tris``
-    (m, 3, 3) real coordinates (m >= 1) within the builder's bound, ``n`` an integer of rays
-    in 1..``MAX_RAYS``, ``seed`` a non-negative integer, ``dtype`` float32 or float64.
-    Returns the triangles as an array."""
+    """A ray set's arguments, refused with a ParameterError naming the argument (an
+    InputError naming ``tris`` for a coordinate NaN, infinite or beyond the builder's bound):
+    ``tris`` (m, 3, 3) real coordinates (m >= 1), ``n`` an integer of rays in
+    1..``MAX_RAYS``, ``seed`` a non-negative integer, ``dtype`` float32 or float64. Returns
+    the triangles as an array."""
     t = np.asarray(tris)
     if t.dtype.kind not in "fiu":
         raise ParameterError("tris", f"must be real numbers, got {t.dtype}")
@@ -28,8 +29,12 @@ def _checked_set(tris, n, seed=0, dtype=np.float64):
         raise ParameterError("n", f"must be an integer from 1 to {MAX_RAYS} (rays), got {n!r}")
     if not is_integer(seed) or seed < 0:
         raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
-    if np.dtype(dtype) not in (np.float32, np.float64):
-        raise ParameterError("dtype", f"must be float32 or float64, got {np.dtype(dtype)}")
+    try:
+        known = np.dtype(dtype) in (np.float32, np.float64)
+    except TypeError:
+        known = False
+    if not known:
+        raise ParameterError("dtype", f"must be float32 or float64, got {dtype!r}")
     return t
 
 

@@ -243,18 +243,20 @@ class Float32Range:
 
     def check(self, o, d):
         """ParameterError naming ``origins`` or ``dirs`` when the rays ``o``, ``d`` (n, 3)
-        could take a product past the bound."""
+        could take a product past the bound, or the determinant of the shortest direction
+        with the largest triangle below ``MIN_EDGES`` (the triangles' own floor for a unit
+        direction)."""
         if self.edges == 0 or len(o) == 0:          # no triangle can be hit / no ray
             return
         om, dm, shortest = self._magnitudes(o, d)
         # the determinant is at most |d| |e1| |e2|: as the triangles' own floor (__init__),
         # for the shortest direction, whose length is at most sqrt(3) its largest coordinate
         if np.sqrt(3.0) * shortest * self.edges < self.MIN_EDGES:
-            raise ParameterError("dirs", f"directions as short as {shortest:.3g} take the "
-                                         f"{self.UNIT} unit's determinant below "
-                                         f"{self.MIN_EDGES:.3g} with these triangles (whose "
-                                         f"largest |e1| |e2| is {self.edges:.3g}): it would leave "
-                                         f"float32's normal numbers (hits would be lost)",
+            raise ParameterError("dirs", f"directions whose largest coordinate is as small as "
+                                         f"{shortest:.3g} take the {self.UNIT} unit's determinant "
+                                         f"below {self.MIN_EDGES:.3g} with these triangles (whose "
+                                         f"largest |e1| |e2| is {self.edges:.3g}), too close to "
+                                         f"float32's subnormal numbers (hits would be lost)",
                                  remedy="give directions of about unit length, or "
                                         + self.REMEDY.replace("down", "up"))
         if om <= self.origin_limit and dm <= 1.0:

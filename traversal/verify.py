@@ -545,12 +545,14 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
     if tracer is None and accel not in ACCELS:
         raise ParameterError("accel", f"must be one of {', '.join(map(repr, ACCELS))}, "
                                       f"got {accel!r}")
+    from hwbvh.primitives import checked_coordinates
     from .embree_ref import mesh_of
-    with np.errstate(over="ignore", invalid="ignore"):     # beyond float32: refused below
-        mesh_of(_checked_triangles(tris).astype(np.float32), vertices, faces)
+    # the triangles as the builder takes them, then as the mesh Embree is given must hold them
+    tris = checked_coordinates(_checked_triangles(tris), "tris")
+    mesh_of(tris.astype(np.float32), vertices, faces)
     if tracer is not None:
         from .tracers import check_tracer
-        check_tracer(tracer, triangles=_checked_triangles(tris))
+        check_tracer(tracer, triangles=tris)
     elif accel == "grid":
         from .grid import GridTracer
         tracer = GridTracer(tris)
