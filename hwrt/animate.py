@@ -261,7 +261,7 @@ def _run_params(anim, strategy, threshold, scene, accel="bvh", seed=0, written=F
 
 
 def _written_beside_state(frames):
-    """The files a run of ``frames`` frames writes besides its state: each frame, then the
+    """The files a run of ``frames`` frames writes beside its state: each frame, then the
     CSV and the preview."""
     return [FRAME_NAME.format(i) for i in range(frames)] + [CSV_NAME, PREVIEW_NAME]
 
