@@ -749,3 +749,22 @@ def test_a_frame_pattern_may_hold_a_percent_sign_beside_its_field(tmp_path, caps
     line = refused(capsys, tmp_path, monkeypatch, "render", pattern)
     assert line.endswith("a frame sequence (a %d or glob pattern of mesh files): render it with "
                          "hwrt animate")
+
+
+@pytest.mark.parametrize("key, value", [("spp", 4.0), ("width", 1e2), ("height", 16.0)])
+def test_a_whole_number_written_as_a_float_is_not_taken_for_an_integer_key(tmp_path, capsys,
+                                                                           monkeypatch, key,
+                                                                           value):
+    """Integer keys take integers, as a sphere's subdiv does: JSON and TOML write 4 and 4.0
+    apart, so 4.0 is a float the file gave."""
+    d = scene_dict()
+    d["film"] = dict(d["film"], **{key: value})
+    p = write_scene(tmp_path, d)
+    line = refused(capsys, tmp_path, monkeypatch, "render", p)
+    assert line.endswith(f"key 'film.{key}': expected an integer, got {value!r}"), line
+    t = tmp_path / "s.toml"
+    t.write_text(f"[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n[film]\n{key} = {value!r}\n"
+                 "[materials.m]\ntype = 'diffuse'\n[[shapes]]\ntype = 'sphere'\n"
+                 "center = [0, 0, 0]\nradius = 1\nmaterial = 'm'\n")
+    line = refused(capsys, tmp_path, monkeypatch, "render", t)
+    assert line.endswith(f"key 'film.{key}': expected an integer, got {value!r}"), line
