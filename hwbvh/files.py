@@ -105,9 +105,16 @@ def content_digest(path):
     return h.hexdigest()[:16]
 
 
+class OutputPathError(InputError):
+    """An output path that cannot be written, or would overwrite an input: the error names the
+    output (a command reports the option that gave it, not an input option of the same
+    value)."""
+
+
 def check_outputs(outputs, inputs=()):
     """Fail before any work unless every path in ``outputs`` can be written and none of them
-    is one of ``inputs`` (or one another). Paths are reported as given. Raises InputError.
+    is one of ``inputs`` (or one another). Paths are reported as given. Raises
+    OutputPathError.
 
     Linear in the number of paths (an animation names one output per frame): each path is
     resolved once and looked up in dicts, and the writability probe runs once per directory."""
@@ -127,21 +134,26 @@ def check_outputs(outputs, inputs=()):
         src = input_by_path.get(real) or (ident and input_by_id.get(ident))
         if src:
             same = "" if out == src else f" ({src})"
-            raise InputError(out, f"is an input of this run{same}; an output may not overwrite an input")
+            raise OutputPathError(out, f"is an input of this run{same}; an output may not overwrite an input")
         if real in seen_paths or (ident and ident in seen_ids):
-            raise InputError(out, "is named twice as an output")
+            raise OutputPathError(out, "is named twice as an output")
         seen_paths.add(real)
         if ident:
             seen_ids.add(ident)
         if os.path.isdir(out):
-            raise InputError(out, "is a directory; give a file path")
+            raise OutputPathError(out, "is a directory; give a file path")
+        if ident and not os.path.isfile(out):
+            # an output is written whole beside it and renamed over it: a device or a pipe
+            # would be replaced by a regular file, not written to
+            raise OutputPathError(out, "is not a regular file (a device, pipe or socket); give a "
+                                  "file path")
         if ident and not os.access(out, os.W_OK):
-            raise InputError(out, "exists and is read-only")
+            raise OutputPathError(out, "exists and is read-only")
         d = _nearest_existing(out)
         if d not in problems:
             problems[d] = _directory_problem(d)
         if problems[d]:
-            raise InputError(out, problems[d])
+            raise OutputPathError(out, problems[d])
 
 
 def check_output_dir(directory, names=(), inputs=()):
@@ -155,7 +167,7 @@ def check_output_dir(directory, names=(), inputs=()):
     else:
         problem = _directory_problem(_nearest_existing(os.path.join(directory, "x")))
     if problem:
-        raise InputError(directory, problem)
+        raise OutputPathError(directory, problem)
     check_outputs([os.path.join(directory, n) for n in names], inputs)
 
 

@@ -1460,15 +1460,23 @@ def _option_of(parser, args, parameter):
     return None
 
 
-def _option_valued(parser, args, value):
-    """The option of the running subcommand given as ``value`` (a path an error names), or None."""
+# The options that name outputs: an error about an output path names the output option given
+# that path, though an input option may hold the same one (animate --mesh a.ply -o a.ply)
+OUTPUT_DESTS = ("output", "out", "out_dir", "dump_aabbs", "dump_handoff", "mismatches")
+
+
+def _option_valued(parser, args, value, output=False):
+    """The option of the running subcommand given as ``value`` (a path an error names), or None;
+    an output option first when ``output`` (the error is about an output path)."""
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             command = action.choices.get(getattr(args, "command", None))
-            for a in (command._actions if command else ()):
-                if a.option_strings and isinstance(getattr(args, a.dest, None), str) \
-                        and getattr(args, a.dest) == value:
-                    return max(a.option_strings, key=len)
+            found = [a for a in (command._actions if command else ())
+                     if a.option_strings and isinstance(getattr(args, a.dest, None), str)
+                     and getattr(args, a.dest) == value]
+            found.sort(key=lambda a: not (output and a.dest in OUTPUT_DESTS))
+            if found:
+                return max(found[0].option_strings, key=len)
     return None
 
 
@@ -1498,7 +1506,8 @@ def _input_message(parser, args, e):
             getattr(args, "width", None) is not None:
         given = [d for d in ("width", "height") if getattr(args, d, None) is not None]
         return " ".join(f"--{d} {getattr(args, d)}" for d in given) + f": {problem}"
-    option = _option_valued(parser, args, e.source)
+    from hwbvh.files import OutputPathError
+    option = _option_valued(parser, args, e.source, output=isinstance(e, OutputPathError))
     return f"{option} {e.source}: {e.problem}" if option else str(e)
 
 

@@ -74,3 +74,41 @@ def test_an_unwritable_directory_names_each_output_given(tmp_path):
         assert str(e.value).startswith(f"{d / 'x.exr'}: cannot create files in {d}")
     finally:
         d.chmod(0o700)
+
+
+def test_a_device_or_pipe_as_an_output_is_refused_and_left_as_it_is(tmp_path):
+    """Outputs are written beside their path and renamed over it: a named pipe (or a device
+    such as /dev/full) would be replaced by a regular file, so it is refused before any work."""
+    import stat
+    import subprocess
+    import sys
+    fifo = tmp_path / "pipe.bin"
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match="is not a regular file"):
+        check_outputs([tmp_path / "fine.bin", fifo])
+    mesh = tmp_path / "t.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    r = subprocess.run([sys.executable, "-m", "hwrt", "build", str(mesh), "--dump-aabbs",
+                        str(fifo)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and r.stderr.splitlines() == [
+        f"hwrt: error: --dump-aabbs {fifo}: is not a regular file (a device, pipe or socket); "
+        f"give a file path"], r.stderr
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    link = tmp_path / "link.bin"                   # a link to a regular file is one
+    (tmp_path / "target.bin").write_bytes(b"")
+    link.symlink_to(tmp_path / "target.bin")
+    check_outputs([link])
+
+
+def test_an_output_error_names_the_output_option_though_an_input_option_holds_the_path(
+        tmp_path, capsys):
+    """animate --mesh a.ply -o a.ply: the output is what cannot be written there, so the error
+    names -o/--output, not --mesh."""
+    import trimesh
+    from hwrt.cli import main
+    mesh = tmp_path / "a.ply"
+    trimesh.creation.box().export(mesh)
+    assert main(["animate", "exploding", "--mesh", str(mesh), "-o", str(mesh), "--frames", "2",
+                 "--width", "8", "--height", "6"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"hwrt: error: --output {mesh}: exists and is not a directory"]
