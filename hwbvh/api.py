@@ -105,11 +105,12 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
         changes how the work is shared out, never the tree.
     source_name : what errors and ``meta["source"]`` call an array source (e.g. its file).
 
-    An array that is already C-contiguous float32 is kept, not copied: ``Bvh.triangles`` (and
-    a ``traversal.Tracer`` over it) is the caller's array, so change it in place and the tree
-    no longer holds it (``refit``, or build again). ``meta["build_seconds"]`` times the build
-    alone, but the first build in a process also loads (or, the first time ever, compiles) its
-    kernels: ``warm_up`` first when the time matters.
+    ``Bvh.triangles`` is the tree's own copy of an array source, so a change the caller makes
+    to the array in place afterwards does not reach the tree (``refit``, or build again; a
+    render of the changed scene with a tracer over the old tree is refused).
+    ``meta["build_seconds"]`` times the build alone, but the first build in a process also
+    loads (or, the first time ever, compiles) its kernels: ``warm_up`` first when the time
+    matters.
     """
     if builder not in BUILDERS:
         raise ParameterError("builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")
@@ -140,6 +141,10 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     if builder == "hwbvh":
         _check_capacity(capacity, leaf_size)
     tris, src = _triangles(source, source_name)
+    if isinstance(source, np.ndarray) and np.may_share_memory(tris, source):
+        # the tree holds its own: a change the caller makes in place afterwards is then told
+        # apart from the tree's triangles (render refuses the pair) instead of traced unseen
+        tris = tris.copy()
     if (1 + subtree_builders) * block_nodes + 2 * len(tris) - 1 > config.MAX_NODE_SLOTS:
         raise ParameterError("block_nodes", f"{block_nodes} nodes per block for "
                                             f"{subtree_builders} subtree builders and "

@@ -415,3 +415,21 @@ def test_cli_embree_builder_and_traversal_go_together(tmp_path):
     assert r.returncode == 2 and r.stderr.startswith(
         "hwrt: error: --traversal embree: needs --builder embree, not sweep")
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_a_scene_changed_in_place_after_its_build_is_not_rendered_with_the_old_tree():
+    """build keeps its own copy of an array source: moving the scene's triangles in place
+    afterwards leaves the tree on the old ones, and render refuses the pair instead of tracing
+    the old geometry and shading the new."""
+    import hwbvh
+    from traversal import Tracer
+    s = compile_scene(load_scene("cornell", width=16, height=12, spp=1))
+    bvh = hwbvh.build(s.triangles)
+    assert bvh.triangles is not s.triangles and not np.may_share_memory(bvh.triangles,
+                                                                         s.triangles)
+    tracer = Tracer(bvh)
+    render(s, tracer)
+    s.triangles[:] += np.float32(0.25)
+    with pytest.raises(ParameterError, match="other triangles than the scene's"):
+        render(s, tracer)
+    Tracer(bvh)                                  # the tree itself is untouched
