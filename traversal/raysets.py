@@ -13,7 +13,7 @@ from .config import MAX_RAYS
 from .offset import offset_origins, points_on_planes
 
 
-def _checked_set(tris, n, seed=0, dtype=np.float64):
+def checked_set_arguments(tris, n, seed=0, dtype=np.float64):
     """A ray set's arguments, refused with a ParameterError naming the argument (an
     InputError naming ``tris`` for a coordinate NaN, infinite or beyond the builder's bound):
     ``tris`` (m, 3, 3) real coordinates (m >= 1), ``n`` an integer of rays in
@@ -74,7 +74,7 @@ def points_beyond(tris):
 
 def primary_chunks(tris, n, dtype=np.float64):
     """``primary``'s rays, a slice of up to ``MAKE_CHUNK`` at a time: (origins, dirs)."""
-    return _primary_chunks(_checked_set(tris, n, dtype=dtype), n, dtype)
+    return _primary_chunks(checked_set_arguments(tris, n, dtype=dtype), n, dtype)
 
 
 def _primary_chunks(tris, n, dtype):
@@ -92,14 +92,14 @@ def primary(tris, n, dtype=np.float64):
     """n camera rays of a 4:3 view framing the mesh, in 4x4 pixel tiles (the image is the
     smallest 4:3 one with at least n pixels; the last tiles are left out). The rays are
     computed in float64 and stored in ``dtype`` (float32: as the float32 tracers take them)."""
-    return _joined(_primary_chunks(_checked_set(tris, n, dtype=dtype), n, dtype), n, dtype)
+    return _joined(_primary_chunks(checked_set_arguments(tris, n, dtype=dtype), n, dtype), n, dtype)
 
 
 def incoherent_chunks(tris, n, seed=0, dtype=np.float64):
     """``incoherent``'s rays, a slice of up to ``MAKE_CHUNK`` at a time: (origins, dirs). The
     stream holds the n origins, then the n directions: the directions come from a second
     generator advanced past the origins' 3n draws (one 64-bit draw per uniform)."""
-    return _incoherent_chunks(_checked_set(tris, n, seed, dtype), n, seed, dtype)
+    return _incoherent_chunks(checked_set_arguments(tris, n, seed, dtype), n, seed, dtype)
 
 
 def _incoherent_chunks(tris, n, seed, dtype):
@@ -121,7 +121,7 @@ def incoherent(tris, n, seed=0, dtype=np.float64):
     """n rays from uniform points of the mesh's box in uniform directions: the stream of
     ``default_rng(seed)``, n origins then n directions, computed in float64 and stored in
     ``dtype``."""
-    return _joined(_incoherent_chunks(_checked_set(tris, n, seed, dtype), n, seed, dtype), n,
+    return _joined(_incoherent_chunks(checked_set_arguments(tris, n, seed, dtype), n, seed, dtype), n,
                    dtype)
 
 
@@ -202,7 +202,7 @@ def _n_hits(tracer, tris, n, first_rays, spread, keep_dirs=False):
 def shadow(tracer, tris, n, dtype=np.float64):
     """n rays from first hits of primary rays toward a point light (tmax = the light), stored
     in ``dtype`` (computed in float64, a slice at a time)."""
-    tris = _checked_set(tris, n, dtype=dtype)
+    tris = checked_set_arguments(tris, n, dtype=dtype)
     p, ng, mag, _ = _n_hits(tracer, tris, n, lambda m: _primary_chunks(tris, m, np.float32),
                             spread=True)
     L = light_position(tris)
@@ -221,7 +221,7 @@ def bounces(tracer, tris, n, seed=1, dtype=np.float64):
     """n secondary rays: mirror reflections of incoherent first hits plus random directions,
     from offset origins (self-intersection is part of what is verified); stored in ``dtype``
     (computed in float64, a slice at a time)."""
-    tris = _checked_set(tris, n, seed, dtype)
+    tris = checked_set_arguments(tris, n, seed, dtype)
     p, ng, mag, di = _n_hits(tracer, tris, n,
                              lambda m: _incoherent_chunks(tris, m, seed, np.float32),
                              spread=False, keep_dirs=True)

@@ -21,11 +21,11 @@ live in ``traversal.config`` with their reasons.
 import numpy as np
 from numba import njit
 
-from hwbvh.errors import ParameterError, is_integer
+from hwbvh.errors import ParameterError
 from hwbvh.parallel import run_ranges
 
 from .api import ACCELS, _interval, ray_arrays, real_array
-from .config import (BARY_ERR_K, BARY_TOL, BARY_TOL_MAX, BEHIND_TOL_REL, MAX_RAYS, T_ERR_K,
+from .config import (BARY_ERR_K, BARY_TOL, BARY_TOL_MAX, BEHIND_TOL_REL, T_ERR_K,
                      T_TOL_MAX_REL, T_TOL_REL)
 
 BEHIND = BEHIND_TOL_REL / T_TOL_REL    # the slack before t_min, as a share of the t tolerance
@@ -534,22 +534,17 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
     from .api import Tracer
     from .embree_ref import embree_scene
 
-    # every argument before the build: a structure over a large mesh takes seconds
-    if not is_integer(n) or not 1 <= n <= MAX_RAYS:
-        raise ParameterError("n", f"must be an integer from 1 to {MAX_RAYS} (rays), got {n!r}")
-    if not is_integer(seed) or seed < 0:
-        raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
+    # every argument before the build: a structure over a large mesh takes seconds; the
+    # triangles as the builder takes them, then as the mesh Embree is given must hold them
+    tris = raysets.checked_set_arguments(tris, n, seed)
     if kind not in RAY_KINDS:
         raise ParameterError("kind", f"must be one of {', '.join(map(repr, RAY_KINDS))}, "
                                      f"got {kind!r}")
     if tracer is None and accel not in ACCELS:
         raise ParameterError("accel", f"must be one of {', '.join(map(repr, ACCELS))}, "
                                       f"got {accel!r}")
-    from hwbvh.primitives import checked_coordinates
     from .embree_ref import mesh_of
-    # the triangles as the builder takes them, then as the mesh Embree is given must hold them
-    tris = checked_coordinates(_checked_triangles(tris), "tris")
-    mesh_of(tris.astype(np.float32), vertices, faces)
+    vertices, faces = mesh_of(tris.astype(np.float32), vertices, faces)
     if tracer is not None:
         from .tracers import check_tracer
         check_tracer(tracer, triangles=tris)
