@@ -13,7 +13,8 @@ both, so a comparison of the two measures their trees and traversals. Shading pe
     L = F * L(reflected) + (1 - F) * L(refracted)             (dielectrics, exact Fresnel)
 
 with E = I / r^2 for a point light of intensity I and E = irradiance for a directional light,
-V the hard-shadow visibility (one ``occluded`` ray per light), Blinn-Phong highlights, total
+V the hard-shadow visibility (one ``occluded`` ray per light, cast only from a surface with a
+diffuse or specular term: ``takes_direct_light``), Blinn-Phong highlights, total
 internal reflection, a recursion depth limit and a contribution cut-off. Dielectrics block
 shadow rays (classic Whitted). Supersampling uses stratified jitter from a seeded generator,
 so a render is reproducible, and the film is accumulated in a fixed order, so it does not
@@ -268,13 +269,22 @@ def simulated_ready_seconds(info):
     return {k: v + (info.get("tracer_setup_seconds") or 0.0) for k, v in sim.items()}
 
 
+def takes_direct_light(scene):
+    """Per material, whether a hit on it casts shadow rays: a material with a diffuse or a
+    specular term that is not a dielectric. A perfect mirror (or a black surface) would add
+    0 for every light, so it casts none, as a renderer samples no light for a purely
+    specular surface; a dielectric takes no direct light (classic Whitted)."""
+    kd = np.asarray(scene.kd, np.float64)
+    return (np.asarray(scene.ior) <= 0) & ((kd.max(axis=1) > 0) | (np.asarray(scene.ks) > 0))
+
+
 def scene_passes(scene):
     """Which passes a scene needs: shadow rays (lights and a material that takes direct light),
     reflection and refraction rays, and the bounce depth (1 when nothing reflects or refracts)."""
     used = np.unique(scene.material)
     reflective = bool((scene.kr[used].max(axis=1) > 0).any() or (scene.ior[used] > 0).any())
     refractive = bool((scene.ior[used] > 0).any())
-    shades = bool(((scene.kd[used].max(axis=1) > 0) | (scene.ks[used] > 0)).any())
+    shades = bool(takes_direct_light(scene)[used].any())
     return {"shadow": bool(scene.lights) and shades, "reflection": reflective,
             "refraction": refractive,
             "depth": scene.max_depth if (reflective or refractive) else 1}
@@ -444,12 +454,11 @@ def _scene_arrays(scene, lights, material):
             val[k] = light["irradiance"]
     f64 = lambda a: np.ascontiguousarray(a, np.float64)
     kr, ior = f64(scene.kr), f64(scene.ior)
-    dielectric = ior > 0                             # dielectrics take no direct light
     rec = _records(len(tris) * stages.TRI_WORDS)
     run_ranges(stages.triangle_terms, len(tris), tris,
                np.ascontiguousarray(scene.normals, np.float32),
-               material, ~dielectric,
-               dielectric | (kr.max(axis=1) > 0), rec, min_items=4096)
+               material, takes_direct_light(scene),
+               (ior > 0) | (kr.max(axis=1) > 0), rec, min_items=4096)
     return SceneArrays(
         rec, f64(scene.kd) * f64(scene.ambient),
         f64(scene.kd) / np.pi, f64(scene.ks), f64(scene.shininess), kr, ior, kind, pos, ldir, val,

@@ -63,7 +63,7 @@ TRI_G = 0            # unit geometric normal e1 x e2 (3 words)
 TRI_MAG = 3          # largest coordinate magnitude: the scale of its rounding, for ray offsets
 TRI_N = 4            # vertex normals, 3 x 3 words (float32 values, exact in float64)
 TRI_MATERIAL = 13    # material index
-TRI_KIND = 14        # what its material does: TAKES_LIGHT (not a dielectric) + CASTS_RAYS
+TRI_KIND = 14        # what its material does: TAKES_LIGHT (render.takes_direct_light) + CASTS_RAYS
 TRI_PLANE = 15       # the unit normal's dot product with vertex 0: the plane is G . x = this
 TRI_WORDS = 16
 TAKES_LIGHT, CASTS_RAYS = 1.0, 2.0      # TRI_KIND's terms (a sum of the two is exact)

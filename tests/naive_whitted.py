@@ -138,7 +138,9 @@ def naive_render(scene, tracer, seed=0, offset="relative"):
                         dist = np.full(len(P), np.inf)
                         E = np.broadcast_to(L["irradiance"], P.shape)
                     cos = _dot(nsf, ldir)
-                    lit = (cos > 0) & (_dot(ngf, ldir) > 0) & ~diel
+                    # a material without a diffuse or specular term adds no light: no ray
+                    lit = (cos > 0) & (_dot(ngf, ldir) > 0) & ~diel & \
+                        ((kd.max(axis=1) > 0) | (ks[:, 0] > 0))
                     if not lit.any():
                         continue
                     idx = np.flatnonzero(lit)

@@ -213,6 +213,26 @@ def test_only_the_passes_a_scene_calls_for():
     assert res.stats["passes"]["depth"] == 1
 
 
+def test_a_surface_without_diffuse_or_specular_light_casts_no_shadow_rays():
+    """A perfect mirror and a black diffuse surface would add 0 for every light: hits on them
+    cast no shadow ray, and the image is the one that adding those zeros made."""
+    sun = [{"type": "directional", "direction": [0, -1, 0], "irradiance": [1] * 3}]
+    quad = lambda x0, x1, m: {"type": "quad", "corners": [[x0, 0, -3], [x1, 0, -3], [x1, 0, 3],
+                                                          [x0, 0, 3]], "material": m}
+    mats = {"mirror": {"type": "mirror", "reflectance": [0.8] * 3},
+            "black": {"type": "diffuse", "reflectance": [0, 0, 0]},
+            "white": {"type": "diffuse", "reflectance": [0.5] * 3}}
+    for m in ("mirror", "black"):
+        _, res = run(base([quad(-3, 3, m)], mats, sun, ambient=(0.1,) * 3))
+        assert res.stats["rays"]["shadow"] == 0 and res.stats["passes"]["shadow"] is False
+        assert (res.prim >= 0).all() and (res.image == 0).all()
+    # beside a lit surface: only the lit surface's hits cast shadow rays (the mirror's
+    # reflections leave upward and miss)
+    sc, res = run(base([quad(-3, 0, "mirror"), quad(0, 3, "white")], mats, sun))
+    on_white = int((sc.material[res.prim[res.prim >= 0]] == 2).sum())
+    assert 0 < res.stats["rays"]["shadow"] == on_white < int((res.prim >= 0).sum())
+
+
 def test_reproducible_and_verified():
     d = load_scene("cornell", width=48, height=36, spp=2)
     sc = compile_scene(d)
