@@ -486,7 +486,7 @@ def cmd_verify(args):
     if args.replay:
         for flag, value in (("--rays", args.rays), ("--kind", args.kind),
                             ("--mismatches", args.mismatches),
-                            ("--accel", None if args.accel == "bvh" else args.accel)):
+                            ("--accel", args.accel)):
             if value is not None:
                 raise InputError(flag, "is for a verification run; --replay re-traces the file's rays")
         if not os.path.isfile(args.replay):
@@ -498,6 +498,7 @@ def cmd_verify(args):
         raise InputError("--mismatches", f"{args.mismatches} does not end in .npz (the mismatch "
                                          f"file is a NumPy archive, which --replay reads)")
     rays = VERIFY_RAYS if args.rays is None else args.rays
+    args.accel = args.accel or "bvh"          # None until here: --replay refuses any given
     kind = args.kind or VERIFY_KIND
     label, tris, verts, faces = _verifiable_geometry(args.scene)
     # named by the scene's name, as render's image is
@@ -1313,9 +1314,9 @@ def make_parser():
     v.add_argument("--mismatches", metavar="F.npz", type=_path,
                    help="where mismatching rays are written (default: "
                         "renders/verify-<scene>-<kind>-mismatches.npz, only if there are any)")
-    v.add_argument("--accel", choices=ACCELS, default="bvh",
+    v.add_argument("--accel", choices=ACCELS,
                    help="acceleration structure checked: bvh (hwbvh's tree), grid (uniform grid) "
-                        "or kdtree (SAH kd-tree)")
+                        "or kdtree (SAH kd-tree) (default: bvh)")
     v.add_argument("--replay", metavar="F.npz", type=_path,
                    help="re-trace the rays of a mismatch file instead, with the ray set's "
                         "query and the structure the file records; refused where the file "

@@ -904,6 +904,11 @@ def test_replay_of_a_run_key_stored_as_an_object_array_names_the_key(capsys, tmp
 def test_replay_rejects_options_of_a_verification_run(capsys, tmp_path, tetra):
     rc, _, err = call(capsys, "verify", tetra, "--replay", tmp_path / "x.npz", "--rays", 10)
     assert rc == 2 and "--rays" in one_line_error(err)
+    # the file records its structure: any --accel is refused, the default's name too
+    for accel in ("bvh", "grid"):
+        rc, _, err = call(capsys, "verify", tetra, "--replay", tmp_path / "x.npz", "--accel", accel)
+        assert rc == 2 and one_line_error(err) == (
+            "hwrt: error: --accel: is for a verification run; --replay re-traces the file's rays")
 
 
 def test_the_mismatch_file_must_be_named_as_an_npz_archive(capsys, tmp_path, tetra):
