@@ -15,7 +15,8 @@ Mitsuba scene from a :class:`scenes.CompiledScene`:
 * lights: ``point`` emitters with the same RGB intensity (radiance kd/pi * I/r^2 * cos in both);
 * integrator: ``direct`` with one emitter sample and no BSDF sample: one camera ray and, per
   hit, one shadow ray toward a light, as ours does for a diffuse scene under one light (ours
-  skips the shadow ray where the light is behind the surface; Mitsuba traces it).
+  skips the shadow ray where the light is behind the surface, and from a surface of
+  reflectance 0; Mitsuba traces it).
 
 Mitsuba has no ambient term and no background colour behind a scene without an environment
 emitter, so :func:`neutral_scene` sets both to 0 in our scene; comparisons render that scene

@@ -274,8 +274,8 @@ def takes_direct_light(scene):
     specular term that is not a dielectric. A perfect mirror (or a black surface) would add
     0 for every light, so it casts none, as a renderer samples no light for a purely
     specular surface; a dielectric takes no direct light (classic Whitted)."""
-    kd = np.asarray(scene.kd, np.float64)
-    return (np.asarray(scene.ior) <= 0) & ((kd.max(axis=1) > 0) | (np.asarray(scene.ks) > 0))
+    return ~(np.asarray(scene.ior) > 0) & \
+        ((np.asarray(scene.kd) > 0).any(axis=1) | (np.asarray(scene.ks) > 0))
 
 
 def scene_passes(scene):

@@ -15,7 +15,8 @@ thread (``raytracer.render``); per bounce of a band:
    this module);
 3. ``shade``: per ray, the background for a miss; for a hit, the first-hit layers, ambient
    light (a camera ray's is ``accumulate``'s to add), one shadow ray per light with the light
-   it brings if visible, and the secondary rays (mirror reflection, dielectric reflection and
+   it brings if visible (from a material with a diffuse or specular term:
+   ``render.takes_direct_light``), and the secondary rays (mirror reflection, dielectric reflection and
    refraction) with their weights. Each output goes densely, in ray order, to its queue: the
    shadow rays of each light straight into the tracer's shadow queue, in the order of the
    rays that cast them (tile order for the camera's: coherent packets), and the secondary
@@ -442,7 +443,7 @@ def shade(n, Ot, Dt, wgt, pix, hit_prim, hit_t, hit_u, hit_v,
         #    geometric normal (per face) and plane, the interpolated shading normal, the
         #    coordinate magnitude and material; a miss reads triangle 0 (render() refuses a
         #    scene without triangles), unused. From the record's kind, which rays take direct
-        #    light (hits on a non-dielectric) and which spawn: the spawning rays' slots go
+        #    light (hits on a material that ``render.takes_direct_light``) and which spawn: the spawning rays' slots go
         #    densely to ``spawning`` (each ray's slot is written, the count moves on for those
         #    that spawn) --
         n_spawning = 0

@@ -140,7 +140,7 @@ def naive_render(scene, tracer, seed=0, offset="relative"):
                     cos = _dot(nsf, ldir)
                     # a material without a diffuse or specular term adds no light: no ray
                     lit = (cos > 0) & (_dot(ngf, ldir) > 0) & ~diel & \
-                        ((kd.max(axis=1) > 0) | (ks[:, 0] > 0))
+                        ((kd > 0).any(axis=1) | (ks[:, 0] > 0))
                     if not lit.any():
                         continue
                     idx = np.flatnonzero(lit)

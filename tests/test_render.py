@@ -231,6 +231,10 @@ def test_a_surface_without_diffuse_or_specular_light_casts_no_shadow_rays():
     sc, res = run(base([quad(-3, 0, "mirror"), quad(0, 3, "white")], mats, sun))
     on_white = int((sc.material[res.prim[res.prim >= 0]] == 2).sum())
     assert 0 < res.stats["rays"]["shadow"] == on_white < int((res.prim >= 0).sum())
+    # and the rays it no longer casts added nothing: the white half alone, the same image
+    _, alone = run(base([quad(0, 3, "white")], mats, sun))
+    assert alone.stats["rays"]["shadow"] == on_white
+    assert np.array_equal(res.image, alone.image)
 
 
 def test_reproducible_and_verified():
