@@ -60,15 +60,42 @@ class MeshInput(NamedTuple):
         return self.name if self.path is None else str(self.path)
 
 
+def file_identity(path):
+    """What tells one file from another however it is spelled: through a symbolic link, by
+    another relative path, or as a hard link (device and inode); a path that names no file,
+    by the path it resolves to (its own check refuses it)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return ("path", os.path.realpath(path))
+    return ("file", st.st_dev, st.st_ino)
+
+
 def check_distinct_scenes(specs):
     """Refuse a scene or file given twice among a benchmark's SCENE arguments (built-in names
     or files, a file however it is spelled): its rows would be the same scene's twice."""
     seen = set()
     for spec in specs:
-        key = os.path.realpath(spec) if os.path.exists(spec) else str(spec)
+        key = file_identity(spec) if os.path.exists(spec) else str(spec)
         if key in seen:
             raise InputError(spec, "given twice")
         seen.add(key)
+
+
+def traceable(source, scene=None, triangles=None, points=None):
+    """Refuse, naming ``source`` (a scene or mesh file as the user gave it), a compiled
+    ``scene``, or ``triangles`` with rays from or toward ``points``, that the float32 units
+    cannot trace: too large or too small (``raytracer.render.check_float32_reach``). Every
+    benchmark path traces in float32, so this comes before the scene's work."""
+    from raytracer.render import check_float32_reach, check_float32_reach_from
+
+    try:
+        if scene is not None:
+            check_float32_reach(scene)
+        else:
+            check_float32_reach_from(triangles, points)
+    except ParameterError as e:
+        raise InputError(source, e.problem) from None
 
 
 def mesh_names(paths, base=None):
@@ -78,7 +105,7 @@ def mesh_names(paths, base=None):
     paths = [Path(p) for p in paths]
     seen = set()
     for p in paths:
-        real = os.path.realpath(p)                  # one file however it is spelled
+        real = file_identity(p)                     # one file however it is spelled
         if real in seen:
             raise InputError(p, "given twice")
         seen.add(real)
@@ -416,6 +443,7 @@ def bench_trace(args):
         name = mesh.name
         verts, faces = mesh.load()
         tris = as_triangles(verts[faces], source=mesh.source)
+        traceable(mesh.source, triangles=tris, points=raysets.points_beyond(tris))
         v32, f32 = verts.astype(np.float32), faces.astype(np.int32)
         tracer = Tracer(hwbvh.build(tris))
         emb = embree_scene(v32, f32)
@@ -525,7 +553,7 @@ def bench_render(args, commit=write_files):
     line's also marks the run done)."""
     import json
     from hwbvh.files import check_output_dir, jsonable
-    from raytracer.render import check_float32_reach, warm_up
+    from raytracer.render import warm_up
     from scenes import compile_scene, is_scene, load_scene
     from . import mitsuba_peer as mp
 
@@ -538,10 +566,7 @@ def bench_render(args, commit=write_files):
         check_output_dir(out_dir, ["render.json", "render.md"], inputs=specs)
     scenes = [(spec, compile_scene(_render_setting(load_scene(spec), args))) for spec in specs]
     for spec, scene in scenes:          # every path traces in float32: refused before any work
-        try:
-            check_float32_reach(scene)
-        except ParameterError as e:
-            raise InputError(spec, e.problem) from None
+        traceable(spec, scene)
     for builder, traversal in RENDER_PATHS:
         warm_up(builder, traversal, parallel_build=True)
     variants = _peer_variants(specs)

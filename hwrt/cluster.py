@@ -65,20 +65,27 @@ def _quiet():
         logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
+NETWORK_SCHEMES = ("tcp", "tls", "ws", "wss")     # Dask's, besides inproc:// (one process's)
+
+
 def _address_problem(address):
-    """What makes ``address`` no address to connect to (no port, a port out of range), or
-    None: said at once, where a connection attempt would wait out its timeout first."""
+    """What makes ``address`` no address to connect to (a scheme that is not a network's, no
+    port, a port out of range), or None: said at once, where a connection attempt would wait out its timeout first."""
     from distributed.comm.addressing import parse_address, parse_host_port
 
     try:
         scheme, location = parse_address(address)
-        if scheme in ("tcp", "tls", "ws", "wss"):
-            _, colon, text = location.rpartition(":")
-            if colon and text and not text.isdigit():       # int() would say it its own way
-                return f"port {text!r} is not a number"
-            port = parse_host_port(location)[1]
-            if not 1 <= port <= 65535:
-                return f"port {port} is not in 1..65535"
+        if scheme == "inproc":          # a scheduler of this process (the Python API's use)
+            return None
+        if scheme not in NETWORK_SCHEMES:
+            return (f"its scheme {scheme!r} is not one a scheduler on the network listens on "
+                    f"({', '.join(NETWORK_SCHEMES)})")
+        _, colon, text = location.rpartition(":")
+        if colon and text and not text.isdigit():           # int() would say it its own way
+            return f"port {text!r} is not a number"
+        port = parse_host_port(location)[1]
+        if not 1 <= port <= 65535:
+            return f"port {port} is not in 1..65535"
     except (ValueError, TypeError) as e:
         return (str(e).splitlines() or [""])[0] or type(e).__name__
     return None
@@ -102,6 +109,8 @@ def _probe(address):
     try:
         reply = asyncio.run(asyncio.wait_for(ask(), 2 * CONNECT_TIMEOUT_S))
     except (OSError, TimeoutError, ValueError) as e:     # refused, timed out, unroutable, bad address
+        if address.startswith("inproc://"):
+            return "an inproc address names a scheduler of this process, and none has it"
         return (str(e).splitlines() or [""])[0] or type(e).__name__
     except Exception as e:                               # a server that does not speak Dask
         return f"the server there does not speak Dask's protocol: {type(e).__name__}"

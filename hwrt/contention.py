@@ -70,7 +70,14 @@ def bench_contention(args, setups=None):
     from hwbvh.errors import InputError
     from hwbvh.parallel import DEFAULT_THREADING, THREADING_SETUPS
 
+    from scenes import compile_scene, load_scene, with_frame
+    from .bench import traceable
+
     scene = args.meshes[0] if args.meshes else "cornell"
+    # read and checked here, as each child will read it, so that a bad scene or setting is
+    # refused once, before any child starts, with the error naming what the user gave
+    traceable(scene, compile_scene(with_frame(load_scene(scene), args.width, args.height,
+                                              args.spp)))
     rows = []
     for setup in setups or list(THREADING_SETUPS):
         env = dict(os.environ, HWRT_THREADING=setup)

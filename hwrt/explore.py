@@ -21,6 +21,7 @@ import itertools
 import json
 import math
 import os
+import re
 import time
 import uuid
 from collections import OrderedDict
@@ -42,6 +43,12 @@ BASE = PRESETS["HWBVH-C"]          # the value of every knob the grid leaves uns
 DEFAULT_GRID = {"w": [2, 4, 8, 16], "tsize": [2, 4, 8, 16], "psize": [1024, 2048, 4096],
                 "subtree_builders": [1, 2, 4], "ram_pairs": [1, 2, 4], "clock_mhz": [250.0, 500.0],
                 "leaf_size": [4, 8, 16, 32, 64]}
+# The most configurations one exploration takes: 23x the default grid's 4,320, a few hours of
+# simulation per mesh on a workstation's cores; a grid past it is refused before its
+# configurations are made (each is a few kilobytes of parameters and results).
+MAX_CONFIGURATIONS = 100_000
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+_DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
 BATCH_CONFIGS = 96         # configurations per task: ~0.1-1 s of simulation, a fine progress bar
 TREE_CACHE = 3             # trees a worker keeps (a 270k-triangle tree is ~50 MB)
 SIZE_CLASSES = ((50_000, "small (< 50k triangles)"), (150_000, "medium (50k-150k)"),
@@ -77,17 +84,24 @@ def parse_grid(specs):
             raise ParameterError(name, f"empty value in {spec!r}")
         parsed = []
         for v in items:
-            try:
-                x = float(v) if name == "clock_mhz" else int(v)
-            except ValueError:
-                kind = "a number" if name == "clock_mhz" else "an integer"
-                raise ParameterError(name, f"{v!r} is not {kind}") from None
-            if name == "clock_mhz" and not math.isfinite(x):
+            # written out in digits, as the command's integer options take them: Python's
+            # int() and float() would also read "4_0" as 40 and "inf" as a clock
+            clock = name == "clock_mhz"
+            if not (_DECIMAL if clock else _INTEGER).fullmatch(v):
+                kind = "a number" if clock else "an integer"
+                raise ParameterError(name, f"{v!r} is not {kind}")
+            x = float(v) if clock else int(v)
+            if clock and not math.isfinite(x):
                 raise ParameterError(name, f"{v!r} is not a finite clock")
             if x in parsed:
                 raise ParameterError(name, f"value {v} listed twice")
             parsed.append(x)
         grid[name] = parsed
+    count = math.prod(len(v) for v in grid.values())
+    if count > MAX_CONFIGURATIONS:
+        raise ParameterError("grid", f"{count:,} configurations, more than the "
+                                     f"{MAX_CONFIGURATIONS:,} one exploration takes: give "
+                                     f"fewer values, or explore the grid in parts")
     return grid
 
 

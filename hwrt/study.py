@@ -32,7 +32,7 @@ import numpy as np
 from hwbvh.errors import InputError
 from hwbvh.files import OutputError, content_digest, json_text, write_files
 from .report import command_of, made_by_block, with_figures
-from .bench import machine, mesh_inputs, round_order
+from .bench import machine, mesh_inputs, round_order, traceable
 
 TTI_PATHS = ("hwbvh-C", "hwbvh-HP", "hwbvh-sw", "sweep", "embree")
 TTI_TREES = (("hwbvh", "numba"), ("sweep", "numba"), ("embree", "embree"))   # (builder, traversal)
@@ -170,7 +170,18 @@ def _scene_specs(args, quick):
         return specs + [(m.name, "generated", m.stem) for m in generated[:1 if quick else None]]
     if quick:
         meshes = sorted(meshes, key=lambda m: m.path.stat().st_size)[:1]
-    return _named_apart(specs + [(m.name, "mesh", os.path.abspath(m.path)) for m in meshes])
+    return _named_apart(specs + _checked_meshes(meshes))
+
+
+def _checked_meshes(meshes):
+    """The specs of mesh files ``meshes`` (``MeshInput``), each read and checked as its cells
+    will read it before any cell runs or any file is opened: a file that is no mesh, or a
+    mesh the float32 units cannot trace, is refused naming the file as the user gave it."""
+    from scenes import compile_scene, mesh_scene
+
+    for m in meshes:
+        traceable(str(m.path), compile_scene(mesh_scene(str(m.path))))
+    return [(m.name, "mesh", os.path.abspath(m.path)) for m in meshes]
 
 
 # The accuracy study's scenes: a diffuse box with a mirror and a glass block, glass and mirror
@@ -183,7 +194,7 @@ def _accuracy_specs(args, quick):
     :func:`_scene_specs` describes it."""
     specs = [(n, "builtin", n) for n in ACCURACY_SCENES[:1 if quick else None]]
     if args.meshes:
-        specs += [(m.name, "mesh", os.path.abspath(m.path)) for m in mesh_inputs(args)]
+        specs += _checked_meshes(mesh_inputs(args))
     return _named_apart(specs)
 
 

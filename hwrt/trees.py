@@ -70,13 +70,16 @@ def bench_trees(args):
     from raytracer.render import make_tracer, render, warm_up
     from traversal.tracers import CountingTracer, RecordingTracer
 
-    from .bench import check_distinct_scenes
+    from .bench import check_distinct_scenes, traceable
 
     check_distinct_scenes([str(s) for s in args.meshes])
+    # every scene read and checked before any work: both trees trace in float32
+    scenes = [(spec, _scene(spec, args)) for spec in args.meshes or DEFAULT_SCENES]
+    for spec, scene in scenes:
+        traceable(str(spec), scene)
     warm_up("hwbvh", "numba", parallel_build=True)
     rows = []
-    for spec in args.meshes or DEFAULT_SCENES:
-        scene = _scene(spec, args)
+    for spec, scene in scenes:
         tracers, sah = {}, {}
         for b in BUILDERS:
             tracers[b], _, info = make_tracer(scene, b, "numba")

@@ -45,7 +45,10 @@ def test_grid_parsing_and_its_errors():
     assert ex.parse_grid(["w=2,4", "clock-mhz=250,500.5"]) == {"w": [2, 4], "clock_mhz": [250.0, 500.5]}
     for bad, name in ((["w="], "w"), (["w=2,,4"], "w"), (["bogus=1"], "grid"), (["w2"], "grid"),
                       (["w=2", "w=4"], "w"), (["w=2,2"], "w"), (["bins=1.5"], "bins"),
-                      (["clock_mhz=inf"], "clock_mhz")):
+                      (["clock_mhz=inf"], "clock_mhz"), (["w=4_0"], "w"),
+                      (["clock_mhz=1_000"], "clock_mhz"), (["w=0x4"], "w"),
+                      ([f"psize={','.join(map(str, range(1024, 1424)))}",
+                        f"clock_mhz={','.join(map(str, range(1, 301)))}"], "grid")):
         with pytest.raises(ParameterError) as e:
             ex.parse_grid(bad)
         assert e.value.parameter == name, bad
@@ -200,6 +203,10 @@ def test_meshes_are_named_as_the_benchmarks_name_them(tmp_path):
      "is not a scheduler address (port '8786/' is not a number; e.g. tcp://HOST:8786)"),
     (["--grid", "w=2", "--scheduler", "tcp://127.0.0.1:99999"],
      "is not a scheduler address (port 99999 is not in 1..65535; e.g. tcp://HOST:8786)"),
+    (["--grid", "w=2", "--scheduler", "inproc://x"],
+     "no Dask scheduler answers at 'inproc://x' within 5 s (an inproc address names a "
+     "scheduler of this process, and none has it)"),
+    (["--grid", "w=2", "--scheduler", "http://127.0.0.1:8786"], "its scheme 'http' is not one"),
 ])
 def test_cli_bad_input_one_line_exit_2_no_output(meshes, tmp_path, args, message):
     out = tmp_path / "out"

@@ -255,11 +255,14 @@ def test_unreachable_scheduler_fails_fast_and_keeps_the_cells(tmp_path, mesh_dir
 def test_study_meshes_that_share_a_stem_are_told_apart_by_their_paths(tmp_path):
     """Named as the other benchmarks name them (a/s.ply and b/s.ply, bunny.ply and bunny.obj
     in one directory): two scenes called 's' would share their cells."""
+    import trimesh
     from hwrt.study import _scene_specs
+    tetra = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]],
+                            [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], process=False)
     for d, f in (("a", "s.ply"), ("b", "s.ply"), ("a", "other.ply"), ("dir", "bunny.ply"),
                  ("dir", "bunny.obj"), ("dir", "ball.ply")):
         (tmp_path / d).mkdir(exist_ok=True)
-        (tmp_path / d / f).write_text("")
+        tetra.export(tmp_path / d / f)     # read: the study checks each mesh before its cells
     given = [tmp_path / "a" / "s.ply", tmp_path / "b" / "s.ply", tmp_path / "a" / "other.ply"]
     meshes = _scene_specs(Namespace(meshes=[str(p) for p in given], mesh_dir=None), False)[-3:]
     assert meshes == [(str(given[0]), "mesh", str(given[0])), (str(given[1]), "mesh", str(given[1])),
