@@ -780,7 +780,8 @@ BENCH_OPTIONS = {
 }
 BENCH_QUICK = {"tti": {"repeat": 1, "width": 160, "height": 120},     # --quick: small cells
                "accuracy": {"repeat": 1, "width": 64, "height": 48}}
-BENCH_NONE = {"mesh_dir": "$HWRT_MESHES, else ../shared/meshes if it is there, else generated meshes",
+BENCH_NONE = {"mesh_dir": "$HWRT_MESHES, else shared/meshes beside the project or the working "
+                          "directory, if there, else generated meshes",
               "out_dir": "no files", "width": "the scene's", "height": "the scene's",
               "spp": "the scene's", "max_depth": "the scene's",
               "scheduler": None}        # filled in below, from BENCH_LOCAL_CLUSTER
@@ -1353,8 +1354,8 @@ def make_parser():
     an.add_argument("--max-depth", type=_depth,
                     help="longest reflection/refraction path (default: the animation's)")
     an.add_argument("--mesh", type=_path, help="exploding: the mesh that breaks (default: the bunny of the mesh "
-                                   "directory, $HWRT_MESHES, else ../shared/meshes if it is "
-                                   "there; without either, a generated sphere)")
+                                   "directory, $HWRT_MESHES, else shared/meshes beside the project "
+                                   "or the working directory; without either, a generated sphere)")
     an.add_argument("--triangles", type=_int_at_least(1, config.MAX_PRIMITIVES),
                     help="exploding (generated sphere) and cloth: about this many triangles "
                          f"(default: {GENERATED_TRIANGLES})")
