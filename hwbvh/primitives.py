@@ -482,6 +482,8 @@ def load_mesh_arrays(path):
         raise InputError(path, "no such file")
     if os.path.isdir(path):
         raise InputError(path, "is a directory, not a mesh file")
+    if not os.path.isfile(path):                    # a pipe or a device: no size to read
+        raise InputError(path, "not a regular file (a pipe or a device?): give a mesh file")
     if not path.lower().endswith(MESH_EXTENSIONS):
         raise InputError(path, "unknown mesh file type (expected " + "/".join(MESH_EXTENSIONS)
                          + ")")

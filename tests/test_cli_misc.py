@@ -300,9 +300,13 @@ def test_long_mesh_and_scene_names_keep_the_tables_aligned():
 
 
 def test_bench_refuses_a_missing_mesh_or_a_directory_before_any_work(tmp_path):
+    import os
     (tmp_path / "d").mkdir()
+    os.mkfifo(tmp_path / "pipe.ply")
     for given, problem in ((tmp_path / "none.ply", "no such file"),
-                           (tmp_path / "d", "is a directory, not a mesh file")):
+                           (tmp_path / "d", "is a directory, not a mesh file"),
+                           (tmp_path / "pipe.ply", "not a regular file (a pipe or a device?): "
+                                                   "give a mesh file")):
         r = _hwrt("bench", "trace", given, "--rays", 200, "--repeat", 1, "--out-dir", tmp_path / "out")
         _refused(r, tmp_path / "out", f"{given}: {problem}")
 
