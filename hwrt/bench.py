@@ -547,8 +547,8 @@ def bench_render(args, commit=write_files):
     and Mitsuba's time to image is its load (mesh + ``mi.load_dict``, which builds its BVH) plus
     its render. Its rays/s count the rays ours traced for the same image (camera + shadow rays):
     Mitsuba traces at least those (it also sends a shadow ray from surfaces that face away from
-    the light, and from black ones), so its rate is a lower bound. Image agreement: relative RMSE of our image
-    against Mitsuba's (seed 1), over Mitsuba's seed 1 against seed 2. With ``args.out_dir``,
+    the light, and from black ones), so its rate is a lower bound. Image agreement: relative
+    RMSE of our image against Mitsuba's (seed 1), over Mitsuba's seed 1 against seed 2. With ``args.out_dir``,
     render.json and render.md are written in one set through ``commit(files)`` (the command
     line's also marks the run done)."""
     import json

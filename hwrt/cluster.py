@@ -70,7 +70,8 @@ NETWORK_SCHEMES = ("tcp", "tls", "ws", "wss")     # Dask's, besides inproc:// (o
 
 def _address_problem(address):
     """What makes ``address`` no address to connect to (a scheme that is not a network's, no
-    port, a port out of range), or None: said at once, where a connection attempt would wait out its timeout first."""
+    port, a port out of range), or None: said at once, where a connection attempt would wait
+    out its timeout first."""
     from distributed.comm.addressing import parse_address, parse_host_port
 
     try:
