@@ -153,7 +153,10 @@ RUNS = {"build": _build, "explore": _explore, "bench tti": _tti, "bench accuracy
         "bench animation": _bench_animation, "bench model": _bench_model, "animate": _animate}
 
 
-@pytest.mark.parametrize("command", RUNS)
+# bench accuracy writes its files through the study's writer (``study._write_outputs``), as
+# bench tti does: its case (48 s, most of it the study's cells) runs with the slow tests
+@pytest.mark.parametrize("command", [pytest.param(c, marks=pytest.mark.slow)
+                                     if c == "bench accuracy" else c for c in RUNS])
 def test_a_signal_once_the_last_outputs_are_written_does_not_fail_the_run(
         command, tmp_path, tetra, mesh_dir, capsys, monkeypatch):
     argv, trigger, out, expected = RUNS[command](tmp_path, tetra, mesh_dir)
