@@ -308,6 +308,48 @@ def write_files(pairs):
                     pass
 
 
+@contextmanager
+def appending(path, replace=False):
+    """``path`` (a ``pathlib.Path``) opened to append to, in binary, its directory made;
+    flushed to the disk at the end. A file that is not there yet, or with ``replace`` one whose
+    content is to be replaced, is written to a temporary file beside it and renamed into place
+    once what was written is on the disk, so that a failure leaves the old content (or no
+    file), never an empty or partial one. A failed write (a full disk) is an
+    :class:`OutputError` naming ``path``; an append it cut short in an existing file ends in a
+    partial line, which a reader of such a log must pass over (``hwrt.study.Cells`` repairs
+    it)."""
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if replace or not path.exists():
+            with signals_held():            # a signal here would leave the file unrecorded
+                fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=path.suffix,
+                                           dir=path.parent)
+            f = os.fdopen(fd, "wb")
+        else:
+            f = open(path, "ab")
+        with f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        if tmp is not None:
+            os.chmod(tmp, _file_mode())
+            with signals_held():
+                os.replace(tmp, path)
+                tmp = None
+    except OSError as e:
+        if not e.errno:
+            raise
+        raise OutputError(e.errno, e.strerror, str(path)) from None
+    finally:
+        if tmp is not None:
+            with signals_held():
+                try:
+                    os.unlink(tmp)
+                except OSError:
+                    pass
+
+
 def _make_directories(d, made):
     """Create the directory ``d`` and its missing parents, appending each one created to
     ``made`` (outermost first) as it is created, so that a signal between two of them leaves

@@ -594,7 +594,7 @@ class _CellStore:
 
     def add_many(self, rows):
         from hwbvh.files import json_text
-        from .study import appending
+        from hwbvh.files import appending
         with appending(self.path, self.truncate) as f:
             f.write("".join(json_text(r) + "\n" for r in rows).encode())
         self.truncate = False

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from hwbvh.errors import InputError
-from hwbvh.files import OutputError, content_digest, json_text, write_files
+from hwbvh.files import appending, content_digest, json_text, write_files
 from .report import command_of, made_by_block, with_figures
 from .bench import machine, mesh_inputs, round_order, traceable
 
@@ -137,23 +137,6 @@ class Cells:
         with appending(self.path, self.truncate) as f:
             f.write((json_text(row) + "\n").encode())
         self.truncate = False
-
-
-@contextmanager
-def appending(path, truncate):
-    """``path`` opened to append to (binary; emptied first with ``truncate``), its parent made;
-    flushed to the disk at the end. A failed write (a full disk) is an OutputError naming
-    ``path``: a line it cut short is repaired when the file is next read (``Cells``)."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "wb" if truncate else "ab") as f:
-            yield f
-            f.flush()
-            os.fsync(f.fileno())
-    except OSError as e:
-        if not e.errno:
-            raise
-        raise OutputError(e.errno, e.strerror, str(path)) from None
 
 
 def _scene_specs(args, quick):

@@ -693,6 +693,15 @@ def test_a_cells_file_the_disk_refuses_is_an_output_error_naming_it(tmp_path, mo
         else:
             explore._CellStore(p, fresh=True).add_many([{"key": "a", "v": 1}])
     assert e.value.filename == str(p)
+    assert list(tmp_path.iterdir()) == []          # no empty cells file left behind
+    # a fresh run's first cell replaces the saved cells only once it is on the disk
+    p.write_text('{"key": "kept"}\n')
+    with pytest.raises(OutputError):
+        if store == "tti":
+            study.Cells(p, fresh=True).add({"key": "a", "v": 1})
+        else:
+            explore._CellStore(p, fresh=True).add_many([{"key": "a", "v": 1}])
+    assert list(tmp_path.iterdir()) == [p] and p.read_text() == '{"key": "kept"}\n'
 
 
 # ---------------------------------------------------------------------------------------
