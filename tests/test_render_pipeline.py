@@ -141,6 +141,15 @@ def test_counting_and_recording_wrappers():
     res = render(sc, rec)
     assert rec.rays() == sum(res.stats["rays"].values())
     assert rec.replay_seconds() > 0
+    # a replay asks what the render asked: a scalar bound as given (a Python float's checks
+    # are kept per value), an array of bounds as a copy of it
+    kinds = {(type(q[3]), type(q[4])) for q in rec.queries}
+    assert (float, float) in kinds and (float, np.ndarray) in kinds, kinds
+    O, D = np.zeros((2, 3), np.float32), np.ones((2, 3), np.float32)
+    far = np.full(2, 5.0, np.float32)
+    rec.occluded(O, D, 0.0, far)
+    far[:] = 0.0
+    assert rec.queries[-1][3] == 0.0 and list(rec.queries[-1][4]) == [5.0, 5.0]
 
 
 def test_counters_as_run_count_packet_work():

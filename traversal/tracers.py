@@ -227,6 +227,13 @@ class CountingTracer(_Tally):
                 "rays": r}
 
 
+def _kept(bound):
+    """A query's bound as a record keeps it: a copy of an array (the caller may reuse it), a
+    scalar as it was given, so that a replay asks exactly what the render asked (a Python
+    float bound is checked once per value, an array of bounds per query)."""
+    return bound if np.isscalar(bound) else np.array(bound)
+
+
 class RecordingTracer(_Wrapper):
     """Passes queries to ``inner`` and keeps a copy of each, so that :meth:`replay_seconds` can
     time tracing exactly the same rays again, alone (no shading, no ray generation). Not
@@ -239,14 +246,14 @@ class RecordingTracer(_Wrapper):
     # a query is kept once the tracer has answered it: one it refuses is not traced again
     def intersect(self, origins, dirs, tmin=0.0, tmax=np.inf, normals=True):
         h = self.inner.intersect(origins, dirs, tmin, tmax, normals=normals)
-        self.queries.append(("intersect", np.array(origins), np.array(dirs), np.array(tmin),
-                             np.array(tmax), normals))
+        self.queries.append(("intersect", np.array(origins), np.array(dirs), _kept(tmin),
+                             _kept(tmax), normals))
         return h
 
     def occluded(self, origins, dirs, tmin=0.0, tmax=np.inf):
         blocked = self.inner.occluded(origins, dirs, tmin, tmax)
-        self.queries.append(("occluded", np.array(origins), np.array(dirs), np.array(tmin),
-                             np.array(tmax), False))
+        self.queries.append(("occluded", np.array(origins), np.array(dirs), _kept(tmin),
+                             _kept(tmax), False))
         return blocked
 
     @property
