@@ -498,23 +498,23 @@ def cmd_verify(args):
         raise InputError("--mismatches", f"{args.mismatches} does not end in .npz (the mismatch "
                                          f"file is a NumPy archive, which --replay reads)")
     rays = VERIFY_RAYS if args.rays is None else args.rays
-    args.accel = args.accel or "bvh"          # None until here: --replay refuses any given
+    accel = args.accel or "bvh"               # None in args: --replay refuses any given
     kind = args.kind or VERIFY_KIND
     label, tris, verts, faces = _verifiable_geometry(args.scene)
     # named by the scene's name, as render's image is
     out = args.mismatches or os.path.join("renders", f"verify-{label}-{kind}-mismatches.npz")
     check_outputs([out], inputs=scene_inputs(args.scene))
-    tracer = _verify_tracer(args.accel, tris)
+    tracer = _verify_tracer(accel, tris)
     counts, labels, (O, D, tmax), ours, ref = verify_mesh(tris, verts, faces, kind, rays,
                                                           tracer=tracer)
     if counts["rays"] == 0:
         raise InputError(args.scene, f"makes no {kind} rays: none of the first rays that "
                                      f"make them hits the mesh")
     result = dict(counts)
-    result.update({"kind": kind, "scene": label, "rays_requested": rays, "accel": args.accel,
+    result.update({"kind": kind, "scene": label, "rays_requested": rays, "accel": accel,
                    "query": query_of(kind),
                    "hit_fraction": counts["hit"] / counts["rays"]})
-    if args.accel != "bvh":
+    if accel != "bvh":
         result.update({k: v for k, v in tracer.stats().items()
                        if k in ("build_seconds", "memory_bytes", "references_per_triangle")})
     if counts["rays"] != rays:
@@ -535,7 +535,7 @@ def cmd_verify(args):
     if len(bad):
         buf = io.BytesIO()
         np.savez(buf, origins=O[bad], dirs=D[bad], tmax=bounds, **answers, kind=np.str_(kind),
-                 accel=np.str_(args.accel), scene=np.str_(label),
+                 accel=np.str_(accel), scene=np.str_(label),
                  triangles_sha256=np.str_(_triangles_digest(tris)))
         _commit(args, [(out, buf.getvalue())])
         result["mismatch_file"] = out
