@@ -135,8 +135,8 @@ def _split_queries(queries):
         in_packets = packet_rays(d)
         for path, rays in zip(PATHS, (in_packets, ~in_packets)):
             if rays.any():
-                part = (kind, o[rays], d[rays], lo if lo.ndim == 0 else lo[rays],
-                        hi if hi.ndim == 0 else hi[rays], normals)
+                part = (kind, o[rays], d[rays], lo if np.ndim(lo) == 0 else lo[rays],
+                        hi if np.ndim(hi) == 0 else hi[rays], normals)
                 classes.setdefault((KINDS[kind], path), []).append(part)
     return classes
 
