@@ -5,8 +5,10 @@ path as it was given, when an output could not be written or would replace an in
 long run never ends in an error about its output. ``write_files`` writes each file to a
 temporary file beside it and renames it into place only when every file of the set is complete;
 an exception (an interruption included) removes the temporary files, and a file that could not
-be written (a full disk, a device error) is an :class:`OutputError` naming it. ``json_text`` is
-the one JSON encoder: strict JSON, with ``null`` for a number that is infinite or undefined.
+be written (a full disk, a device error) is an :class:`OutputError` naming it. ``appending``
+adds to a log of results (a benchmark's cells), creating or replacing it by a rename in the same
+way. ``json_text`` is the one JSON encoder: strict JSON, with ``null`` for a number that is
+infinite or undefined.
 """
 import errno
 import json

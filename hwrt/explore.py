@@ -593,8 +593,7 @@ class _CellStore:
             Cells(self.path, schema=RowSchema(ROW_NUMBERS, ROW_OTHERS)).done
 
     def add_many(self, rows):
-        from hwbvh.files import json_text
-        from hwbvh.files import appending
+        from hwbvh.files import appending, json_text
         with appending(self.path, self.truncate) as f:
             f.write("".join(json_text(r) + "\n" for r in rows).encode())
         self.truncate = False
