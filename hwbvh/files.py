@@ -66,8 +66,9 @@ def _nearest_existing(path):
     return d
 
 
-def _directory_problem(d):
-    """Why files cannot be created in the existing path ``d``, or None."""
+def _directory_problem(d, wanted=None):
+    """Why files cannot be created in the existing path ``d``, or None; ``wanted``: the
+    missing directory below ``d`` that the output needs, which the message then names."""
     if not os.path.isdir(d):
         return f"cannot create a directory under {d}: it is a file"
     try:
@@ -75,14 +76,17 @@ def _directory_problem(d):
         # file systems), which os.access does not make for every user
         tempfile.TemporaryFile(dir=d).close()
     except OSError as e:
-        return f"cannot create files in {d} ({e.strerror or 'not writable'})"
+        reason = e.strerror or "not writable"
+        if wanted and wanted != d:
+            return f"cannot create the directory {wanted}: {d} takes no new files ({reason})"
+        return f"cannot create files in {d} ({reason})"
     return None
 
 
 def directory_problem(path):
     """Why the file ``path`` could not be created where it lies (its directory, or the
     nearest existing one above), or None."""
-    return _directory_problem(_nearest_existing(path))
+    return _directory_problem(_nearest_existing(path), os.path.dirname(os.path.abspath(path)))
 
 
 def file_identity(path):
@@ -152,10 +156,11 @@ def check_outputs(outputs, inputs=()):
         if ident and not os.access(out, os.W_OK):
             raise OutputPathError(out, "exists and is read-only")
         d = _nearest_existing(out)
-        if d not in problems:
-            problems[d] = _directory_problem(d)
-        if problems[d]:
-            raise OutputPathError(out, problems[d])
+        key = (d, os.path.dirname(os.path.abspath(out)))
+        if key not in problems:
+            problems[key] = _directory_problem(*key)
+        if problems[key]:
+            raise OutputPathError(out, problems[key])
 
 
 def check_output_dir(directory, names=(), inputs=()):
@@ -167,7 +172,8 @@ def check_output_dir(directory, names=(), inputs=()):
     elif os.path.exists(directory):
         problem = _directory_problem(directory)
     else:
-        problem = _directory_problem(_nearest_existing(os.path.join(directory, "x")))
+        problem = _directory_problem(_nearest_existing(os.path.join(directory, "x")),
+                                     os.path.abspath(directory))
     if problem:
         raise OutputPathError(directory, problem)
     check_outputs([os.path.join(directory, n) for n in names], inputs)

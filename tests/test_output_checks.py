@@ -76,6 +76,20 @@ def test_an_unwritable_directory_names_each_output_given(tmp_path):
         d.chmod(0o700)
 
 
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc")
+def test_a_directory_that_cannot_be_made_is_named_with_the_place_that_refuses_it():
+    """/proc takes no new files, for root too: the message names the directory the output
+    needs, not only the nearest one that exists."""
+    out = "/proc/no-such-hwrt-dir/sub/x.exr"
+    with pytest.raises(InputError) as e:
+        check_outputs([out])
+    assert str(e.value).startswith(f"{out}: cannot create the directory /proc/no-such-hwrt-dir/sub: "
+                                   "/proc takes no new files (")
+    with pytest.raises(InputError) as e:
+        check_output_dir("/proc/no-such-hwrt-dir")
+    assert "cannot create the directory /proc/no-such-hwrt-dir: /proc takes no new files" in str(e.value)
+
+
 def test_a_device_or_pipe_as_an_output_is_refused_and_left_as_it_is(tmp_path):
     """Outputs are written beside their path and renamed over it: a named pipe (or a device
     such as /dev/full) would be replaced by a regular file, so it is refused before any work."""
