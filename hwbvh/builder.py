@@ -217,12 +217,12 @@ def build_tasks(bb, bi, out_ids, cbox, cleft, cright, cstart, ccount, caxis,
 # --------------------------------------------------------------------------------------
 def check_params(leaf_size, bins):
     if not (is_integer(leaf_size) and 1 <= leaf_size <= config.MAX_LEAF_SIZE):
-        raise ParameterError("leaf_size", f"leaf size must be an integer in 1..{config.MAX_LEAF_SIZE}, "
+        raise ParameterError("leaf_size", f"must be an integer in 1..{config.MAX_LEAF_SIZE}, "
                                           f"got {leaf_size!r}")
     if not (is_integer(bins) and config.MIN_BINS <= bins <= config.MAX_SOFTWARE_BINS):
-        raise ParameterError("bins", f"bins must be an integer in {config.MIN_BINS}.."
-                                     f"{config.MAX_SOFTWARE_BINS} "
-                                 f"(the hardware has at most {config.MAX_HARDWARE_BINS}), got {bins!r}")
+        raise ParameterError("bins", f"must be an integer in {config.MIN_BINS}.."
+                                     f"{config.MAX_SOFTWARE_BINS} (the hardware has at most "
+                                     f"{config.MAX_HARDWARE_BINS}), got {bins!r}")
 
 
 def builds_in_parallel(n_prims):

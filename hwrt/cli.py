@@ -1056,6 +1056,19 @@ def _path(v):
     return v
 
 
+def _float_within(lo, hi):
+    """A number in [lo, hi], with the range in the message whichever side it falls off."""
+    def parse(v):
+        try:
+            x = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {v!r}") from None
+        if not lo <= x <= hi:                       # NaN too
+            raise argparse.ArgumentTypeError(f"must lie in {lo:g}..{hi:g}, got {v}")
+        return x
+    return parse
+
+
 def _positive_float(v):
     try:
         x = float(v)
@@ -1229,10 +1242,10 @@ def make_parser():
                        ("leaf-size", "primitives per leaf"), ("bins", "SAH bins per axis")):
         lo, hi = config.KNOB_RANGES[name.replace("-", "_")]
         power = ", a power of two" if name in config.POWER_OF_TWO_KNOBS else ""
-        s.add_argument(f"--{name}", type=_positive,
+        s.add_argument(f"--{name}", type=_int_at_least(lo, hi),
                        help=f"{text}: {lo}..{hi}{power} (default: the preset's)")
     lo, hi = config.KNOB_RANGES["clock_mhz"]
-    s.add_argument("--clock-mhz", type=_positive_float,
+    s.add_argument("--clock-mhz", type=_float_within(lo, hi),
                    help=f"clock: {lo:g}..{hi:g} MHz (default: the preset's)")
     s.add_argument("--control-latency", type=_int_at_least(0, config.MAX_CONTROL_LATENCY),
                    metavar="CYCLES",

@@ -512,6 +512,19 @@ def test_bad_option_values_exit_2_in_one_line(capsys, argv, flag):
     assert rc == 2 and out == "" and flag in line and "internal error" not in line
 
 
+@pytest.mark.parametrize("option,values,words", [
+    ("--clock-mhz", ["0", "0.5", "2000", "nan"], "must lie in 1..1000, got"),
+    ("--w", ["0"], "must be at least 1, got"),
+    ("--w", ["99"], "must be at most 64, got"),
+])
+def test_a_hardware_knob_off_its_range_says_the_range_on_either_side(capsys, option, values, words):
+    """The simulator's knobs read their hardware ranges where they are parsed, so a value below
+    the range is told as one above it is (0 and 0.5 MHz alike)."""
+    for v in values:
+        rc, out, err = call(capsys, "simulate", "m.obj", option, v)
+        assert rc == 2 and out == "" and one_line_error(err) == f"hwrt: error: {option}: {words} {v}"
+
+
 def test_library_errors_name_parameters_and_the_cli_names_options(capsys, tetra):
     import hwbvh
     from scenes.meshes import sphere
@@ -521,7 +534,8 @@ def test_library_errors_name_parameters_and_the_cli_names_options(capsys, tetra)
             hwbvh.build(sphere(4, 6), **kw)
         assert e.value.parameter == param and "--" not in str(e.value)
     rc, _, err = call(capsys, "build", tetra, "--bins", 100)
-    assert rc == 2 and one_line_error(err).startswith("hwrt: error: --bins: ")
+    assert rc == 2 and one_line_error(err) == ("hwrt: error: --bins: must be an integer in 2..64 "
+                                               "(the hardware has at most 16), got 100")
 
 
 # ---------------------------------------------------------------------------------------
