@@ -1040,10 +1040,7 @@ _frames = _scene_limit("MAX_FRAMES")
 
 def _fps(v):
     from scenes.animation import MAX_FPS, MIN_FPS
-    x = _positive_float(v)
-    if not MIN_FPS <= x <= MAX_FPS:
-        raise argparse.ArgumentTypeError(f"must lie in [{MIN_FPS}, {MAX_FPS}], got {v}")
-    return x
+    return _float_within(MIN_FPS, MAX_FPS)(v)
 
 
 def _path(v):
