@@ -13,6 +13,14 @@ PRIMITIVE_RECORD_BYTES = 27               # 192-bit float32 AABB + 24-bit index 
 # Eq. 3.3 to mean anything.
 MAX_COORDINATE = 1.0e15
 
+# The coarsest float32 rounding, as a fraction of a mesh's size, that the builder accepts
+# from triangles given in a wider type, and that a scene accepts from a placement (a
+# translation, a shape far from the origin): past it float32 spaces the coordinates more
+# than an eighth of the mesh's size apart, and the mesh keeps at most a few positions
+# across, flattened or rounded to a point, which every ray would then miss without a word
+# (a unit mesh moved 1e9 along x keeps its y-z areas).
+MAX_FLOAT32_ROUNDING = 1 / 16
+
 # --- Binned SAH (thesis 3.3.3-3.3.4, SPEC 2) --------------------------------------------
 DEFAULT_BINS = 16        # Table 4.1: both instantiations use 16 bins (hardware maximum)
 MIN_BINS = 2             # a split needs two bins to fall between

@@ -12,7 +12,8 @@ import warnings
 import numpy as np
 from numba import njit
 
-from .config import MAX_COORDINATE, MAX_PRIMITIVES, OBJ_COMPILED_MIN_BYTES, PRIMITIVE_RECORD_BYTES
+from .config import (MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES, OBJ_COMPILED_MIN_BYTES,
+                     PRIMITIVE_RECORD_BYTES)
 from .errors import InputError, ParameterError
 
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
@@ -388,7 +389,27 @@ def as_triangles(tris, source="<array>"):
     if t.ndim != 3 or t.shape[1:] != (3, 3):
         raise InputError(source, f"triangles must have shape (n, 3, 3), got {t.shape}")
     check_count(t.shape[0], source)
-    return np.ascontiguousarray(checked_coordinates(t, source), dtype=np.float32)
+    t = checked_coordinates(t, source)
+    if t.dtype.itemsize > 4 and len(t):
+        _refuse_float32_collapse(t, source)
+    return np.ascontiguousarray(t, dtype=np.float32)
+
+
+def _refuse_float32_collapse(t, source):
+    """Refuse (InputError naming ``source``) triangles ``t``, given wider than float32, that
+    float32 rounds by more than ``MAX_FLOAT32_ROUNDING`` of their size where they lie: far from
+    the origin against their size, or so small that they round to zero. The builder and the
+    units work in float32, so every ray would miss them without a word."""
+    lo = t.min(axis=(0, 1))
+    hi = t.max(axis=(0, 1))
+    size = float((hi - lo).max())
+    reach = np.maximum(np.abs(lo), np.abs(hi)).astype(np.float32)
+    step = float(np.spacing(reach).max())
+    if size > 0 and step / 2 > MAX_FLOAT32_ROUNDING * size:
+        raise InputError(source, f"the triangles collapse in float32, the builder's precision: "
+                                 f"where they lie, float32 numbers are {step:.3g} apart, "
+                                 f"coarse against their size of {size:.3g} (move them nearer the "
+                                 f"origin, or scale them up)")
 
 
 def within_bound(a, bound=MAX_COORDINATE):

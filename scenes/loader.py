@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
+from hwbvh.config import MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, is_integer, shown
 from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
                               load_mesh_arrays, within_bound)
@@ -738,10 +738,8 @@ def _has_area(tris):
 
 
 # A translation is refused when float32, at the coordinates it moves a mesh to, rounds a vertex
-# by more than a sixteenth of the mesh's size (its coordinates spaced more than an eighth of it
-# apart): the mesh then keeps at most a few positions across, flattened or staircased, even
-# where its triangles keep an area (a unit mesh moved 1e9 along x keeps its y-z areas).
-MAX_TRANSLATION_ROUNDING = 1 / 16
+# by more than this fraction of the mesh's size (hwbvh.config, with its reason).
+MAX_TRANSLATION_ROUNDING = MAX_FLOAT32_ROUNDING
 
 
 def _extent(tris):
@@ -1041,6 +1039,9 @@ def compile_scene(d, source=None, first_shape=0):
     if not isinstance(mats, dict) or not mats:
         ctx.fail("materials", "expected a non-empty object of named materials")
     names = list(mats)
+    for name in names:
+        if not isinstance(name, str):           # JSON's keys are; a Python dict's may not be
+            ctx.fail("materials", f"material names must be strings, got {written(name)}")
     kd = np.zeros((len(names), 3)); ks = np.zeros(len(names)); sh_ = np.full(len(names), 32.0)
     kr = np.zeros((len(names), 3)); ior = np.zeros(len(names))
     for k, name in enumerate(names):

@@ -344,6 +344,19 @@ def test_complex_bool_and_string_coordinates_are_refused(tris):
         hwbvh.as_triangles(tris.astype(complex), source="triangles")
 
 
+def test_wider_triangles_that_float32_collapses_are_refused_by_name():
+    """The builder works in float32: float64 triangles that it would round together (a small
+    mesh far from the origin, or one below float32's smallest numbers) are refused, where a
+    tracer would miss them without a word; float32 input is taken as given."""
+    tri = np.array([[[-1, -1, 0], [1, -1, 0], [0, 1, 0]]], float)
+    for far in (tri * 0.1 + 1e7, tri * 1e-46):
+        with pytest.raises(InputError, match="collapse in float32") as e:
+            hwbvh.build(far, source_name="m.obj")
+        assert str(e.value).startswith("m.obj: ")
+    for fine in (tri + 1e5, tri * 1e-30, (tri * 0.1 + 1e7).astype(np.float32)):
+        assert hwbvh.build(fine).meta["nodes"] == 1
+
+
 def test_object_and_ragged_triangles_give_an_input_error():
     words = np.zeros((1, 3, 3), object)
     words[0, 0, 0] = "x"
