@@ -768,3 +768,14 @@ def test_a_whole_number_written_as_a_float_is_not_taken_for_an_integer_key(tmp_p
                  "center = [0, 0, 0]\nradius = 1\nmaterial = 'm'\n")
     line = refused(capsys, tmp_path, monkeypatch, "render", t)
     assert line.endswith(f"key 'film.{key}': expected an integer, got {value!r}"), line
+
+
+def test_a_material_named_by_a_number_in_a_python_dict_is_refused_by_key():
+    """JSON's keys are strings; a scene dict made in Python may name a material 1."""
+    d = load_scene("cornell", width=8, height=8, spp=1)
+    d["materials"] = {1: {"type": "diffuse"}}
+    for shape in d["shapes"]:
+        shape["material"] = 1
+    with pytest.raises(InputError) as e:
+        compile_scene(d)
+    assert str(e.value) == "cornell: key 'materials': material names must be strings, got 1"
