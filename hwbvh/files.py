@@ -263,7 +263,7 @@ def write_files(pairs):
     done = False
     try:
         for path, data in pairs:
-            path = os.fspath(path)
+            path = os.fsdecode(path)         # str, bytes or a path object: one str
             if os.path.isdir(path):
                 raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", path)
             d = os.path.dirname(os.path.abspath(path))

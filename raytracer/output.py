@@ -21,7 +21,7 @@ def write_exr(path, result, metadata=None, layers=True):
 
 def _check_path(path, extension):
     try:
-        name = os.fspath(path)
+        name = os.fsdecode(path)             # a str, bytes or path object
     except TypeError:
         raise ParameterError("path", f"expected a file path, got {type(path).__name__}") from None
     if os.path.splitext(name)[1].lower() != extension:

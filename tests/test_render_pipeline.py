@@ -460,6 +460,9 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
         with pytest.raises(ParameterError) as e:
             write_exr(path, result)
         assert str(e.value) == problem
+    write_exr(os.fsencode(tmp_path / "b.exr"), res)      # a path as bytes, as os functions take
+    assert read_exr(tmp_path / "b.exr")[0].shape[:2] == (h, w)
+    (tmp_path / "b.exr").unlink()
     (tmp_path / "d.exr").mkdir()
     with pytest.raises(IsADirectoryError, match="d.exr"):
         write_exr(tmp_path / "d.exr", res)
