@@ -1018,6 +1018,11 @@ def compile_scene(d, source=None, first_shape=0):
     if not isinstance(d, dict):
         raise InputError(source or "<scene>", f"a scene must be an object (a dict), got "
                                               f"{type(d).__name__}")
+    if not (is_integer(first_shape) and first_shape >= 0):
+        raise ParameterError("first_shape", f"must be an integer >= 0, got {first_shape!r}")
+    if source is not None and not isinstance(source, (str, os.PathLike)):
+        raise ParameterError("source", f"must be a file name or None, got "
+                                       f"{type(source).__name__}")
     source = source or d.get("_source", "<scene>")
     ctx = Ctx(source)
     shapes = d.get("shapes")

@@ -779,3 +779,14 @@ def test_a_material_named_by_a_number_in_a_python_dict_is_refused_by_key():
     with pytest.raises(InputError) as e:
         compile_scene(d)
     assert str(e.value) == "cornell: key 'materials': material names must be strings, got 1"
+
+
+@pytest.mark.parametrize("kw, problem", [
+    ({"first_shape": "a"}, "first_shape: must be an integer >= 0, got 'a'"),
+    ({"first_shape": -1}, "first_shape: must be an integer >= 0, got -1"),
+    ({"source": 5}, "source: must be a file name or None, got int"),
+])
+def test_compile_scene_names_a_bad_argument(kw, problem):
+    with pytest.raises(ParameterError) as e:
+        compile_scene(load_scene("cornell", width=8, height=8, spp=1), **kw)
+    assert str(e.value) == problem
