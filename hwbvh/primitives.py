@@ -386,6 +386,9 @@ def as_triangles(tris, source="<array>"):
     except (ValueError, TypeError):         # nested sequences of uneven lengths
         raise InputError(source, "triangles must be an (n, 3, 3) array of numbers, got nested "
                                  "sequences of uneven lengths") from None
+    if t.ndim == 0:                         # None, a number, a path where an array goes
+        raise InputError(source, f"triangles must be an (n, 3, 3) array, got "
+                                 f"{type(tris).__name__}")
     if t.ndim != 3 or t.shape[1:] != (3, 3):
         raise InputError(source, f"triangles must have shape (n, 3, 3), got {t.shape}")
     check_count(t.shape[0], source)

@@ -52,6 +52,9 @@ def exr_writer(path, result, metadata=None, layers=True):
         metadata = {}
     if not isinstance(metadata, dict):
         raise ParameterError("metadata", f"expected a dict, got {type(metadata).__name__}")
+    for k in metadata:
+        if not (isinstance(k, str) and k):      # each names a header attribute hwrt:<key>
+            raise ParameterError("metadata", f"keys must be non-empty strings, got {k!r}")
     layers = checked_flag(layers, "layers")
     image = _check_image("result.image", result.image, (None, None, 3))
     H, W, _ = image.shape

@@ -357,6 +357,14 @@ def test_wider_triangles_that_float32_collapses_are_refused_by_name():
         assert hwbvh.build(fine).meta["nodes"] == 1
 
 
+def test_a_refit_given_no_array_says_what_it_got(bvh):
+    from hwbvh.refit import Refitter
+    for x, got in ((None, "NoneType"), ("mesh.ply", "str"), (3.0, "float")):
+        with pytest.raises(InputError) as e:
+            Refitter(bvh).refit(x)
+        assert str(e.value) == f"triangles: triangles must be an (n, 3, 3) array, got {got}"
+
+
 def test_object_and_ragged_triangles_give_an_input_error():
     words = np.zeros((1, 3, 3), object)
     words[0, 0, 0] = "x"

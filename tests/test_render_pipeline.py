@@ -463,6 +463,9 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
     write_exr(os.fsencode(tmp_path / "b.exr"), res)      # a path as bytes, as os functions take
     assert read_exr(tmp_path / "b.exr")[0].shape[:2] == (h, w)
     (tmp_path / "b.exr").unlink()
+    for key in ("", 3):                         # each names a header attribute hwrt:<key>
+        with pytest.raises(ParameterError, match="metadata: keys must be non-empty strings"):
+            write_exr(tmp_path / "k.exr", res, {key: 1})
     (tmp_path / "d.exr").mkdir()
     with pytest.raises(IsADirectoryError, match="d.exr"):
         write_exr(tmp_path / "d.exr", res)
