@@ -171,8 +171,11 @@ class Refitter:
 
     def refit(self, triangles):
         """A new :class:`hwbvh.Bvh`: this topology, boxes for ``triangles`` ((N, 3, 3) float),
-        its SAH cost recomputed."""
+        its SAH cost recomputed. The tree holds its own copy of the triangles, as ``build``'s
+        does, so a change the caller makes to the array in place afterwards does not reach it."""
         tris = self.check(triangles)
+        if isinstance(triangles, np.ndarray) and np.may_share_memory(tris, triangles):
+            tris = tris.copy()          # the tree holds its own, as a built tree does
         nodes = self.refit_nodes(tris)
         return self.tree(nodes, tris, tree_stats(nodes)["sah_cost"])
 

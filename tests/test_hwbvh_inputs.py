@@ -365,6 +365,16 @@ def test_a_refit_given_no_array_says_what_it_got(bvh):
         assert str(e.value) == f"triangles: triangles must be an (n, 3, 3) array, got {got}"
 
 
+def test_a_refitted_tree_holds_its_own_triangles(tris, bvh):
+    """As a built tree does: moving the caller's array afterwards leaves the tree's as fitted."""
+    from hwbvh.refit import Refitter
+    moved = np.ascontiguousarray(tris, np.float32) + np.float32(0.5)
+    tree = Refitter(bvh).refit(moved)
+    kept = tree.triangles.copy()
+    moved += np.float32(1.0)
+    assert np.array_equal(tree.triangles, kept)
+
+
 def test_object_and_ragged_triangles_give_an_input_error():
     words = np.zeros((1, 3, 3), object)
     words[0, 0, 0] = "x"
