@@ -398,16 +398,24 @@ def as_triangles(tris, source="<array>"):
     return np.ascontiguousarray(t, dtype=np.float32)
 
 
+def extent(tris):
+    """The largest side of the box of (n, 3, 3) ``tris`` (n > 0)."""
+    return float((tris.max(axis=(0, 1)) - tris.min(axis=(0, 1))).max())
+
+
+def float32_step(tris):
+    """How far apart float32 numbers lie where ``tris`` reach farthest from the origin, along
+    the coarsest axis."""
+    with np.errstate(over="ignore"):
+        return float(np.spacing(np.abs(tris).max(axis=(0, 1)).astype(np.float32)).max())
+
+
 def _refuse_float32_collapse(t, source):
     """Refuse (InputError naming ``source``) triangles ``t``, given wider than float32, that
     float32 rounds by more than ``MAX_FLOAT32_ROUNDING`` of their size where they lie: far from
     the origin against their size, or so small that they round to zero. The builder and the
     units work in float32, so every ray would miss them without a word."""
-    lo = t.min(axis=(0, 1))
-    hi = t.max(axis=(0, 1))
-    size = float((hi - lo).max())
-    reach = np.maximum(np.abs(lo), np.abs(hi)).astype(np.float32)
-    step = float(np.spacing(reach).max())
+    size, step = extent(t), float32_step(t)
     if size > 0 and step / 2 > MAX_FLOAT32_ROUNDING * size:
         raise InputError(source, f"the triangles collapse in float32, the builder's precision: "
                                  f"where they lie, float32 numbers are {step:.3g} apart, "

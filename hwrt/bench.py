@@ -11,7 +11,7 @@ from typing import Callable, NamedTuple, Optional
 import numpy as np
 
 from hwbvh.errors import InputError, ParameterError
-from hwbvh.files import write_files
+from hwbvh.files import file_identity, write_files
 from hwbvh.primitives import MESH_EXTENSIONS
 from .paths import MESH_DIR_ENV, default_mesh_dir, mesh_files
 from .progress import progress_over
@@ -60,15 +60,11 @@ class MeshInput(NamedTuple):
         return self.name if self.path is None else str(self.path)
 
 
-def file_identity(path):
-    """What tells one file from another however it is spelled: through a symbolic link, by
-    another relative path, or as a hard link (device and inode); a path that names no file,
-    by the path it resolves to (its own check refuses it)."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        return ("path", os.path.realpath(path))
-    return ("file", st.st_dev, st.st_ino)
+def _one_file(path):
+    """What tells one file from another however it is spelled (a symbolic link, another
+    relative path, a hard link: ``hwbvh.files.file_identity``); a path that names no file, the
+    path it resolves to (its own check refuses it)."""
+    return file_identity(path) or os.path.realpath(path)
 
 
 def check_distinct_scenes(specs):
@@ -76,7 +72,7 @@ def check_distinct_scenes(specs):
     or files, a file however it is spelled): its rows would be the same scene's twice."""
     seen = set()
     for spec in specs:
-        key = file_identity(spec) if os.path.exists(spec) else str(spec)
+        key = _one_file(spec) if os.path.exists(spec) else str(spec)
         if key in seen:
             raise InputError(spec, "given twice")
         seen.add(key)
@@ -105,7 +101,7 @@ def mesh_names(paths, base=None):
     paths = [Path(p) for p in paths]
     seen = set()
     for p in paths:
-        real = file_identity(p)                     # one file however it is spelled
+        real = _one_file(p)                         # one file however it is spelled
         if real in seen:
             raise InputError(p, "given twice")
         seen.add(real)

@@ -19,7 +19,7 @@ import numpy as np
 from hwbvh.config import MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, is_integer, shown
 from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
-                              load_mesh_arrays, within_bound)
+                              extent, float32_step, load_mesh_arrays, within_bound)
 from .builtin import BUILTIN, COUNT_LIMITS
 from .meshes import grid_sheet, uv_sphere
 
@@ -742,18 +742,6 @@ def _has_area(tris):
 MAX_TRANSLATION_ROUNDING = MAX_FLOAT32_ROUNDING
 
 
-def _extent(tris):
-    """The largest side of the box of (n, 3, 3) ``tris`` (n > 0)."""
-    return float((tris.max(axis=(0, 1)) - tris.min(axis=(0, 1))).max())
-
-
-def _float32_step(tris):
-    """How far apart float32 numbers lie where ``tris`` reach farthest from the origin, along
-    the coarsest axis."""
-    with np.errstate(over="ignore"):
-        return float(np.spacing(np.abs(tris).max(axis=(0, 1)).astype(np.float32)).max())
-
-
 def _no_collapse(ctx, mesh, scaled, moved, path):
     """Refuse a transform under which triangles of ``mesh`` with an area in float32 lose it in
     the final coordinates ``moved`` (``scaled`` plus the translation): a scale small against
@@ -772,7 +760,7 @@ def _no_collapse(ctx, mesh, scaled, moved, path):
                                             f"triangles lose their area in float32 {cause}")
     if not len(moved):
         return
-    size, step, own = _extent(scaled), _float32_step(moved), _float32_step(scaled)
+    size, step, own = extent(scaled), float32_step(moved), float32_step(scaled)
     if size > 0 and step > own and step / 2 > MAX_TRANSLATION_ROUNDING * size:
         ctx.fail(f"{path}.transform.translate",
                  f"the mesh collapses: moved this far from the origin, its coordinates round to "
@@ -789,7 +777,7 @@ def _not_coarse(ctx, tris, key, what, sized=False):
     1): as coarse as can be."""
     if not len(tris):
         return
-    size, step = _extent(tris), _float32_step(tris)
+    size, step = extent(tris), float32_step(tris)
     if (size > 0 or sized) and step / 2 > MAX_TRANSLATION_ROUNDING * size:
         ctx.fail(key, f"{what} collapses: this far from the origin its coordinates round to "
                       f"float32 numbers {step:.3g} apart, coarse against its size of {size:.3g}")
