@@ -782,7 +782,7 @@ def _render_band(fr, band):
         else:
             jx = jy = no_jitter
         _, _, wgt, pix, Ot, Dt, order = buf.cur
-        stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, scene.jitter, fr.camera_terms[s],
+        stages.generate_camera_rays(y0, y1, W, jx, jy, scene.jitter, fr.camera_terms[s],
                                     eye, cu, cv, cw, pix, Ot, Dt, *buf.screen)
         n = npix
         gap, refr = n, 0             # the wavefront's rows: 0..n - refr, then gap..gap + refr

@@ -312,7 +312,7 @@ def test_a_bands_camera_rays_are_its_slots_of_the_tile_order():
         Ot, Dt = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
         pix = np.empty(n, PIXEL)
         terms = stages.camera_terms(W, H, 0.5, 0, 0, 1, 1)
-        stages.generate_camera_rays(y0, y1, W, TILE, np.zeros(0), np.zeros(0), False, terms,
+        stages.generate_camera_rays(y0, y1, W, np.zeros(0), np.zeros(0), False, terms,
                                     np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
                                     np.array([0, 0, -1.0]), pix, Ot, Dt, np.empty(n),
                                     np.empty(n))
@@ -333,7 +333,7 @@ def test_camera_rays_are_the_pinhole_formula_bit_for_bit():
         terms = stages.camera_terms(W, H, 0.7, 1, 0, 2, 2)
         Ot, Dt = np.empty((n, 3), dtype), np.empty((n, 3), dtype)
         pix = np.empty(n, PIXEL)
-        stages.generate_camera_rays(y0, y1, W, TILE, jx, jy, jitter, terms, eye, cu, cv, cw,
+        stages.generate_camera_rays(y0, y1, W, jx, jy, jitter, terms, eye, cu, cv, cw,
                                     pix, Ot, Dt, np.empty(n), np.empty(n))
         off_x, off_y, inv_gx, inv_gy, kx, bx, ky, by = terms
         x, y = pix % W, pix // W
