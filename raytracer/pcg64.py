@@ -4,7 +4,8 @@ A render's pixel offsets are the uniforms of ``np.random.default_rng([seed, samp
 every pixel, then y), and a band of rows needs a window of that stream. NumPy steps one
 generator one draw at a time; here ``LANES`` copies of it, each started one draw further on,
 step ``LANES`` draws at a time side by side, so that the 128-bit arithmetic (in 32-bit halves)
-runs in SIMD lanes, about twice NumPy's speed, the same numbers.
+runs in SIMD lanes, about three times NumPy's speed (11 us for 15k draws against 34 us), the
+same numbers.
 
 PCG64 (O'Neill 2014, as NumPy implements it): a 128-bit linear congruential state
 s' = s * MULTIPLIER + inc (mod 2^128), stepped before each draw; the draw is the XSL-RR output
