@@ -139,10 +139,9 @@ def generate_camera_rays(y0, y1, width, jit_x, jit_y, jitter, terms, eye, cu, cv
     with the points parked in Dt's rows (strided loads). The tile loops are written out here,
     not read from the tile order: placing pixels from a list of indices made this stage
     20-30% slower. A whole tile is placed by loops of the constant TILE, which LLVM unrolls,
-    with unsigned indices (see config.PIXEL): the placing loops took half the time they took
-    with the tile's bounds and signed indices computed per pixel (19 us against 50 us a
-    band of 16k pixels; the stage 35 us against 66 us). A test keeps the two orders in
-    step."""
+    with unsigned indices (see config.PIXEL): 19 us a band of 16k pixels, against 50 us with
+    run-time tile bounds and signed indices (the stage 35 us against 66 us). A test keeps the
+    two orders in step."""
     ex = eye[0]                     # rounded to the tracer's precision as Ot stores it
     ey = eye[1]
     ez = eye[2]
@@ -159,13 +158,13 @@ def generate_camera_rays(y0, y1, width, jit_x, jit_y, jitter, terms, eye, cu, cv
         for tx in range(0, width, TILE):
             tw = min(TILE, width - tx)
             if th == TILE and tw == TILE:
-                for dy in range(TILE):
-                    y = np.float64(ty + dy)
-                    row = tile_row + np.uint64(dy) * w + np.uint64(tx)
-                    for dx in range(TILE):
-                        q = row + np.uint64(dx)
-                        s = slot + np.uint64(dy * TILE + dx)
-                        SX[s], SY[s] = _screen_point(np.float64(tx + dx), y, q, jitter, jit_x,
+                for row_in_tile in range(TILE):
+                    yf = np.float64(ty + row_in_tile)
+                    row = tile_row + np.uint64(row_in_tile) * w + np.uint64(tx)
+                    for col in range(TILE):
+                        q = row + np.uint64(col)
+                        s = slot + np.uint64(row_in_tile * TILE + col)
+                        SX[s], SY[s] = _screen_point(np.float64(tx + col), yf, q, jitter, jit_x,
                                                      jit_y, terms)
                         pix[s] = first + q
                 slot += np.uint64(TILE * TILE)
@@ -794,41 +793,41 @@ def accumulate(film, sh_cnt, stride, sh_C, sh_pix, blocked, pix, contrib, n, gap
     pixels in the same order) brings it in once instead of twice; and computed here from the
     hit, they cost ``shade`` no writes, and this stage reads the hit's primitive and material
     instead of 24 bytes a ray."""
-    U = np.uint64                   # unsigned indices: see config.PIXEL
+    u64 = np.uint64                 # unsigned indices: see config.PIXEL
     if camera:
         Ff = film.reshape(-1)
         for k in range(n):
-            q = U(3) * U(pix[k])
+            q = u64(3) * u64(pix[k])
             p = hit_prim[k]
-            m = material[U(max(p, 0))]
+            m = material[u64(max(p, 0))]
             hit = p >= 0
             c0 = ambient_light[m, 0] if hit else background[0]
             c1 = ambient_light[m, 1] if hit else background[1]
             c2 = ambient_light[m, 2] if hit else background[2]
             if first:
                 Ff[q] = 0.0 + c0
-                Ff[q + U(1)] = 0.0 + c1
-                Ff[q + U(2)] = 0.0 + c2
+                Ff[q + u64(1)] = 0.0 + c1
+                Ff[q + u64(2)] = 0.0 + c2
             else:
                 Ff[q] += c0
-                Ff[q + U(1)] += c1
-                Ff[q + U(2)] += c2
-    start = U(0)
+                Ff[q + u64(1)] += c1
+                Ff[q + u64(2)] += c2
+    start = u64(0)
     for l in range(sh_cnt.shape[0]):
-        src = U(l) * U(stride)
-        for k in range(U(sh_cnt[l])):
+        src = u64(l) * u64(stride)
+        for k in range(u64(sh_cnt[l])):
             if not blocked[start + k]:
-                q = U(sh_pix[src + k])
+                q = u64(sh_pix[src + k])
                 film[q, 0] += sh_C[src + k, 0]
                 film[q, 1] += sh_C[src + k, 1]
                 film[q, 2] += sh_C[src + k, 2]
-        start += U(sh_cnt[l])
+        start += u64(sh_cnt[l])
     if not camera:
         for part in range(2):
             r0 = 0 if part == 0 else gap
             r1 = n if part == 0 else gap + n_second
-            for k in range(U(r0), U(r1)):
-                q = U(pix[k])
+            for k in range(u64(r0), u64(r1)):
+                q = u64(pix[k])
                 film[q, 0] += contrib[k, 0]
                 film[q, 1] += contrib[k, 1]
                 film[q, 2] += contrib[k, 2]
