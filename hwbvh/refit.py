@@ -175,7 +175,7 @@ class Refitter:
         does, so a change the caller makes to the array in place afterwards does not reach it."""
         tris = self.check(triangles)
         if isinstance(triangles, np.ndarray) and np.may_share_memory(tris, triangles):
-            tris = tris.copy()          # the tree holds its own, as a built tree does
+            tris = tris.copy()
         nodes = self.refit_nodes(tris)
         return self.tree(nodes, tris, tree_stats(nodes)["sah_cost"])
 

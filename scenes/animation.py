@@ -44,14 +44,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from hwbvh.config import MAX_COORDINATE, MAX_PRIMITIVES
+from hwbvh.config import MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, is_integer
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
-from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, MAX_TRANSLATION_ROUNDING, SCENE_KEYS,
-                     Ctx, check_scale, compile_scene, finite, flat_normals, is_pattern, load_scene,
-                     mesh_scene, named_after_file, smooth_normals, spec_path, vector_ok,
-                     with_frame, written)
+from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, SCENE_KEYS, Ctx, check_scale,
+                     compile_scene, finite, flat_normals, is_pattern, load_scene, mesh_scene,
+                     named_after_file, smooth_normals, spec_path, vector_ok, with_frame, written)
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
@@ -437,7 +436,7 @@ class RigidMotion:
         return reach
 
     def _check_not_coarse(self, k, reach, times, source):
-        """Refuse, as a still shape's placement is refused (``loader.MAX_TRANSLATION_ROUNDING``),
+        """Refuse, as a still shape's placement is refused (``hwbvh.config.MAX_FLOAT32_ROUNDING``),
         a time at which the shape lies so far from the origin against its size that float32
         rounds its coordinates by more than that share of its size: it would be traced flat or
         empty there. Its size at a time is bounded above by the diagonal of its box under
@@ -446,7 +445,7 @@ class RigidMotion:
         side = self.tris.reshape(-1, 3).max(axis=0) - self.tris.reshape(-1, 3).min(axis=0)
         size = np.linalg.norm(side * np.abs(k["scale"]), axis=1)
         step = np.spacing(reach.astype(np.float32)).astype(np.float64)
-        coarse = np.flatnonzero((size > 0) & (step / 2 > MAX_TRANSLATION_ROUNDING * size))
+        coarse = np.flatnonzero((size > 0) & (step / 2 > MAX_FLOAT32_ROUNDING * size))
         if len(coarse):
             f = coarse[0]
             _fail(source, self.key, f"at time {times[f]:g} the shape collapses: this far from "

@@ -737,18 +737,13 @@ def _has_area(tris):
     return np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]).any(axis=1)
 
 
-# A translation is refused when float32, at the coordinates it moves a mesh to, rounds a vertex
-# by more than this fraction of the mesh's size (hwbvh.config, with its reason).
-MAX_TRANSLATION_ROUNDING = MAX_FLOAT32_ROUNDING
-
-
 def _no_collapse(ctx, mesh, scaled, moved, path):
     """Refuse a transform under which triangles of ``mesh`` with an area in float32 lose it in
     the final coordinates ``moved`` (``scaled`` plus the translation): a scale small against
     the mesh's coordinates rounds its vertices together, and so does a translation large
     against the mesh's size. The key named is the scale when the scaled mesh has already
     lost those triangles, else the translation. A translation that rounds the vertices by
-    more than ``MAX_TRANSLATION_ROUNDING`` of the mesh's size is refused too."""
+    more than ``MAX_FLOAT32_ROUNDING`` of the mesh's size is refused too."""
     lost = _has_area(mesh) & ~_has_area(moved)
     n = int(lost.sum())
     if n:
@@ -761,7 +756,7 @@ def _no_collapse(ctx, mesh, scaled, moved, path):
     if not len(moved):
         return
     size, step, own = extent(scaled), float32_step(moved), float32_step(scaled)
-    if size > 0 and step > own and step / 2 > MAX_TRANSLATION_ROUNDING * size:
+    if size > 0 and step > own and step / 2 > MAX_FLOAT32_ROUNDING * size:
         ctx.fail(f"{path}.transform.translate",
                  f"the mesh collapses: moved this far from the origin, its coordinates round to "
                  f"float32 numbers {step:.3g} apart, coarse against its size of {size:.3g}")
@@ -769,7 +764,7 @@ def _no_collapse(ctx, mesh, scaled, moved, path):
 
 def _not_coarse(ctx, tris, key, what, sized=False):
     """Refuse a shape placed so far from the origin, against its size, that float32 rounds its
-    coordinates by more than ``MAX_TRANSLATION_ROUNDING`` of that size (as a mesh's
+    coordinates by more than ``MAX_FLOAT32_ROUNDING`` of that size (as a mesh's
     translation is refused): a unit box at x = 1e9 would be traced as a flat or empty one.
     A shape given no extent (a box with min = max, a sheet of size 0) has none to lose and
     renders nothing; one whose keys give it an extent (``sized``: a sphere's radius is above
@@ -778,7 +773,7 @@ def _not_coarse(ctx, tris, key, what, sized=False):
     if not len(tris):
         return
     size, step = extent(tris), float32_step(tris)
-    if (size > 0 or sized) and step / 2 > MAX_TRANSLATION_ROUNDING * size:
+    if (size > 0 or sized) and step / 2 > MAX_FLOAT32_ROUNDING * size:
         ctx.fail(key, f"{what} collapses: this far from the origin its coordinates round to "
                       f"float32 numbers {step:.3g} apart, coarse against its size of {size:.3g}")
 
