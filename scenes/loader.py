@@ -268,6 +268,8 @@ def _builtin_overrides(name, overrides):
         if key not in known:
             raise ParameterError(key, f"not a parameter of the built-in scene {name!r} "
                                       f"(it takes {', '.join(known)})")
+        if key in FRAME_SETTINGS:
+            frame_override(key, v)
         if not is_integer(v) or v < 0:
             raise ParameterError(key, f"expected a non-negative integer, got {shown(v)}")
         most = COUNT_LIMITS.get(name, {}).get(key)
@@ -380,6 +382,16 @@ FRAME_SETTINGS = {"width": (640, MAX_FILM_SIDE), "height": (480, MAX_FILM_SIDE),
 FILM_TOO_LARGE = "pixels a film may hold"       # the end of the message for a film too large
 
 
+def frame_override(key, v):
+    """Refuse (ParameterError naming ``key``) a film or depth setting given to ``load_scene``
+    or ``with_frame`` that is not an integer within ``FRAME_SETTINGS``' range."""
+    hi = FRAME_SETTINGS[key][1]
+    if not is_integer(v):
+        raise ParameterError(key, f"expected an integer, got {shown(v)}")
+    if not 1 <= v <= hi:
+        raise ParameterError(key, f"{shown(v)} is out of range (must be in [1, {hi}])")
+
+
 def _film_setting(ctx, obj, path, key):
     default, hi = FRAME_SETTINGS[key]
     return ctx.num(obj, key, path, default=default, lo=1, hi=hi, integer=True)
@@ -396,6 +408,9 @@ def with_frame(d, width=None, height=None, spp=None, max_depth=None):
     if not isinstance(film, dict) or not isinstance(integ, dict):
         return d
     given = {"width": width, "height": height, "spp": spp}
+    for key, v in dict(given, max_depth=max_depth).items():
+        if v is not None:
+            frame_override(key, v)
     # the values replaced are checked as written, so a bad file is refused whatever the
     # options (the others are checked with the scene)
     ctx = Ctx(d.get("_source", "<scene>"))
@@ -485,7 +500,11 @@ def mesh_scene(path, name=None):
     from traversal.camera import frame_bounds
 
     path = spec_path(path, "path", "a mesh file path")
-    name = name_of_file(path) if name is None else name
+    if name is None:
+        name = name_of_file(path)
+    elif not _plain_name(name):
+        raise ParameterError("name", f"expected a plain file name (outputs are named after it), "
+                                     f"got {written(name)}")
     verts, faces = _mesh_arrays(path)
     used = verts[np.unique(faces)]
     lo, hi = used.min(0), used.max(0)

@@ -337,9 +337,46 @@ def test_python_callers_get_errors_naming_what_they_passed():
     shape = {"type": "triangles", "data": listed, "material": "white"}
     assert len(compile_scene(dict(d, shapes=d["shapes"] + [shape])).triangles) == \
         len(compile_scene(d).triangles) + 1
+    with pytest.raises(ParameterError) as e:
+        with_frame(d, width=3 ** 2000)
+    assert e.value.parameter == "width" and len(str(e.value)) < 200
     with pytest.raises(InputError) as e:
-        compile_scene(with_frame(d, width=3 ** 2000))
+        compile_scene(dict(d, film=dict(d["film"], width=3 ** 2000)))
     assert "film.width" in str(e.value) and len(str(e.value)) < 200
+
+
+@pytest.mark.parametrize("spec", ["cornell", "mesh"])
+@pytest.mark.parametrize("key, value", [("width", 0), ("height", -2), ("spp", 0),
+                                        ("max_depth", 0), ("spp", 2.0), ("width", True)])
+def test_frame_overrides_refused_at_the_call(tmp_path, spec, key, value):
+    """A film or depth setting out of range is refused where it is given, naming it, for a
+    built-in scene and a file alike (not later, by compile_scene)."""
+    from hwbvh.errors import ParameterError
+    from scenes import load_scene, with_frame
+
+    if spec == "mesh":
+        spec = str(tmp_path / "tri.obj")
+        with open(spec, "w") as f:
+            f.write("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(ParameterError) as e:
+        load_scene(spec, **{key: value})
+    assert e.value.parameter == key
+    with pytest.raises(ParameterError) as e:
+        with_frame(load_scene(spec), **{key: value})
+    assert e.value.parameter == key
+
+
+def test_mesh_scene_name_checked_at_the_call(tmp_path):
+    from hwbvh.errors import ParameterError
+    from scenes.loader import mesh_scene
+
+    path = tmp_path / "tri.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    for bad in (5, "", "a/b", ".."):
+        with pytest.raises(ParameterError) as e:
+            mesh_scene(str(path), name=bad)
+        assert e.value.parameter == "name"
+    assert mesh_scene(str(path), name="tri2")["name"] == "tri2"
 
 
 @pytest.mark.parametrize("call, message", [
