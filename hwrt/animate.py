@@ -40,6 +40,7 @@ from hwbvh.files import figure_png
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.files import check_output_dir, json_text, jsonable, write_files
 from .config import ADAPTIVE_THRESHOLD
+from .progress import note_first_compile
 from .report import with_figures
 
 STRATEGIES = ("rebuild", "refit", "adaptive", "embree")
@@ -434,6 +435,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     rows = {k: v for k, v in rows.items() if k < start}
     if on_start is not None:
         on_start(start)
+    note_first_compile()
     startup_s = warm_up(strategy, accel)
     if 0 < start < frames:
         last = max(k for k, r in rows.items() if r["rebuilt"])

@@ -18,7 +18,7 @@ import sys
 from functools import partial
 
 from .config import env_flag
-from .progress import PROGRESS_ENV, progress_bar
+from .progress import PROGRESS_ENV, note_first_compile, progress_bar
 
 DESCRIPTION = ("hwrt simulates the hardware BVH builder of M. J. Doyle's thesis (HWBVH) bit for "
                "bit and renders scenes with a Whitted ray tracer on exactly the trees it builds, "
@@ -647,6 +647,7 @@ def cmd_render(args):
     # is the build's, not the compiler's
     large = args.accel == "bvh" and args.builder == "hwbvh" and \
         builds_in_parallel(len(scene.triangles))
+    note_first_compile()
     startup_s = warm_up(args.builder, args.traversal, parallel_build=large,
                         precision=args.precision)
     if args.accel == "grid":

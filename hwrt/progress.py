@@ -22,3 +22,15 @@ def progress_over(items, desc, unit):
     """``items`` (a sequence or an iterator), with a progress bar as ``progress_bar`` shows."""
     from tqdm import tqdm
     return tqdm(items, desc=desc, unit=unit, file=sys.stderr, disable=_hidden())
+
+
+def note_first_compile():
+    """Where progress bars show, one line on stderr before a run that compiles the kernels
+    into Numba's cache (the first on an install, or after its sources change): that run is
+    otherwise silent for the 15-30 s the compiler takes."""
+    if _hidden():
+        return
+    from raytracer.render import traversal_cached
+    if not traversal_cached():
+        print("hwrt: compiling the kernels into Numba's cache (once; 15-30 s)", file=sys.stderr,
+              flush=True)

@@ -81,7 +81,7 @@ def _tiny_scene():
         cutoff=1e-3, jitter=True)
 
 
-def _traversal_cached():
+def traversal_cached():
     """Whether Numba's on-disk cache holds the traversal kernel (or this process has it)."""
     from traversal.traverse import trace_chunks
     if trace_chunks.signatures:
@@ -100,7 +100,7 @@ def _compile_traversal_beside():
     process can be started. The child runs on this process' import path and ends if this
     process ends."""
     import numba
-    if numba.config.DISABLE_JIT or usable_cores() < 2 or _traversal_cached():
+    if numba.config.DISABLE_JIT or usable_cores() < 2 or traversal_cached():
         return None
     from traversal.traverse import trace_chunks
     try:

@@ -74,11 +74,11 @@ def test_a_first_run_compiles_the_traversal_in_a_child_and_renders_the_warm_imag
     cache = tmp_path / "numba-cache"
     cache.mkdir()
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
-    code = ("from raytracer.render import _traversal_cached, _compile_traversal_beside\n"
-            "print(_traversal_cached())\n"
+    code = ("from raytracer.render import traversal_cached, _compile_traversal_beside\n"
+            "print(traversal_cached())\n"
             "child = _compile_traversal_beside()\n"
             "print(child is not None, child.wait(timeout=600))\n"
-            "print(_traversal_cached(), _compile_traversal_beside() is None)\n")
+            "print(traversal_cached(), _compile_traversal_beside() is None)\n")
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                        timeout=900)
     assert r.stdout.split() == ["False", "True", "0", "True", "True"], r.stdout + r.stderr
@@ -104,6 +104,21 @@ def test_progress_bars_show_off_a_terminal_only_when_asked(asked, capsys, monkey
     err = capsys.readouterr().err
     assert ("items" in err and "bar" in err) == asked and (err == "") != asked
     assert "never" not in err
+
+
+@pytest.mark.parametrize("asked, cached", [(True, False), (True, True), (False, False)])
+def test_a_run_that_compiles_says_so_where_progress_shows(asked, cached, capsys, monkeypatch):
+    import raytracer.render
+    from hwrt.progress import PROGRESS_ENV, note_first_compile
+    monkeypatch.setattr(raytracer.render, "traversal_cached", lambda: cached)
+    if asked:
+        monkeypatch.setenv(PROGRESS_ENV, "1")
+    else:
+        monkeypatch.delenv(PROGRESS_ENV, raising=False)
+    note_first_compile()
+    err = capsys.readouterr().err
+    assert ("compiling the kernels" in err) == (asked and not cached)
+    assert err.count("\n") == (1 if asked and not cached else 0)
 
 
 def test_every_progress_bar_goes_through_hwrt_progress():
