@@ -273,7 +273,9 @@ def _check_output_dir(out_dir, anim, frames):
     return os.path.abspath(out_dir)
 
 
-def _load_state(out_dir, params, frames):
+def _load_state(out_dir, params, frames, fresh=False):
+    """The rows of the earlier run in ``out_dir`` to resume from ({} for none). ``fresh``: that
+    run, whatever its settings, is not resumed; its files are removed by ``_discard_run``."""
     path = os.path.join(out_dir, STATE_NAME)
     if not os.path.exists(path):
         # a run writes each frame with its state, and its CSV and preview after: without a
@@ -293,6 +295,8 @@ def _load_state(out_dir, params, frames):
     except (OSError, ValueError, KeyError, TypeError):
         raise InputError(path, "is not the state of an hwrt animate run; "
                                    "choose another output directory") from None
+    if fresh:
+        return {}
     # every key of either run: a key only one names (accel, threshold) differs too
     value = lambda p, k: p.get(k, PARAMS_ABSENT.get(k))
     diff = [k for k in list(params) + [k for k in old if k not in params]
@@ -301,9 +305,26 @@ def _load_state(out_dir, params, frames):
         k = diff[0]
         what = ("made from other contents of the input files" if k == "inputs_sha256" else
                 f"{k}: {value(old, k)!r}, now {value(params, k)!r}")
-        raise InputError(out_dir, f"holds frames of another run ({what}); choose another "
-                                   f"output directory")
+        raise InputError(out_dir, f"holds frames of another run ({what}); start it over with "
+                                   f"--fresh or choose another output directory")
     return rows
+
+
+def _discard_run(out_dir):
+    """Remove the earlier run in ``out_dir`` (``run``'s ``fresh``): the files its state names
+    (its frames, CSV, preview) and the state itself, last, so that an interruption leaves a
+    state that names no missing frame as whole. Nothing else in the directory is touched."""
+    path = os.path.join(out_dir, STATE_NAME)
+    if not os.path.exists(path):
+        return
+    with open(path) as f:
+        state = json.load(f)
+    names = [FRAME_NAME.format(int(r["frame"])) for r in state["frames"]]
+    for name in names + [CSV_NAME, PREVIEW_NAME, STATE_NAME]:
+        try:
+            os.remove(os.path.join(out_dir, name))
+        except FileNotFoundError:
+            pass
 
 
 def _frame_intact(out_dir, i, width, height):
@@ -395,7 +416,7 @@ def _check_float32_reach(anim, frames, tri_mag, eye_mag):
 
 def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_THRESHOLD,
         verify=False, progress=None, seed=0, inspect=None, accel="bvh", on_start=None,
-        commit=write_files):
+        commit=write_files, fresh=False):
     """Render ``frames`` frames of ``anim`` (scenes.animation.Animation) under a tree update
     ``strategy`` (``accel`` other than "bvh": that structure, rebuilt every frame). With ``out_dir``: one EXR per frame (written atomically), the run state
     (animation.json, also what a rerun resumes from, at the first frame missing or damaged), then a CSV
@@ -403,7 +424,9 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     the run done). Without it nothing is written (benchmarks). ``inspect(i, scene, bvh)`` sees
     every frame's tree (None under embree). ``on_start(first)``: called once every input and
     the output directory have been checked, with the first frame to render (later than 0 when
-    a rerun resumes); ``progress(i)`` after each frame. Returns the result dict."""
+    a rerun resumes); ``progress(i)`` after each frame. ``fresh``: an earlier run in ``out_dir``
+    is removed (``_discard_run``) once every check has passed, not resumed, whatever its
+    settings. Returns the result dict."""
     t_start = time.perf_counter()
     updater = TreeUpdater(strategy, threshold, accel)
     frames = anim.frames if frames is None else frames
@@ -422,7 +445,7 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     rows, beyond = {}, {}
     if out_dir is not None:
         out_dir = _check_output_dir(out_dir, anim, frames)
-        rows = _load_state(out_dir, params, frames)
+        rows = _load_state(out_dir, params, frames, fresh)
         # frames of this run past the last asked for stay in its state (not orphaned on disk):
         # a longer rerun resumes them
         beyond = {k: v for k, v in rows.items() if k >= frames}
@@ -433,6 +456,8 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
             (out_dir is None or _frame_intact(out_dir, start, first.width, first.height)):
         start += 1
     rows = {k: v for k, v in rows.items() if k < start}
+    if fresh and out_dir is not None:
+        _discard_run(out_dir)
     if on_start is not None:
         on_start(start)
     note_first_compile()
@@ -556,7 +581,7 @@ def cmd_animate(args, commit=write_files):
     try:
         result = run(anim, args.strategy, frames, out, threshold=threshold, verify=args.verify,
                      progress=lambda i: bars[0].update(1), seed=args.seed, accel=accel,
-                     on_start=start, commit=commit)
+                     on_start=start, commit=commit, fresh=args.fresh)
     finally:
         for bar in bars:
             bar.close()

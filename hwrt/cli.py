@@ -1376,8 +1376,11 @@ def make_parser():
                          "checked against Embree (its time reported apart)")
     an.add_argument("--seed", type=_non_negative, default=0, help="seed of the pixel jitter")
     an.add_argument("-o", "--output", metavar="DIR", type=_path,
-                    help="output directory (default: renders/animate-<scene>-<strategy>, or "
-                         "-<accel> with --accel grid or kdtree)")
+                    help="output directory (default: renders/animate-<scene>-<strategy>; with "
+                         "--accel grid or kdtree, renders/animate-<scene>-<accel>)")
+    an.add_argument("--fresh", action="store_true",
+                    help="start over: remove an earlier run's frames, CSV, preview and state from "
+                         "the output directory instead of resuming it (whatever its settings)")
     an.add_argument("--json", action="store_true", help="print one JSON object")
     an.set_defaults(func=cmd_animate)
 

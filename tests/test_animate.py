@@ -533,8 +533,28 @@ def test_a_rerun_resumes_only_frames_made_as_it_would_make_them(tmp_path, capsys
     scene.write_text(json.dumps(d))
     rc, _, err = _run_cli(capsys, *args)
     assert rc == 2 and err.strip() == (f"hwrt: error: --output {out_dir}: holds frames of another run "
-                                         "(made from other contents of the input files); choose "
-                                         "another output directory")
+                                         "(made from other contents of the input files); start "
+                                         "it over with --fresh or choose another output "
+                                         "directory")
+    # --fresh starts over: the earlier run's files go, nothing else in the directory
+    (out_dir / "notes.txt").write_text("mine")
+    rc, out, err = _run_cli(capsys, *args, "--frames", 2, "--fresh")
+    r = json.loads(out)
+    assert rc == 0 and r["resumed_from"] == 0 and len(r["frames"]) == 2, err
+    assert sorted(p.name for p in out_dir.iterdir()) == [
+        "animation.json", "frame_0000.exr", "frame_0001.exr", "frames.csv", "notes.txt",
+        "preview.gif"]
+    state = json.loads((out_dir / "animation.json").read_text())
+    assert [f["frame"] for f in state["frames"]] == [0, 1]
+    rc, out, err = _run_cli(capsys, *args, "--frames", 2)
+    assert rc == 0 and json.loads(out)["resumed_from"] == 2
+    # files of no hwrt animate run are still not replaced, --fresh or not
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "frame_0000.exr").write_text("not ours")
+    rc, _, err = _run_cli(capsys, *args[:-3], "-o", theirs, "--json", "--fresh")
+    assert rc == 2 and "but no animation.json" in err
+    assert (theirs / "frame_0000.exr").read_text() == "not ours"
 
 
 def test_a_damaged_frame_is_rendered_again_on_resume(tmp_path, capsys):
