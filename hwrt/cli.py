@@ -839,7 +839,7 @@ BENCH_OPTION_HELP = {
     "scheduler": f"{DASK_HELP} ({' and '.join(BENCH_TIMES_ONE_AT_A_TIME)} time theirs one at "
                  "a time on one host)",
     "width": "image width", "height": "image height", "spp": "samples per pixel",
-    "max_depth": "longest reflection/refraction path"}
+    "max_depth": "rays per path, the camera ray counted (1: camera rays only)"}
 
 
 # What --quick does to each benchmark that reads it
@@ -1184,10 +1184,18 @@ def _version():
         return "unknown (not installed)"
 
 
+SEED_HELP = f"seed of the pixel jitter, 0-{MAX_OPTION_INT}"
+
+
 def make_parser():
     from hwbvh import config
     from raytracer.render import ACCELS, PRECISIONS, TRAVERSALS
+    from scenes.loader import MAX_DEPTH, MAX_FILM_PIXELS, MAX_FILM_SIDE, MAX_SPP
     from traversal.verify import RAY_KINDS
+    film = f"1-{MAX_FILM_SIDE}, width x height at most {MAX_FILM_PIXELS:,}"
+    spp = f"1-{MAX_SPP}"
+    depth = (f"rays per path, 1-{MAX_DEPTH}, the camera ray counted: 1 traces camera rays "
+             f"only, 2 adds a reflection or refraction")
     p = _Parser(prog="hwrt", description=DESCRIPTION, epilog=EPILOG)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -1284,11 +1292,10 @@ def make_parser():
                         ".toml), or mesh file (default: cornell)")
     r.add_argument("-o", "--output", metavar="FILE.exr", type=_path,
                    help="EXR path (default: renders/<scene>.exr)")
-    r.add_argument("--width", type=_film_side, help="image width (default: the scene's)")
-    r.add_argument("--height", type=_film_side, help="image height (default: the scene's)")
-    r.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
-    r.add_argument("--max-depth", type=_depth,
-                   help="longest reflection/refraction path (default: the scene's)")
+    r.add_argument("--width", type=_film_side, help=f"image width, {film} (default: the scene's)")
+    r.add_argument("--height", type=_film_side, help=f"image height, {film} (default: the scene's)")
+    r.add_argument("--spp", type=_spp, help=f"samples per pixel, {spp} (default: the scene's)")
+    r.add_argument("--max-depth", type=_depth, help=f"{depth} (default: the scene's)")
     r.add_argument("--builder", choices=["hwbvh", "sweep", "embree"],
                    help="the tree: hwbvh (the hardware's), sweep (full SAH) or embree (default: "
                         "hwbvh; embree with --traversal embree)")
@@ -1307,7 +1314,7 @@ def make_parser():
     r.add_argument("--png", action="store_true",
                    help="also write a tone-mapped PNG preview beside the EXR")
     r.add_argument("--no-layers", action="store_true", help="RGB only (no Z, N, prim.id)")
-    r.add_argument("--seed", type=_non_negative, default=0, help="seed of the pixel jitter")
+    r.add_argument("--seed", type=_non_negative, default=0, help=SEED_HELP)
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_render)
 
@@ -1359,11 +1366,12 @@ def make_parser():
     an.add_argument("--threshold", type=_positive_float,
                     help="adaptive: rebuild when the SAH cost grows past this factor of the last "
                          f"rebuild's (default: {ADAPTIVE_THRESHOLD})")
-    an.add_argument("--width", type=_film_side, help="image width (default: the animation's)")
-    an.add_argument("--height", type=_film_side, help="image height (default: the animation's)")
-    an.add_argument("--spp", type=_spp, help="samples per pixel (default: the animation's)")
-    an.add_argument("--max-depth", type=_depth,
-                    help="longest reflection/refraction path (default: the animation's)")
+    an.add_argument("--width", type=_film_side,
+                    help=f"image width, {film} (default: the animation's)")
+    an.add_argument("--height", type=_film_side,
+                    help=f"image height, {film} (default: the animation's)")
+    an.add_argument("--spp", type=_spp, help=f"samples per pixel, {spp} (default: the animation's)")
+    an.add_argument("--max-depth", type=_depth, help=f"{depth} (default: the animation's)")
     an.add_argument("--mesh", type=_path, help="exploding: the mesh that breaks (default: the bunny of the mesh "
                                    "directory, $HWRT_MESHES, else shared/meshes beside the project "
                                    "or the working directory; without either, a generated sphere)")
@@ -1374,7 +1382,7 @@ def make_parser():
     an.add_argument("--verify", action="store_true",
                     help="render each frame again with every ray (closest hits and shadows) "
                          "checked against Embree (its time reported apart)")
-    an.add_argument("--seed", type=_non_negative, default=0, help="seed of the pixel jitter")
+    an.add_argument("--seed", type=_non_negative, default=0, help=SEED_HELP)
     an.add_argument("-o", "--output", metavar="DIR", type=_path,
                     help="output directory (default: renders/animate-<scene>-<strategy>; with "
                          "--accel grid or kdtree, renders/animate-<scene>-<accel>)")

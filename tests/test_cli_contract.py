@@ -973,7 +973,7 @@ def test_every_option_has_help_and_shows_its_default():
                 assert "default" in sub._get_formatter()._get_help_string(action), (name, action.dest)
         assert "SPEC" not in text and "``" not in text
     assert "(default: 4)" in _subparsers(parser)["build"].format_help()       # --leaf-size
-    assert "jitter (default: 0)" in _subparsers(parser)["render"].format_help()   # --seed
+    assert "jitter, 0-2147483647 (default: 0)" in _subparsers(parser)["render"].format_help()   # --seed
 
 
 def test_top_level_help_is_plain_text_and_version_comes_from_the_package(capsys):
