@@ -593,7 +593,7 @@ def cmd_explore(args):
 def cmd_render(args):
     import time
     from hwbvh.errors import InputError, ParameterError
-    from hwbvh.files import check_outputs
+    from hwbvh.files import OutputPathError, check_outputs
     from raytracer.render import (check_float32_reach, make_tracer, render,
                                    simulated_ready_seconds, verified_render, warm_up)
     from raytracer.output import exr_writer, png_writer
@@ -631,7 +631,12 @@ def cmd_render(args):
                                         f"such as image.exr (--png adds a PNG preview beside "
                                         f"the EXR)")
     png = os.path.splitext(out)[0] + ".png" if args.png else None
-    check_outputs([out, png], inputs=scene_inputs(args.scene))
+    try:
+        check_outputs([out, png], inputs=scene_inputs(args.scene))
+    except OutputPathError as e:
+        if png is None or e.source != png:
+            raise
+        raise InputError("--png", f"{png}, the preview beside the EXR: {e.problem}") from None
     scene = compile_scene(d)
     if args.verify and args.precision != "float32":
         try:                            # the reference must reach the scene too
