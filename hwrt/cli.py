@@ -797,6 +797,9 @@ BENCH_WRITES_OUT_DIR = ("tti", "accuracy")
 BENCH_REPORTS = ("build", "scale", "trace", "contention", "trees")  # --out-dir: OUT/<what>.md, .json   # checked here; bench render checks its own files
 # The benchmarks that write their own files (with --out-dir), the last set through ``commit``
 BENCH_COMMITS = ("render", "tti", "accuracy", "animation", "model")
+# The benchmarks whose human output ends with the files they wrote (the others get that line
+# from ``cmd_bench``)
+BENCH_HUMAN_NAMES_FILES = ("render", "tti", "accuracy", "animation")
 
 
 # The cell benchmarks' Dask cluster when no scheduler is given, and those that time their
@@ -954,8 +957,16 @@ def cmd_bench(args):
     commit = partial(_commit, args)
     result = run(args, commit=commit)
     if args.what in BENCH_REPORTS and args.out_dir:
-        _write_report(args, result, human, commit)
+        result["files"] = _write_report(args, result, human, commit)
+    if args.what not in BENCH_HUMAN_NAMES_FILES:
+        human = partial(_with_files_line, human)
     _emit(args, result, human)
+
+
+def _with_files_line(human, result):
+    """``human(result)``, then the files the benchmark wrote, if any."""
+    text = human(result)
+    return text + "\nwrote " + ", ".join(result["files"]) if result.get("files") else text
 
 
 def _bench_run(what):
@@ -983,12 +994,15 @@ def _bench_run(what):
 
 
 def _write_report(args, result, human, commit):
-    """OUT/<what>.md (the table and the command that made it) and OUT/<what>.json."""
+    """OUT/<what>.md (the table and the command that made it) and OUT/<what>.json; returns
+    their paths."""
     from hwbvh.files import json_text
     from .report import command_of, made_by_block
     md = (f"# hwrt bench {args.what}\n\n{made_by_block(command_of(args))}```text\n{human(result)}\n```\n")
-    commit([(os.path.join(args.out_dir, f"{args.what}.md"), md),
-            (os.path.join(args.out_dir, f"{args.what}.json"), json_text(result, indent=1) + "\n")])
+    files = [(os.path.join(args.out_dir, f"{args.what}.md"), md),
+             (os.path.join(args.out_dir, f"{args.what}.json"), json_text(result, indent=1) + "\n")]
+    commit(files)
+    return [path for path, _ in files]
 
 
 # --------------------------------------------------------------------------------------

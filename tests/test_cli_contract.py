@@ -995,11 +995,16 @@ def test_bench_render_page_names_the_command_that_made_it(tmp_path):
     assert md.startswith("# hwrt bench render\n\nMade by `hwrt bench render --repeat 1 --width 16")
 
 
-def test_bench_report_written_to_out_dir(tmp_path):
+def test_bench_report_written_to_out_dir(tmp_path, capsys):
     from hwrt.cli import main
     out = tmp_path / "docs"
     assert main(["bench", "trees", "cornell", "--repeat", "1", "--width", "16", "--height", "12",
                  "--spp", "1", "--out-dir", str(out), "--json"]) == 0
+    files = [str(out / "trees.md"), str(out / "trees.json")]
+    assert strict_json(capsys.readouterr().out)["files"] == files
+    assert main(["bench", "scale", "--repeat", "1", "--out-dir", str(out)]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == \
+        f"wrote {out / 'scale.md'}, {out / 'scale.json'}"
     md = (out / "trees.md").read_text()
     assert "hwrt bench trees cornell --repeat 1" in md and "single-ray" in md
     assert "where the trace time goes" in md
