@@ -501,8 +501,10 @@ def cmd_verify(args):
     accel = args.accel or "bvh"               # None in args: --replay refuses any given
     kind = args.kind or VERIFY_KIND
     label, tris, verts, faces = _verifiable_geometry(args.scene)
-    # named by the scene's name, as render's image is
-    out = args.mismatches or os.path.join("renders", f"verify-{label}-{kind}-mismatches.npz")
+    # named by the scene's name, as render's image is, and by the structure but the default's
+    where = "" if accel == "bvh" else f"-{accel}"
+    out = args.mismatches or os.path.join("renders",
+                                          f"verify-{label}-{kind}{where}-mismatches.npz")
     check_outputs([out], inputs=scene_inputs(args.scene))
     tracer = _verify_tracer(accel, tris)
     counts, labels, (O, D, tmax), ours, ref = verify_mesh(tris, verts, faces, kind, rays,
@@ -1345,13 +1347,15 @@ def make_parser():
                                    "that --replay traces again.")
     v.add_argument("scene", type=_path, help="built-in scene name, scene file, or mesh file")
     v.add_argument("--rays", type=_rays,
-                   help=f"rays to trace; exactly these many (default: {VERIFY_RAYS})")
+                   help=f"rays to trace (default: {VERIFY_RAYS}); a kind made from the first "
+                        f"rays' hits traces fewer where too few of them hit, and says so")
     v.add_argument("--kind", choices=RAY_KINDS,
                    help=f"the ray set; shadow rays are checked as occluded queries, the "
                         f"others as closest hits (default: {VERIFY_KIND})")
     v.add_argument("--mismatches", metavar="F.npz", type=_path,
                    help="where mismatching rays are written (default: "
-                        "renders/verify-<scene>-<kind>-mismatches.npz, only if there are any)")
+                        "renders/verify-<scene>-<kind>-mismatches.npz, with -<accel> before "
+                        "-mismatches for grid and kdtree; only if there are any)")
     v.add_argument("--accel", choices=ACCELS,
                    help="acceleration structure checked: bvh (hwbvh's tree), grid (uniform grid) "
                         "or kdtree (SAH kd-tree) (default: bvh)")

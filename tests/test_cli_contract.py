@@ -1311,6 +1311,11 @@ def test_verify_names_its_default_mismatch_file_after_the_scene_name(capsys, tmp
     taken.mkdir(parents=True)                   # where the file would go: refused up front
     rc, _, err = call(capsys, "verify", scene, "--rays", 10)
     assert rc == 2 and "verify-ball-random-mismatches.npz" in one_line_error(err)
+    # another structure's run names its own file, so that runs do not replace each other's
+    for accel in ("grid", "kdtree"):
+        (tmp_path / "renders" / f"verify-ball-random-{accel}-mismatches.npz").mkdir()
+        rc, _, err = call(capsys, "verify", scene, "--rays", 10, "--accel", accel)
+        assert rc == 2 and f"verify-ball-random-{accel}-mismatches.npz" in one_line_error(err)
     rc, _, err = call(capsys, "render", scene, "--width", 8, "--height", 6)
     assert rc == 0 and (tmp_path / "renders" / "ball.exr").exists(), err
 
