@@ -606,8 +606,10 @@ def human(r):
     lines.append(f"{rebuilds}; time to image {r['time_to_image_seconds_total']:.2f} s; "
                  f"{wall} {r['total_seconds']:.2f} s; wrote {r['output']}")
     if start:
-        lines.append(f"resumed: frames 0-{start - 1} of {len(r['frames'])} were on disk from an "
-                     f"earlier run of the same settings (their rows are that run's)")
+        which = f"frame 0 of {len(r['frames'])} was" if start == 1 else \
+            f"frames 0-{start - 1} of {len(r['frames'])} were"
+        lines.append(f"resumed: {which} on disk from an earlier run of the same settings "
+                     f"({'its row is' if start == 1 else 'their rows are'} that run's)")
     if r.get("verify"):
         v = r["verify"]
         lines.append(f"verify: {v['rays']} rays, {v['agree']} agree, {v['tie']} tie, "

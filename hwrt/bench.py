@@ -18,6 +18,12 @@ from .progress import progress_over
 from .report import name_width
 
 
+def medians_of(n, runs="runs"):
+    """How a figure over ``n`` runs was taken: "medians of 7 runs", "one run" (``runs``: the
+    plural noun)."""
+    return f"medians of {n} {runs}" if n != 1 else f"one {runs[:-1] if runs.endswith('s') else runs}"
+
+
 def machine():
     import numba
     try:
@@ -240,7 +246,7 @@ def human(what):
             for m in r["meshes"]:
                 lines.append(f"{m['mesh']:<{w}}{m['triangles']:>10}{m['hwbvh_seconds']*1e3:>11.1f}"
                              f"{m['embree_seconds']*1e3:>11.1f}{m['ratio']:>8.2f}{m['sah_cost']:>9.2f}")
-            lines.append(f"times: medians of {r['repeat']} runs each, the two builders alternating "
+            lines.append(f"times: {medians_of(r['repeat'])} each, the two builders alternating "
                          "run by run; ratio: the median of the runs' hwbvh / embree")
             lines.append("hwbvh: the tree as the hardware writes it (nodes and index list); embree: "
                          "its scene built and committed, ready to trace (our tracer's set-up, the "
@@ -260,7 +266,7 @@ def human(what):
                     o3 = f"{s['open3d_mrays']:>8.2f}" if "open3d_mrays" in s else f"{'-':>8}"
                     lines.append(f"{m['mesh']:<{w}}{k:<12}{s['rays']:>9}{s['ours_mrays']:>11.2f}"
                                  f"{s['embreex_mrays']:>9.2f}{s['ratio_vs_embreex']:>7.2f}{o3}")
-            lines.append(f"rates: medians of {r['repeat']} runs each, ours and embreex alternating "
+            lines.append(f"rates: {medians_of(r['repeat'])} each, ours and embreex alternating "
                          "run by run; ratio: the median of the runs' ours / embreex rate")
             if r.get("accels"):
                 lines += ["", f"{'mesh':<{w}}{'accel':<8}{'build ms':>10}{'x sweep':>8}{'MiB':>8}"
@@ -700,7 +706,7 @@ def _render_human(r):
     lines = []
     for s in r["scenes"]:
         lines.append(f"{s['scene']}: {s['triangles']} triangles, {s['width']}x{s['height']}, "
-                     f"{s['spp']} spp, depth {s['max_depth']}; medians of {r['repeat']}")
+                     f"{s['spp']} spp, depth {s['max_depth']}; {medians_of(r['repeat'])}")
         lines.append(f"{'path':<22}{'build s':>9}{'render s':>10}{'total s':>9}{'Mrays/s':>9}"
                      f"{'trace s':>9}  render/trace (rounds)")
         for m in s["rows"]:
@@ -746,7 +752,7 @@ def _render_markdown(r, args=None):
     from .report import command_of, made_by_lines
     m = r["machine"]
     lines = ["# hwrt bench render", ""] + made_by_lines(command_of(args)) + [
-             f"Time to image, `hwrt bench render`: medians of {r['repeat']} warm runs per path, "
+             f"Time to image, `hwrt bench render`: {medians_of(r['repeat'], 'warm runs')} per path, "
              f"the paths alternating run by run. {m.get('cpu', '')}, {m.get('cores')} cores, "
              f"{m.get('numba_threads')} Numba threads. Render / trace-only: the median of "
              f"the rounds' own ratios (each round renders, then traces the same rays alone), "

@@ -399,8 +399,8 @@ def _replay(path, scene, tris, verts, faces):
     O, D, tmax, run = _replay_rays(path)
     if run["triangles_sha256"] not in (None, _triangles_digest(tris)):
         made_on = f" ({run['scene']!r})" if run["scene"] else ""
-        raise InputError(path, f"its rays were verified on other triangles{made_on} than "
-                               f"{scene}'s {len(tris)}: replay it on the scene it was made on")
+        raise InputError(path, f"its rays were verified on other triangles{made_on} than the "
+                               f"{len(tris)} of {scene}: replay it on the scene it was made on")
     tracer = _verify_tracer(run["accel"], tris)
     reference = embree_scene(verts, faces)
     rays = [{"origin": O[i].tolist(), "dir": D[i].tolist(), "tmax": float(tmax[i])}

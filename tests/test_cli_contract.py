@@ -868,7 +868,7 @@ def test_replay_traces_as_the_run_that_wrote_the_file(capsys, tmp_path, tetra):
     rc, out, err = call(capsys, "verify", tetra, "--replay", other)
     assert rc == 2 and out == "" and one_line_error(err) == (
         f"hwrt: error: --replay {other}: its rays were verified on other triangles ('elsewhere') "
-        f"than tetra's {len(tris)}: replay it on the scene it was made on")
+        f"than the {len(tris)} of tetra: replay it on the scene it was made on")
     bad = _mismatch_file(tmp_path / "b.npz", tris, kind="sideways")
     rc, out, err = call(capsys, "verify", tetra, "--replay", bad)
     assert rc == 2 and one_line_error(err) == (

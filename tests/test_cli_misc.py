@@ -728,3 +728,9 @@ def test_a_render_records_its_seed_and_jitter_so_its_image_can_be_made_again(tmp
         assert (meta["seed"], meta["jitter"]) == (seed, 1)
         images.append(pixels)
     assert not np.array_equal(images[0], images[1])        # the seed is what made the image
+
+
+def test_a_figure_of_one_run_says_so():
+    from hwrt.bench import medians_of
+    assert medians_of(1) == "one run" and medians_of(1, "warm runs") == "one warm run"
+    assert medians_of(7) == "medians of 7 runs"
