@@ -403,14 +403,14 @@ def with_frame(d, width=None, height=None, spp=None, max_depth=None):
     report."""
     if not isinstance(d, dict):
         raise ParameterError("d", f"expected a scene dict, got {type(d).__name__}")
-    d = dict(d)
-    film, integ = d.get("film", {}), d.get("integrator", {"type": "whitted"})
-    if not isinstance(film, dict) or not isinstance(integ, dict):
-        return d
     given = {"width": width, "height": height, "spp": spp}
     for key, v in dict(given, max_depth=max_depth).items():
         if v is not None:
             frame_override(key, v)
+    d = dict(d)
+    film, integ = d.get("film", {}), d.get("integrator", {"type": "whitted"})
+    if not isinstance(film, dict) or not isinstance(integ, dict):
+        return d
     # the values replaced are checked as written, so a bad file is refused whatever the
     # options (the others are checked with the scene)
     ctx = Ctx(d.get("_source", "<scene>"))
