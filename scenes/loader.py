@@ -529,8 +529,10 @@ def mesh_scene(path, name=None):
 
 
 def transform_scene(d, scale=1.0, translate=(0.0, 0.0, 0.0)):
-    """The same scene scaled and translated as a whole (point intensities scale by s^2, so the
-    irradiance, and so the image, stays the same)."""
+    """The same scene scaled by ``scale`` (> 0) and then translated as a whole (point
+    intensities scale by s^2, so the irradiance, and so the image, stays the same). Applied to
+    a scene it made, the two transforms compose. A negative scale, which would mirror the
+    scene and turn its camera upside down, is refused."""
     import copy
 
     if not (isinstance(d, dict) and isinstance(d.get("camera"), dict)
@@ -538,8 +540,8 @@ def transform_scene(d, scale=1.0, translate=(0.0, 0.0, 0.0)):
         raise ParameterError("d", f"expected a scene dict with a camera and shapes (load_scene "
                                   f"makes one), got {type(d).__name__}")
     if not (isinstance(scale, (int, float, np.number)) and not isinstance(scale, bool)
-            and np.isfinite(scale) and scale != 0):
-        raise ParameterError("scale", f"expected a finite number other than 0, got {scale!r}")
+            and np.isfinite(scale) and scale > 0):
+        raise ParameterError("scale", f"expected a finite number above 0, got {scale!r}")
     try:
         t = np.asarray(translate, np.float64)
     except (TypeError, ValueError):
@@ -552,11 +554,21 @@ def transform_scene(d, scale=1.0, translate=(0.0, 0.0, 0.0)):
     d["camera"]["eye"] = P(d["camera"]["eye"])
     d["camera"]["target"] = P(d["camera"]["target"])
     for L in d.get("lights", []):
-        if L["type"] == "point":
+        # (a light that is not a dict, or not a point light as written, is left for
+        # compile_scene to report)
+        if isinstance(L, dict) and L.get("type") == "point" and "position" in L:
             L["position"] = P(L["position"])
-            L["intensity"] = (np.asarray(L["intensity"], float) * s * s).tolist()
+            if "intensity" in L:
+                L["intensity"] = (np.asarray(L["intensity"], float) * s * s).tolist()
     for sh in d["shapes"]:
-        sh["_world"] = {"scale": s, "translate": t.tolist()}
+        if not isinstance(sh, dict):
+            continue
+        # after an earlier transform p -> p * s0 + t0, the two together: p * s0 s + t0 s + t
+        s0, t0 = 1.0, np.zeros(3)
+        if isinstance(sh.get("_world"), dict):
+            s0 = float(sh["_world"]["scale"])
+            t0 = np.asarray(sh["_world"]["translate"], np.float64)
+        sh["_world"] = {"scale": s0 * s, "translate": (t0 * s + t).tolist()}
     return d
 
 
@@ -963,8 +975,6 @@ def _shape(ctx, sh, i, scene_dir):
     w = sh.get("_world")
     if w:
         tris = tris * float(w["scale"]) + np.asarray(w["translate"], np.float64)
-        if float(w["scale"]) < 0:
-            normals = -normals
     return tris, normals
 
 

@@ -366,6 +366,29 @@ def test_frame_overrides_refused_at_the_call(tmp_path, spec, key, value):
     assert e.value.parameter == key
 
 
+def test_transforms_of_a_scene_compose():
+    """Scaling by 2 and then by 3 (with translations) is one transform: the geometry moves
+    with the camera and the lights, as it does under the single transform. A negative scale
+    would mirror the scene: refused."""
+    from hwbvh.errors import ParameterError
+    from scenes import compile_scene, load_scene, transform_scene
+
+    d = load_scene("cornell", width=16, height=12, spp=1)
+    twice = compile_scene(transform_scene(transform_scene(d, 2.0, (1, 0, 0)), 3.0, (0, 5, 0)))
+    once = compile_scene(transform_scene(d, 6.0, (3, 5, 0)))
+    np.testing.assert_allclose(twice.triangles, once.triangles, rtol=1e-6, atol=1e-5)
+    np.testing.assert_allclose(twice.camera["eye"], once.camera["eye"])
+    np.testing.assert_allclose(twice.lights[0]["position"], once.lights[0]["position"])
+    np.testing.assert_allclose(twice.lights[0]["intensity"], once.lights[0]["intensity"])
+    assert not np.allclose(once.triangles, compile_scene(d).triangles)
+    with pytest.raises(ParameterError, match="above 0"):
+        transform_scene(d, -1.0)
+    # a light without a type is compile_scene's to report, not a KeyError here
+    odd = transform_scene(dict(d, lights=[{"position": [0, 0, 0]}]), 2.0)
+    with pytest.raises(InputError, match="lights"):
+        compile_scene(odd)
+
+
 def test_mesh_scene_name_checked_at_the_call(tmp_path):
     from hwbvh.errors import ParameterError
     from scenes.loader import mesh_scene
@@ -390,9 +413,9 @@ def test_mesh_scene_name_checked_at_the_call(tmp_path):
                                                          "and shapes (load_scene makes one), got "
                                                          "NoneType"),
     (lambda: __import__("scenes").transform_scene(load_scene("cornell"), 0),
-     "scale: expected a finite number other than 0, got 0"),
+     "scale: expected a finite number above 0, got 0"),
     (lambda: __import__("scenes").transform_scene(load_scene("cornell"), "x"),
-     "scale: expected a finite number other than 0, got 'x'"),
+     "scale: expected a finite number above 0, got 'x'"),
     (lambda: __import__("scenes").transform_scene(load_scene("cornell"), 2, [1, 2]),
      "translate: expected 3 finite numbers, got [1, 2]"),
     (lambda: load_animation("exploding", mesh="bunny.ply", triangles=500),
