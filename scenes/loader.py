@@ -31,7 +31,7 @@ SHAPE_TYPES = ("mesh", "quad", "box", "sphere", "sheet", "triangles")
 # would otherwise be ignored and quietly change the picture). Keys with a leading underscore
 # are set by this module, not by scene files.
 SCENE_KEYS = ("type", "name", "camera", "film", "integrator", "background", "lights",
-              "materials", "shapes", "_source")
+              "materials", "shapes", "_source", "_dir")
 CAMERA_KEYS = ("type", "eye", "target", "up", "fov")
 FILM_KEYS = ("width", "height", "spp", "jitter")
 INTEGRATOR_KEYS = ("type", "max_depth", "ambient", "cutoff")
@@ -251,6 +251,9 @@ def _load_scene_file(spec):
         raise InputError(spec, "a scene file must hold an object at the top level")
     _refuse_internal_keys(spec, d)
     d["_source"] = spec
+    # where its relative mesh names resolve, fixed now: a later change of the working
+    # directory must not make them name other files
+    d["_dir"] = os.path.dirname(os.path.abspath(spec))
     if "name" in d:
         check_name(spec, d["name"])
     else:
@@ -472,8 +475,17 @@ def _reason(e):
     return getattr(e, "strerror", None) or str(e).split(":")[0]
 
 
+def scene_directory(d, source):
+    """The directory the relative mesh names of scene dict ``d`` resolve against: its scene
+    file's, as it was when the file was read (``_dir``), else ``source``'s if that is a file,
+    else the working directory (a scene built in Python)."""
+    if isinstance(d.get("_dir"), str):
+        return d["_dir"]
+    return os.path.dirname(os.path.abspath(source)) if os.path.exists(str(source)) else os.getcwd()
+
+
 def _refuse_internal_keys(spec, d):
-    """Keys with a leading underscore are this module's own (``_source``, a shape's
+    """Keys with a leading underscore are this module's own (``_source``, ``_dir``, a shape's
     ``_world``): from a file they are unknown keys like any other."""
     shapes = d.get("shapes")
     found = [k for k in d if str(k).startswith("_")]
@@ -1084,7 +1096,7 @@ def compile_scene(d, source=None, first_shape=0):
     shapes = d["shapes"]
     if not isinstance(shapes, (list, tuple)) or not shapes:
         ctx.fail("shapes", "expected a non-empty list")
-    scene_dir = os.path.dirname(os.path.abspath(source)) if os.path.exists(str(source)) else os.getcwd()
+    scene_dir = scene_directory(d, source)
     _check_scene_size(ctx, shapes, first_shape)
     all_t, all_n, all_m = [], [], []
     total = 0

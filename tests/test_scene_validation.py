@@ -850,3 +850,26 @@ def test_compile_scene_names_a_bad_argument(kw, problem):
     with pytest.raises(ParameterError) as e:
         compile_scene(load_scene("cornell", width=8, height=8, spp=1), **kw)
     assert str(e.value) == problem
+
+
+def test_relative_mesh_names_keep_to_the_scene_files_directory(tmp_path, monkeypatch):
+    """A scene file read with a relative path names its meshes relative to its own directory
+    as it was when read: after a change of the working directory the dict still compiles
+    the same mesh, not a file of the same name elsewhere."""
+    from scenes import compile_scene, load_scene
+
+    tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+    (tmp_path / "sc").mkdir()
+    (tmp_path / "sc" / "m.obj").write_text(tri)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "m.obj").write_text(tri + "v 5 5 5\nv 6 5 5\nv 5 6 5\nf 4 5 6\n")
+    (tmp_path / "other" / "sc").mkdir()
+    (tmp_path / "other" / "sc" / "m.obj").write_text(tri + "v 5 5 5\nv 6 5 5\nv 5 6 5\nf 4 5 6\n")
+    (tmp_path / "sc" / "s.json").write_text(json.dumps({
+        "camera": {"eye": [0.3, 0.3, 3], "target": [0.3, 0.3, 0]},
+        "materials": {"m": {"type": "diffuse"}},
+        "shapes": [{"type": "mesh", "filename": "m.obj", "material": "m"}]}))
+    monkeypatch.chdir(tmp_path)
+    d = load_scene("sc/s.json")
+    monkeypatch.chdir(tmp_path / "other")
+    assert len(compile_scene(d).triangles) == 1
