@@ -3,8 +3,8 @@ import hwbvh.kernel_cache  # noqa: F401  (before any kernel: cached kernels stay
 from .animation import ANIMATIONS, Animation, load_animation
 from .builtin import BUILTIN
 from .loader import (CompiledScene, compile_scene, is_scene, load_scene, load_scene_geometry,
-                     mesh_scene, transform_scene, with_frame)
+                     mesh_scene, save_scene, transform_scene, with_frame)
 
 __all__ = ["ANIMATIONS", "Animation", "load_animation", "BUILTIN", "CompiledScene", "compile_scene",
-           "is_scene", "load_scene", "load_scene_geometry", "mesh_scene", "transform_scene",
+           "is_scene", "load_scene", "load_scene_geometry", "mesh_scene", "save_scene", "transform_scene",
            "with_frame"]

@@ -475,6 +475,45 @@ def _reason(e):
     return getattr(e, "strerror", None) or str(e).split(":")[0]
 
 
+def save_scene(d, path):
+    """Write still scene dict ``d`` (``load_scene``, ``mesh_scene``, a built-in's or one made in
+    Python) as a scene file at ``path`` (.json), which ``load_scene`` and ``hwrt render`` read
+    back as the same scene. The scene is checked first (``compile_scene``); the module's own
+    keys are left out, and mesh file names are written absolute, so the file works from any
+    directory. A scene from ``transform_scene`` has no file form: save it before transforming.
+    The file is written whole or not at all, and never over one of the files the scene reads.
+    Returns ``path``."""
+    from hwbvh.files import check_outputs, json_text, write_files
+
+    path = spec_path(path, "path", "a .json file path")
+    if not str(path).lower().endswith(".json"):
+        raise ParameterError("path", f"a scene is saved as JSON: expected a name ending in "
+                                     f".json, got {written(str(path))}")
+    if not isinstance(d, dict):
+        raise ParameterError("d", f"expected a scene dict, got {type(d).__name__}")
+    shapes = d.get("shapes")
+    if isinstance(shapes, list) and any(isinstance(sh, dict) and "_world" in sh
+                                        for sh in shapes):
+        raise ParameterError("d", "a scene from transform_scene has no file form (its shapes "
+                                  "carry the transform): save the scene before transforming it")
+    compile_scene(d)
+    source = d.get("_source", "<scene>")
+    base = scene_directory(d, source)
+    out = {k: v for k, v in d.items() if not str(k).startswith("_")}
+    out["shapes"] = []
+    meshes = []
+    for sh in shapes:
+        sh = dict(sh)
+        if sh.get("type") == "mesh":
+            sh["filename"] = os.path.join(base, sh["filename"])   # an absolute name stays
+            meshes.append(sh["filename"])
+        out["shapes"].append(sh)
+    inputs = meshes + ([source] if os.path.isfile(str(source)) else [])
+    check_outputs([path], inputs=inputs)
+    write_files([(path, json_text(out, indent=1) + "\n")])
+    return path
+
+
 def scene_directory(d, source):
     """The directory the relative mesh names of scene dict ``d`` resolve against: its scene
     file's, as it was when the file was read (``_dir``), else ``source``'s if that is a file,

@@ -873,3 +873,40 @@ def test_relative_mesh_names_keep_to_the_scene_files_directory(tmp_path, monkeyp
     d = load_scene("sc/s.json")
     monkeypatch.chdir(tmp_path / "other")
     assert len(compile_scene(d).triangles) == 1
+
+
+def test_a_scene_dict_saved_reads_back_as_the_same_scene(tmp_path, monkeypatch):
+    """save_scene writes what load_scene reads: a built-in, a mesh scene and a scene file
+    with a relative mesh name saved into another directory compile to the same arrays. It
+    refuses what has no file form, a name that is not .json, and a file the scene reads."""
+    from hwbvh.errors import ParameterError
+    from scenes import compile_scene, load_scene, mesh_scene, save_scene, transform_scene
+
+    (tmp_path / "sc").mkdir()
+    (tmp_path / "sc" / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "sc" / "s.json").write_text(json.dumps({
+        "camera": {"eye": [0.3, 0.3, 3], "target": [0.3, 0.3, 0]},
+        "materials": {"m": {"type": "diffuse"}},
+        "shapes": [{"type": "mesh", "filename": "m.obj", "material": "m"}]}))
+    monkeypatch.chdir(tmp_path)
+    for i, d in enumerate((load_scene("cornell", width=16, height=12),
+                           mesh_scene(str(tmp_path / "sc" / "m.obj")), load_scene("sc/s.json"))):
+        path = tmp_path / "out" / f"saved{i}.json"
+        assert save_scene(d, str(path)) == str(path)
+        back = load_scene(str(path))
+        a, b = compile_scene(d), compile_scene(back)
+        assert np.array_equal(a.triangles, b.triangles) and a.name == b.name
+        assert (a.width, a.height, a.spp, a.camera["eye"].tolist()) == \
+            (b.width, b.height, b.spp, b.camera["eye"].tolist())
+        assert not any(k.startswith("_") for k in json.loads(path.read_text()))
+    d = load_scene("cornell")
+    for bad, parameter, words in ((transform_scene(d, 2.0), "d", "transform_scene"),
+                                  (d, "path", ".json")):
+        with pytest.raises(ParameterError, match=words) as e:
+            save_scene(bad, str(tmp_path / ("x.json" if parameter == "d" else "x.toml")))
+        assert e.value.parameter == parameter
+    with pytest.raises(InputError):
+        save_scene(load_scene("sc/s.json"), "sc/s.json")            # its own file
+    with pytest.raises(InputError):
+        save_scene(dict(d, camera={}), str(tmp_path / "bad.json"))    # not a scene
+    assert not (tmp_path / "bad.json").exists() and not (tmp_path / "x.json").exists()
