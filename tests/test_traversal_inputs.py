@@ -416,6 +416,8 @@ def test_argument_errors_are_parameter_errors_naming_the_parameter(bvh, tracers)
         ("tracer", lambda: verify_mesh(TRIS[:-1], V[:-3], F[:-1], tracer=tracers["grid"])),
         ("scene", lambda: verify_rays(tracers["bvh"], None, TRIS, O, D)),
         ("tracer", lambda: verify_rays(None, embree_scene(V, F), TRIS, O, D)),
+        ("scene", lambda: verify_rays(tracers["bvh"], embree_scene(V + 0.5, F), TRIS, O, D)),
+        ("scene", lambda: verify_rays(tracers["bvh"], embree_scene(V * 3.0, F), TRIS, O, D)),
         ("inner", lambda: VerifyingTracer(tracers["kdtree"], TRIS[:-1], V[:-3], F[:-1])),
         ("inner", lambda: VerifyingTracer(object(), TRIS, V, F)),
         ("faces", lambda: VerifyingTracer(tracers["bvh"], TRIS, V, F[::-1])),

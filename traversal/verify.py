@@ -432,6 +432,48 @@ def _check_embree_scene(scene):
                                       f"embree_scene), got {type(scene).__name__}")
 
 
+# Probes of ``_check_scene_holds``: rays toward the centres of this many of the largest
+# triangles (the least moved by float32 rounding), from this fraction of their size off their
+# planes (at least a few float32 steps at their coordinates); at least half must reach their
+# triangle.
+SCENE_PROBES = 16
+PROBE_OFFSET = 1e-3
+PROBE_STEPS = 8
+
+
+def _check_scene_holds(scene, tris):
+    """Refuse (ParameterError naming ``scene``) an Embree scene that does not hold ``tris``: rays
+    from just off the centres of a few of them, straight at them, must hit them (or a triangle
+    of the same corners) in Embree's scene. Another mesh, or the same one moved, fails the
+    check, where every ray would otherwise read as a mismatch of our traversal."""
+    from .embree_ref import embree_intersect
+
+    t64 = np.asarray(tris, np.float64)
+    normal = np.cross(t64[:, 1] - t64[:, 0], t64[:, 2] - t64[:, 0])
+    size = np.linalg.norm(normal, axis=1)
+    usable = np.flatnonzero(np.isfinite(size) & (size > 0))
+    if len(usable) == 0:
+        return
+    k = min(SCENE_PROBES, len(usable))
+    pick = usable[np.argpartition(-size[usable], k - 1)[:k]]
+    centre = t64[pick].mean(axis=1)
+    unit = normal[pick] / size[pick, None]
+    step = np.spacing(np.abs(centre).max(axis=1).astype(np.float32)).astype(np.float64)
+    off = np.maximum(PROBE_OFFSET * np.sqrt(size[pick]), PROBE_STEPS * step)[:, None]
+    _, prim, _, _, _ = embree_intersect(scene, (centre + off * unit).astype(np.float32),
+                                        (-unit).astype(np.float32))
+    hit = prim >= 0
+    same = np.zeros(len(pick), bool)
+    same[hit] = (prim[hit] == pick[hit]) | np.all(
+        t64[np.minimum(prim[hit], len(t64) - 1)] == t64[pick[hit]], axis=(1, 2)) & \
+        (prim[hit] < len(t64))
+    if 2 * same.sum() < len(pick):
+        raise ParameterError("scene", f"does not hold the triangles tris: of {len(pick)} rays "
+                                      f"aimed at their centres, Embree's scene brought "
+                                      f"{int(same.sum())} to their triangle; build it from the "
+                                      f"same mesh (traversal.embree_ref.embree_scene)")
+
+
 def verify_rays(tracer, scene, tris, O, D, tmax=None, anyhit=False):
     """Trace (O, D) with our tracer and with Embree (tnear = 0), classify every ray, a slice
     of ``VERIFY_CHUNK`` rays at a time. Closest hits: returns (counts, labels, ours Hits (t,
@@ -444,6 +486,7 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None, anyhit=False):
 
     check_tracer(tracer, triangles=_checked_triangles(tris))
     _check_embree_scene(scene)
+    _check_scene_holds(scene, tris)
     from .embree_ref import embree_intersect, embree_occluded
 
     # checked here without a copy; each tracer converts them itself
