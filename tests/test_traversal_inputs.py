@@ -413,6 +413,7 @@ def test_argument_errors_are_parameter_errors_naming_the_parameter(bvh, tracers)
         # a tracer or a reference over other geometry than the triangles checked: refused,
         # not reported as mismatches
         ("tracer", lambda: verify_mesh(TRIS, V, F, tracer="x")),
+        ("bvh", lambda: verify_mesh(TRIS, V, F, bvh=hwbvh.build(TRIS[:-1]))),
         ("tracer", lambda: verify_mesh(TRIS[:-1], V[:-3], F[:-1], tracer=tracers["grid"])),
         ("scene", lambda: verify_rays(tracers["bvh"], None, TRIS, O, D)),
         ("tracer", lambda: verify_rays(None, embree_scene(V, F), TRIS, O, D)),

@@ -597,8 +597,12 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
     elif accel == "kdtree":
         from .kdtree import KdTreeTracer
         tracer = KdTreeTracer(tris)
+    elif bvh is not None:
+        from .tracers import check_tracer
+        tracer = Tracer(bvh)
+        check_tracer(tracer, triangles=tris, name="bvh")     # the argument the caller gave
     else:
-        tracer = Tracer(bvh or hwbvh.build(tris))
+        tracer = Tracer(hwbvh.build(tris))
     scene = embree_scene(vertices, faces)
     tmax = None
     # the rays as the float32 tracers take them (half the memory of float64, the same rays)
