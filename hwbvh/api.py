@@ -109,8 +109,8 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     to the array in place afterwards does not reach the tree (``refit``, or build again; a
     render of the changed scene with a tracer over the old tree is refused).
     ``meta["build_seconds"]`` times the build alone, but the first build in a process also
-    loads (or, the first time ever, compiles) its kernels: ``warm_up`` first when the time
-    matters.
+    loads (or, the first time ever, compiles) its kernels: ``hwbvh.warm_up()`` first when the
+    time matters.
     """
     if builder not in BUILDERS:
         raise ParameterError("builder", f"unknown builder {builder!r} (choose from {', '.join(BUILDERS)})")

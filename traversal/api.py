@@ -301,8 +301,12 @@ class PacketCount:
 
 
 class Tracer(PacketCount):
-    """Ray queries on one BVH. precision: "float32" (the hardware units) or "float64";
-    watertight=True swaps the Moller-Trumbore unit for the Woop et al. 2013 test.
+    """Ray queries on one BVH (``hwbvh.build``'s, or the sweep builder's). ``triangles``: the
+    (n, 3, 3) triangles the tree was built over, needed for a tree from ``hwbvh.load``
+    (a built tree carries its own). precision: "float32" (the hardware units) or "float64";
+    ``edge_eps``: the triangle unit's barycentric slack, which closes cracks along shared
+    edges (default ``traversal.config.EDGE_EPS_F32`` or ``EDGE_EPS_F64``; 0: the strict
+    unit); watertight=True swaps the Moller-Trumbore unit for the Woop et al. 2013 test.
 
     packets=True (default) traces each group of 16 consecutive rays that share a direction
     octant as a packet (``traversal.packet``): the same answers, bit for bit, with the box and
