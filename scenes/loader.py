@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hwbvh.config import MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES
+from traversal.config import FOV_RANGE
 from hwbvh.errors import InputError, ParameterError, is_integer, shown
 from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
                               extent, float32_step, load_mesh_arrays, within_bound)
@@ -56,7 +57,6 @@ SHAPE_KEY_HINTS = {"frames": 'a shape of "type": "frames" with a "pattern"'}
 # float64, so no sum overflows there; a pixel brighter than float32 holds (a light of such
 # values close to a surface) is +inf in the image, and the renderer counts such pixels.
 MAX_RADIANCE = float(np.finfo(np.float32).max)
-FOV_RANGE = (1e-3, 179.0)       # degrees: a pinhole camera sees less than a half-space
 
 # The largest film: a render keeps about 100 bytes per pixel (the film in float64, the image
 # and its depth, normal and primitive layers, a sample pass' jitter), so 2^25 pixels (8192 x

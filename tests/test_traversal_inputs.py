@@ -13,6 +13,7 @@ from hwbvh.errors import InputError, ParameterError
 from traversal import Tracer
 from traversal.embree_ref import (EmbreeTracer, embree_intersect, embree_occluded, embree_scene,
                                   shared_vertices)
+from traversal.camera import primary_rays
 from traversal.grid import GridTracer
 from traversal.kdtree import KdTreeTracer
 from traversal.tracers import CountingTracer, RecordingTracer, VerifyingTracer
@@ -414,6 +415,12 @@ def test_argument_errors_are_parameter_errors_naming_the_parameter(bvh, tracers)
         # not reported as mismatches
         ("tracer", lambda: verify_mesh(TRIS, V, F, tracer="x")),
         ("bvh", lambda: verify_mesh(TRIS, V, F, bvh=hwbvh.build(TRIS[:-1]))),
+        ("target", lambda: primary_rays((0, 0, 0), (0, 0, 0), (0, 1, 0), 40, 2, 2)),
+        ("width", lambda: primary_rays((0, 0, 0), (0, 0, -1), (0, 1, 0), 40, 2.5, 2)),
+        ("fov_deg", lambda: primary_rays((0, 0, 0), (0, 0, -1), (0, 1, 0), 180, 2, 2)),
+        ("eye", lambda: primary_rays((0, 0), (0, 0, -1), (0, 1, 0), 40, 2, 2)),
+        ("jitter", lambda: primary_rays((0, 0, 0), (0, 0, -1), (0, 1, 0), 40, 2, 2,
+                                        np.zeros((3, 2)))),
         ("tracer", lambda: verify_mesh(TRIS[:-1], V[:-3], F[:-1], tracer=tracers["grid"])),
         ("scene", lambda: verify_rays(tracers["bvh"], None, TRIS, O, D)),
         ("tracer", lambda: verify_rays(None, embree_scene(V, F), TRIS, O, D)),

@@ -1,7 +1,8 @@
 """Pinhole camera (look-at, vertical field of view, resolution) producing ray arrays."""
 import numpy as np
 
-from .config import PACKET_RAYS
+from hwbvh.errors import ParameterError, is_integer
+from .config import FOV_RANGE, PACKET_RAYS
 
 TILE = int(round(np.sqrt(PACKET_RAYS)))   # camera tiles of TILE x TILE pixels: one packet
 
@@ -36,6 +37,10 @@ def look_at_basis(eye, target, up):
 def primary_rays(eye, target, up, fov_deg, width, height, jitter=None):
     """Rays through pixel centres (or centre + jitter in [-0.5, 0.5)^2, shape (h*w, 2)), row-major
     from the top-left. Returns (origins (n,3) float64, dirs (n,3) float64 normalised)."""
+    _check_camera(eye, target, up, fov_deg, width, height)
+    if jitter is not None and np.shape(jitter) != (width * height, 2):
+        raise ParameterError("jitter", f"expected shape ({width * height}, 2), one offset per "
+                                       f"pixel, got {np.shape(jitter)}")
     ys, xs = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
     px = xs.ravel() + 0.5
     py = ys.ravel() + 0.5
@@ -45,6 +50,26 @@ def primary_rays(eye, target, up, fov_deg, width, height, jitter=None):
     d = directions_through(px, py, width, height, look_at_basis(eye, target, up), fov_deg)
     o = np.broadcast_to(np.asarray(eye, np.float64), d.shape).copy()
     return o, d
+
+
+def _check_camera(eye, target, up, fov_deg, width, height):
+    """ParameterError naming the first argument of a camera that cannot make rays."""
+    for name, v in (("eye", eye), ("target", target), ("up", up)):
+        try:
+            a = np.asarray(v, np.float64)
+        except (TypeError, ValueError):
+            a = None
+        if a is None or a.shape != (3,) or not np.isfinite(a).all():
+            raise ParameterError(name, f"expected 3 finite numbers, got {v!r}")
+    if np.array_equal(np.asarray(eye, np.float64), np.asarray(target, np.float64)):
+        raise ParameterError("target", "must differ from eye (the camera looks from eye to it)")
+    lo, hi = FOV_RANGE
+    if isinstance(fov_deg, (bool, np.bool_)) or not isinstance(fov_deg, (int, float, np.number)) \
+            or not lo <= fov_deg <= hi:
+        raise ParameterError("fov_deg", f"expected degrees in [{lo}, {hi}], got {fov_deg!r}")
+    for name, v in (("width", width), ("height", height)):
+        if not is_integer(v) or v < 1:
+            raise ParameterError(name, f"expected a positive integer, got {v!r}")
 
 
 def directions_through(px, py, width, height, basis, fov_deg):

@@ -219,3 +219,6 @@ F32_UNIT_MIN_SPAN = 2.0**-33
 # of about 1e-15) is refused, 26 bits above that range; meshes of 1e-12 keep tracing (their
 # rays that start within rounding of a triangle lose t's bits first, as in Embree's unit).
 F32_UNIT_MIN_EDGES = 2.0**-100
+
+# A pinhole camera's vertical field of view, in degrees: it sees less than a half-space
+FOV_RANGE = (1e-3, 179.0)
