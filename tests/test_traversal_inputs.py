@@ -726,3 +726,17 @@ def test_the_sweep_builder_refuses_the_knobs_it_does_not_take():
         hwbvh.build(TRIS, builder="sweep", bins=2)
     assert hwbvh.build(TRIS, builder="sweep", leaf_size=hwbvh.config.DEFAULT_LEAF_SIZE).meta[
         "builder"] == "sweep"
+
+
+def test_verifying_a_zero_direction_ray_warns_of_nothing():
+    """A zero direction is a miss by definition, for both tracers: agreed, with no warning."""
+    import warnings
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)
+    O = np.array([[0.2, 0.2, 1], [0.2, 0.2, 1]], np.float32)
+    D = np.array([[0, 0, -1], [0, 0, 0]], np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        counts = verify_rays(Tracer(hwbvh.build(tri)), embree_scene(tri.reshape(-1, 3),
+                                                                    np.arange(3).reshape(1, 3)),
+                             tri, O, D)[0]
+    assert counts == {"rays": 2, "agree": 2, "tie": 0, "mismatch": 0, "hit": 1}

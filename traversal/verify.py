@@ -185,8 +185,10 @@ def _reference(lo, hi, tris, O, D, tmin, tmax, scale, pa, ta, pb, tb, out):
 
 
 def _scale(O, D):
-    """|o|_max / |d| per ray: the t-equivalent of the origin's own rounding."""
-    return np.abs(O).max(axis=1) / np.linalg.norm(D, axis=1)
+    """|o|_max / |d| per ray: the t-equivalent of the origin's own rounding (inf for a zero
+    direction, a ray that misses by definition)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.abs(O).max(axis=1) / np.linalg.norm(D, axis=1)
 
 
 def t_tolerance(O, D, t):
