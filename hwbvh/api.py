@@ -213,8 +213,12 @@ TREE_EXTENSIONS = (".nodes", ".indices", ".json")      # SPEC 4, in the order th
 
 
 def tree_paths(prefix):
-    """The files a tree saved under ``prefix`` is: PREFIX.nodes, PREFIX.indices, PREFIX.json."""
+    """The files a tree saved under ``prefix`` is: PREFIX.nodes, PREFIX.indices, PREFIX.json. A
+    prefix given as one of them (``tree.json``) names the same three, as ``load`` reads it."""
     prefix = os.fspath(prefix)
+    stem, ext = os.path.splitext(prefix)
+    if ext in TREE_EXTENSIONS and os.path.basename(stem):
+        prefix = stem
     return [prefix + ext for ext in TREE_EXTENSIONS]
 
 
@@ -228,9 +232,10 @@ def tree_files(bvh, prefix):
 
 
 def save(bvh, prefix):
-    """Write PREFIX.nodes, PREFIX.indices and PREFIX.json (SPEC 4): a tree ``load`` reads back
-    as it is, so it is checked as ``load`` checks it first (a tree changed after its build may
-    not be one), against its triangles where it has them."""
+    """Write PREFIX.nodes, PREFIX.indices and PREFIX.json (SPEC 4; a prefix given as one of
+    them, ``tree.json``, names the same three): a tree ``load`` reads back as it is, so it is
+    checked as ``load`` checks it first (a tree changed after its build may not be one),
+    against its triangles where it has them. Returns the three paths."""
     if not all(hasattr(bvh, a) for a in ("nodes", "indices", "meta")):
         raise ParameterError("bvh", f"expected an hwbvh.Bvh, got {type(bvh).__name__}")
     prefix = _path_of(prefix, "prefix")

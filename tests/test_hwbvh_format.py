@@ -84,9 +84,12 @@ def test_save_load_roundtrip(tmp_path):
         assert named.nodes.tobytes() == bvh.nodes.tobytes()
     with pytest.raises(InputError, match=r"s\.txt\.json"):
         hwbvh.load(str(tmp_path / "s") + ".txt")
-    other = hwbvh.build(sphere(8, 12))          # a tree saved under a name such as t.nodes
-    hwbvh.save(other, tmp_path / "s.nodes")
-    assert hwbvh.load(tmp_path / "s.nodes").nodes.tobytes() == other.nodes.tobytes()
+    other = hwbvh.build(sphere(8, 12))          # saved as one of its files: the same three
+    assert hwbvh.save(other, tmp_path / "t.json") == [str(tmp_path / f"t{ext}") for ext in
+                                                      (".nodes", ".indices", ".json")]
+    assert sorted(os.listdir(tmp_path)) == ["s.indices", "s.json", "s.nodes", "t.indices",
+                                            "t.json", "t.nodes"]
+    assert hwbvh.load(tmp_path / "t.json").nodes.tobytes() == other.nodes.tobytes()
 
 
 def corrupt(bvh, fn):
