@@ -99,7 +99,8 @@ INT32 = np.iinfo(np.int32)
 def _header_value(v):
     """An EXR header holds 32-bit integers and floats: an integer beyond 32 bits, a bool, and
     a float that float32 would turn into infinity or zero go in as text, like every other
-    value (a float within float32's range goes in rounded to it)."""
+    value (a float within float32's range goes in rounded to it); a dict, list or tuple goes in
+    as JSON text, which reads back with ``json.loads``."""
     if isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) \
             and INT32.min <= v <= INT32.max:
         return int(v)
@@ -109,6 +110,12 @@ def _header_value(v):
             f = np.float32(x)
         if (np.isfinite(f) or not np.isfinite(x)) and (f != 0 or x == 0):
             return x
+    if isinstance(v, (dict, list, tuple)):
+        from hwbvh.files import json_text
+        try:
+            return json_text(v)
+        except (TypeError, ValueError):
+            pass
     return str(v)
 
 

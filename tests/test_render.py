@@ -343,6 +343,9 @@ def test_exr_layers_metadata_and_atomic_write(tmp_path):
     assert (meta["big"], meta["small"], meta["wide"], meta["flag"]) == \
         ("1e+300", "1e-300", str(2**40), "True")
     assert meta["zero"] == 0.0 and meta["inf"] == float("inf")
+    # a dict or list goes in as JSON text, which reads back
+    write_exr(out, res, {"run": {"builder": "hwbvh", "leaf": 4, "seeds": [1, 2]}})
+    assert json.loads(read_exr(out)[2]["run"]) == {"builder": "hwbvh", "leaf": 4, "seeds": [1, 2]}
     assert meta["third"] == pytest.approx(1 / 3, rel=1e-7)
 
 
