@@ -179,13 +179,19 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False, precision=
 TRAVERSALS = ("numba", "embree")        # who traverses a BVH (traversal=): our units or Embree
 
 
-def make_tracer(scene, builder="hwbvh", traversal="numba", leaf_size=DEFAULT_LEAF_SIZE,
+def make_tracer(scene, builder=None, traversal=None, leaf_size=DEFAULT_LEAF_SIZE,
                 bins=DEFAULT_BINS,
                 precision="float32", watertight=False, accel="bvh"):
-    """(tracer, build_seconds, build_info). ``accel``: "bvh" (builders hwbvh, sweep, embree),
-    "grid" (``traversal.grid.GridTracer``) or "kdtree" (``traversal.kdtree.KdTreeTracer``); the
-    last two with traversal "numba" and the default builder only. Every argument is checked
-    before any build."""
+    """(tracer, build_seconds, build_info). ``builder``: "hwbvh" (default), "sweep" or
+    "embree"; ``traversal``: "numba" (our units, default) or "embree". Embree's tree goes with
+    Embree's traversal only, so either one given as "embree" makes the other "embree" too.
+    ``accel``: "bvh" (builders hwbvh, sweep, embree), "grid" (``traversal.grid.GridTracer``)
+    or "kdtree" (``traversal.kdtree.KdTreeTracer``); the last two with traversal "numba" and
+    the default builder only. Every argument is checked before any build."""
+    if builder is None:
+        builder = "embree" if traversal == "embree" else "hwbvh"
+    if traversal is None:
+        traversal = "embree" if builder == "embree" else "numba"
     if accel not in ACCELS:
         raise ParameterError("accel", f"unknown acceleration structure {accel!r} "
                                       f"(choose from {', '.join(ACCELS)})")

@@ -917,3 +917,20 @@ def test_shading_puts_each_hit_point_on_its_triangles_plane():
     darkened = late.sum(-1) < 0.5 * right.sum(-1)
     assert (darkened & lit).sum() < 0.01 * lit.sum()
     assert np.median(np.abs(late - right).sum(-1)[lit] / right.sum(-1)[lit]) < 0.01
+
+
+def test_make_tracer_pairs_embree_with_embree():
+    """Embree's tree goes with Embree's traversal: either one named makes the other; the
+    defaults are the hardware's tree on our units; a mixed pair is refused by name."""
+    from hwbvh.errors import ParameterError
+    from traversal.embree_ref import EmbreeTracer
+
+    sc = compile_scene(load_scene("cornell", width=8, height=6, spp=1))
+    assert isinstance(make_tracer(sc, builder="embree")[0], EmbreeTracer)
+    assert isinstance(make_tracer(sc, traversal="embree")[0], EmbreeTracer)
+    assert make_tracer(sc)[2]["builder"] == "hwbvh"
+    assert make_tracer(sc)[0].name == "numba"
+    for builder, traversal in (("embree", "numba"), ("sweep", "embree")):
+        with pytest.raises(ParameterError) as e:
+            make_tracer(sc, builder=builder, traversal=traversal)
+        assert e.value.parameter in ("builder", "traversal")
