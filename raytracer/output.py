@@ -62,9 +62,14 @@ def exr_writer(path, result, metadata=None, layers=True):
     names = ["R", "G", "B"]
     if layers:
         normal = _check_image("result.normal", result.normal, (H, W, 3))
+        prim = _check_image("result.prim", result.prim, (H, W))
+        # ids go in float32, exact up to 2^24 (the most triangles a tree holds)
+        if prim.dtype.kind not in "iu" or prim.min() < -1 or prim.max() >= 1 << 24:
+            raise ParameterError("result.prim", f"expected triangle ids, integers from -1 (no "
+                                                f"hit) below 2^24, got {prim.dtype} from "
+                                                f"{prim.min()} to {prim.max()}")
         chans += [_check_image("result.depth", result.depth, (H, W)), normal[..., 0],
-                  normal[..., 1], normal[..., 2],
-                  _check_image("result.prim", result.prim, (H, W)).astype(np.float32)]
+                  normal[..., 1], normal[..., 2], prim.astype(np.float32)]
         names += ["Z", "N.X", "N.Y", "N.Z", "prim.id"]
     pixels = np.ascontiguousarray(np.stack(chans, axis=-1), dtype=np.float32)
 

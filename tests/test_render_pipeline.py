@@ -474,6 +474,9 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
         write_exr(tmp_path / "four.exr", four)
     with pytest.raises(ParameterError, match="result.depth"):
         write_exr(tmp_path / "depth.exr", RenderResult(res.image, res.depth[:1], res.normal, res.prim))
+    for prim in (np.full((h, w), 0.5), np.full((h, w), -2), np.full((h, w), 1 << 24)):
+        with pytest.raises(ParameterError, match="result.prim: expected triangle ids"):
+            write_exr(tmp_path / "prim.exr", RenderResult(res.image, res.depth, res.normal, prim))
     with pytest.raises(ParameterError, match="expected a file name with the extension .png"):
         write_png(tmp_path / "a.exr", res.image)
     write_exr(tmp_path / "ok.exr", res, {"rays": 2 ** 40, "flag": True, "t": 0.25, "n": 7,
