@@ -7,5 +7,6 @@ from .errors import InputError
 from .format import NODE_DTYPE, check_nodes, sah_cost, tree_stats, validate
 from .primitives import as_triangles, load_triangles, primitive_boxes
 
-__all__ = ["Bvh", "build", "load", "save", "warm_up", "InputError", "NODE_DTYPE", "check_nodes", "sah_cost",
-           "tree_stats", "validate", "as_triangles", "load_triangles", "primitive_boxes"]
+__all__ = ["Bvh", "build", "load", "save", "warm_up", "InputError", "NODE_DTYPE", "check_nodes",
+           "sah_cost", "tree_stats", "validate", "as_triangles", "load_triangles",
+           "primitive_boxes"]

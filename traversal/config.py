@@ -222,3 +222,12 @@ F32_UNIT_MIN_EDGES = 2.0**-100
 
 # A pinhole camera's vertical field of view, in degrees: it sees less than a half-space
 FOV_RANGE = (1e-3, 179.0)
+
+# verify_rays' check that an Embree scene holds the triangles it checks: rays toward the
+# centres of SCENE_PROBES of the largest triangles (the least moved by float32 rounding),
+# from PROBE_OFFSET of their size off their planes, and at least PROBE_STEPS float32 steps at
+# their coordinates (so that the origin stays on the front side); at least half must reach
+# their triangle. Another mesh, or the same one moved by a fraction of a triangle, reaches none.
+SCENE_PROBES = 16
+PROBE_OFFSET = 1e-3
+PROBE_STEPS = 8

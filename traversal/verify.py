@@ -25,8 +25,8 @@ from hwbvh.errors import ParameterError
 from hwbvh.parallel import run_ranges
 
 from .api import ACCELS, _interval, ray_arrays, real_array
-from .config import (BARY_ERR_K, BARY_TOL, BARY_TOL_MAX, BEHIND_TOL_REL, T_ERR_K,
-                     T_TOL_MAX_REL, T_TOL_REL)
+from .config import (BARY_ERR_K, BARY_TOL, BARY_TOL_MAX, BEHIND_TOL_REL, PROBE_OFFSET,
+                     PROBE_STEPS, SCENE_PROBES, T_ERR_K, T_TOL_MAX_REL, T_TOL_REL)
 
 BEHIND = BEHIND_TOL_REL / T_TOL_REL    # the slack before t_min, as a share of the t tolerance
 
@@ -434,15 +434,6 @@ def _check_embree_scene(scene):
                                       f"embree_scene), got {type(scene).__name__}")
 
 
-# Probes of ``_check_scene_holds``: rays toward the centres of this many of the largest
-# triangles (the least moved by float32 rounding), from this fraction of their size off their
-# planes (at least a few float32 steps at their coordinates); at least half must reach their
-# triangle.
-SCENE_PROBES = 16
-PROBE_OFFSET = 1e-3
-PROBE_STEPS = 8
-
-
 def _check_scene_holds(scene, tris):
     """Refuse (ParameterError naming ``scene``) an Embree scene that does not hold ``tris``: rays
     from just off the centres of a few of them, straight at them, must hit them (or a triangle
@@ -464,11 +455,10 @@ def _check_scene_holds(scene, tris):
     off = np.maximum(PROBE_OFFSET * np.sqrt(size[pick]), PROBE_STEPS * step)[:, None]
     _, prim, _, _, _ = embree_intersect(scene, (centre + off * unit).astype(np.float32),
                                         (-unit).astype(np.float32))
-    hit = prim >= 0
+    # reached: its own triangle, or one of the same corners (a mesh may hold a triangle twice)
+    ok = (prim >= 0) & (prim < len(t64))
     same = np.zeros(len(pick), bool)
-    same[hit] = (prim[hit] == pick[hit]) | np.all(
-        t64[np.minimum(prim[hit], len(t64) - 1)] == t64[pick[hit]], axis=(1, 2)) & \
-        (prim[hit] < len(t64))
+    same[ok] = (prim[ok] == pick[ok]) | np.all(t64[prim[ok]] == t64[pick[ok]], axis=(1, 2))
     if 2 * same.sum() < len(pick):
         raise ParameterError("scene", f"does not hold the triangles tris: of {len(pick)} rays "
                                       f"aimed at their centres, Embree's scene brought "
