@@ -6,5 +6,5 @@ from .loader import (CompiledScene, compile_scene, is_scene, load_scene, load_sc
                      mesh_scene, save_scene, transform_scene, with_frame)
 
 __all__ = ["ANIMATIONS", "Animation", "load_animation", "BUILTIN", "CompiledScene", "compile_scene",
-           "is_scene", "load_scene", "load_scene_geometry", "mesh_scene", "save_scene", "transform_scene",
-           "with_frame"]
+           "is_scene", "load_scene", "load_scene_geometry", "mesh_scene", "save_scene",
+           "transform_scene", "with_frame"]
