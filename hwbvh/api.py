@@ -215,11 +215,17 @@ TREE_EXTENSIONS = (".nodes", ".indices", ".json")      # SPEC 4, in the order th
 def tree_paths(prefix):
     """The files a tree saved under ``prefix`` is: PREFIX.nodes, PREFIX.indices, PREFIX.json. A
     prefix given as one of them (``tree.json``) names the same three, as ``load`` reads it."""
+    prefix = tree_prefix(prefix)
+    return [prefix + ext for ext in TREE_EXTENSIONS]
+
+
+def tree_prefix(prefix):
+    """The prefix of the tree ``prefix`` names: itself, or without the extension when it is one
+    of the tree's files (``tree.json`` names the tree ``tree``), for ``save`` and ``load``
+    alike."""
     prefix = os.fspath(prefix)
     stem, ext = os.path.splitext(prefix)
-    if ext in TREE_EXTENSIONS and os.path.basename(stem):
-        prefix = stem
-    return [prefix + ext for ext in TREE_EXTENSIONS]
+    return stem if ext in TREE_EXTENSIONS and os.path.basename(stem) else prefix
 
 
 def tree_files(bvh, prefix):
@@ -269,13 +275,8 @@ def _described(a):
 def load(prefix, triangles=None):
     """Read PREFIX.nodes / .indices / .json and validate every invariant. ``triangles``
     (optional (N, 3, 3)) also checks that leaf boxes contain their primitives. A prefix given
-    as one of the three files (``x.nodes``) names its tree, unless a tree is saved under that
-    name itself."""
-    prefix = _path_of(prefix, "prefix")
-    stem, ext = os.path.splitext(prefix)
-    if ext in TREE_EXTENSIONS and not os.path.exists(prefix + ".json") and \
-            os.path.exists(stem + ".json"):
-        prefix = stem
+    as one of the three files (``x.nodes``) names its tree (``tree_prefix``), as in ``save``."""
+    prefix = tree_prefix(_path_of(prefix, "prefix"))
     try:
         with open(prefix + ".json", encoding="utf-8") as f:
             meta = json.load(f)

@@ -458,9 +458,9 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     rows = {k: v for k, v in rows.items() if k < start}
     if fresh and out_dir is not None:
         _discard_run(out_dir)
+    note_first_compile()                        # before the progress bar takes the line
     if on_start is not None:
         on_start(start)
-    note_first_compile()
     startup_s = warm_up(strategy, accel)
     if 0 < start < frames:
         last = max(k for k, r in rows.items() if r["rebuilt"])

@@ -1246,7 +1246,8 @@ def make_parser():
                    help=f"nodes per block of the upper builder's pool, placement only; hwbvh "
                         f"and sweep (default: {config.DEFAULT_BLOCK_NODES})")
     b.add_argument("--out", metavar="PREFIX", type=_path,
-                   help="write PREFIX.nodes, PREFIX.indices and PREFIX.json (default: no files)")
+                   help="write PREFIX.nodes, PREFIX.indices and PREFIX.json; a PREFIX ending in "
+                        "one of them names the same three (default: no files)")
     b.add_argument("--dump-aabbs", metavar="F", type=_path,
                    help="write the 27-byte primitive records as the hardware reads them")
     b.add_argument("--dump-handoff", metavar="F", type=_path,

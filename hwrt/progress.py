@@ -27,10 +27,10 @@ def progress_over(items, desc, unit):
 def note_first_compile():
     """Where progress bars show, one line on stderr before a run that compiles the kernels
     into Numba's cache (the first on an install, or after its sources change): that run is
-    otherwise silent for the 15-30 s the compiler takes."""
+    otherwise silent while the compiler works (the README gives how long)."""
     if _hidden():
         return
     from raytracer.render import traversal_cached
     if not traversal_cached():
-        print("hwrt: compiling the kernels into Numba's cache (once; 15-30 s)", file=sys.stderr,
-              flush=True)
+        print("hwrt: compiling the kernels into Numba's cache; later runs load them from it",
+              file=sys.stderr, flush=True)

@@ -187,8 +187,8 @@ def make_tracer(scene, builder=None, traversal=None, leaf_size=DEFAULT_LEAF_SIZE
     Embree's traversal only, so either one given as "embree" makes the other "embree" too.
     ``accel``: "bvh" (builders hwbvh, sweep, embree), "grid" (``traversal.grid.GridTracer``)
     or "kdtree" (``traversal.kdtree.KdTreeTracer``); the last two with traversal "numba" and
-    the default builder only. Every argument is checked before any build. A BVH's
-    ``build_info`` has its nodes and SAH cost, and, for the hardware's tree at the default
+    the default builder only. Every argument is checked before any build. The ``build_info``
+    of our builders' BVH has its nodes and SAH cost, and, for the hardware's tree at the default
     leaf size and bins (those of HWBVH-C and HWBVH-HP), ``simulated_build_seconds`` of both
     presets (``hwbvh.cycle_model.simulate`` takes other configurations)."""
     if builder is None:

@@ -251,8 +251,8 @@ def _load_scene_file(spec):
         raise InputError(spec, "a scene file must hold an object at the top level")
     _refuse_internal_keys(spec, d)
     d["_source"] = spec
-    # where its relative mesh names resolve, fixed now: a later change of the working
-    # directory must not make them name other files
+    # where its relative mesh names resolve, fixed as the file is read: a later change of the
+    # working directory must not make them name other files
     d["_dir"] = os.path.dirname(os.path.abspath(spec))
     if "name" in d:
         check_name(spec, d["name"])
@@ -492,14 +492,15 @@ def save_scene(d, path):
     if not isinstance(d, dict):
         raise ParameterError("d", f"expected a scene dict, got {type(d).__name__}")
     shapes = d.get("shapes")
-    if isinstance(shapes, list) and any(isinstance(sh, dict) and "_world" in sh
-                                        for sh in shapes):
+    if isinstance(shapes, (list, tuple)) and any(isinstance(sh, dict) and "_world" in sh
+                                                 for sh in shapes):
         raise ParameterError("d", "a scene from transform_scene has no file form (its shapes "
                                   "carry the transform): save the scene before transforming it")
     compile_scene(d)
     source = d.get("_source", "<scene>")
     base = scene_directory(d, source)
     out = {k: v for k, v in d.items() if not str(k).startswith("_")}
+    out["name"] = d.get("name", "scene")        # a file without one takes the file's name
     out["shapes"] = []
     meshes = []
     for sh in shapes:
@@ -579,6 +580,15 @@ def mesh_scene(path, name=None):
     }
 
 
+def _three_numbers(v):
+    """Whether ``v`` is 3 finite numbers (no bools), as a scene's vectors must be."""
+    try:
+        a = np.asarray(v, np.float64)
+    except (TypeError, ValueError, OverflowError):
+        return False
+    return a.shape == (3,) and bool(np.isfinite(a).all()) and not _holds_a_non_number(v)
+
+
 def transform_scene(d, scale=1.0, translate=(0.0, 0.0, 0.0)):
     """The same scene scaled by ``scale`` (> 0) and then translated as a whole (point
     intensities scale by s^2, so the irradiance, and so the image, stays the same). Applied to
@@ -607,9 +617,10 @@ def transform_scene(d, scale=1.0, translate=(0.0, 0.0, 0.0)):
     for L in d.get("lights", []):
         # (a light that is not a dict, or not a point light as written, is left for
         # compile_scene to report)
-        if isinstance(L, dict) and L.get("type") == "point" and "position" in L:
-            L["position"] = P(L["position"])
-            if "intensity" in L:
+        if isinstance(L, dict) and L.get("type") == "point":
+            if _three_numbers(L.get("position")):
+                L["position"] = P(L["position"])
+            if _three_numbers(L.get("intensity")):
                 L["intensity"] = (np.asarray(L["intensity"], float) * s * s).tolist()
     for sh in d["shapes"]:
         if not isinstance(sh, dict):

@@ -383,10 +383,12 @@ def test_transforms_of_a_scene_compose():
     assert not np.allclose(once.triangles, compile_scene(d).triangles)
     with pytest.raises(ParameterError, match="above 0"):
         transform_scene(d, -1.0)
-    # a light without a type is compile_scene's to report, not a KeyError here
-    odd = transform_scene(dict(d, lights=[{"position": [0, 0, 0]}]), 2.0)
-    with pytest.raises(InputError, match="lights"):
-        compile_scene(odd)
+    # a malformed light is compile_scene's to report, not a KeyError or ValueError here
+    for light in ({"position": [0, 0, 0]},
+                  {"type": "point", "position": "here", "intensity": "bright"},
+                  {"type": "point", "position": [0, 1, 0], "intensity": [True, 1, 1]}):
+        with pytest.raises(InputError, match="lights"):
+            compile_scene(transform_scene(dict(d, lights=[light]), 2.0))
 
 
 def test_mesh_scene_name_checked_at_the_call(tmp_path):
@@ -899,6 +901,12 @@ def test_a_scene_dict_saved_reads_back_as_the_same_scene(tmp_path, monkeypatch):
         assert (a.width, a.height, a.spp, a.camera["eye"].tolist()) == \
             (b.width, b.height, b.spp, b.camera["eye"].tolist())
         assert not any(k.startswith("_") for k in json.loads(path.read_text()))
+    unnamed = {k: v for k, v in load_scene("cornell").items() if k != "name"}
+    save_scene(unnamed, str(tmp_path / "out" / "c.json"))
+    assert load_scene(str(tmp_path / "out" / "c.json"))["name"] == "scene"   # as compiled
+    shaped = transform_scene(d, 2.0)                  # then its shapes given as a tuple
+    with pytest.raises(ParameterError, match="transform_scene"):
+        save_scene(dict(shaped, shapes=tuple(shaped["shapes"])), str(tmp_path / "t.json"))
     d = load_scene("cornell")
     for bad, parameter, words in ((transform_scene(d, 2.0), "d", "transform_scene"),
                                   (d, "path", ".json")):

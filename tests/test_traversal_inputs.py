@@ -740,3 +740,21 @@ def test_verifying_a_zero_direction_ray_warns_of_nothing():
                                                                     np.arange(3).reshape(1, 3)),
                              tri, O, D)[0]
     assert counts == {"rays": 2, "agree": 2, "tie": 0, "mismatch": 0, "hit": 1}
+
+
+def test_a_mesh_that_holds_its_faces_both_ways_round_passes_the_scene_probe():
+    """A double-sided mesh (every face twice, the second reversed) is the scene it says: the
+    probe takes Embree's hit on either copy."""
+    rng = np.random.default_rng(4)      # a jittered sheet: Embree takes either copy
+    g = np.stack(np.meshgrid(np.arange(6.0), np.arange(6.0)), -1).reshape(-1, 2)
+    V = np.c_[g[:, 0] + rng.uniform(-.2, .2, len(g)), rng.uniform(-.05, .05, len(g)),
+              g[:, 1] + rng.uniform(-.2, .2, len(g))].astype(np.float32)
+    F = np.array([[i * 6 + j, i * 6 + j + 1, i * 6 + j + 6] for i in range(5) for j in range(5)] +
+                 [[i * 6 + j + 1, i * 6 + j + 7, i * 6 + j + 6] for i in range(5) for j in range(5)])
+    F = np.r_[F, F[:, ::-1]]
+    tris = V[F]
+    O = np.c_[np.linspace(0.3, 4.7, 32), np.full(32, 2.0), np.linspace(4.6, 0.2, 32)]
+    D = np.tile([0.0, -1.0, 0.0], (32, 1))
+    counts = verify_rays(Tracer(hwbvh.build(tris)), embree_scene(V, F), tris,
+                         O.astype(np.float32), D.astype(np.float32))[0]
+    assert counts["rays"] == 32 and counts["mismatch"] == 0

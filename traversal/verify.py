@@ -455,10 +455,12 @@ def _check_scene_holds(scene, tris):
     off = np.maximum(PROBE_OFFSET * np.sqrt(size[pick]), PROBE_STEPS * step)[:, None]
     _, prim, _, _, _ = embree_intersect(scene, (centre + off * unit).astype(np.float32),
                                         (-unit).astype(np.float32))
-    # reached: its own triangle, or one of the same corners (a mesh may hold a triangle twice)
+    # reached: its own triangle, or one of the same corners in any order (a mesh may hold a
+    # face twice, or both ways round to be seen from both sides)
     ok = (prim >= 0) & (prim < len(t64))
     same = np.zeros(len(pick), bool)
-    same[ok] = (prim[ok] == pick[ok]) | np.all(t64[prim[ok]] == t64[pick[ok]], axis=(1, 2))
+    corners = lambda rows: np.sort(t64[rows].view(np.dtype((np.void, 24))).reshape(-1, 3), axis=1)
+    same[ok] = (prim[ok] == pick[ok]) | np.all(corners(prim[ok]) == corners(pick[ok]), axis=1)
     if 2 * same.sum() < len(pick):
         raise ParameterError("scene", f"does not hold the triangles tris: of {len(pick)} rays "
                                       f"aimed at their centres, Embree's scene brought "
@@ -472,13 +474,19 @@ def verify_rays(tracer, scene, tris, O, D, tmax=None, anyhit=False):
     prim, u, v; no normals), embree (t, prim)). ``anyhit`` checks ``occluded`` answers
     instead (shadow rays): returns (counts, labels, ours blocked, embree blocked), (n,) bool
     each. ``counts["hit"]``: the rays our tracer found a hit on (or blocked), so that "all
-    agree" is not read as "all hit"."""
-    from .api import Hits
+    agree" is not read as "all hit". ``scene`` must hold ``tris``: one that does not is
+    refused (``_check_scene_holds``), not reported ray by ray."""
     from .tracers import check_tracer
 
     check_tracer(tracer, triangles=_checked_triangles(tris))
     _check_embree_scene(scene)
     _check_scene_holds(scene, tris)
+    return _traced_and_classified(tracer, scene, tris, O, D, tmax, anyhit)
+
+
+def _traced_and_classified(tracer, scene, tris, O, D, tmax, anyhit):
+    """``verify_rays`` once its tracer and Embree scene are known to hold ``tris``."""
+    from .api import Hits
     from .embree_ref import embree_intersect, embree_occluded
 
     # checked here without a copy; each tracer converts them itself
@@ -606,6 +614,7 @@ def verify_mesh(tris, vertices, faces, kind="random", n=100_000, bvh=None, seed=
         O, D = raysets.bounces(tracer, tris, n, seed, dtype=np.float32)
     else:
         O, D, tmax = raysets.shadow(tracer, tris, n, dtype=np.float32)
-    counts, labels, ours, emb = verify_rays(tracer, scene, tris, O, D, tmax,
-                                            anyhit=query_of(kind) == "occluded")
+    # (Embree's scene is built here from the same mesh: no probe of it is needed)
+    counts, labels, ours, emb = _traced_and_classified(tracer, scene, tris, O, D, tmax,
+                                                       query_of(kind) == "occluded")
     return counts, labels, (O, D, tmax), ours, emb
