@@ -596,8 +596,8 @@ def cmd_render(args):
     import time
     from hwbvh.errors import InputError, ParameterError
     from hwbvh.files import OutputPathError, check_outputs
-    from raytracer.render import (check_float32_reach, make_tracer, render,
-                                   simulated_ready_seconds, verified_render, warm_up)
+    from raytracer.render import (builder_and_traversal, check_float32_reach, make_tracer,
+                                   render, simulated_ready_seconds, verified_render, warm_up)
     from raytracer.output import exr_writer, png_writer
     from scenes import compile_scene, load_scene, with_frame
     from scenes.loader import scene_inputs
@@ -616,9 +616,8 @@ def cmd_render(args):
     if args.traversal == "embree" and args.builder not in (None, "embree"):
         raise InputError("--traversal embree", f"needs --builder embree, not {args.builder} "
                                                f"(Embree traverses only its own tree)")
-    embree = "embree" in (args.builder, args.traversal)
-    args.builder = args.builder or ("embree" if embree else "hwbvh")
-    args.traversal = args.traversal or ("embree" if embree else "numba")
+    args.builder, args.traversal = builder_and_traversal(args.builder, args.traversal)
+    embree = args.builder == "embree"
     if args.verify and embree:
         raise InputError("--verify", "checks our traversal against Embree; it takes no --builder "
                                      "embree or --traversal embree")

@@ -179,6 +179,15 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False, precision=
 TRAVERSALS = ("numba", "embree")        # who traverses a BVH (traversal=): our units or Embree
 
 
+def builder_and_traversal(builder=None, traversal=None):
+    """The (builder, traversal) pair with what was not given (None) filled in: Embree's tree
+    goes with Embree's traversal only, so "embree" on one side brings it on the other; else
+    the hardware's tree on our units."""
+    embree = "embree" in (builder, traversal)
+    return (builder or ("embree" if embree else "hwbvh"),
+            traversal or ("embree" if embree else "numba"))
+
+
 def make_tracer(scene, builder=None, traversal=None, leaf_size=DEFAULT_LEAF_SIZE,
                 bins=DEFAULT_BINS,
                 precision="float32", watertight=False, accel="bvh"):
@@ -191,10 +200,7 @@ def make_tracer(scene, builder=None, traversal=None, leaf_size=DEFAULT_LEAF_SIZE
     of our builders' BVH has its nodes and SAH cost, and, for the hardware's tree at the default
     leaf size and bins (those of HWBVH-C and HWBVH-HP), ``simulated_build_seconds`` of both
     presets (``hwbvh.cycle_model.simulate`` takes other configurations)."""
-    if builder is None:
-        builder = "embree" if traversal == "embree" else "hwbvh"
-    if traversal is None:
-        traversal = "embree" if builder == "embree" else "numba"
+    builder, traversal = builder_and_traversal(builder, traversal)
     if accel not in ACCELS:
         raise ParameterError("accel", f"unknown acceleration structure {accel!r} "
                                       f"(choose from {', '.join(ACCELS)})")
