@@ -136,7 +136,7 @@ def _compile_in_child(parent):
 CHILD_COMPILE_TIMEOUT = 600     # seconds; a child that takes longer is stuck (the parent compiles)
 
 
-def warm_up(builder="hwbvh", traversal="numba", parallel_build=False, precision="float32"):
+def warm_up(builder=None, traversal=None, parallel_build=False, precision="float32"):
     """Load (or, the first time ever, compile) the Numba kernels a render uses, on a tiny
     input, so that build and render timings measure work, not JIT start-up. Returns seconds.
     ``parallel_build`` also loads the data-parallel builder kernels that meshes above
@@ -146,6 +146,7 @@ def warm_up(builder="hwbvh", traversal="numba", parallel_build=False, precision=
     (``_compile_traversal_beside``), and the shading stages compile on a render through
     Embree, whose hits have the same types as ours."""
     t = time.perf_counter()
+    builder, traversal = builder_and_traversal(builder, traversal)      # as make_tracer pairs them
     beside = _compile_traversal_beside() if builder != "embree" and traversal == "numba" \
         else None
     try:
