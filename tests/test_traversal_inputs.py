@@ -758,3 +758,18 @@ def test_a_mesh_that_holds_its_faces_both_ways_round_passes_the_scene_probe():
     counts = verify_rays(Tracer(hwbvh.build(tris)), embree_scene(V, F), tris,
                          O.astype(np.float32), D.astype(np.float32))[0]
     assert counts["rays"] == 32 and counts["mismatch"] == 0
+
+
+def test_a_loaded_tree_without_its_triangles_says_where_they_are(tmp_path):
+    """A tree read by hwbvh.load carries no triangles; the error names the mesh it was built
+    from, and the triangles read from it make the tracer."""
+    mesh = tmp_path / "quad.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n")
+    hwbvh.save(hwbvh.build(str(mesh)), tmp_path / "t")
+    loaded = hwbvh.load(tmp_path / "t")
+    with pytest.raises(InputError, match=f"built from {mesh}") as e:
+        Tracer(loaded)
+    assert "\n" not in str(e.value)
+    tracer = Tracer(loaded, triangles=hwbvh.load_triangles(loaded.meta["source"]))
+    hit = tracer.intersect(np.array([[0.5, 0.25, 1.0]]), np.array([[0.0, 0.0, -1.0]]))
+    assert hit.prim[0] >= 0 and hit.t[0] == 1.0

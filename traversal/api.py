@@ -340,7 +340,12 @@ class Tracer(PacketCount):
         source = "bvh.triangles" if triangles is None else "triangles"
         tris = getattr(bvh, "triangles", None) if triangles is None else triangles
         if tris is None:
-            raise InputError("bvh.triangles", "the BVH has no triangles attached; pass triangles=")
+            meta = getattr(bvh, "meta", None)
+            mesh = meta.get("source") if isinstance(meta, dict) else None
+            hint = f" (built from {mesh}: triangles=hwbvh.load_triangles(that file))" \
+                if isinstance(mesh, str) and mesh else ""
+            raise InputError("bvh.triangles", f"the BVH has no triangles attached (a tree read "
+                                              f"by hwbvh.load); pass triangles={hint}")
         tris = _checked_triangles(tris, source)
         # the triangle rows in index-list order, so that a leaf's rows lie side by side;
         # row_of[j]: primitive j's row (for the normals of hits)
