@@ -10,6 +10,10 @@ import numpy as np
 from hwbvh.errors import ParameterError, checked_flag
 from hwbvh.files import write_files
 
+# The channels of an EXR that write_exr writes with its layers, in order (the image's three
+# first)
+LAYER_CHANNELS = ("R", "G", "B", "Z", "N.X", "N.Y", "N.Z", "prim.id")
+
 
 def write_exr(path, result, metadata=None, layers=True):
     """Float RGB, plus depth (Z), shading normal (N.X/N.Y/N.Z) and primitive id (prim.id, exact
@@ -59,7 +63,7 @@ def exr_writer(path, result, metadata=None, layers=True):
     image = _check_image("result.image", result.image, (None, None, 3))
     H, W, _ = image.shape
     chans = [image[..., 0], image[..., 1], image[..., 2]]
-    names = ["R", "G", "B"]
+    names = list(LAYER_CHANNELS[:3])
     if layers:
         normal = _check_image("result.normal", result.normal, (H, W, 3))
         prim = _check_image("result.prim", result.prim, (H, W))
@@ -70,7 +74,7 @@ def exr_writer(path, result, metadata=None, layers=True):
                                                 f"{prim.min()} to {prim.max()}")
         chans += [_check_image("result.depth", result.depth, (H, W)), normal[..., 0],
                   normal[..., 1], normal[..., 2], prim.astype(np.float32)]
-        names += ["Z", "N.X", "N.Y", "N.Z", "prim.id"]
+        names = list(LAYER_CHANNELS)
     pixels = np.ascontiguousarray(np.stack(chans, axis=-1), dtype=np.float32)
 
     def write(tmp):
@@ -213,6 +217,21 @@ def png_writer(path, image):
     def write(tmp):
         _write_image(tmp, path, oiio.ImageSpec(W, H, 3, "uint8"), px)
     return write
+
+
+def read_render(path):
+    """(``raytracer.render.RenderResult``, metadata) of an EXR that ``write_exr`` wrote with its
+    layers: the image, depth, normal and primitive-id layers as a render returns them (``stats``
+    empty; the header's hwrt:* values are the metadata)."""
+    from hwbvh.errors import InputError
+    from .render import RenderResult
+
+    px, chans, meta = read_exr(path)
+    if tuple(chans) != LAYER_CHANNELS:
+        raise InputError(os.fspath(path), f"holds the channels {', '.join(chans)}, not the "
+                                          f"layers write_exr writes ({', '.join(LAYER_CHANNELS)})")
+    return RenderResult(image=px[..., :3].copy(), depth=px[..., 3].copy(),
+                        normal=px[..., 4:7].copy(), prim=px[..., 7].astype(np.int32)), meta
 
 
 def read_exr(path):

@@ -10,7 +10,7 @@ import pytest
 
 from hwbvh.errors import InputError, ParameterError
 from traversal.camera import look_at_basis, primary_rays
-from raytracer.output import read_exr, write_exr
+from raytracer.output import read_exr, read_render, write_exr
 from raytracer.render import fresnel_dielectric, make_tracer, render
 from scenes import compile_scene, load_scene, transform_scene
 
@@ -332,10 +332,19 @@ def test_exr_layers_metadata_and_atomic_write(tmp_path):
     write_exr(out, res, {"scene": "cornell", "build_seconds": 0.5})
     px, names, meta = read_exr(out)
     assert names == ["R", "G", "B", "Z", "N.X", "N.Y", "N.Z", "prim.id"]
+    # read back as a render's result, every layer bit for bit
+    back, meta2 = read_render(out)
+    assert meta2 == meta and back.prim.dtype == np.int32
+    for layer in ("image", "depth", "normal", "prim"):
+        assert np.array_equal(getattr(back, layer), getattr(res, layer)), layer
+    plain = tmp_path / "other" / "plain.exr"
+    write_exr(plain, res, layers=False)
+    with pytest.raises(InputError, match="holds the channels R, G, B, not the layers"):
+        read_render(plain)
     assert px.shape == (10, 20, 8)
     np.testing.assert_array_equal(px[..., :3], res.image)
     assert meta["scene"] == "cornell" and float(meta["build_seconds"]) == 0.5
-    assert sorted(os.listdir(tmp_path)) == ["x.exr"]
+    assert sorted(os.listdir(tmp_path)) == ["other", "x.exr"]
     # numbers the header's float32 would turn into infinity or zero go in as text
     write_exr(out, res, {"big": 1e300, "small": 1e-300, "zero": 0.0, "inf": float("inf"),
                          "third": 1 / 3, "wide": 2**40, "flag": True})
