@@ -50,8 +50,8 @@ from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, 
 from .builtin import BUILTIN
 from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, SCENE_KEYS, Ctx, check_scale,
                      compile_scene, finite, flat_normals, is_pattern, load_scene, mesh_scene,
-                     named_after_file, scene_directory, smooth_normals, spec_path, vector_ok,
-                     with_frame, written)
+                     named_after_file, scene_directory, scene_file, smooth_normals, spec_path,
+                     vector_ok, with_frame, written)
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
@@ -545,7 +545,8 @@ def from_scene_dict(d, source=None, fps=None):
         _fail(source, "shapes", "expected a non-empty list")
     static = {k: v for k, v in d.items() if k not in ("animation", "shapes")}
     scene_dir = scene_directory(d, source)
-    parts, inputs = [], [source] if os.path.exists(str(source)) else []
+    own = scene_file(d, source)
+    parts, inputs = [], [own] if os.path.exists(str(own)) else []
     base = None
     max_frames = None
     shortest = None                 # the key of the shortest frames sequence

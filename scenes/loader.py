@@ -509,10 +509,21 @@ def save_scene(d, path):
             sh["filename"] = os.path.join(base, sh["filename"])   # an absolute name stays
             meshes.append(sh["filename"])
         out["shapes"].append(sh)
-    inputs = meshes + ([source] if os.path.isfile(str(source)) else [])
+    own = scene_file(d, source)
+    inputs = meshes + ([own] if os.path.isfile(str(own)) else [])
     check_outputs([path], inputs=inputs)
     write_files([(path, json_text(out, indent=1) + "\n")])
     return path
+
+
+def scene_file(d, source):
+    """The scene file of dict ``d`` read from ``source``, as a path that names it from any
+    working directory (``_dir``); else ``source`` itself (a built-in, a mesh, a dict made in
+    Python)."""
+    if isinstance(d.get("_dir"), str) and isinstance(source, str) and \
+            source == d.get("_source"):
+        return os.path.join(d["_dir"], os.path.basename(source))
+    return source
 
 
 def scene_directory(d, source):

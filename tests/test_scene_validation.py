@@ -915,6 +915,11 @@ def test_a_scene_dict_saved_reads_back_as_the_same_scene(tmp_path, monkeypatch):
         assert e.value.parameter == parameter
     with pytest.raises(InputError):
         save_scene(load_scene("sc/s.json"), "sc/s.json")            # its own file
+    read_here = load_scene("sc/s.json")
+    monkeypatch.chdir(tmp_path / "out")                           # from anywhere
+    with pytest.raises(InputError, match="input"):
+        save_scene(read_here, str(tmp_path / "sc" / "s.json"))
+    monkeypatch.chdir(tmp_path)
     with pytest.raises(InputError):
         save_scene(dict(d, camera={}), str(tmp_path / "bad.json"))    # not a scene
     assert not (tmp_path / "bad.json").exists() and not (tmp_path / "x.json").exists()
