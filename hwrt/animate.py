@@ -893,5 +893,4 @@ def human_bench(r):
             for st, v in s["structures"].items():
                 lines.append(f"{s['animation']:<12}{st:<10}{v['build'] * 1e3:>10.2f}"
                              f"{v['render'] * 1e3:>10.2f}{v['time_to_image'] * 1e3:>9.2f}")
-    lines.append("wrote " + ", ".join(r["files"]))
     return "\n".join(lines)

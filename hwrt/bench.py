@@ -742,8 +742,6 @@ def _render_human(r):
             lines.append(f"  ({peer['changes']}; * Mitsuba's rays/s counts the camera + shadow rays "
                          f"ours traced for the same image: a lower bound; Mitsuba {ver['mitsuba']}, "
                          f"Dr.Jit {ver['drjit']}, LLVM {ver['llvm'] or '-'})")
-    if r.get("files"):
-        lines.append("wrote " + ", ".join(r["files"]))
     return "\n".join(lines)
 
 

@@ -798,9 +798,6 @@ BENCH_WRITES_OUT_DIR = ("tti", "accuracy")
 BENCH_REPORTS = ("build", "scale", "trace", "contention", "trees")  # --out-dir: OUT/<what>.md, .json   # checked here; bench render checks its own files
 # The benchmarks that write their own files (with --out-dir), the last set through ``commit``
 BENCH_COMMITS = ("render", "tti", "accuracy", "animation", "model")
-# The benchmarks whose human output ends with the files they wrote (the others get that line
-# from ``cmd_bench``)
-BENCH_HUMAN_NAMES_FILES = ("render", "tti", "accuracy", "animation")
 
 
 # The cell benchmarks' Dask cluster when no scheduler is given, and those that time their
@@ -959,9 +956,7 @@ def cmd_bench(args):
     result = run(args, commit=commit)
     if args.what in BENCH_REPORTS and args.out_dir:
         result["files"] = _write_report(args, result, human, commit)
-    if args.what not in BENCH_HUMAN_NAMES_FILES:
-        human = partial(_with_files_line, human)
-    _emit(args, result, human)
+    _emit(args, result, partial(_with_files_line, human))
 
 
 def _with_files_line(human, result):

@@ -521,7 +521,7 @@ def human_tti(result):
     s = result["setting"]
     return (_provenance_line(result["cells"]) +
             _tti_markdown(result["rows"], result["break_even"], s["width"], s["height"], s["spp"],
-                          s["max_depth"]) + "\nwrote " + ", ".join(result["files"]))
+                          s["max_depth"]))
 
 
 def _tti_markdown(rows, summary, W, H, spp, depth):
@@ -767,8 +767,7 @@ def bench_accuracy(args, *, use_dask=True, progress=True, commit=write_files):
 def human_accuracy(result):
     """A ``bench_accuracy`` result as the command line prints it: the table of its
     accuracy.md."""
-    return _provenance_line(result["cells"]) + _accuracy_markdown(result["rows"]) + "\nwrote " + \
-        ", ".join(result["files"])
+    return _provenance_line(result["cells"]) + _accuracy_markdown(result["rows"])
 
 
 def _accuracy_markdown(rows):
