@@ -170,7 +170,8 @@ def run_packet_mt(rows, O, D, tmin, tmax, eps2, one, edge, anyhit):
             r = _mt(F, k, flat[b + TRI_V0], flat[b + TRI_V0 + 1], flat[b + TRI_V0 + 2],
                     flat[b + TRI_E1], flat[b + TRI_E1 + 1], flat[b + TRI_E1 + 2],
                     flat[b + TRI_E2], flat[b + TRI_E2 + 1], flat[b + TRI_E2 + 2],
-                    eps2 * flat[b + TRI_NORMS], flat[b + TRI_SCALE], -edge, one + edge, one)
+                    eps2 * flat[b + TRI_NORMS], flat[b + TRI_SCALE], -edge, one + edge,
+                    F[BEST + k], one)
             direct_ok[i] = r[0]
             direct[i, 0] = r[1]
             direct[i, 1] = r[2]

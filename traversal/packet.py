@@ -101,19 +101,28 @@ def _box(f, b, kx, ky, kz, F, M, M64, widen):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale, lo, hi, one):
-    """Lane k against one triangle through the Moller-Trumbore unit's ``mt_datapath``.
-    Returns (valid, t, u, v)."""
+def _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale, lo, hi, tmax, one):
+    """Lane k against one triangle through the Moller-Trumbore unit's ``mt_datapath``, up to
+    ``tmax`` (the lane's F[BEST + k], read by the caller). Returns (valid, t, u, v)."""
     return mt_datapath(v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale,
                        F[OX + k], F[OY + k], F[OZ + k], F[DX + k], F[DY + k], F[DZ + k],
-                       F[DD + k], F[RS + k], lo, hi, F[TMIN + k], F[BEST + k], one)
+                       F[DD + k], F[RS + k], lo, hi, F[TMIN + k], tmax, one)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _triangle(tris, row, j, F, I, M, bit, eps2, one, edge, anyhit):
     """Triangle j (row ``row`` of ``tris``) against the live lanes with bit ``bit`` set in
     M[MASK]. Updates their closest hits; for any-hit queries a lane that hits retires
-    (M[ALIVE] = 0)."""
+    (M[ALIVE] = 0).
+
+    Every lane's row is written whole, the kept value included. Written as
+    ``F[BEST + k] = t if take else F[BEST + k]``, LLVM drops the store of an unchanged value
+    and vectorises what is left as masked stores (``vmaskmovps``), which AMD's Zen cores run as
+    long microcode sequences; so the old values are read first and kept through arithmetic it
+    cannot fold (``best - zero`` with a zero known only at run time; in any-hit queries
+    ``max(p, -1)``, as a live lane has no blocker yet, p = -1). The lane tests stay byte-wide:
+    ``(M[MASK + k] >> bit) & 1`` widened every lane to 64 bits. Together: coherent rays on the
+    bunny 1.6x as fast on an AMD EPYC (Zen 4), 33 to 54 Mrays/s."""
     b = TRI_WORDS * row
     v0x = tris[b + TRI_V0]; v0y = tris[b + TRI_V0 + 1]; v0z = tris[b + TRI_V0 + 2]
     e1x = tris[b + TRI_E1]; e1y = tris[b + TRI_E1 + 1]; e1z = tris[b + TRI_E1 + 2]
@@ -122,26 +131,32 @@ def _triangle(tris, row, j, F, I, M, bit, eps2, one, edge, anyhit):
     tscale = tris[b + TRI_SCALE]
     lo = -edge
     hi = one + edge
+    zero = one - one
+    sel = np.uint8(1 << bit)
     jj = np.int32(j)
     if anyhit:
         for k in range(P):
             ok, t, u, v = _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale,
-                              lo, hi, one)
+                              lo, hi, F[BEST + k], one)
             a = M[ALIVE + k]
-            take = ok & (((M[MASK + k] >> bit) & a & 1) != 0)
-            I[PRIM + k] = jj if take else I[PRIM + k]
+            p = I[PRIM + k]
+            take = ok & ((M[MASK + k] & sel) != 0) & (a != 0)
+            I[PRIM + k] = max(p, jj if take else np.int32(-1))
             M[ALIVE + k] = a & np.uint8(not take)
         return
     for k in range(P):
+        best = F[BEST + k]
         ok, t, u, v = _mt(F, k, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, band, tscale,
-                          lo, hi, one)
+                          lo, hi, best, one)
         p = I[PRIM + k]
-        take = ok & (((M[MASK + k] >> bit) & M[ALIVE + k] & 1) != 0) & \
-            ((t < F[BEST + k]) | (p < 0) | (jj < p))
-        F[BEST + k] = t if take else F[BEST + k]
+        bu = F[BU + k]
+        bv = F[BV + k]
+        take = ok & ((M[MASK + k] & sel) != 0) & (M[ALIVE + k] != 0) & \
+            ((t < best) | (p < 0) | (jj < p))
+        F[BEST + k] = t if take else best - zero
         I[PRIM + k] = jj if take else p
-        F[BU + k] = u if take else F[BU + k]
-        F[BV + k] = v if take else F[BV + k]
+        F[BU + k] = u if take else bu
+        F[BV + k] = v if take else bv
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
