@@ -183,6 +183,8 @@ def load_scene(spec, **overrides):
     if spec in BUILTIN:
         d = BUILTIN[spec](**_builtin_overrides(spec, overrides))
         d.setdefault("_source", spec)
+        if "width" in overrides or "height" in overrides:
+            _check_film_area(d["film"], "width" if "width" in overrides else "height")
         return d
     for key in overrides:
         if key not in FILE_OVERRIDES:
@@ -423,9 +425,22 @@ def with_frame(d, width=None, height=None, spp=None, max_depth=None):
     if max_depth is not None and "max_depth" in integ:
         _film_setting(ctx, integ, "integrator", "max_depth")
     d["film"] = dict(film, **{k: v for k, v in given.items() if v is not None})
+    if width is not None or height is not None:
+        _check_film_area(d["film"], "width" if width is not None else "height")
     if max_depth is not None:
         d["integrator"] = dict(integ, max_depth=max_depth)
     return d
+
+
+def _check_film_area(film, key):
+    """Refuse (ParameterError naming ``key``, the side just given) a film of more than
+    ``MAX_FILM_PIXELS`` whose sides are both in range; a side the scene gives wrong is left
+    for ``compile_scene``."""
+    w = film.get("width", FRAME_SETTINGS["width"][0])
+    h = film.get("height", FRAME_SETTINGS["height"][0])
+    ok = all(is_integer(v) and 1 <= v <= MAX_FILM_SIDE for v in (w, h))
+    if ok and w * h > MAX_FILM_PIXELS:
+        raise ParameterError(key, f"{w} x {h} is more than the {MAX_FILM_PIXELS} {FILM_TOO_LARGE}")
 
 
 def finite(v):

@@ -366,6 +366,24 @@ def test_frame_overrides_refused_at_the_call(tmp_path, spec, key, value):
     assert e.value.parameter == key
 
 
+def test_film_area_refused_at_the_call():
+    """Sides within range whose product passes the film's pixel limit are refused where
+    they are given, naming the side given, as compile_scene would refuse the film."""
+    from hwbvh.errors import ParameterError
+    from scenes import load_scene, with_frame
+    from scenes.loader import MAX_FILM_PIXELS, MAX_FILM_SIDE
+
+    with pytest.raises(ParameterError, match=str(MAX_FILM_PIXELS)) as e:
+        load_scene("cornell", width=MAX_FILM_SIDE, height=MAX_FILM_SIDE)
+    assert e.value.parameter == "width"
+    wide = with_frame(load_scene("cornell"), width=MAX_FILM_SIDE, height=1)
+    with pytest.raises(ParameterError) as e:
+        with_frame(wide, height=MAX_FILM_PIXELS // MAX_FILM_SIDE + 1)
+    assert e.value.parameter == "height"
+    assert with_frame(wide, height=MAX_FILM_PIXELS // MAX_FILM_SIDE)["film"]["height"] == \
+        MAX_FILM_PIXELS // MAX_FILM_SIDE
+
+
 def test_transforms_of_a_scene_compose():
     """Scaling by 2 and then by 3 (with translations) is one transform: the geometry moves
     with the camera and the lights, as it does under the single transform. A negative scale
