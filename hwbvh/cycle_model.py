@@ -413,22 +413,29 @@ def check_params(p):
 
 
 def params_for(preset="HWBVH-C", **overrides):
-    """A preset with some parameters replaced (None values are ignored), checked against the
-    hardware's ranges."""
+    """A preset (its name, or any HwParams) with some parameters replaced (None values are
+    ignored), checked against the hardware's ranges."""
     from dataclasses import fields, replace
 
-    if not isinstance(preset, str) or preset not in PRESETS:
-        raise ParameterError("preset", f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+    if isinstance(preset, HwParams):
+        base = preset
+    elif isinstance(preset, str) and preset in PRESETS:
+        base = PRESETS[preset]
+    else:
+        raise ParameterError("preset", f"expected a HwParams or a preset name ({', '.join(PRESETS)}), "
+                                       f"got {preset!r}")
     names = {f.name for f in fields(HwParams)}
     kw = {k: v for k, v in overrides.items() if v is not None}
     for k in kw:
         if k not in names:
             raise ParameterError(k, f"not a parameter of the hardware (choose from {', '.join(sorted(names))})")
-    return check_params(replace(PRESETS[preset], **kw))
+    return check_params(replace(base, **kw))
 
 
 def simulate_mesh(source, preset="HWBVH-C", **overrides):
-    """Build ``source`` (mesh path or (n,3,3) triangles) functionally, then simulate it."""
+    """Build ``source`` (mesh path or (n,3,3) triangles) functionally, then simulate it on
+    ``preset`` (a preset's name or a HwParams) with ``overrides`` (``params_for``). The result's
+    ``preset`` is the name, or "custom" for a HwParams."""
     import time
     from .api import _triangles
     from .builder import build_canonical
@@ -445,7 +452,7 @@ def simulate_mesh(source, preset="HWBVH-C", **overrides):
     nodes, _, _ = lay_out(tree, p.capacity, p.subtree_builders)
     out["sah_cost"] = tree_stats(nodes)["sah_cost"]
     out["triangles"] = int(len(tris))
-    out["preset"] = preset
+    out["preset"] = preset if isinstance(preset, str) else "custom"
     return out
 
 

@@ -295,3 +295,21 @@ def test_the_upper_builder_waits_for_a_split_only_where_it_is_not_yet_known(big)
     # child at most as long as its sibling's fill took less. A wait after every pass would
     # be len(upper) + 1 of them.
     assert 1 + straight_after <= waits <= len(upper)
+
+
+def test_simulate_mesh_takes_a_hwparams():
+    """A design given as a HwParams (a variant made with dataclasses.replace, say) simulates
+    as its preset name with the same overrides does; anything else is refused naming preset."""
+    from dataclasses import replace
+
+    tris = random_soup(2000)
+    named = simulate_mesh(tris, "HWBVH-HP", tsize=4)
+    given = simulate_mesh(tris, replace(PRESETS["HWBVH-HP"], tsize=4))
+    assert given["cycles"] == named["cycles"] and given["parameters"] == named["parameters"]
+    assert given["preset"] == "custom" and named["preset"] == "HWBVH-HP"
+    assert simulate_mesh(tris, PRESETS["HWBVH-C"], w=2)["parameters"]["w"] == 2
+    for bad in ("HWBVH-X", 3, None):
+        with pytest.raises(InputError, match="preset"):
+            simulate_mesh(tris, bad)
+    with pytest.raises(InputError, match="tsize"):
+        simulate_mesh(tris, replace(PRESETS["HWBVH-C"], tsize=3))
