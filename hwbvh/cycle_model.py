@@ -422,8 +422,8 @@ def params_for(preset="HWBVH-C", **overrides):
     elif isinstance(preset, str) and preset in PRESETS:
         base = PRESETS[preset]
     else:
-        raise ParameterError("preset", f"expected a HwParams or a preset name ({', '.join(PRESETS)}), "
-                                       f"got {preset!r}")
+        raise ParameterError("preset", f"unknown preset {preset!r} (choose from {', '.join(PRESETS)}, "
+                                       f"or give a HwParams)")
     names = {f.name for f in fields(HwParams)}
     kw = {k: v for k, v in overrides.items() if v is not None}
     for k in kw:
