@@ -417,13 +417,7 @@ def params_for(preset="HWBVH-C", **overrides):
     ignored), checked against the hardware's ranges."""
     from dataclasses import fields, replace
 
-    if isinstance(preset, HwParams):
-        base = preset
-    elif isinstance(preset, str) and preset in PRESETS:
-        base = PRESETS[preset]
-    else:
-        raise ParameterError("preset", f"unknown preset {preset!r} (choose from {', '.join(PRESETS)}, "
-                                       f"or give a HwParams)")
+    base = as_params(preset, "preset")
     names = {f.name for f in fields(HwParams)}
     kw = {k: v for k, v in overrides.items() if v is not None}
     for k in kw:

@@ -1531,23 +1531,21 @@ def one_line(text):
 
 def _input_message(parser, args, e):
     """The line of InputError ``e``, naming what the user typed: the option that sets a
-    library parameter, or whose value (a path) the error names; the film size options for a
-    film too large (the scene's key 'film.width' reports width x height), since --width,
-    with or without --height, set it."""
+    library parameter, or whose value (a path) the error names; for a film too large
+    (width x height), every film size option given, since together they set it."""
     from hwbvh.errors import ParameterError
     if isinstance(e, ParameterError):
+        from scenes.loader import FILM_TOO_LARGE
+        if e.parameter in ("width", "height") and e.problem.endswith(FILM_TOO_LARGE):
+            given = [d for d in ("width", "height") if getattr(args, d, None) is not None]
+            if given:
+                return " ".join(f"--{d} {getattr(args, d)}" for d in given) + f": {e.problem}"
         # an option that sets the parameter, else a positional argument of its name (the
         # scene, the mesh): what the user typed
         given = getattr(args, e.parameter, None) if e.parameter in ("scene", "mesh") else None
         named = _option_of(parser, args, e.parameter) or \
             (given if isinstance(given, str) else e.parameter)
         return f"{named}: {e.problem}"
-    key, _, problem = e.problem.partition(": ")
-    from scenes.loader import FILM_TOO_LARGE
-    if key == "key 'film.width'" and problem.endswith(FILM_TOO_LARGE) and \
-            getattr(args, "width", None) is not None:
-        given = [d for d in ("width", "height") if getattr(args, d, None) is not None]
-        return " ".join(f"--{d} {getattr(args, d)}" for d in given) + f": {problem}"
     from hwbvh.files import OutputPathError
     option = _option_valued(parser, args, e.source, output=isinstance(e, OutputPathError))
     return f"{option} {e.source}: {e.problem}" if option else str(e)

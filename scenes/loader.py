@@ -439,7 +439,7 @@ def _check_film_area(film, key):
     w = film.get("width", FRAME_SETTINGS["width"][0])
     h = film.get("height", FRAME_SETTINGS["height"][0])
     ok = all(is_integer(v) and 1 <= v <= MAX_FILM_SIDE for v in (w, h))
-    if ok and w * h > MAX_FILM_PIXELS:
+    if ok and int(w) * int(h) > MAX_FILM_PIXELS:
         raise ParameterError(key, f"{w} x {h} is more than the {MAX_FILM_PIXELS} {FILM_TOO_LARGE}")
 
 

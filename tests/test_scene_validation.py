@@ -366,16 +366,20 @@ def test_frame_overrides_refused_at_the_call(tmp_path, spec, key, value):
     assert e.value.parameter == key
 
 
-def test_film_area_refused_at_the_call():
+def test_film_area_refused_at_the_call(tmp_path):
     """Sides within range whose product passes the film's pixel limit are refused where
-    they are given, naming the side given, as compile_scene would refuse the film."""
+    they are given, naming the side given, as compile_scene would refuse the film; for a
+    built-in scene and a file alike."""
     from hwbvh.errors import ParameterError
     from scenes import load_scene, with_frame
     from scenes.loader import MAX_FILM_PIXELS, MAX_FILM_SIDE
 
-    with pytest.raises(ParameterError, match=str(MAX_FILM_PIXELS)) as e:
-        load_scene("cornell", width=MAX_FILM_SIDE, height=MAX_FILM_SIDE)
-    assert e.value.parameter == "width"
+    mesh = tmp_path / "tri.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    for spec in ("cornell", str(mesh)):
+        with pytest.raises(ParameterError, match=str(MAX_FILM_PIXELS)) as e:
+            load_scene(spec, width=MAX_FILM_SIDE, height=MAX_FILM_SIDE)
+        assert e.value.parameter == "width"
     wide = with_frame(load_scene("cornell"), width=MAX_FILM_SIDE, height=1)
     with pytest.raises(ParameterError) as e:
         with_frame(wide, height=MAX_FILM_PIXELS // MAX_FILM_SIDE + 1)

@@ -627,7 +627,7 @@ def test_flags_and_odd_arguments_are_refused_by_name():
     with pytest.raises(ParameterError, match="path: expected a mesh file's path, got NoneType"):
         hwbvh.load_triangles(None)
     from hwbvh.cycle_model import simulate_mesh
-    with pytest.raises(ParameterError, match=r"preset: unknown preset \['x'\]"):
+    with pytest.raises(ParameterError, match=r"preset: expected a HwParams or a preset name"):
         simulate_mesh(unit, ["x"])
 
 

@@ -28,8 +28,8 @@ from numba import njit
 
 from traversal.aabb_unit import aabb_hit_at, near_far_planes
 from traversal.config import EDGE_EPS_F32, EDGE_EPS_F64, GAMMA3_F32, GAMMA3_F64
-from traversal.packet import (BEST, BU, BV, MASK, NF, NI, NM, PRIM, P, _box, _lane_setup,
-                              _mt, _planes, _slab, _triangle)
+from traversal.packet import (ALIVE, BEST, BU, BV, MASK, NF, NI, NM, PRIM, P, _box,
+                              _lane_setup, _mt, _planes, _slab, _triangle)
 from traversal.triangle_unit import (TRI_E1, TRI_E2, TRI_NORMS, TRI_SCALE, TRI_V0, TRI_WORDS,
                                      band_eps2, mt_valid_at, preprocess)
 from traversal.verify import _mt64
@@ -501,6 +501,83 @@ def test_moller_trumbore_copies_are_the_reference_bit_for_bit(T):
                 assert same.all(), _first_diff(f"{where} verify._mt64", same, out[nz], tuv[nz])
                 assert np.isinf(out[~nz, 0]).all()
     assert valid_total > 5000          # the cases hit as well as miss
+
+
+@njit(error_model="numpy")
+def run_triangle_on_lanes(flat, row, F, I, M, bit, eps2, one, edge, anyhit):
+    """Each lane's ``packet._mt`` answer on the lane state (F, I, M) as given, then
+    ``packet._triangle`` on that state (changed in place): (ok, t, u, v) per lane."""
+    b = TRI_WORDS * row
+    ok = np.zeros(P, np.bool_)
+    tuv = np.empty((P, 3), F.dtype)
+    for k in range(P):
+        r = _mt(F, k, flat[b + TRI_V0], flat[b + TRI_V0 + 1], flat[b + TRI_V0 + 2],
+                flat[b + TRI_E1], flat[b + TRI_E1 + 1], flat[b + TRI_E1 + 2],
+                flat[b + TRI_E2], flat[b + TRI_E2 + 1], flat[b + TRI_E2 + 2],
+                eps2 * flat[b + TRI_NORMS], flat[b + TRI_SCALE], -edge, one + edge,
+                F[BEST + k], one)
+        ok[k] = r[0]
+        tuv[k, 0] = r[1]
+        tuv[k, 1] = r[2]
+        tuv[k, 2] = r[3]
+    _triangle(flat, row, row, F, I, M, bit, eps2, one, edge, anyhit)
+    return ok, tuv
+
+
+@pytest.mark.parametrize("T", DTYPES, ids=lambda t: t.__name__)
+def test_triangle_lane_loops_change_only_the_lanes_that_take_the_hit(T):
+    """``packet._triangle``'s lane loops on lane states as a packet meets them: box-test bits
+    for either child (bit 0 or 1) or neither, dead lanes, earlier hits nearer, farther or tied
+    (the lower primitive wins a tie), and closest distances of -0.0, +0.0, subnormals and
+    +inf. A lane takes the hit when the unit accepts it, the lane is live and its bit is set
+    (closest hit: and it is nearer, or first, or tied with a higher primitive); every other
+    word of the scratch keeps its bits. Any-hit lanes that take it retire."""
+    rng = np.random.default_rng(5)
+    one = T(1)
+    eps2 = band_eps2(T)
+    edge = T(EDGE[T])
+    tris = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], T)
+    flat = preprocess(tris, T).ravel()
+    j = 0
+    specials = np.array([-0.0, 0.0, np.finfo(T).smallest_subnormal, np.inf, 0.5, 2.0, 1.0], T)
+    taken = 0
+    for case in range(400):
+        anyhit = bool(case % 2)
+        bit = int(rng.integers(2))
+        F = np.empty(NF, T)
+        I = np.empty(NI, np.int32)
+        M = np.zeros(NM, np.uint8)
+        O = np.column_stack([rng.uniform(-0.2, 1.2, P), rng.uniform(-0.2, 1.2, P),
+                             rng.choice([1.0, -1.0], P)]).astype(T)
+        D = np.column_stack([rng.normal(0, 0.05, P), rng.normal(0, 0.05, P), -O[:, 2]]).astype(T)
+        for k in range(P):
+            _lane_setup(F, I, M, k, True, O[k, 0], O[k, 1], O[k, 2], D[k, 0], D[k, 1], D[k, 2],
+                        T(0), T(np.inf), T(0), one)
+        F[BEST:BEST + P] = rng.choice(specials, P)
+        F[BU:BU + P] = rng.normal(size=P).astype(T)
+        F[BV:BV + P] = rng.normal(size=P).astype(T)
+        M[MASK:MASK + P] = rng.integers(0, 4, P)
+        M[ALIVE:ALIVE + P] = rng.integers(0, 2, P)
+        I[PRIM:PRIM + P] = rng.choice([-1, 0, 1, 7], P)
+        if anyhit:      # as a packet meets them: a live lane has found no blocker yet
+            I[PRIM:PRIM + P] = np.where(M[ALIVE:ALIVE + P] != 0, -1, I[PRIM:PRIM + P])
+        F0, I0, M0 = F.copy(), I.copy(), M.copy()
+        ok, tuv = run_triangle_on_lanes(flat, 0, F, I, M, bit, eps2, one, edge, anyhit)
+        lane = ok & (((M0[MASK:MASK + P] >> bit) & 1) != 0) & (M0[ALIVE:ALIVE + P] != 0)
+        p = I0[PRIM:PRIM + P]
+        take = lane if anyhit else lane & ((tuv[:, 0] < F0[BEST:BEST + P]) | (p < 0) | (j < p))
+        taken += int(take.sum())
+        F1, I1, M1 = F0.copy(), I0.copy(), M0.copy()
+        I1[PRIM:PRIM + P][take] = j
+        if anyhit:
+            M1[ALIVE:ALIVE + P][take] = 0
+        else:
+            for row, c in ((BEST, 0), (BU, 1), (BV, 2)):
+                F1[row:row + P][take] = tuv[take, c]
+        where = f"{T.__name__} case {case} anyhit={anyhit} bit={bit}"
+        assert same_bits(F, F1).all(), where
+        assert np.array_equal(I, I1) and np.array_equal(M, M1), where
+    assert taken > 100                  # lanes took the hit as well as kept their state
 
 
 def box_inputs(T, seed=9):
