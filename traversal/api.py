@@ -18,7 +18,7 @@ from hwbvh.format import (BOX_MAX, WORD_A, WORD_B, WORD_BOX, WORD_FLAGS, check_n
 from hwbvh.primitives import checked_coordinates
 from .aabb_unit import GAMMA3_F32, GAMMA3_F64
 from hwbvh.parallel import run_ranges
-from .config import CHUNK_RAYS, KEPT_BOUND_RAYS
+from .config import CHUNK_RAYS, KEPT_BOUND_RAYS, MIN_RANGE_CHUNKS
 from .traverse import trace_chunks
 from .triangle_unit import Float32Range, Float64Range, band_eps2, preprocess
 from .config import EDGE_EPS_F32, EDGE_EPS_F64   # the valid check's slack, with its reason
@@ -425,7 +425,7 @@ class Tracer(PacketCount):
         run_ranges(trace_chunks, nchunks, self._u1, self._f1, self.index_bytes, self._tris1,
                    self.row_of, self.raw, o, d, o.reshape(-1), d.reshape(-1), lo, hi, self.eps2,
                    self.one, self.widen, self.edge, self.depth, anyhit, packets, prim, t, u, v, ng,
-                   cnt, over, traced)
+                   cnt, over, traced, min_items=MIN_RANGE_CHUNKS)
         self._count_packets(traced)
         if over.any():
             raise RuntimeError(f"traversal stack overflow on {over.sum()} rays: the tree is deeper "

@@ -39,7 +39,7 @@ from hwbvh.errors import ParameterError, checked_flag
 from hwbvh.parallel import run_ranges
 from .api import PacketCount
 from .structure import TriangleStructure, checked_triangles, padded_box
-from .config import (CHUNK_RAYS, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
+from .config import (CHUNK_RAYS, MIN_RANGE_CHUNKS, GRID_DENSITY, GRID_MAILBOX, GRID_MAX_CELLS,
                      GRID_MAX_REFS_PER_TRI, GRID_PACKET_MAILBOX, GRID_PACKET_WIDEN,
                      GRID_PAD_COORD, GRID_PAD_TRI, GRID_STOP_SLACK)
 from .packet import (ALIVE, BEST, BU, BV, DX, DY, DZ, MASK, NF, NI, NM, OX, OY, OZ, P, PRIM,
@@ -612,7 +612,8 @@ class GridTracer(TriangleStructure, PacketCount):
         traced = np.zeros(chunks, np.int64)
         run_ranges(grid_chunks, chunks, self._tris1, self.offsets, self.refs, self.gmin,
                    self.gmax, self._cs, self._inv, self._res, o, d, tmin, tmax, self.eps2,
-                   self.one, self.edge, anyhit, self.packets, prim, t, u, v, ng, traced)
+                   self.one, self.edge, anyhit, self.packets, prim, t, u, v, ng, traced,
+                   min_items=MIN_RANGE_CHUNKS)
         self._count_packets(traced)
 
     def stats(self):

@@ -56,7 +56,8 @@ from numba import njit
 from hwbvh.errors import ParameterError
 from hwbvh.parallel import run_ranges
 from .structure import TriangleStructure, checked_triangles, padded_box
-from .config import (CHUNK_RAYS, PACKET_RAYS, KD_COST_INTERSECT, KD_COST_TRAVERSAL, KD_DEPTH_BASE,
+from .config import (CHUNK_RAYS, MIN_RANGE_CHUNKS, PACKET_RAYS, KD_COST_INTERSECT,
+                     KD_COST_TRAVERSAL, KD_DEPTH_BASE,
                      KD_DEPTH_LOG2, KD_EMPTY_FACTOR, KD_MAX_REFS_PER_TRI, KD_PAD_COORD,
                      KD_PAD_TRI, KD_PARALLEL_DEPTH, KD_PARALLEL_MIN_TRIS, KD_T_SLACK)
 from .grid import _slab
@@ -844,7 +845,7 @@ class KdTreeTracer(TriangleStructure):
         run_ranges(kd_chunks, (len(o) + CHUNK_RAYS - 1) // CHUNK_RAYS, self._tris1,
                    self.node_words, self.node_words.view(np.float32), self.refs, self.box,
                    self.depth + 1, o, d, tmin, tmax, self.eps2, self.one, self.edge, anyhit, prim,
-                   t, u, v, ng)
+                   t, u, v, ng, min_items=MIN_RANGE_CHUNKS)
 
     def split_planes(self):
         """(axes, positions) of the inner nodes' split planes."""
