@@ -147,6 +147,17 @@ def _lanes(O, D, tmin, tmax, c, F, I, M, one):
 
 
 @njit(error_model="numpy")
+def _lane_mt(flat, b, F, k, eps2, one, edge):
+    """``packet._mt`` for lane k against the triangle row at word ``b`` of ``flat``, up to the
+    lane's closest hit so far: (ok, t, u, v)."""
+    return _mt(F, k, flat[b + TRI_V0], flat[b + TRI_V0 + 1], flat[b + TRI_V0 + 2],
+               flat[b + TRI_E1], flat[b + TRI_E1 + 1], flat[b + TRI_E1 + 2],
+               flat[b + TRI_E2], flat[b + TRI_E2 + 1], flat[b + TRI_E2 + 2],
+               eps2 * flat[b + TRI_NORMS], flat[b + TRI_SCALE], -edge, one + edge,
+               F[BEST + k], one)
+
+
+@njit(error_model="numpy")
 def run_packet_mt(rows, O, D, tmin, tmax, eps2, one, edge, anyhit):
     """Each ray in its packet lane: packet._mt called directly (ok, t, u, v: every output), and
     packet._triangle's lane loop with only that lane's mask bit set (verdict; t, u, v on a hit;
@@ -167,11 +178,7 @@ def run_packet_mt(rows, O, D, tmin, tmax, eps2, one, edge, anyhit):
             if i >= n:
                 break
             b = TRI_WORDS * i
-            r = _mt(F, k, flat[b + TRI_V0], flat[b + TRI_V0 + 1], flat[b + TRI_V0 + 2],
-                    flat[b + TRI_E1], flat[b + TRI_E1 + 1], flat[b + TRI_E1 + 2],
-                    flat[b + TRI_E2], flat[b + TRI_E2 + 1], flat[b + TRI_E2 + 2],
-                    eps2 * flat[b + TRI_NORMS], flat[b + TRI_SCALE], -edge, one + edge,
-                    F[BEST + k], one)
+            r = _lane_mt(flat, b, F, k, eps2, one, edge)
             direct_ok[i] = r[0]
             direct[i, 0] = r[1]
             direct[i, 1] = r[2]
@@ -511,11 +518,7 @@ def run_triangle_on_lanes(flat, row, F, I, M, bit, eps2, one, edge, anyhit):
     ok = np.zeros(P, np.bool_)
     tuv = np.empty((P, 3), F.dtype)
     for k in range(P):
-        r = _mt(F, k, flat[b + TRI_V0], flat[b + TRI_V0 + 1], flat[b + TRI_V0 + 2],
-                flat[b + TRI_E1], flat[b + TRI_E1 + 1], flat[b + TRI_E1 + 2],
-                flat[b + TRI_E2], flat[b + TRI_E2 + 1], flat[b + TRI_E2 + 2],
-                eps2 * flat[b + TRI_NORMS], flat[b + TRI_SCALE], -edge, one + edge,
-                F[BEST + k], one)
+        r = _lane_mt(flat, b, F, k, eps2, one, edge)
         ok[k] = r[0]
         tuv[k, 0] = r[1]
         tuv[k, 1] = r[2]
