@@ -36,7 +36,7 @@ import numpy as np
 
 from hwbvh.config import DEFAULT_BINS, DEFAULT_LEAF_SIZE
 from hwbvh.errors import ParameterError, is_integer
-from traversal.camera import TILE, look_at_basis
+from traversal.camera import TILE, check_camera, look_at_basis
 from traversal.config import F32_UNIT_MAX_PRODUCT, F32_UNIT_MIN_SPAN
 from traversal.offset import STRATEGY_CODES
 from traversal.api import ACCELS, PRECISIONS, release_kept_bounds  # noqa: F401 (ACCELS: accel=)
@@ -644,24 +644,22 @@ def _check_materials(scene):
                                                f"materials), got {int(mat.min())}..{int(mat.max())}")
 
 
+# ``check_camera``'s names for a compiled scene's camera
+SCENE_CAMERA_NAMES = dict({k: f"scene.camera.{k}" for k in ("eye", "target", "up", "fov")},
+                          apart="scene.camera")
+
+
 def _check_camera(cam):
     """A compiled scene's camera as ``compile_scene`` makes it (checked again: a scene changed
-    after compiling, by ``dataclasses.replace`` say, would render black from a NaN basis):
-    finite eye, target and up, an eye apart from its target, a field of view in (0, 180)."""
+    after compiling, by ``dataclasses.replace`` say, would render black from a NaN basis),
+    as ``traversal.camera.check_camera`` checks a camera."""
     try:
         eye, target, up = (np.asarray(cam[k], np.float64) for k in ("eye", "target", "up"))
         fov = float(cam["fov"])
     except (KeyError, TypeError, ValueError):
         raise ParameterError("scene.camera", "expected the eye, target, up and fov of "
                                              "compile_scene's camera") from None
-    for name, a in (("eye", eye), ("target", target), ("up", up)):
-        if a.shape != (3,) or not np.isfinite(a).all():
-            raise ParameterError(f"scene.camera.{name}", f"must be 3 finite numbers, got {a!r}")
-    if np.array_equal(eye, target) or not np.any(up):
-        raise ParameterError("scene.camera", "needs an eye apart from its target and an up "
-                                             "that is not zero")
-    if not 0 < fov < 180:
-        raise ParameterError("scene.camera.fov", f"must be in (0, 180) degrees, got {fov!r}")
+    check_camera(eye, target, up, fov, SCENE_CAMERA_NAMES)
 
 
 def point_light_positions(lights):

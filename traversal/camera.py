@@ -37,7 +37,10 @@ def look_at_basis(eye, target, up):
 def primary_rays(eye, target, up, fov_deg, width, height, jitter=None):
     """Rays through pixel centres (or centre + jitter in [-0.5, 0.5)^2, shape (h*w, 2)), row-major
     from the top-left. Returns (origins (n,3) float64, dirs (n,3) float64 normalised)."""
-    _check_camera(eye, target, up, fov_deg, width, height)
+    check_camera(eye, target, up, fov_deg)
+    for name, v in (("width", width), ("height", height)):
+        if not is_integer(v) or v < 1:
+            raise ParameterError(name, f"expected a positive integer, got {v!r}")
     if jitter is not None and np.shape(jitter) != (width * height, 2):
         raise ParameterError("jitter", f"expected shape ({width * height}, 2), one offset per "
                                        f"pixel, got {np.shape(jitter)}")
@@ -52,24 +55,32 @@ def primary_rays(eye, target, up, fov_deg, width, height, jitter=None):
     return o, d
 
 
-def _check_camera(eye, target, up, fov_deg, width, height):
-    """ParameterError naming the first argument of a camera that cannot make rays."""
-    for name, v in (("eye", eye), ("target", target), ("up", up)):
+# What ``check_camera`` calls a camera's settings: ``primary_rays``' arguments ("apart": the
+# name for eye and target together, when they coincide)
+CAMERA_ARGUMENTS = {"eye": "eye", "target": "target", "up": "up", "fov": "fov_deg",
+                    "apart": "target"}
+
+
+def check_camera(eye, target, up, fov_deg, names=CAMERA_ARGUMENTS):
+    """ParameterError naming (``names``) the first setting of a pinhole camera that cannot
+    make rays: eye, target and up must be 3 finite numbers, the eye apart from its target, up
+    not zero, and the vertical field of view in ``FOV_RANGE`` degrees."""
+    vectors = []
+    for key, v in (("eye", eye), ("target", target), ("up", up)):
         try:
             a = np.asarray(v, np.float64)
         except (TypeError, ValueError):
             a = None
         if a is None or a.shape != (3,) or not np.isfinite(a).all():
-            raise ParameterError(name, f"expected 3 finite numbers, got {v!r}")
-    if np.array_equal(np.asarray(eye, np.float64), np.asarray(target, np.float64)):
-        raise ParameterError("target", "must differ from eye (the camera looks from eye to it)")
+            raise ParameterError(names[key], f"must be 3 finite numbers, got {v!r}")
+        vectors.append(a)
+    if np.array_equal(vectors[0], vectors[1]) or not np.any(vectors[2]):
+        raise ParameterError(names["apart"], "needs an eye apart from its target and an up that "
+                                             "is not zero")
     lo, hi = FOV_RANGE
     if isinstance(fov_deg, (bool, np.bool_)) or not isinstance(fov_deg, (int, float, np.number)) \
             or not lo <= fov_deg <= hi:
-        raise ParameterError("fov_deg", f"expected degrees in [{lo}, {hi}], got {fov_deg!r}")
-    for name, v in (("width", width), ("height", height)):
-        if not is_integer(v) or v < 1:
-            raise ParameterError(name, f"expected a positive integer, got {v!r}")
+        raise ParameterError(names["fov"], f"must be in [{lo}, {hi}] degrees, got {fov_deg!r}")
 
 
 def directions_through(px, py, width, height, basis, fov_deg):
