@@ -46,7 +46,7 @@ from .packet import (ALIVE, BEST, BU, BV, DX, DY, DZ, MASK, NF, NI, NM, OX, OY, 
                      TMIN, _triangle, load_lane, row_bits)
 from .rawtree import _ray_ok
 from .triangle_unit import (PRIMITIVE_ORDER, TRI_WORDS, mt_valid_at, store_answer,
-                            store_normals)
+                            store_normals, takes_hit)
 
 
 def density_resolution(extent, n_tris, density=GRID_DENSITY, max_cells=GRID_MAX_CELLS):
@@ -188,7 +188,7 @@ def trace_grid_ray(tris, offsets, refs, gmin, gmax, cs, inv, res, ox, oy, oz, dx
             mailbox[slot] = j
             ok, t, tu, tv = mt_valid_at(tris, TRI_WORDS * j, ox, oy, oz, dx, dy, dz, dd, tmin,
                                         best_t, eps2, one, edge)
-            acc = ok & ((t < best_t) | (prim < 0) | (j < prim))
+            acc = takes_hit(ok, t, j, best_t, prim)
             if anyhit and acc:
                 return j, t, tu, tv
             best_t = t if acc else best_t

@@ -63,7 +63,8 @@ from .config import (CHUNK_RAYS, MIN_RANGE_CHUNKS, PACKET_RAYS, KD_COST_INTERSEC
 from .grid import _slab
 from .packet import coherent
 from .triangle_unit import (PRIMITIVE_ORDER, TRI_E1, TRI_E2, TRI_NORMS, TRI_SCALE, TRI_V0,
-                            TRI_WORDS, mt_datapath, ray_band_terms, store_answer, store_normals)
+                            TRI_WORDS, mt_datapath, ray_band_terms, store_answer, store_normals,
+                            takes_hit)
 
 LEAF = 3               # the axis field of a leaf node
 EVENT_END = 0          # event types, in their order at equal positions (WH06)
@@ -734,7 +735,7 @@ def trace_kd_ray(tris, nodes, nodes_f, refs, box, ox, oy, oz, dx, dy, dz, tmin, 
                                         tris[b + TRI_E2], tris[b + TRI_E2 + 1], tris[b + TRI_E2 + 2],
                                         eps2 * tris[b + TRI_NORMS], tris[b + TRI_SCALE], ox, oy, oz,
                                         dx, dy, dz, dds, rscale, lo_b, hi_b, tmin, hi, one)
-            acc = ok & ((t < best_t) | (prim < 0) | (j < prim))
+            acc = takes_hit(ok, t, j, best_t, prim)
             if anyhit and acc:
                 return j, t, tu, tv
             best_t = t if acc else best_t

@@ -25,7 +25,7 @@ from .aabb_unit import slab_test
 from .config import PACKET_RAYS as P
 from .rawtree import read_index
 from .triangle_unit import (TRI_E1, TRI_E2, TRI_NORMS, TRI_SCALE, TRI_V0, TRI_WORDS, mt_datapath,
-                            ray_band_terms)
+                            ray_band_terms, takes_hit)
 
 
 # Lane state lives in flat scratch arrays, one row of P per quantity at a constant offset, so
@@ -151,8 +151,7 @@ def _triangle(tris, row, j, F, I, M, bit, eps2, one, edge, anyhit):
         p = I[PRIM + k]
         bu = F[BU + k]
         bv = F[BV + k]
-        take = ok & ((M[MASK + k] & sel) != 0) & (M[ALIVE + k] != 0) & \
-            ((t < best) | (p < 0) | (jj < p))
+        take = takes_hit(ok & ((M[MASK + k] & sel) != 0) & (M[ALIVE + k] != 0), t, jj, best, p)
         F[BEST + k] = t if take else best - zero
         I[PRIM + k] = jj if take else p
         F[BU + k] = u if take else bu

@@ -27,7 +27,8 @@ from .config import CHUNK_RAYS
 from .packet import NF, NI, NM, P, coherent_packet, trace_packets
 from .prefetch import prefetch
 from .rawtree import read_index, _ray_ok
-from .triangle_unit import TRI_WORDS, mt_valid_at, store_answer, store_normals, wt_hit_ray
+from .triangle_unit import (TRI_WORDS, mt_valid_at, store_answer, store_normals, takes_hit,
+                            wt_hit_ray)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -84,9 +85,7 @@ def trace_ray(u, f, ib, tris, raw, ox, oy, oz, dx, dy, dz, tmin, tmax, eps2, one
                 else:
                     ok, t, tu, tv = mt_valid_at(tris, TRI_WORDS * p, ox, oy, oz, dx, dy, dz, dd, tmin,
                                                 best_t, eps2, one, edge)
-                # accept a nearer hit, or an exact-t tie with a lower primitive index; as
-                # selects, not branches (the outcome is unpredictable for random rays)
-                acc = ok & ((t < best_t) | (prim < 0) | (j < prim))
+                acc = takes_hit(ok, t, j, best_t, prim)
                 if anyhit and acc:
                     return j, t, tu, tv, nodes, tested, False
                 best_t = t if acc else best_t

@@ -408,6 +408,17 @@ def mt_valid_at(tris, b, ox, oy, oz, dx, dy, dz, dd, tmin, tmax, eps2, one, edge
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def takes_hit(ok, t, j, best_t, prim):
+    """Whether a valid test (``ok``) of triangle ``j`` at ``t`` replaces the closest hit so far
+    (``prim`` at ``best_t``; prim < 0: none): a nearer hit, or an exact-t tie with a lower
+    primitive index, so that the answer does not depend on the visiting order. The unit
+    accepts only t <= best_t (the query's t_max shrinks to it), so ``t < best_t`` parts a
+    nearer hit from a tie. Every structure and the packet lanes take hits by this rule, as a
+    value, not a branch (the outcome is unpredictable for random rays)."""
+    return ok & ((t < best_t) | (prim < 0) | (j < prim))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def store_answer(i, prim, t, bu, bv, out_prim, out_t, out_u, out_v):
     """Ray i's answer into a batch's outputs, as every traversal writes them: the primitive
     (-1: a miss) and, unless ``out_t`` is empty (any-hit queries), t (inf for a miss), u, v."""
