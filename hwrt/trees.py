@@ -10,7 +10,12 @@ packet tests). It reports the ratio sweep/hwbvh of render time, of trace-only ti
 rays traced again alone) and of (nodes + triangles) per ray, with packets (as the renderer
 runs) and with the single-ray unit alone.
 
-Where the time goes: the render's queries, split by kind (closest hit, shadow) and by path
+Where the render's time goes: its closest-hit queries, its shadow queries and its other
+stages (camera rays, shading, accumulation), each with its share and its time ratio, and the
+gap to the work ratio that the other stages alone leave, were the queries' times to follow
+their work exactly: the part of the gap that no tree can change.
+
+Where the trace time goes: the render's queries, split by kind (closest hit, shadow) and by path
 (rays in packets, rays traced one by one), are traced again class by class with both trees,
 each class with its work ratio, its trace ratio, its share of the trace time and its time per
 unit of work. A unit of work does not cost the same on both paths, so a render's time follows
@@ -95,17 +100,25 @@ def bench_trees(args):
                 counting = CountingTracer(tracers[b], as_run=True)
                 render(scene, counting)
                 w = counting.work("all")
-                work[b] = dict(w, work_per_ray=w["nodes_per_ray"] + w["tris_per_ray"])
+                work[b] = dict(w, work_per_ray=w["nodes_per_ray"] + w["tris_per_ray"],
+                               by_kind={k: counting.work(k) for k in ("closest", "shadow")})
             work_ratio = _quotient(work["sweep"]["work_per_ray"], work["hwbvh"]["work_per_ray"])
+            kind_ratio = {}
+            for kind in ("closest", "shadow"):
+                per_ray = {b: w["by_kind"][kind]["nodes_per_ray"] + w["by_kind"][kind]["tris_per_ray"]
+                           for b, w in work.items()}
+                kind_ratio[kind] = _quotient(per_ray["sweep"], per_ray["hwbvh"])
             recordings = {}
             for b in BUILDERS:
                 recordings[b] = RecordingTracer(tracers[b])
                 render(scene, recordings[b])          # also the warm-up render of this mode
             renders, replays = {b: [] for b in BUILDERS}, {b: [] for b in BUILDERS}
+            stage_runs = {b: [] for b in BUILDERS}
             for b in _alternating(args.repeat):
                 t = time.perf_counter()
-                render(scene, tracers[b])
+                stats = render(scene, tracers[b]).stats
                 renders[b].append(time.perf_counter() - t)
+                stage_runs[b].append(stats["stage_seconds"])
                 replays[b].append(recordings[b].replay_seconds())
             render_s = {b: statistics.median(renders[b]) for b in BUILDERS}
             trace_only = {b: statistics.median(replays[b]) for b in BUILDERS}
@@ -116,12 +129,48 @@ def bench_trees(args):
                          "render_seconds": render_s, "trace_only_seconds": trace_only,
                          "render_ratio": render_ratio, "trace_ratio": trace_ratio,
                          "render_vs_work": _gap(render_ratio, work_ratio),
-                         "trace_vs_work": _gap(trace_ratio, work_ratio)}
+                         "trace_vs_work": _gap(trace_ratio, work_ratio),
+                         "stages": _stage_split(stage_runs, kind_ratio, work_ratio)}
         rows.append(row)
     return {"rows": rows, "repeat": args.repeat}
 
 
 KINDS = {"intersect": "closest", "occluded": "shadow"}
+
+
+def _stage_split(runs, kind_ratio, work_ratio):
+    """Where the render's time goes, from each timed render's seconds per stage (summed over
+    the threads): the closest-hit queries, the shadow queries and the other stages together
+    (camera rays, shading, accumulation), each with its share of hwbvh's time and its time
+    ratio (median over rounds, as ``_paired_ratio``), each query stage beside its kind's work
+    ratio. ``floor_vs_work``: how far the render's ratio would sit from the work ratio if each
+    query stage's time followed its kind's work exactly and the other stages took the time
+    they took: what the stages that do not trace add to the gap, which no tree can change."""
+    def part(run, stages):
+        return sum(run[st] for st in stages)
+
+    others = [st for st in runs["hwbvh"][0] if st not in KINDS] if runs["hwbvh"] else []
+    parts = {KINDS[st]: [st] for st in KINDS}
+    parts["other"] = others
+    out = {}
+    for name, stages in parts.items():
+        seconds = {b: [part(run, stages) for run in runs[b]] for b in BUILDERS}
+        out[name] = {"seconds": statistics.median(seconds["hwbvh"]),
+                     "ratio": _paired_ratio(seconds) if all(seconds["hwbvh"]) else None,
+                     "work_ratio": kind_ratio.get(name)}
+    total = sum(p["seconds"] for p in out.values())
+    for p in out.values():
+        p["share"] = p.pop("seconds") / total if total > 0 else None
+    # each part as its work would have it (the other stages as they ran); a part that took
+    # no time counts for nothing, one that took time for work it cannot compare leaves no floor
+    as_work = [(p["share"], p["work_ratio"] if name in kind_ratio else p["ratio"])
+               for name, p in out.items() if p["share"]]
+    followed = sum(share * r for share, r in as_work) \
+        if as_work and all(r is not None for _, r in as_work) else None
+    out["floor_vs_work"] = _gap(followed, work_ratio) if followed is not None else None
+    return out
+
+
 PATHS = ("packets", "one by one")
 
 
@@ -315,6 +364,10 @@ def _ratio(x):
     return "-" if x is None else f"{x:.3f}"
 
 
+def _share(x):
+    return "-" if x is None else f"{100 * x:.0f}%"
+
+
 def _percent(x):
     return "-" if x is None else f"{100 * x:+.1f}%"
 
@@ -337,6 +390,27 @@ def human(r):
     lines.append("ratios are sweep / hwbvh; work = nodes visited + triangles tested per ray as the "
                  "path runs them (a packet's rays each count the packet's tests), over closest-hit "
                  "and shadow rays; trace = the render's rays traced again alone")
+    lines += ["", "where the render's time goes (its stages' seconds over all threads, as timed "
+                  "above):",
+              f"{'scene':<{w}}{'path':<11}{'closest':>24}{'shadow':>24}{'other stages':>15}"
+              f"{'render vs':>11}",
+              f"{'':<{w}}{'':<11}" + f"{'share':>8}{'time':>8}{'work':>8}" * 2
+              + f"{'share':>8}{'time':>7}{'work if':>11}",
+              f"{'':<{w}}{'':<11}" + f"{'':>8}{'ratio':>8}{'ratio':>8}" * 2
+              + f"{'':>8}{'ratio':>7}{'followed':>11}"]
+    for x in r["rows"]:
+        for k, mode in enumerate(("packets", "single_ray")):
+            st = x[mode]["stages"]
+            cells = "".join(f"{_share(st[kind]['share']):>8}{_ratio(st[kind]['ratio']):>8}"
+                            f"{_ratio(st[kind]['work_ratio']):>8}" for kind in ("closest", "shadow"))
+            lines.append(f"{x['scene'] if k == 0 else '':<{w}}{mode.replace('_', '-'):<11}{cells}"
+                         f"{_share(st['other']['share']):>8}{_ratio(st['other']['ratio']):>7}"
+                         f"{_percent(st['floor_vs_work']):>11}")
+    lines.append("closest, shadow: the render's closest-hit and shadow queries; other stages: camera "
+                 "rays, shading, accumulation; share of hwbvh's render; render vs work if followed: "
+                 "the render's gap to the work ratio were each query's time to follow its kind's "
+                 "work and the other stages to take the time they took, the part of the gap that "
+                 "no tree can change")
     lines += _class_table("where the trace time goes (the packet render's queries by kind and "
                           "path, traced again class by class):", w,
                           ("rays", "", ">9"), ("share of", "hw trace", ">10"),

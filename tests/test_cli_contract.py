@@ -1017,6 +1017,13 @@ def test_bench_report_written_to_out_dir(tmp_path, capsys):
     assert abs(sum(c["time_share"] for c in row["by_path"]) - 1) < 1e-9
     assert "what a unit costs" in md
     assert all("cost_fit" in c and "nodes_ratio" in c for c in row["by_path"])
+    # the render's time split into its closest-hit queries, shadow queries and other stages
+    assert "where the render's time goes" in md
+    for mode in ("packets", "single_ray"):
+        stages = row[mode]["stages"]
+        assert abs(sum(stages[p]["share"] for p in ("closest", "shadow", "other")) - 1) < 1e-9
+        assert stages["closest"]["work_ratio"] > 0 and stages["other"]["work_ratio"] is None
+        assert stages["floor_vs_work"] is not None
 
 
 def test_bench_trees_on_a_scene_whose_rays_do_no_work_gives_null_ratios(tmp_path, capsys):
@@ -1042,6 +1049,7 @@ def test_bench_trees_on_a_scene_whose_rays_do_no_work_gives_null_ratios(tmp_path
         assert row[mode]["work"]["hwbvh"]["work_per_ray"] == 0
         assert row[mode]["work_ratio"] is None and row[mode]["render_vs_work"] is None
         assert row[mode]["render_ratio"] > 0
+        assert row[mode]["stages"]["floor_vs_work"] is None
     assert " - " in (out / "trees.md").read_text()
 
 
