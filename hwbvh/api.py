@@ -14,7 +14,7 @@ import numpy as np
 
 from . import config
 from .builder import build_canonical, check_params, check_task_prims
-from .errors import InputError, ParameterError, checked_flag, is_integer, shown
+from .errors import InputError, ParameterError, checked_flag, is_integer, json_syntax, shown
 from .files import json_text, made_as_written, write_files
 from .format import NODE_DTYPE, check_nodes, pack_indices, tree_stats, unpack_indices, validate
 from .layout import lay_out
@@ -285,7 +285,7 @@ def load(prefix, triangles=None):
     except UnicodeDecodeError:
         raise InputError(prefix + ".json", "not UTF-8 text") from None
     except json.JSONDecodeError as e:
-        raise InputError(prefix + ".json", f"not valid JSON ({e.msg}, line {e.lineno})") from None
+        raise InputError(prefix + ".json", f"not valid JSON ({json_syntax(e)})") from None
     if not isinstance(meta, dict):
         raise InputError(prefix + ".json", f"expected a JSON object, got {type(meta).__name__}")
     n = _json_count(meta, ("triangles",), config.MAX_PRIMITIVES, prefix + ".json")

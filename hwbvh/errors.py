@@ -29,6 +29,14 @@ class ParameterError(InputError):
         super().__init__(parameter, problem if remedy is None else f"{problem}: {remedy}")
 
 
+def json_syntax(e):
+    """A JSONDecodeError ``e`` as the words after "not valid JSON": its message and where,
+    "Unterminated string starting at line 2, column 7" (some of Python's messages end in "at",
+    which the position then completes)."""
+    msg = e.msg[:-3] if e.msg.endswith(" at") else e.msg
+    return f"{msg} at line {e.lineno}, column {e.colno}"
+
+
 def is_integer(v):
     """Whether ``v`` is an integer argument: a Python or NumPy integer, never a bool (True
     would silently mean 1)."""

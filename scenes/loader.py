@@ -18,7 +18,7 @@ import numpy as np
 
 from hwbvh.config import MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES
 from traversal.config import FOV_RANGE
-from hwbvh.errors import InputError, ParameterError, is_integer, shown
+from hwbvh.errors import InputError, ParameterError, is_integer, json_syntax, shown
 from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
                               extent, float32_step, load_mesh_arrays, within_bound)
 from .builtin import BUILTIN, COUNT_LIMITS
@@ -220,7 +220,7 @@ def _load_scene_file(spec):
             with open(spec, encoding="utf-8") as f:
                 d = json.load(f, object_pairs_hook=_unique_keys, parse_int=_json_int)
         except json.JSONDecodeError as e:
-            raise InputError(spec, f"not valid JSON ({e.msg} at line {e.lineno})") from None
+            raise InputError(spec, f"not valid JSON ({json_syntax(e)})") from None
         except _DuplicateKey as e:
             # read again, marking the objects that hold a key twice, for the key's path (the
             # key alone if the file fails further on)

@@ -90,6 +90,10 @@ def test_save_load_roundtrip(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["s.indices", "s.json", "s.nodes", "t.indices",
                                             "t.json", "t.nodes"]
     assert hwbvh.load(tmp_path / "t.json").nodes.tobytes() == other.nodes.tobytes()
+    (tmp_path / "t.json").write_text('{"nodes": 5,\n "triangles": ')     # cut short
+    with pytest.raises(InputError, match=r"t\.json: not valid JSON \(Expecting value at line 2, "
+                                         r"column 15\)$"):
+        hwbvh.load(tmp_path / "t")
 
 
 def corrupt(bvh, fn):

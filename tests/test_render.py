@@ -365,6 +365,8 @@ def cli(*args):
 
 BAD_SCENES = {
     "syntax.json": ("{ not json", "not valid JSON"),
+    "cut.json": ('{"camera":\n  "ab', "not valid JSON \\(Unterminated string starting at line 2, "
+                                     "column 3\\)$"),
     "nocamera.json": ({"materials": {"m": {"type": "diffuse"}}, "shapes": [{"type": "quad", "material": "m",
                       "corners": [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}]}, "key 'camera': missing"),
     "badmat.json": ({"camera": {"eye": [0, 0, 1], "target": [0, 0, 0]}, "materials": {"m": {"type": "diffuse"}},
