@@ -246,10 +246,27 @@ def _inputs_digest(paths):
 PARAMS_ABSENT = {"accel": "bvh"}
 
 
+def _source_path(source):
+    """A run's source as its state records it: a scene file, mesh file or frame pattern as its
+    absolute path with links resolved, so that a rerun naming the same file another way
+    (``scene.json``, ``./scene.json``, its absolute path) is the same run; a built-in's name
+    as it is."""
+    from scenes.loader import is_pattern
+
+    source = str(source)
+    return os.path.realpath(source) if os.path.exists(source) or is_pattern(source) else source
+
+
+def _same_source(old, new):
+    """Whether a state's recorded source ``old`` names the source ``new`` (``_source_path``);
+    a state that recorded a relative path names the same file from this directory."""
+    return old == new or (isinstance(old, str) and _source_path(old) == new)
+
+
 def _run_params(anim, strategy, threshold, scene, accel="bvh", seed=0, written=False):
     """What makes a run's frames what they are: a rerun resumes only frames made with all of
     it the same; for a ``written`` run (one that can be resumed), the inputs' content too."""
-    p = {"scene": anim.name, "source": str(anim.source), "strategy": strategy,
+    p = {"scene": anim.name, "source": _source_path(anim.source), "strategy": strategy,
          "width": scene.width, "height": scene.height, "spp": scene.spp,
          "max_depth": scene.max_depth, "fps": anim.fps, "animation": anim.info, "seed": seed}
     if written:                       # read only where a rerun is to be told apart
@@ -300,7 +317,8 @@ def _load_state(out_dir, params, frames, fresh=False):
     # every key of either run: a key only one names (accel, threshold) differs too
     value = lambda p, k: p.get(k, PARAMS_ABSENT.get(k))
     diff = [k for k in list(params) + [k for k in old if k not in params]
-            if value(old, k) != value(params, k)]
+            if not (_same_source(old.get(k), params.get(k)) if k == "source" else
+                    value(old, k) == value(params, k))]
     if diff:
         k = diff[0]
         what = ("made from other contents of the input files" if k == "inputs_sha256" else

@@ -1,5 +1,7 @@
 """Dynamic scenes: refit, animated scene descriptions, built-in animations, tree update
 strategies and ``hwrt animate``."""
+import os
+
 import numpy as np
 import pytest
 
@@ -555,6 +557,29 @@ def test_a_rerun_resumes_only_frames_made_as_it_would_make_them(tmp_path, capsys
     rc, _, err = _run_cli(capsys, *args[:-3], "-o", theirs, "--json", "--fresh")
     assert rc == 2 and "but no animation.json" in err
     assert (theirs / "frame_0000.exr").read_text() == "not ours"
+
+
+def test_a_rerun_naming_the_same_scene_file_another_way_resumes(tmp_path, capsys, monkeypatch):
+    """The scene file by its absolute path, then from its own directory by its name: the same
+    run, resumed; a state that recorded the name alone (relative to where it ran) too. Another
+    file of the same contents is another run."""
+    scene = _scene_file(tmp_path, [BOX], animation={"frames": 2, "fps": 1})
+    out_dir = tmp_path / "out"
+    rc, _, err = _run_cli(capsys, "animate", scene, "-o", out_dir, "--json")
+    assert rc == 0, err
+    state = json.loads((out_dir / "animation.json").read_text())
+    assert state["parameters"]["source"] == os.path.realpath(scene)
+    monkeypatch.chdir(scene.parent)
+    rc, out, err = _run_cli(capsys, "animate", scene.name, "-o", out_dir, "--json")
+    assert rc == 0 and json.loads(out)["resumed_from"] == 2, err
+    state["parameters"]["source"] = scene.name
+    (out_dir / "animation.json").write_text(json.dumps(state))
+    rc, out, err = _run_cli(capsys, "animate", f"./{scene.name}", "-o", out_dir, "--json")
+    assert rc == 0 and json.loads(out)["resumed_from"] == 2, err
+    twin = tmp_path / "twin.json"
+    twin.write_text(scene.read_text())
+    rc, _, err = _run_cli(capsys, "animate", twin, "-o", out_dir, "--json")
+    assert rc == 2 and "holds frames of another run (scene: 'anim', now 'twin')" in err
 
 
 def test_a_damaged_frame_is_rendered_again_on_resume(tmp_path, capsys):
