@@ -759,7 +759,8 @@ BENCHMARKS = {
     "contention": ("how much a busy competitor on every core slows our build + render, against "
                    "how much it slows Embree's, for each threading set-up", "minutes"),
     "trees": ("whether render time shows the tree: the full-SAH sweep tree against the "
-              "hardware's, render and trace time against the work per ray", "minutes"),
+              "hardware's, render and trace time against the work per ray, and where the "
+              "render's time goes (queries by kind, other stages)", "minutes"),
     "animation": ("time to image per frame of every built-in animation: the hardware's rebuild, "
                   "refit and adaptive update against Embree's rebuild every frame (and the grid "
                   "and kd-tree rebuilt every frame)", "minutes"),
