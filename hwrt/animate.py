@@ -251,9 +251,12 @@ def _source_path(source):
     absolute path with links resolved, so that a rerun naming the same file another way
     (``scene.json``, ``./scene.json``, its absolute path) is the same run; a built-in's name
     as it is."""
-    from scenes.loader import is_pattern
+    from scenes.animation import ANIMATIONS
+    from scenes.loader import BUILTIN, is_pattern
 
     source = str(source)
+    if source in ANIMATIONS or source in BUILTIN:      # a name the loaders take before any file
+        return source
     return os.path.realpath(source) if os.path.exists(source) or is_pattern(source) else source
 
 

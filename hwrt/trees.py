@@ -11,9 +11,9 @@ rays traced again alone) and of (nodes + triangles) per ray, with packets (as th
 runs) and with the single-ray unit alone.
 
 Where the render's time goes: its closest-hit queries, its shadow queries and its other
-stages (camera rays, shading, accumulation), each with its share and its time ratio, and the
-gap to the work ratio that the other stages alone leave, were the queries' times to follow
-their work exactly: the part of the gap that no tree can change.
+stages (camera rays, ray queues, shading, accumulation), each with its share and its time
+ratio, and the gap to the work ratio that the other stages alone leave, were the queries'
+time to follow the work ratio exactly: the part of the gap that no tree can change.
 
 Where the trace time goes: the render's queries, split by kind (closest hit, shadow) and by path
 (rays in packets, rays traced one by one), are traced again class by class with both trees,
@@ -141,33 +141,29 @@ KINDS = {"intersect": "closest", "occluded": "shadow"}
 def _stage_split(runs, kind_ratio, work_ratio):
     """Where the render's time goes, from each timed render's seconds per stage (summed over
     the threads): the closest-hit queries, the shadow queries and the other stages together
-    (camera rays, shading, accumulation), each with its share of hwbvh's time and its time
-    ratio (median over rounds, as ``_paired_ratio``), each query stage beside its kind's work
-    ratio. ``floor_vs_work``: how far the render's ratio would sit from the work ratio if each
-    query stage's time followed its kind's work exactly and the other stages took the time
-    they took: what the stages that do not trace add to the gap, which no tree can change."""
-    def part(run, stages):
-        return sum(run[st] for st in stages)
-
-    others = [st for st in runs["hwbvh"][0] if st not in KINDS] if runs["hwbvh"] else []
+    (camera rays, ray queues, shading, accumulation), each with its share of hwbvh's time and
+    its time ratio (median over rounds, as ``_paired_ratio``), each query stage beside its
+    kind's work ratio. ``floor_vs_work``: how far the render's ratio would sit from the work
+    ratio were the queries' time to follow the work ratio exactly and the other stages to take
+    the time they took: what the stages that do not trace add to the gap, which no tree can
+    change."""
     parts = {KINDS[st]: [st] for st in KINDS}
-    parts["other"] = others
+    parts["other"] = [st for st in runs["hwbvh"][0] if st not in KINDS]
     out = {}
     for name, stages in parts.items():
-        seconds = {b: [part(run, stages) for run in runs[b]] for b in BUILDERS}
+        seconds = {b: [sum(run[st] for st in stages) for run in runs[b]] for b in BUILDERS}
         out[name] = {"seconds": statistics.median(seconds["hwbvh"]),
                      "ratio": _paired_ratio(seconds) if all(seconds["hwbvh"]) else None,
                      "work_ratio": kind_ratio.get(name)}
     total = sum(p["seconds"] for p in out.values())
     for p in out.values():
         p["share"] = p.pop("seconds") / total if total > 0 else None
-    # each part as its work would have it (the other stages as they ran); a part that took
-    # no time counts for nothing, one that took time for work it cannot compare leaves no floor
-    as_work = [(p["share"], p["work_ratio"] if name in kind_ratio else p["ratio"])
-               for name, p in out.items() if p["share"]]
-    followed = sum(share * r for share, r in as_work) \
-        if as_work and all(r is not None for _, r in as_work) else None
-    out["floor_vs_work"] = _gap(followed, work_ratio) if followed is not None else None
+    other = out["other"]
+    floor = None
+    if work_ratio and other["share"] is not None and (other["share"] == 0 or other["ratio"]):
+        followed = (1 - other["share"]) * work_ratio + other["share"] * (other["ratio"] or 0)
+        floor = _gap(followed, work_ratio)
+    out["floor_vs_work"] = floor
     return out
 
 
@@ -407,10 +403,10 @@ def human(r):
                          f"{_share(st['other']['share']):>8}{_ratio(st['other']['ratio']):>7}"
                          f"{_percent(st['floor_vs_work']):>11}")
     lines.append("closest, shadow: the render's closest-hit and shadow queries; other stages: camera "
-                 "rays, shading, accumulation; share of hwbvh's render; render vs work if followed: "
-                 "the render's gap to the work ratio were each query's time to follow its kind's "
-                 "work and the other stages to take the time they took, the part of the gap that "
-                 "no tree can change")
+                 "rays, ray queues, shading, accumulation; share of hwbvh's render; render vs work "
+                 "if followed: the render's gap to the work ratio were its queries' time to follow "
+                 "the work ratio and the other stages to take the time they took, what the stages "
+                 "that do not trace add to the gap, which no tree can change")
     lines += _class_table("where the trace time goes (the packet render's queries by kind and "
                           "path, traced again class by class):", w,
                           ("rays", "", ">9"), ("share of", "hw trace", ">10"),

@@ -576,10 +576,30 @@ def test_a_rerun_naming_the_same_scene_file_another_way_resumes(tmp_path, capsys
     (out_dir / "animation.json").write_text(json.dumps(state))
     rc, out, err = _run_cli(capsys, "animate", f"./{scene.name}", "-o", out_dir, "--json")
     assert rc == 0 and json.loads(out)["resumed_from"] == 2, err
-    twin = tmp_path / "twin.json"
+    twin = tmp_path / "other" / scene.name
+    twin.parent.mkdir()
     twin.write_text(scene.read_text())
     rc, _, err = _run_cli(capsys, "animate", twin, "-o", out_dir, "--json")
-    assert rc == 2 and "holds frames of another run (scene: 'anim', now 'twin')" in err
+    assert rc == 2 and f"holds frames of another run (source: '{os.path.realpath(scene)}', " \
+        f"now '{os.path.realpath(twin)}')" in err
+
+
+def test_a_built_in_animation_is_its_name_whatever_files_share_it(tmp_path, monkeypatch):
+    """A built-in's name stays a name in a run's state, though a file or directory of that
+    name (its own output directory) stands where the command runs: a rerun from elsewhere is
+    the same run."""
+    from hwrt.animate import _same_source, _source_path
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "marbles").mkdir()
+    (tmp_path / "cornell").write_text("")
+    assert _source_path("marbles") == "marbles" and _source_path("cornell") == "cornell"
+    assert _same_source("marbles", "marbles")
+    (tmp_path / "s.json").write_text("{}")
+    assert _source_path("s.json") == os.path.realpath(tmp_path / "s.json")
+    assert _source_path("f_%04d.ply") == os.path.realpath(tmp_path / "f_%04d.ply")
+    assert _same_source("s.json", os.path.realpath(tmp_path / "s.json"))
+    assert not _same_source("t.json", os.path.realpath(tmp_path / "s.json"))
 
 
 def test_a_damaged_frame_is_rendered_again_on_resume(tmp_path, capsys):

@@ -419,9 +419,10 @@ def test_nonnegative_least_squares_keeps_prices_at_or_above_zero():
 
 def test_stage_split_shares_ratios_and_the_floor_the_untraced_stages_set():
     """``bench trees``' split of the render: shares of hwbvh's time that add up to 1, each
-    part's time ratio, and the gap to the work ratio that remains were each query stage to
-    follow its kind's work: here 0.5 x 0.8 + 0.25 x 0.5 + 0.25 x 1.0 against 0.7. A stage that
-    took no time (no shadow rays) leaves the floor to the others."""
+    part's time ratio, and the gap to the work ratio that the other stages leave were the
+    queries' time to follow the work ratio: here 0.75 x 0.6 + 0.25 x 1.0 against 0.6 (not
+    the kinds' own ratios, 0.5 x 0.8 + 0.25 x 0.5). A stage that took no time (no shadow
+    rays) has a share of 0 and no ratio."""
     from hwrt.trees import _stage_split
 
     def run(intersect, occluded, shade):
@@ -429,14 +430,15 @@ def test_stage_split_shares_ratios_and_the_floor_the_untraced_stages_set():
                 "occluded": occluded, "accumulate": 0.0}
 
     runs = {"hwbvh": [run(2.0, 1.0, 1.0)] * 3, "sweep": [run(1.6, 0.5, 1.0)] * 3}
-    s = _stage_split(runs, {"closest": 0.8, "shadow": 0.5}, 0.7)
+    s = _stage_split(runs, {"closest": 0.8, "shadow": 0.5}, 0.6)
     assert [s[p]["share"] for p in ("closest", "shadow", "other")] == [0.5, 0.25, 0.25]
     assert [s[p]["ratio"] for p in ("closest", "shadow", "other")] == [0.8, 0.5, 1.0]
-    assert s["floor_vs_work"] == pytest.approx(0.775 / 0.7 - 1)
+    assert [s[p]["work_ratio"] for p in ("closest", "shadow", "other")] == [0.8, 0.5, None]
+    assert s["floor_vs_work"] == pytest.approx(0.7 / 0.6 - 1)
     unlit = {"hwbvh": [run(2.0, 0.0, 2.0)], "sweep": [run(1.0, 0.0, 2.0)]}
     s = _stage_split(unlit, {"closest": 0.5, "shadow": None}, 0.5)
     assert s["shadow"]["share"] == 0 and s["shadow"]["ratio"] is None
     assert s["floor_vs_work"] == pytest.approx(0.75 / 0.5 - 1)
-    # time spent on rays whose work has no ratio (no node visited by either tree): no floor
+    # rays that visit no node with either tree: no work ratio, no floor
     assert _stage_split({"hwbvh": [run(1.0, 1.0, 1.0)], "sweep": [run(1.0, 1.0, 1.0)]},
                         {"closest": None, "shadow": 1.0}, None)["floor_vs_work"] is None
