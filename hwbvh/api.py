@@ -228,6 +228,18 @@ def tree_prefix(prefix):
     return stem if ext in TREE_EXTENSIONS and os.path.basename(stem) else prefix
 
 
+def prefix_problem(prefix):
+    """Why ``prefix`` cannot name a tree's three files, or None: empty, a directory, or ending
+    in a path separator would each write hidden files (``.nodes``, ...) in a directory."""
+    if not prefix:
+        return "is empty"
+    if os.path.isdir(prefix):
+        return "names a directory"
+    if prefix.endswith(tuple(filter(None, (os.sep, os.altsep)))):
+        return "ends in a path separator"
+    return None
+
+
 def tree_files(bvh, prefix):
     """The (path, data) pairs of :func:`tree_paths` for :func:`hwbvh.files.write_files` (alone,
     or in one set with other files); each file's bytes are made as it is written."""
@@ -245,6 +257,10 @@ def save(bvh, prefix):
     if not all(hasattr(bvh, a) for a in ("nodes", "indices", "meta")):
         raise ParameterError("bvh", f"expected an hwbvh.Bvh, got {type(bvh).__name__}")
     prefix = _path_of(prefix, "prefix")
+    problem = prefix_problem(prefix)
+    if problem:
+        raise ParameterError("prefix", f"{prefix!r} {problem}: give a prefix of file names such "
+                                       f"as {os.path.join(prefix, 'tree')!r}")
     meta = bvh.meta
     if not isinstance(meta, dict):
         raise ParameterError("bvh.meta", f"expected a dict, got {type(meta).__name__}")

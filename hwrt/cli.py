@@ -187,7 +187,7 @@ def cmd_build(args):
     import time
     import numpy as np
     from hwbvh import config
-    from hwbvh.api import build, tree_files, tree_paths, warm_up
+    from hwbvh.api import build, prefix_problem, tree_files, tree_paths, warm_up
     from hwbvh.builder import builds_in_parallel
     from hwbvh.errors import InputError
     from hwbvh.files import check_outputs, directory_problem, json_text, made_as_written
@@ -202,9 +202,7 @@ def cmd_build(args):
                              f"--builder {' and '.join(readers)})")
     planned = []
     if args.out:
-        # PREFIX.nodes etc.: a directory's prefix would write hidden files .nodes etc. in it
-        problem = ("names a directory" if os.path.isdir(args.out) else "ends in a path separator"
-                   if args.out.endswith(tuple(filter(None, (os.sep, os.altsep)))) else None)
+        problem = prefix_problem(args.out)
         if problem:
             raise InputError("--out", f"{args.out} {problem}; give a prefix of file names such as "
                                       f"{os.path.join(args.out, 'tree')} (writes PREFIX.nodes, "

@@ -11,6 +11,7 @@ import pytest
 import hwbvh
 from hwbvh.config import MAX_COORDINATE
 from hwbvh import NODE_DTYPE, InputError
+from hwbvh.errors import ParameterError
 from hwbvh.format import pack_indices, unpack_indices
 from hwbvh.primitives import pack_records, primitive_boxes, unpack_records
 from scenes.meshes import random_soup, sphere
@@ -90,6 +91,12 @@ def test_save_load_roundtrip(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["s.indices", "s.json", "s.nodes", "t.indices",
                                             "t.json", "t.nodes"]
     assert hwbvh.load(tmp_path / "t.json").nodes.tobytes() == other.nodes.tobytes()
+    for bad, problem in (("", "is empty"), (str(tmp_path), "names a directory"),
+                         (str(tmp_path / "sub") + os.sep, "ends in a path separator")):
+        with pytest.raises(ParameterError, match=f"^prefix: .* {problem}: give a prefix"):
+            hwbvh.save(other, bad)         # would write hidden files .nodes etc.
+    assert sorted(os.listdir(tmp_path)) == ["s.indices", "s.json", "s.nodes", "t.indices",
+                                            "t.json", "t.nodes"]
     (tmp_path / "t.json").write_text('{"nodes": 5,\n "triangles": ')     # cut short
     with pytest.raises(InputError, match=r"t\.json: not valid JSON \(Expecting value at line 2, "
                                          r"column 15\)$"):
@@ -367,3 +374,27 @@ def test_a_mesh_whose_file_name_is_not_utf8_is_read(tmp_path, ext):
         f.write(data.encode() if isinstance(data, str) else data)
     v, f = load_mesh_arrays(name)
     assert len(f) == len(tris) and np.allclose(v[f], tris, atol=1e-6)
+
+
+def test_a_saved_tree_read_back_without_triangles_says_where_they_are(tmp_path):
+    """A tree read by load has no triangles: the tracer's refusal points to the mesh file it
+    was built from, or, for a refitted tree, to the triangles it was refitted to (its mesh
+    file's would lie outside its boxes)."""
+    import trimesh
+    from hwbvh.refit import refit
+    from traversal import Tracer
+
+    tris = sphere(8, 12)
+    mesh = tmp_path / "ball.ply"
+    trimesh.Trimesh(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3),
+                    process=False).export(mesh)
+    built = hwbvh.build(str(mesh))
+    hwbvh.save(built, tmp_path / "built")
+    with pytest.raises(InputError, match=r"built from .*ball\.ply: triangles=hwbvh\."
+                                         r"load_triangles\(that file\)"):
+        Tracer(hwbvh.load(tmp_path / "built"))
+    moved = refit(built, hwbvh.load_triangles(str(mesh)) * 2)
+    hwbvh.save(moved, tmp_path / "moved")
+    with pytest.raises(InputError, match=r"a refitted tree: the triangles it was refitted to"):
+        Tracer(hwbvh.load(tmp_path / "moved"))
+    Tracer(hwbvh.load(tmp_path / "moved"), triangles=moved.triangles)

@@ -341,8 +341,12 @@ class Tracer(PacketCount):
         tris = getattr(bvh, "triangles", None) if triangles is None else triangles
         if tris is None:
             meta = getattr(bvh, "meta", None)
-            mesh = meta.get("source") if isinstance(meta, dict) else None
-            hint = f" (built from {mesh}: triangles=hwbvh.load_triangles(that file))" \
+            meta = meta if isinstance(meta, dict) else {}
+            mesh = meta.get("source")
+            # a refitted tree bounds the triangles it was refitted to, not its mesh file's
+            hint = " (a refitted tree: the triangles it was refitted to)" \
+                if meta.get("refitted") else \
+                f" (built from {mesh}: triangles=hwbvh.load_triangles(that file))" \
                 if isinstance(mesh, str) and mesh else ""
             raise InputError("bvh.triangles", f"the BVH has no triangles attached (a tree read "
                                               f"by hwbvh.load); pass triangles={hint}")
