@@ -556,9 +556,23 @@ def cmd_simulate(args):
                            subtree_builders=args.subtree_builders, ram_pairs=args.ram_pairs,
                            clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins,
                            control_latency=args.control_latency)
-    _emit(args, result, lambda r: _kv(r, ["preset", "triangles", "cycles", "seconds", "energy_joules",
-                                          "area_mm2", "active_power_w", "traffic_bytes",
-                                          "footprint_bytes", "utilisation", "sah_cost"]))
+    changed = _knobs_changed(result["parameters"], args.preset)
+    _emit(args, result, lambda r: _kv(dict(r, changed=changed) if changed else r,
+                                      ["preset", "changed", "triangles", "cycles", "seconds",
+                                       "energy_joules", "area_mm2", "active_power_w",
+                                       "traffic_bytes", "footprint_bytes", "utilisation",
+                                       "sah_cost"]))
+
+
+def _knobs_changed(parameters, preset):
+    """The knobs of a simulated configuration that differ from ``preset``'s, as a line:
+    "w 2 (preset: 4), capacity 4096 (preset: 8192)"; "" for the preset itself."""
+    from dataclasses import asdict
+    from hwbvh.cycle_model import PRESETS, params_for
+
+    base = asdict(PRESETS[preset]) | {"capacity": params_for(preset).capacity}
+    return ", ".join(f"{k} {_shown(v)} (preset: {_shown(base[k])})"
+                     for k, v in parameters.items() if k in base and base[k] != v)
 
 
 def cmd_explore(args):
@@ -834,6 +848,9 @@ def _frames_help(on_its_page=False):
             f"{BENCH_QUICK_FRAMES})")
 
 
+DEPTH_HELP = ("rays per path, the camera ray counted: 1 traces camera rays and their shadow "
+              "rays, with no reflection or refraction; 2 adds one reflection or refraction")
+
 BENCH_OPTION_HELP = {
     "mesh_dir": "directory of meshes", "repeat": "timed runs; figures are their medians",
     "rays": "rays per set",
@@ -844,7 +861,7 @@ BENCH_OPTION_HELP = {
     "scheduler": f"{DASK_HELP} ({' and '.join(BENCH_TIMES_ONE_AT_A_TIME)} time theirs one at "
                  "a time on one host)",
     "width": "image width", "height": "image height", "spp": "samples per pixel",
-    "max_depth": "rays per path, the camera ray counted (1: camera rays only)"}
+    "max_depth": DEPTH_HELP}
 
 
 # What --quick does to each benchmark that reads it
@@ -1208,8 +1225,7 @@ def make_parser():
     from traversal.verify import RAY_KINDS
     film = f"1-{MAX_FILM_SIDE}, width x height at most {MAX_FILM_PIXELS:,}"
     spp = f"1-{MAX_SPP}"
-    depth = (f"rays per path, 1-{MAX_DEPTH}, the camera ray counted: 1 traces camera rays "
-             f"only, 2 adds a reflection or refraction")
+    depth = f"{DEPTH_HELP}; 1-{MAX_DEPTH}"
     p = _Parser(prog="hwrt", description=DESCRIPTION, epilog=EPILOG)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -1258,7 +1274,8 @@ def make_parser():
                    help="the thesis' hardware instance")
     for name, text in (("w", "partitioning units per subtree builder"),
                        ("tsize", "threads per subtree builder"),
-                       ("psize", "primitives per buffer (capacity w * psize)"),
+                       ("psize", "primitives per buffer, with w * psize (the subtree capacity) "
+                                 f"at most {config.MAX_PRIMITIVES} and at least the leaf size"),
                        ("subtree-builders", "subtree builders"), ("ram-pairs", "DRAM channel pairs"),
                        ("leaf-size", "primitives per leaf"), ("bins", "SAH bins per axis")):
         lo, hi = config.KNOB_RANGES[name.replace("-", "_")]

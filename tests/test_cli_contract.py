@@ -1089,6 +1089,11 @@ def test_human_output_shows_what_does_not_apply_as_n_a(capsys, tetra):
     rc, out, err = call(capsys, "simulate", tetra)
     assert rc == 0, err
     assert "{" not in out and "'" not in out            # tables inline, not Python reprs
+    assert "changed" not in out                         # the preset as it is
+    # knobs given beside a preset: said in the text, not only in the JSON's parameters
+    rc, out, err = call(capsys, "simulate", tetra, "--preset", "HWBVH-HP", "--w", "2")
+    assert rc == 0, err
+    assert "changed: w 2 (preset: 4), capacity 4096 (preset: 8192)" in out
     from hwrt.cli import _shown
     assert _shown({"rays": 3, "closest": {"agree": 2, "t": 0.1234567}, "none": None}) == \
         "rays 3, closest (agree 2, t 0.123457), none n/a"
