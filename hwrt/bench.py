@@ -84,6 +84,17 @@ def check_distinct_scenes(specs):
         seen.add(key)
 
 
+def named_apart(rows):
+    """``rows`` (each with its "scene" name and its "source", the scene or file as given), each
+    row whose name another row shares renamed to its source: a scene file may carry the name of
+    a built-in scene, and two rows of one name could not be told apart on the page."""
+    names = [r["scene"] for r in rows]
+    for r in rows:
+        if names.count(r["scene"]) > 1:
+            r["scene"] = str(r["source"])
+    return rows
+
+
 def traceable(source, scene=None, triangles=None, points=None):
     """Refuse, naming ``source`` (a scene or mesh file as the user gave it), a compiled
     ``scene``, or ``triangles`` with rays from or toward ``points``, that the float32 units
@@ -267,7 +278,9 @@ def human(what):
                     lines.append(f"{m['mesh']:<{w}}{k:<12}{s['rays']:>9}{s['ours_mrays']:>11.2f}"
                                  f"{s['embreex_mrays']:>9.2f}{s['ratio_vs_embreex']:>7.2f}{o3}")
             lines.append(f"rates: {medians_of(r['repeat'])} each, ours and embreex alternating "
-                         "run by run; ratio: the median of the runs' ours / embreex rate")
+                         "run by run; ratio: the median of the runs' ours / embreex rate"
+                         + ("" if r.get("open3d") else "; open3d: not installed "
+                                                       "(pip install open3d)"))
             if r.get("accels"):
                 lines += ["", f"{'mesh':<{w}}{'accel':<8}{'build ms':>10}{'x sweep':>8}{'MiB':>8}"
                               f"{'refs/tri':>9}{'set':>12}{'Mr/s':>8}{'vs bvh':>8}"]
@@ -502,7 +515,8 @@ def bench_trace(args):
         structures.clear()
         rows.append(row)
     _open3d_phase(later, args.repeat)
-    result = {"meshes": rows, "machine": machine(), "repeat": args.repeat}
+    result = {"meshes": rows, "machine": machine(), "repeat": args.repeat,
+              "open3d": _open3d_importable()}
     if accels:
         result["accels"] = accels
     return result
@@ -584,7 +598,8 @@ def bench_render(args, commit=write_files):
         compared = peer_info is not None and not peer_info["skipped"]
         results.append(_render_scene(spec, scene, variants if compared else {}, peer_info,
                                      args.repeat))
-    result = jsonable({"scenes": results, "repeat": args.repeat, "machine": machine()})
+    result = jsonable({"scenes": named_apart(results), "repeat": args.repeat,
+                       "machine": machine()})
     if out_dir:
         files = [(os.path.join(out_dir, "render.json"), json.dumps(result, indent=1) + "\n"),
                  (os.path.join(out_dir, "render.md"), _render_markdown(result, args))]

@@ -69,6 +69,7 @@ def bench_contention(args, setups=None):
     """Every threading set-up in a child process; slowdown = busy / quiet time to image."""
     from hwbvh.errors import InputError
     from hwbvh.parallel import DEFAULT_THREADING, THREADING_SETUPS
+    from .bench import machine
 
     from scenes import compile_scene, load_scene, with_frame
     from .bench import traceable
@@ -95,7 +96,8 @@ def bench_contention(args, setups=None):
         r["slowdown_ratio"] = r["hwbvh_slowdown"] / r["embree_slowdown"]
         rows.append(r)
     return {"scene": scene, "width": args.width, "height": args.height, "spp": args.spp,
-            "repeat": args.repeat, "default_setup": DEFAULT_THREADING, "rows": rows}
+            "repeat": args.repeat, "default_setup": DEFAULT_THREADING, "rows": rows,
+            "machine": machine()}
 
 
 def human(r):

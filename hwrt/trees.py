@@ -75,7 +75,7 @@ def bench_trees(args):
     from raytracer.render import make_tracer, render, warm_up
     from traversal.tracers import CountingTracer, RecordingTracer
 
-    from .bench import check_distinct_scenes, traceable
+    from .bench import check_distinct_scenes, machine, named_apart, traceable
 
     check_distinct_scenes([str(s) for s in args.meshes])
     # every scene read and checked before any work: both trees trace in float32
@@ -89,7 +89,8 @@ def bench_trees(args):
         for b in BUILDERS:
             tracers[b], _, info = make_tracer(scene, b, "numba")
             sah[b] = info.get("sah_cost")
-        row = {"scene": scene.name, "width": scene.width, "height": scene.height, "spp": scene.spp,
+        row = {"scene": scene.name, "source": str(spec), "width": scene.width,
+               "height": scene.height, "spp": scene.spp,
                "sah_cost": sah}
         # packets (as the renderer runs them), then the single-ray unit alone; each against
         # the work it does
@@ -132,7 +133,7 @@ def bench_trees(args):
                          "trace_vs_work": _gap(trace_ratio, work_ratio),
                          "stages": _stage_split(stage_runs, kind_ratio, work_ratio)}
         rows.append(row)
-    return {"rows": rows, "repeat": args.repeat}
+    return {"rows": named_apart(rows), "repeat": args.repeat, "machine": machine()}
 
 
 KINDS = {"intersect": "closest", "occluded": "shadow"}

@@ -1008,7 +1008,9 @@ def test_bench_report_written_to_out_dir(tmp_path, capsys):
     md = (out / "trees.md").read_text()
     assert "hwrt bench trees cornell --repeat 1" in md and "single-ray" in md
     assert "where the trace time goes" in md
-    row = json.loads((out / "trees.json").read_text())["rows"][0]
+    page = json.loads((out / "trees.json").read_text())
+    assert page["machine"]["cores"] >= 1             # where it was measured, as every page
+    row = page["rows"][0]
     assert row["scene"] == "cornell"
     # every ray of the packet render falls in exactly one class of the time split
     assert {(c["kind"], c["path"]) for c in row["by_path"]} <= {
@@ -1024,6 +1026,26 @@ def test_bench_report_written_to_out_dir(tmp_path, capsys):
         assert abs(sum(stages[p]["share"] for p in ("closest", "shadow", "other")) - 1) < 1e-9
         assert stages["closest"]["work_ratio"] > 0 and stages["other"]["work_ratio"] is None
         assert stages["floor_vs_work"] is not None
+
+
+def test_bench_rows_of_one_name_are_told_apart_by_their_source(tmp_path, capsys):
+    """A scene file named as a built-in scene, beside it: the two rows take the names given on
+    the command line, not "cornell" twice."""
+    from hwrt.bench import named_apart
+    from hwrt.cli import main
+    scene = tmp_path / "mine.json"
+    scene.write_text(json.dumps({
+        "name": "cornell", "camera": {"eye": [0, 0, 3], "target": [0, 0, 0]},
+        "film": {"width": 8, "height": 6, "spp": 1},
+        "lights": [{"type": "point", "position": [2, 3, 2], "intensity": [15, 15, 15]}],
+        "materials": {"m": {"type": "diffuse"}},
+        "shapes": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m"}]}))
+    assert main(["bench", "trees", "--repeat", "1", "--width", "8", "--height", "6", "--spp",
+                 "1", "--json", str(scene), "cornell"]) == 0
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    assert [r["scene"] for r in rows] == [str(scene), "cornell"]
+    assert [r["scene"] for r in named_apart([{"scene": "a", "source": "x"},
+                                             {"scene": "b", "source": "y"}])] == ["a", "b"]
 
 
 def test_bench_trees_on_a_scene_whose_rays_do_no_work_gives_null_ratios(tmp_path, capsys):
