@@ -746,6 +746,14 @@ def _bench_summary(runs, structures):
     return out
 
 
+def _frame_axis(ax, label):
+    """An x axis of frame numbers: whole frames on its ticks (a short run would be ticked 0.0,
+    0.2, ...), and ``label`` under it unless None."""
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    if label:
+        ax.set_xlabel(label)
 
 
 def _bench_files(out_dir, rows, summary, runs, frames, args, structures):
@@ -779,8 +787,7 @@ def _bench_files(out_dir, rows, summary, runs, frames, args, structures):
             ax.set_title(f"{name} / {s}", fontsize=9)
             if b == 0:
                 ax.set_ylabel("ms per frame")
-            if a == len(names) - 1:
-                ax.set_xlabel("frame")
+            _frame_axis(ax, "frame" if a == len(names) - 1 else None)
             if a == 0 and b == 0:
                 ax.legend(fontsize=7, loc="upper left")
     files.append((os.path.join(out_dir, BENCH_FILES["per_frame"]), figure_png(fig)))
@@ -812,7 +819,7 @@ def _bench_files(out_dir, rows, summary, runs, frames, args, structures):
                 ax.axvline(f["frame"], color="r", lw=0.8, alpha=0.5)
         ax.set_yscale("log")
         ax.set_title(name)
-        ax.set_xlabel("frame (red: adaptive rebuilds)")
+        _frame_axis(ax, "frame (red: adaptive rebuilds)")
         ax.set_ylabel("SAH cost / rebuild's")
         ax.legend(fontsize=8)
     files.append((os.path.join(out_dir, BENCH_FILES["drift"]), figure_png(fig)))
@@ -829,7 +836,7 @@ def _bench_files(out_dir, rows, summary, runs, frames, args, structures):
             ax.plot([f["frame"] for f in fr], [f["time_to_image_seconds"] * 1e3 for f in fr], label=st)
         ax.set_yscale("log")
         ax.set_title(name)
-        ax.set_xlabel("frame")
+        _frame_axis(ax, "frame")
         ax.set_ylabel("time to image, ms per frame")
         ax.legend(fontsize=7)
     files.append((os.path.join(out_dir, BENCH_FILES["structures"]), figure_png(fig)))

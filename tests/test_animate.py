@@ -921,3 +921,19 @@ def test_animate_verify_warns_naming_the_frames_whose_check_made_another_image(
         "hwrt: warning: the checked render of frame 1 made another image than the timed render: "
         "its answers were checked, the timed render's were not (the renderer is not "
         "deterministic here)"]
+
+
+def test_frame_axes_tick_whole_frames():
+    """A run of three frames is ticked 0, 1, 2, not 0.0, 0.2, ..."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from hwrt.animate import _frame_axis
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1, 2], [3.0, 1.0, 2.0])
+    _frame_axis(ax, "frame")
+    fig.canvas.draw()
+    ticks = [t for t in ax.get_xticks() if 0 <= t <= 2]
+    assert ticks and all(float(t).is_integer() for t in ticks) and ax.get_xlabel() == "frame"
+    plt.close(fig)
