@@ -942,7 +942,8 @@ def _bench_options(args):
                 setattr(args, dest, default)
         return
     for dest in sorted(vars(args)):
-        if dest in ("command", "func", "what", "json", "argv", "signals_owned") or dest in table \
+        if dest in ("command", "func", "what", "json", "argv", "environment", "signals_owned") \
+                or dest in table \
                 or getattr(args, dest) in (None, False, []):
             continue
         if dest == "meshes":
@@ -1579,6 +1580,22 @@ def _late_meshes(parser, extra):
         parser.error(f"argument MESH: {e}")
 
 
+def _environment_read(args):
+    """The environment variables a benchmark's results depend on beyond its command line, for
+    the command its page records: $HWRT_MESHES where it supplies the meshes (a benchmark given
+    no meshes and no --mesh-dir, or the animation benchmark's exploding bunny)."""
+    from .paths import MESH_DIR_ENV
+
+    value = os.environ.get(MESH_DIR_ENV)
+    if not value or args.command != "bench":
+        return {}
+    reads = BENCH_OPTIONS.get(args.what, {})
+    from_dir = args.what == "animation" or (
+        "mesh_dir" in reads and getattr(args, "mesh_dir", None) is None
+        and not getattr(args, "meshes", None))
+    return {MESH_DIR_ENV: value} if from_dir else {}
+
+
 def _run(argv, signals_owned):
     """Parse ``argv`` and run its command; the exit status. Interrupts go to the caller."""
     from hwbvh.errors import InputError
@@ -1595,6 +1612,7 @@ def _run(argv, signals_owned):
         elif extra:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         args.argv = argv
+        args.environment = _environment_read(args)
         args.signals_owned = signals_owned
         for name in (PROGRESS_ENV, DEBUG_ENV):
             if env_flag(name) is None:

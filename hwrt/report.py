@@ -6,9 +6,14 @@ import shlex
 
 
 def command_of(args):
-    """The ``hwrt`` command line of a parsed CLI call, or None for a call from Python."""
+    """The ``hwrt`` command line of a parsed CLI call, or None for a call from Python; led by
+    the environment variables its results depend on (``HWRT_MESHES=... hwrt bench build``),
+    so that the line makes them again."""
     argv = getattr(args, "argv", None)
-    return None if argv is None else "hwrt " + " ".join(shlex.quote(a) for a in argv)
+    if argv is None:
+        return None
+    env = "".join(f"{k}={shlex.quote(v)} " for k, v in getattr(args, "environment", {}).items())
+    return env + "hwrt " + " ".join(shlex.quote(a) for a in argv)
 
 
 def made_by(command):

@@ -1028,6 +1028,28 @@ def test_bench_report_written_to_out_dir(tmp_path, capsys):
         assert stages["floor_vs_work"] is not None
 
 
+def test_a_page_made_from_the_mesh_directory_of_the_environment_names_it(tmp_path, capsys,
+                                                                         monkeypatch):
+    """A benchmark whose meshes come from $HWRT_MESHES records it before its command, so that
+    the page's line makes the page again; one given its meshes does not."""
+    import trimesh
+    from hwrt.cli import main
+    from scenes.meshes import sphere
+    d = tmp_path / "my meshes"
+    d.mkdir()
+    tris = sphere(6, 8)
+    trimesh.Trimesh(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3),
+                    process=False).export(d / "ball.ply")
+    monkeypatch.setenv("HWRT_MESHES", str(d))
+    assert main(["bench", "build", "--repeat", "1", "--out-dir", str(tmp_path / "a")]) == 0
+    assert f"Made by `HWRT_MESHES='{d}' hwrt bench build --repeat 1 --out-dir " in \
+        (tmp_path / "a" / "build.md").read_text()
+    assert main(["bench", "build", str(d / "ball.ply"), "--repeat", "1", "--out-dir",
+                 str(tmp_path / "b")]) == 0
+    assert "Made by `hwrt bench build " in (tmp_path / "b" / "build.md").read_text()
+    capsys.readouterr()
+
+
 def test_bench_rows_of_one_name_are_told_apart_by_their_source(tmp_path, capsys):
     """A scene file named as a built-in scene, beside it: the two rows take the names given on
     the command line, not "cornell" twice."""
