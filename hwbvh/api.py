@@ -229,15 +229,25 @@ def tree_prefix(prefix):
 
 
 def prefix_problem(prefix):
-    """Why ``prefix`` cannot name a tree's three files, or None: empty, a directory, or ending
-    in a path separator would each write hidden files (``.nodes``, ...) in a directory."""
+    """Why ``prefix`` cannot name a tree's three files, or None: empty, a directory, ending in
+    a path separator or a file name starting with a dot would each write hidden files
+    (``.nodes``, ``.json.nodes``, ...)."""
     if not prefix:
         return "is empty"
     if os.path.isdir(prefix):
         return "names a directory"
     if prefix.endswith(tuple(filter(None, (os.sep, os.altsep)))):
         return "ends in a path separator"
+    if os.path.basename(prefix).startswith("."):
+        return "is a file name starting with a dot (hidden files)"
     return None
+
+
+def prefix_example(prefix):
+    """A prefix of file names to suggest in place of ``prefix``, which ``prefix_problem``
+    refuses: ``tree`` in the directory it names, or beside the file name it gives."""
+    inside = os.path.isdir(prefix) or prefix.endswith(tuple(filter(None, (os.sep, os.altsep))))
+    return os.path.join(prefix if inside else os.path.dirname(prefix), "tree")
 
 
 def tree_files(bvh, prefix):
@@ -260,7 +270,7 @@ def save(bvh, prefix):
     problem = prefix_problem(prefix)
     if problem:
         raise ParameterError("prefix", f"{prefix!r} {problem}: give a prefix of file names such "
-                                       f"as {os.path.join(prefix, 'tree')!r}")
+                                       f"as {prefix_example(prefix)!r}")
     meta = bvh.meta
     if not isinstance(meta, dict):
         raise ParameterError("bvh.meta", f"expected a dict, got {type(meta).__name__}")

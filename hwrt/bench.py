@@ -84,15 +84,19 @@ def check_distinct_scenes(specs):
         seen.add(key)
 
 
-def named_apart(rows):
-    """``rows`` (each with its "scene" name and its "source", the scene or file as given), each
-    row whose name another row shares renamed to its source: a scene file may carry the name of
-    a built-in scene, and two rows of one name could not be told apart on the page."""
-    names = [r["scene"] for r in rows]
-    for r in rows:
-        if names.count(r["scene"]) > 1:
+def told_apart(rows):
+    """``rows`` (each with its "scene" name and its "source", the scene or file as given), a
+    row whose name another row shares renamed to its source, until no two share one: a scene
+    file may carry a built-in scene's name, and two rows of one name could not be told apart
+    on the page. (The sources differ: ``check_distinct_scenes``.)"""
+    while True:
+        names = [r["scene"] for r in rows]
+        shared = [r for r in rows
+                  if names.count(r["scene"]) > 1 and r["scene"] != str(r["source"])]
+        if not shared:
+            return rows
+        for r in shared:
             r["scene"] = str(r["source"])
-    return rows
 
 
 def traceable(source, scene=None, triangles=None, points=None):
@@ -279,8 +283,8 @@ def human(what):
                                  f"{s['embreex_mrays']:>9.2f}{s['ratio_vs_embreex']:>7.2f}{o3}")
             lines.append(f"rates: {medians_of(r['repeat'])} each, ours and embreex alternating "
                          "run by run; ratio: the median of the runs' ours / embreex rate"
-                         + ("" if r.get("open3d") else "; open3d: not installed "
-                                                       "(pip install open3d)"))
+                         + (f"; open3d: {r['open3d_missing']}" if r.get("open3d_missing")
+                            else ""))
             if r.get("accels"):
                 lines += ["", f"{'mesh':<{w}}{'accel':<8}{'build ms':>10}{'x sweep':>8}{'MiB':>8}"
                               f"{'refs/tri':>9}{'set':>12}{'Mr/s':>8}{'vs bvh':>8}"]
@@ -368,11 +372,14 @@ def _open3d_scene(verts, faces):
 
 
 def _open3d_phase(cells, repeat):
-    """Open3D's column, timed after all of ours (see bench_trace)."""
+    """Open3D's column, timed after all of ours (see bench_trace). Returns None when Open3D
+    was timed, else why not, for the page."""
+    if not _open3d_importable():
+        return "not installed (pip install open3d)"
     try:
         import open3d as o3
-    except Exception:
-        return
+    except Exception as e:
+        return f"cannot be imported ({type(e).__name__})"
     current, sc = None, None
     for row, v32, f32, O32, D32, tm32, t_ours in cells:
         if current is not v32:                      # one mesh's scene alive at a time
@@ -386,6 +393,7 @@ def _open3d_phase(cells, repeat):
         t_o3, _ = _median_time(f, repeat)
         row["open3d_mrays"] = len(O32) / t_o3 / 1e6
         row["ratio_vs_open3d"] = t_o3 / t_ours
+    return None
 
 
 def warm_up_accel(accel):
@@ -514,9 +522,8 @@ def bench_trace(args):
             row["sweep_bvh_build_seconds"] = sweep_s
         structures.clear()
         rows.append(row)
-    _open3d_phase(later, args.repeat)
     result = {"meshes": rows, "machine": machine(), "repeat": args.repeat,
-              "open3d": _open3d_importable()}
+              "open3d_missing": _open3d_phase(later, args.repeat)}
     if accels:
         result["accels"] = accels
     return result
@@ -598,7 +605,7 @@ def bench_render(args, commit=write_files):
         compared = peer_info is not None and not peer_info["skipped"]
         results.append(_render_scene(spec, scene, variants if compared else {}, peer_info,
                                      args.repeat))
-    result = jsonable({"scenes": named_apart(results), "repeat": args.repeat,
+    result = jsonable({"scenes": told_apart(results), "repeat": args.repeat,
                        "machine": machine()})
     if out_dir:
         files = [(os.path.join(out_dir, "render.json"), json.dumps(result, indent=1) + "\n"),

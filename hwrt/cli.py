@@ -187,7 +187,8 @@ def cmd_build(args):
     import time
     import numpy as np
     from hwbvh import config
-    from hwbvh.api import build, prefix_problem, tree_files, tree_paths, warm_up
+    from hwbvh.api import (build, prefix_example, prefix_problem, tree_files, tree_paths,
+                           warm_up)
     from hwbvh.builder import builds_in_parallel
     from hwbvh.errors import InputError
     from hwbvh.files import check_outputs, directory_problem, json_text, made_as_written
@@ -205,7 +206,7 @@ def cmd_build(args):
         problem = prefix_problem(args.out)
         if problem:
             raise InputError("--out", f"{args.out} {problem}; give a prefix of file names such as "
-                                      f"{os.path.join(args.out, 'tree')} (writes PREFIX.nodes, "
+                                      f"{prefix_example(args.out)} (writes PREFIX.nodes, "
                                       f"PREFIX.indices and PREFIX.json)")
         problem = directory_problem(args.out)     # one for all three files: name the prefix
         if problem:
@@ -568,10 +569,14 @@ def _knobs_changed(parameters, preset):
     """The knobs of a simulated configuration that differ from ``preset``'s, as a line:
     "w 2 (preset: 4), capacity 4096 (preset: 8192)"; "" for the preset itself."""
     from dataclasses import asdict
-    from hwbvh.cycle_model import PRESETS, params_for
+    from hwbvh.cycle_model import PRESETS
 
-    base = asdict(PRESETS[preset]) | {"capacity": params_for(preset).capacity}
-    return ", ".join(f"{k} {_shown(v)} (preset: {_shown(base[k])})"
+    base = asdict(PRESETS[preset]) | {"capacity": PRESETS[preset].capacity}
+
+    def shown_apart(v, w):          # as many digits as tell the two apart
+        return (_shown(v), _shown(w)) if _shown(v) != _shown(w) else (repr(v), repr(w))
+
+    return ", ".join("{} {} (preset: {})".format(k, *shown_apart(v, base[k]))
                      for k, v in parameters.items() if k in base and base[k] != v)
 
 
@@ -1583,14 +1588,16 @@ def _late_meshes(parser, extra):
 def _environment_read(args):
     """The environment variables a benchmark's results depend on beyond its command line, for
     the command its page records: $HWRT_MESHES where it supplies the meshes (a benchmark given
-    no meshes and no --mesh-dir, or the animation benchmark's exploding bunny)."""
+    no meshes and no --mesh-dir, or the animation benchmark's exploding bunny, but for
+    --quick's)."""
     from .paths import MESH_DIR_ENV
 
     value = os.environ.get(MESH_DIR_ENV)
     if not value or args.command != "bench":
         return {}
     reads = BENCH_OPTIONS.get(args.what, {})
-    from_dir = args.what == "animation" or (
+    # --quick's exploding animation explodes a generated sphere, not the directory's bunny
+    from_dir = (args.what == "animation" and not args.quick) or (
         "mesh_dir" in reads and getattr(args, "mesh_dir", None) is None
         and not getattr(args, "meshes", None))
     return {MESH_DIR_ENV: value} if from_dir else {}

@@ -69,10 +69,9 @@ def bench_contention(args, setups=None):
     """Every threading set-up in a child process; slowdown = busy / quiet time to image."""
     from hwbvh.errors import InputError
     from hwbvh.parallel import DEFAULT_THREADING, THREADING_SETUPS
-    from .bench import machine
 
     from scenes import compile_scene, load_scene, with_frame
-    from .bench import traceable
+    from .bench import machine, traceable
 
     scene = args.meshes[0] if args.meshes else "cornell"
     # read and checked here, as each child will read it, so that a bad scene or setting is

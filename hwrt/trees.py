@@ -75,7 +75,7 @@ def bench_trees(args):
     from raytracer.render import make_tracer, render, warm_up
     from traversal.tracers import CountingTracer, RecordingTracer
 
-    from .bench import check_distinct_scenes, machine, named_apart, traceable
+    from .bench import check_distinct_scenes, machine, told_apart, traceable
 
     check_distinct_scenes([str(s) for s in args.meshes])
     # every scene read and checked before any work: both trees trace in float32
@@ -133,7 +133,7 @@ def bench_trees(args):
                          "trace_vs_work": _gap(trace_ratio, work_ratio),
                          "stages": _stage_split(stage_runs, kind_ratio, work_ratio)}
         rows.append(row)
-    return {"rows": named_apart(rows), "repeat": args.repeat, "machine": machine()}
+    return {"rows": told_apart(rows), "repeat": args.repeat, "machine": machine()}
 
 
 KINDS = {"intersect": "closest", "occluded": "shadow"}

@@ -1048,12 +1048,18 @@ def test_a_page_made_from_the_mesh_directory_of_the_environment_names_it(tmp_pat
                  str(tmp_path / "b")]) == 0
     assert "Made by `hwrt bench build " in (tmp_path / "b" / "build.md").read_text()
     capsys.readouterr()
+    from hwrt.cli import _environment_read, make_parser
+    read = lambda *argv: _environment_read(make_parser().parse_args(list(argv)))
+    assert read("bench", "animation") == {"HWRT_MESHES": str(d)}      # its exploding bunny
+    assert read("bench", "animation", "--quick") == {}       # a generated sphere instead
+    assert read("bench", "build", "--mesh-dir", str(d)) == {}
+    assert read("bench", "trees") == {} and read("render") == {}
 
 
 def test_bench_rows_of_one_name_are_told_apart_by_their_source(tmp_path, capsys):
     """A scene file named as a built-in scene, beside it: the two rows take the names given on
     the command line, not "cornell" twice."""
-    from hwrt.bench import named_apart
+    from hwrt.bench import told_apart
     from hwrt.cli import main
     scene = tmp_path / "mine.json"
     scene.write_text(json.dumps({
@@ -1066,8 +1072,13 @@ def test_bench_rows_of_one_name_are_told_apart_by_their_source(tmp_path, capsys)
                  "1", "--json", str(scene), "cornell"]) == 0
     rows = json.loads(capsys.readouterr().out)["rows"]
     assert [r["scene"] for r in rows] == [str(scene), "cornell"]
-    assert [r["scene"] for r in named_apart([{"scene": "a", "source": "x"},
-                                             {"scene": "b", "source": "y"}])] == ["a", "b"]
+    assert [r["scene"] for r in told_apart([{"scene": "a", "source": "x"},
+                                            {"scene": "b", "source": "y"}])] == ["a", "b"]
+    # a row renamed to its source may meet another row's name: renamed again until apart
+    rows = told_apart([{"scene": "cornell", "source": "a.json"},
+                       {"scene": "cornell", "source": "cornell"},
+                       {"scene": "a.json", "source": "b.json"}])
+    assert [r["scene"] for r in rows] == ["a.json", "cornell", "b.json"]
 
 
 def test_bench_trees_on_a_scene_whose_rays_do_no_work_gives_null_ratios(tmp_path, capsys):
@@ -1138,6 +1149,8 @@ def test_human_output_shows_what_does_not_apply_as_n_a(capsys, tetra):
     rc, out, err = call(capsys, "simulate", tetra, "--preset", "HWBVH-HP", "--w", "2")
     assert rc == 0, err
     assert "changed: w 2 (preset: 4), capacity 4096 (preset: 8192)" in out
+    rc, out, err = call(capsys, "simulate", tetra, "--clock-mhz", "250.0000001")
+    assert rc == 0 and "changed: clock_mhz 250.0000001 (preset: 250.0)" in out, out
     from hwrt.cli import _shown
     assert _shown({"rays": 3, "closest": {"agree": 2, "t": 0.1234567}, "none": None}) == \
         "rays 3, closest (agree 2, t 0.123457), none n/a"
@@ -1249,7 +1262,8 @@ def test_bench_quick_is_described_as_seconds_not_minutes(capsys):
 # errors name what the user typed
 # ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("prefix,problem", [("d/", "names a directory"), ("d", "names a directory"),
-                                            ("new/", "ends in a path separator")])
+                                            ("new/", "ends in a path separator"),
+                                            ("d/.t", "a file name starting with a dot")])
 def test_build_refuses_an_out_prefix_that_is_a_directory(tmp_path, capsys, tetra, prefix, problem):
     (tmp_path / "d").mkdir()
     rc, out, err = call(capsys, "build", tetra, "--out", str(tmp_path) + os.sep + prefix)

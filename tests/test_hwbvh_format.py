@@ -92,8 +92,11 @@ def test_save_load_roundtrip(tmp_path):
                                             "t.json", "t.nodes"]
     assert hwbvh.load(tmp_path / "t.json").nodes.tobytes() == other.nodes.tobytes()
     for bad, problem in (("", "is empty"), (str(tmp_path), "names a directory"),
-                         (str(tmp_path / "sub") + os.sep, "ends in a path separator")):
-        with pytest.raises(ParameterError, match=f"^prefix: .* {problem}: give a prefix"):
+                         (str(tmp_path / "sub") + os.sep, "ends in a path separator"),
+                         (str(tmp_path / ".json"), r"is a file name starting with a dot "
+                                                   r"\(hidden files\)")):
+        with pytest.raises(ParameterError, match=f"^prefix: .* {problem}: give a prefix of file "
+                                                 f"names such as '(.*{os.sep})?tree'$"):
             hwbvh.save(other, bad)         # would write hidden files .nodes etc.
     assert sorted(os.listdir(tmp_path)) == ["s.indices", "s.json", "s.nodes", "t.indices",
                                             "t.json", "t.nodes"]
