@@ -228,6 +228,9 @@ def tree_prefix(prefix):
     return stem if ext in TREE_EXTENSIONS and os.path.basename(stem) else prefix
 
 
+_SEPARATORS = tuple(filter(None, (os.sep, os.altsep)))     # the path separators of this system
+
+
 def prefix_problem(prefix):
     """Why ``prefix`` cannot name a tree's three files, or None: empty, a directory, ending in
     a path separator or a file name starting with a dot would each write hidden files
@@ -236,7 +239,7 @@ def prefix_problem(prefix):
         return "is empty"
     if os.path.isdir(prefix):
         return "names a directory"
-    if prefix.endswith(tuple(filter(None, (os.sep, os.altsep)))):
+    if prefix.endswith(_SEPARATORS):
         return "ends in a path separator"
     if os.path.basename(prefix).startswith("."):
         return "is a file name starting with a dot (hidden files)"
@@ -246,7 +249,7 @@ def prefix_problem(prefix):
 def prefix_example(prefix):
     """A prefix of file names to suggest in place of ``prefix``, which ``prefix_problem``
     refuses: ``tree`` in the directory it names, or beside the file name it gives."""
-    inside = os.path.isdir(prefix) or prefix.endswith(tuple(filter(None, (os.sep, os.altsep))))
+    inside = os.path.isdir(prefix) or prefix.endswith(_SEPARATORS)
     return os.path.join(prefix if inside else os.path.dirname(prefix), "tree")
 
 
