@@ -4,9 +4,9 @@ glibc hands a freed block of 128 KiB or more straight back to the system (raisin
 threshold only as far as the largest block freed so far), so the fresh arrays of every build
 come back as new pages, and each first touch of a new page is a fault. A bunny build with its
 tracer's set-up touches some 15 MB of fresh arrays: about 3,700 faults, which on a virtual
-machine cost some 2 us each, a quarter of the build (measured: 32 -> 25 ms per build and
-tracer, ``MALLOC_MMAP_THRESHOLD`` and ``MALLOC_TRIM_THRESHOLD`` in ``config``). With the
-thresholds raised, freed memory stays in the heap for the next build.
+machine cost some 2 us each, a quarter of the build (measured: 25 ms per build and tracer
+with ``MALLOC_MMAP_THRESHOLD`` and ``MALLOC_TRIM_THRESHOLD`` raised as in ``config``, 32 ms
+without). With the thresholds raised, freed memory stays in the heap for the next build.
 
 For the whole process, like the threading set-up (``parallel``): the peers timed beside our
 build (Embree, Mitsuba) allocate from the same heap. Where the user tunes glibc's allocator in

@@ -7,7 +7,8 @@ import os
 
 import numpy as np
 
-from hwbvh.errors import ParameterError, checked_flag
+from hwbvh.config import MAX_PRIMITIVES
+from hwbvh.errors import InputError, ParameterError, checked_flag
 from hwbvh.files import write_files
 
 # The channels of an EXR that write_exr writes with its layers, in order (the image's three
@@ -68,7 +69,7 @@ def exr_writer(path, result, metadata=None, layers=True):
         normal = _check_image("result.normal", result.normal, (H, W, 3))
         prim = _check_image("result.prim", result.prim, (H, W))
         # ids go in float32, exact up to 2^24 (the most triangles a tree holds)
-        if prim.dtype.kind not in "iu" or prim.min() < -1 or prim.max() >= 1 << 24:
+        if prim.dtype.kind not in "iu" or prim.min() < -1 or prim.max() >= MAX_PRIMITIVES:
             raise ParameterError("result.prim", f"expected triangle ids, integers from -1 (no "
                                                 f"hit) below 2^24, got {prim.dtype} from "
                                                 f"{prim.min()} to {prim.max()}")
@@ -223,7 +224,6 @@ def read_render(path):
     """(``raytracer.render.RenderResult``, metadata) of an EXR that ``write_exr`` wrote with its
     layers: the image, depth, normal and primitive-id layers as a render returns them (``stats``
     empty; the header's hwrt:* values are the metadata)."""
-    from hwbvh.errors import InputError
     from .render import RenderResult
 
     px, chans, meta = read_exr(path)
@@ -235,14 +235,34 @@ def read_render(path):
 
 
 def read_exr(path):
-    """(pixels (h, w, c) float32, channel names, metadata dict of hwrt:* keys)."""
+    """(pixels (h, w, c) float32, channel names, metadata dict of hwrt:* keys). A file that is
+    missing or not a readable image raises ``InputError`` naming it."""
     import OpenImageIO as oiio
 
-    inp = oiio.ImageInput.open(os.fspath(path))
+    try:
+        name = os.fsdecode(path)
+    except TypeError:
+        raise ParameterError("path", f"expected a file path, got {type(path).__name__}") from None
+    if not os.path.isfile(name):
+        raise InputError(name, "no such file" if not os.path.exists(name) else "not a file")
+    inp = oiio.ImageInput.open(name)
     if inp is None:
-        raise OSError(oiio.geterror())
-    spec = inp.spec()
-    px = inp.read_image("float")
+        raise InputError(name, f"not a readable image ({_oiio_problem(oiio.geterror(), name)})")
+    try:
+        spec = inp.spec()
+        px = inp.read_image("float")
+        problem = _oiio_problem(inp.geterror(), name) if px is None else None
+    finally:
+        inp.close()
+    if px is None:
+        raise InputError(name, f"cannot be read ({problem or 'unknown error'})")
     meta = {a.name[5:]: a.value for a in spec.extra_attribs if a.name.startswith("hwrt:")}
-    inp.close()
     return px, list(spec.channelnames), meta
+
+
+def _oiio_problem(message, name):
+    """OpenImageIO's error text on one line, without the file name it repeats."""
+    text = " ".join(message.split())
+    for quoted in (f'"{name}"', f"({name})", name):
+        text = text.replace(quoted, "")
+    return " ".join(text.replace(" :", ":").split()) or "unknown error"

@@ -1744,8 +1744,9 @@ def test_a_hard_link_to_a_mesh_given_beside_it_is_given_twice(capsys, tmp_path, 
                                   ["bench", "tti", "--quick"], ["bench", "accuracy", "--quick"]])
 def test_a_mesh_beyond_the_float32_units_is_refused_by_every_benchmark_naming_it(
         capsys, tmp_path, monkeypatch, argv, scale, problem):
-    """Before any work or any file: ``tti`` and ``accuracy`` used to run the built-in scenes'
-    cells first and leave their cells file behind; ``trace`` named the rays, not the file."""
+    """Before any work or any file: ``tti`` and ``accuracy`` must not run the built-in
+    scenes' cells first (their cells file would be left behind), and ``trace`` names the mesh
+    file, not the rays."""
     monkeypatch.chdir(tmp_path)
     mesh = tmp_path / "far.obj"
     mesh.write_text("".join(f"v {x * scale} {y * scale} {z * scale}\n" for x, y, z in

@@ -71,3 +71,22 @@ def test_offset_origins_leave_to_the_side_of_the_direction():
     o = offset_origins(p, n, d, np.array([3.0, 3.0]))
     assert o[0, 2] > 3.0 > o[1, 2]
     assert np.array_equal(o[:, :2], p[:, :2])
+
+
+@pytest.mark.parametrize("change, name, text", [
+    ({"ng": np.zeros((1, 3))}, "ng", "must be (2, 3)"),
+    ({"points": np.zeros(3)}, "points", "must be (n, 3)"),
+    ({"dirs": np.full((2, 3), np.nan)}, "dirs", "must be finite"),
+    ({"tri_mag": np.ones(3)}, "tri_mag", "one per point (2)"),
+    ({"tri_mag": -1.0}, "tri_mag", "must be >= 0"),
+    ({"tri_mag": "big"}, "tri_mag", "must hold numbers"),
+    ({"strategy": "far"}, "strategy", "choose from relative, fixed, none"),
+])
+def test_offset_origins_refuse_bad_input_naming_it(change, name, text):
+    """The rows go to a kernel that trusts their shapes: rows of another length would be read
+    past their ends."""
+    args = {"points": np.zeros((2, 3)), "ng": np.tile([0.0, 0.0, 1.0], (2, 1)),
+            "dirs": np.tile([0.0, 1.0, 1.0], (2, 1)), "tri_mag": 1.0, **change}
+    with pytest.raises(ParameterError) as e:
+        offset_origins(**args)
+    assert e.value.parameter == name and text in str(e.value)

@@ -358,6 +358,20 @@ def test_exr_layers_metadata_and_atomic_write(tmp_path):
     assert meta["third"] == pytest.approx(1 / 3, rel=1e-7)
 
 
+def test_reading_what_is_not_an_exr_names_the_file(tmp_path):
+    junk = tmp_path / "junk.exr"
+    junk.write_text("not an image")
+    cases = [(tmp_path / "missing.exr", "missing.exr: no such file"), (tmp_path, "not a file"),
+             (junk, "junk.exr: not a readable image (")]
+    for path, text in cases:
+        for read in (read_exr, read_render):
+            with pytest.raises(InputError) as e:
+                read(path)
+            assert text in str(e.value) and "\n" not in str(e.value)
+    with pytest.raises(ParameterError, match="expected a file path, got int"):
+        read_exr(3)
+
+
 def cli(*args):
     return subprocess.run([sys.executable, "-m", "hwrt.cli", *map(str, args)], capture_output=True,
                           text=True, timeout=600)

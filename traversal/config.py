@@ -1,8 +1,7 @@
 """Every tolerance and knob of the traversal, in one place, each with its reason.
 
-Numba compiles these into the kernels as constants, and its on-disk cache does not notice an
-edit here (it checks only the kernel's own source file): after changing a value, delete the
-cached kernels (``traversal/__pycache__/*.nbi`` and ``*.nbc``).
+Numba compiles these into the kernels as constants; an edit here compiles every kernel once
+more, as an edit anywhere in the package does (``hwbvh.kernel_cache``).
 """
 
 # --- AABB unit (aabb_unit) --------------------------------------------------------------

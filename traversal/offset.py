@@ -127,11 +127,41 @@ def offset_origins(points, ng, dirs, tri_mag, strategy="relative"):
     tri_mag (n,) largest |coordinate| of each hit triangle. Returns float64 origins.
     ``strategy``: "relative" (the default, above), "fixed" (1e-4 along the normal, what breaks
     at other scales) or "none" (start on the surface), the last two for comparison."""
-    if strategy not in STRATEGY_CODES:
-        raise ValueError(f"unknown offset strategy {strategy!r} (choose from {', '.join(STRATEGIES)})")
-    p = np.ascontiguousarray(points, np.float64)
+    if not isinstance(strategy, str) or strategy not in STRATEGY_CODES:
+        raise ParameterError("strategy", f"unknown offset strategy {strategy!r} (choose from "
+                                         f"{', '.join(STRATEGIES)})")
+    p = _finite_rows("points", points)
+    n = len(p)
+    normals = _finite_rows("ng", ng, n)
+    d = _finite_rows("dirs", dirs, n)
+    mag = _finite_numbers("tri_mag", tri_mag)
+    if mag.ndim > 1 or (mag.ndim == 1 and mag.shape != (n,)):
+        raise ParameterError("tri_mag", f"must be one number, or one per point ({n}), got "
+                                        f"shape {mag.shape}")
+    if (mag < 0).any():
+        raise ParameterError("tri_mag", f"must be >= 0, got {mag.min()}")
     out = np.empty_like(p)
-    _offset_batch(p, np.ascontiguousarray(ng, np.float64), np.ascontiguousarray(dirs, np.float64),
-                  np.ascontiguousarray(np.broadcast_to(tri_mag, (len(p),)), np.float64),
+    _offset_batch(p, normals, d, np.ascontiguousarray(np.broadcast_to(mag, (n,))),
                   STRATEGY_CODES[strategy], out)
     return out
+
+
+def _finite_numbers(name, values):
+    """``values`` as a float64 array, else ParameterError naming ``name``."""
+    try:
+        a = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ParameterError(name, "must hold numbers") from None
+    if not np.isfinite(a).all():
+        raise ParameterError(name, "must be finite (it holds NaN or infinity)")
+    return a
+
+
+def _finite_rows(name, values, n=None):
+    """``values`` as a contiguous float64 (n, 3) array of finite numbers (``n`` rows when
+    given), else ParameterError naming ``name``."""
+    a = np.ascontiguousarray(_finite_numbers(name, values))
+    if a.ndim != 2 or a.shape[1] != 3 or (n is not None and len(a) != n):
+        rows = "n" if n is None else str(n)
+        raise ParameterError(name, f"must be ({rows}, 3), got shape {a.shape}")
+    return a
