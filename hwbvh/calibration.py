@@ -13,7 +13,8 @@ import math
 import numpy as np
 
 from . import config
-from .config import (AABB_BYTES, LAT_BINNING, LAT_PARTITION, LAT_SAH, PRIMITIVE_RECORD_BYTES,
+from .config import (AABB_BYTES, FIT_SUBTREE_MAX, FIT_SUBTREE_MIN, FIT_SUBTREES_PER_MESH,
+                     LAT_BINNING, LAT_PARTITION, LAT_SAH, PRIMITIVE_RECORD_BYTES,
                      THESIS_ACTIVE_POWER_W, WORD_BYTES)
 from .cycle_model import PRESETS, _upper_plan, footprint_bytes, simulate_subtree, unit_positions
 
@@ -135,7 +136,8 @@ def target_rate():
     return float(np.mean(rates)), (float(min(rates)), float(max(rates)))
 
 
-def fit_subtrees(tris_list, lo=3500, hi=5500, per_mesh=6):
+def fit_subtrees(tris_list, lo=FIT_SUBTREE_MIN, hi=FIT_SUBTREE_MAX,
+                 per_mesh=FIT_SUBTREES_PER_MESH):
     """Subtrees of lo..hi primitives that the upper builder hands off, cut from each mesh and
     rebuilt as a subtree builder would build them (the thesis' way of making test subtrees)."""
     from .builder import build_canonical

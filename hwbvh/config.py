@@ -67,11 +67,18 @@ AABB_BYTES = 24          # a float32 AABB alone: the initial scene-AABB pass rea
 # Control latency per split that the RTL spends and Table 3.3 does not list (bin-collector dump
 # and merge, READY/GO hand-shakes, FIFOs, thread-context reads). Not derived from the text:
 # fitted (hwbvh.calibration.fit_control_latency, `hwrt bench model` on the meshes of
-# ../shared/meshes) so that subtrees of 3.5k-5.5k primitives take the 14.6 cycles per primitive
-# that the thesis' Marbles build implies (Table 4.11 energies / Table 4.10 powers, Marbles'
-# size from Table 4.2). Bunny and Sponza are then predictions, not fits. 0 gives the text-only
-# model.
+# ../shared/meshes) so that subtrees of FIT_SUBTREE_MIN..FIT_SUBTREE_MAX primitives take the
+# 14.6 cycles per primitive that the thesis' Marbles build implies (Table 4.11 energies / Table
+# 4.10 powers, Marbles' size from Table 4.2). Bunny and Sponza are then predictions, not fits.
+# 0 gives the text-only model.
 CONTROL_LATENCY = 129
+# The fit's subtrees (hwbvh.calibration.fit_subtrees): those the upper builder hands off with
+# 3.5k-5.5k primitives, around the half of Marbles' 8,642-8,835 triangles that each of its two
+# subtrees holds (calibration.marbles_rate); at most FIT_SUBTREES_PER_MESH of them from each
+# mesh, so that no mesh outweighs the others in the mean rate.
+FIT_SUBTREE_MIN = 3500
+FIT_SUBTREE_MAX = 5500
+FIT_SUBTREES_PER_MESH = 6
 
 # --- Resources per unit (thesis 4.3.4, Tables 4.5-4.8) ------------------------------------
 # Floating-point cores of one unit, by type (the columns of Tables 4.5-4.7; the same in the
@@ -157,6 +164,13 @@ POWER_OF_TWO_KNOBS = ("w", "tsize")
 # Control latency (above) is a calibrated cycle count per split (129). A million cycles is far
 # beyond any controller, and keeps cycle totals (at most 2^25 splits) well inside int64.
 MAX_CONTROL_LATENCY = 1_000_000
+
+# --- Threading (hwbvh.parallel) -----------------------------------------------------------
+# The threading set-up (``parallel.THREADING_SETUPS``) unless HWRT_THREADING names another:
+# OpenMP with sleeping idle threads, the fastest set-up alone and beside a busy competitor on
+# every core (docs/contention.md), and, unlike workqueue, safe for several calling threads (a
+# Dask worker's).
+DEFAULT_THREADING = "omp-passive"
 
 # --- Software build scheduling (not a hardware parameter) -------------------------------
 # Nodes with more primitives than this are split with data-parallel binning/partitioning;

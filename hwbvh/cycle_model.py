@@ -39,7 +39,8 @@ from numba import njit, prange
 
 from .files import figure_png
 from . import config
-from .config import (AABB_BYTES, CONTROL_LATENCY, LAT_BINNING, LAT_PARTITION, LAT_PRIM_BUFFER,
+from .config import (AABB_BYTES, CONTROL_LATENCY, DEFAULT_BINS, DEFAULT_CAPACITY,
+                     DEFAULT_LEAF_SIZE, INDEX_BYTES, LAT_BINNING, LAT_PARTITION, LAT_PRIM_BUFFER,
                      LAT_SAH, NODE_BYTES, THREAD_SWITCH, WORD_BYTES)
 from .config import PRIMITIVE_RECORD_BYTES as RECORD_BYTES
 from .errors import ParameterError, is_integer
@@ -51,12 +52,12 @@ class HwParams:
     """One instantiation (Table 4.1 for the presets)."""
     w: int = 4                 # partitioning units (and buffer pairs) per subtree builder
     tsize: int = 8             # threads per subtree builder (2*Tsize SAH calculators)
-    psize: int = 2048          # primitives per buffer; capacity = w * psize
+    psize: int = DEFAULT_CAPACITY // 4   # primitives per buffer; capacity = w * psize
     subtree_builders: int = 1
     ram_pairs: int = 1
     clock_mhz: float = 250.0
-    leaf_size: int = 4
-    bins: int = 16
+    leaf_size: int = DEFAULT_LEAF_SIZE
+    bins: int = DEFAULT_BINS
     control_latency: int = CONTROL_LATENCY   # cycles per split beyond Table 3.3 (calibrated)
 
     @property
@@ -80,8 +81,9 @@ def unit_positions(ids, w):
 
 
 def footprint_bytes(n):
-    """Table 4.2: two copies of the AABBs and of the index list, 2 * (24 + 3) * N bytes."""
-    return 2 * (24 + 3) * int(n)
+    """Table 4.2: two copies of the AABBs and of the index list,
+    2 * (AABB_BYTES + INDEX_BYTES) * N bytes."""
+    return 2 * (AABB_BYTES + INDEX_BYTES) * int(n)
 
 
 @njit(cache=True)

@@ -43,7 +43,7 @@ import numba
 from numba import types
 from numba.extending import intrinsic
 
-from .config import RANGES_PER_THREAD
+from .config import DEFAULT_THREADING, RANGES_PER_THREAD
 from .errors import InputError, ParameterError
 
 THREADING_SETUPS = {
@@ -51,7 +51,6 @@ THREADING_SETUPS = {
     "workqueue": ("workqueue", None),
     "omp-active": ("omp", "active"),
 }
-DEFAULT_THREADING = "omp-passive"
 
 
 def usable_cores():

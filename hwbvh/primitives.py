@@ -12,8 +12,8 @@ import warnings
 import numpy as np
 from numba import njit
 
-from .config import (MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES, OBJ_COMPILED_MIN_BYTES,
-                     PRIMITIVE_RECORD_BYTES)
+from .config import (AABB_BYTES, MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES,
+                     OBJ_COMPILED_MIN_BYTES, PRIMITIVE_RECORD_BYTES)
 from .errors import InputError, ParameterError
 
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
@@ -603,8 +603,9 @@ def pack_records(boxes, order=None):
     n = len(boxes)
     idx = np.arange(n, dtype=np.uint32) if order is None else np.asarray(order, dtype=np.uint32)
     rec = np.empty((len(idx), PRIMITIVE_RECORD_BYTES), dtype=np.uint8)
-    rec[:, :24] = np.ascontiguousarray(boxes[idx], dtype="<f4").view(np.uint8).reshape(-1, 24)
-    rec[:, 24:] = idx.astype("<u4").view(np.uint8).reshape(-1, 4)[:, :3]
+    aabbs = np.ascontiguousarray(boxes[idx], dtype="<f4").view(np.uint8)
+    rec[:, :AABB_BYTES] = aabbs.reshape(-1, AABB_BYTES)
+    rec[:, AABB_BYTES:] = idx.astype("<u4").view(np.uint8).reshape(-1, 4)[:, :3]
     return rec.tobytes()
 
 
@@ -614,7 +615,7 @@ def unpack_records(data):
     if raw.size % PRIMITIVE_RECORD_BYTES:
         raise ValueError("record data is not a whole number of 27-byte records")
     rec = raw.reshape(-1, PRIMITIVE_RECORD_BYTES)
-    boxes = np.ascontiguousarray(rec[:, :24]).view("<f4").reshape(-1, 6)
+    boxes = np.ascontiguousarray(rec[:, :AABB_BYTES]).view("<f4").reshape(-1, 6)
     idx = np.zeros((len(rec), 4), dtype=np.uint8)
-    idx[:, :3] = rec[:, 24:]
+    idx[:, :3] = rec[:, AABB_BYTES:]
     return boxes.astype(np.float32), idx.view("<u4").reshape(-1)

@@ -39,19 +39,17 @@ import numpy as np
 from hwbvh.files import figure_png
 from hwbvh.errors import InputError, ParameterError
 from hwbvh.files import check_output_dir, json_text, jsonable, write_files
-from .config import ADAPTIVE_THRESHOLD
+from hwbvh.cycle_model import PRESETS
+from .config import ADAPTIVE_THRESHOLD, BENCH_FRAMES, BENCH_QUICK_FRAMES, BENCH_QUICK_TRIANGLES
 from .progress import note_first_compile
 from .report import with_figures
 
 STRATEGIES = ("rebuild", "refit", "adaptive", "embree")
-PRESET_NAMES = ("HWBVH-C", "HWBVH-HP")
+PRESET_NAMES = tuple(PRESETS)
 FRAME_NAME = "frame_{:04d}.exr"
 STATE_NAME = "animation.json"
 CSV_NAME = "frames.csv"
 PREVIEW_NAME = "preview.gif"
-BENCH_FRAMES = 60            # bench animation: 2 s at 30 fps covers the explosion and the drape
-BENCH_QUICK_FRAMES = 12
-BENCH_QUICK_TRIANGLES = 4000
 BENCH_FILES = {"per_frame": "animation_tti_per_frame.png", "totals": "animation_totals.png",
                "drift": "animation_sah_drift.png", "csv": "animation.csv", "json": "animation.json",
                "md": "animation.md", "structures": "animation_structures.png"}
@@ -86,7 +84,7 @@ class TreeUpdater:
     # -- the hardware build ---------------------------------------------------------
     def _rebuild(self, tris, reason):
         import hwbvh
-        from hwbvh.cycle_model import PRESETS, simulate
+        from hwbvh.cycle_model import simulate
         from hwbvh.refit import Refitter
 
         t = time.perf_counter()
@@ -107,7 +105,6 @@ class TreeUpdater:
         return bvh, row
 
     def _refit(self, tris):
-        from hwbvh.cycle_model import PRESETS
         from hwbvh.format import tree_stats
         from hwbvh.refit import refit_cost
 

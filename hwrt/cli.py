@@ -17,7 +17,7 @@ import signal
 import sys
 from functools import partial
 
-from .config import env_flag
+from .config import VERIFY_RAYS, env_flag
 from .progress import PROGRESS_ENV, note_first_compile, progress_bar
 
 DESCRIPTION = ("hwrt simulates the hardware BVH builder of M. J. Doyle's thesis (HWBVH) bit for "
@@ -31,7 +31,6 @@ EPILOG = ("With --json a command prints exactly one JSON object on stdout, in st
           "naming the file, key or option and the problem; 130 interrupted (SIGINT); 143 "
           "terminated (SIGTERM); 141 when stdout's reader has gone (a closed pipe); 1 anything "
           "else.")
-VERIFY_RAYS = 100_000
 VERIFY_KIND = "random"
 EXIT_BAD_INPUT = 2
 EXIT_SIGINT = 128 + signal.SIGINT
@@ -810,8 +809,6 @@ BENCH_NONE = {"mesh_dir": "$HWRT_MESHES, else shared/meshes beside the project o
               "out_dir": "no files", "width": "the scene's", "height": "the scene's",
               "spp": "the scene's", "max_depth": "the scene's",
               "scheduler": None}        # filled in below, from BENCH_LOCAL_CLUSTER
-BENCH_COMMON = {"repeat": 5, "rays": 500_000, "out_dir": "renders/bench", "width": 320,
-                "height": 240, "spp": 1, "max_depth": 5}
 BENCH_WRITES_OUT_DIR = ("tti", "accuracy")
 BENCH_REPORTS = ("build", "scale", "trace", "contention", "trees")  # --out-dir: OUT/<what>.md, .json   # checked here; bench render checks its own files
 # The benchmarks that write their own files (with --out-dir), the last set through ``commit``
@@ -847,7 +844,7 @@ def _scheduler_help(what):
 
 def _frames_help(on_its_page=False):
     """--frames' help: on bench's page, or on bench animation's own."""
-    from .animate import BENCH_FRAMES, BENCH_QUICK_FRAMES
+    from .config import BENCH_FRAMES, BENCH_QUICK_FRAMES
     reader = "" if on_its_page else "read by animation; "
     return (f"frames per animation ({reader}default: {BENCH_FRAMES}; with --quick: "
             f"{BENCH_QUICK_FRAMES})")
@@ -940,12 +937,7 @@ def _bench_help(dest, what=None):
 def _bench_options(args):
     """Reject options the benchmark does not read; fill in the defaults of those it does."""
     from hwbvh.errors import InputError
-    table = BENCH_OPTIONS.get(args.what)
-    if table is None:                       # a benchmark without a row: the common defaults
-        for dest, default in BENCH_COMMON.items():
-            if getattr(args, dest, None) is None:
-                setattr(args, dest, default)
-        return
+    table = BENCH_OPTIONS[args.what]
     for dest in sorted(vars(args)):
         if dest in ("command", "func", "what", "json", "argv", "environment", "signals_owned") \
                 or dest in table \
@@ -1226,6 +1218,8 @@ SEED_HELP = f"seed of the pixel jitter, 0-{MAX_OPTION_INT}"
 
 def make_parser():
     from hwbvh import config
+    from hwbvh.api import BUILDERS
+    from hwbvh.cycle_model import PRESETS
     from raytracer.render import ACCELS, PRECISIONS, TRAVERSALS
     from scenes.loader import MAX_DEPTH, MAX_FILM_PIXELS, MAX_FILM_SIDE, MAX_SPP
     from traversal.verify import RAY_KINDS
@@ -1239,7 +1233,7 @@ def make_parser():
     b = sub.add_parser("build", help="build a BVH over a mesh",
                        description="Build a BVH over a mesh in the hardware's node format.")
     b.add_argument("mesh", type=_path, help="mesh file (.ply, .obj, .stl, .off, .glb, .gltf)")
-    b.add_argument("--builder", choices=["hwbvh", "sweep", "embree"], default="hwbvh",
+    b.add_argument("--builder", choices=[*BUILDERS, "embree"], default="hwbvh",
                    help="hwbvh: the hardware's binned SAH; sweep: full SAH reference; "
                         "embree: Embree's own build (timing only)")
     # defaults None: an option a builder does not read is refused only when given
@@ -1276,7 +1270,7 @@ def make_parser():
                                    "changed): cycles, seconds, DRAM traffic, memory footprint, "
                                    "energy, area and utilisation, from the cycle model.")
     s.add_argument("mesh", type=_path, help="mesh file")
-    s.add_argument("--preset", default="HWBVH-C", choices=["HWBVH-C", "HWBVH-HP"],
+    s.add_argument("--preset", default="HWBVH-C", choices=list(PRESETS),
                    help="the thesis' hardware instance")
     for name, text in (("w", "partitioning units per subtree builder"),
                        ("tsize", "threads per subtree builder"),
@@ -1334,7 +1328,7 @@ def make_parser():
     r.add_argument("--height", type=_film_side, help=f"image height, {film} (default: the scene's)")
     r.add_argument("--spp", type=_spp, help=f"samples per pixel, {spp} (default: the scene's)")
     r.add_argument("--max-depth", type=_depth, help=f"{depth} (default: the scene's)")
-    r.add_argument("--builder", choices=["hwbvh", "sweep", "embree"],
+    r.add_argument("--builder", choices=[*BUILDERS, "embree"],
                    help="the tree: hwbvh (the hardware's), sweep (full SAH) or embree (default: "
                         "hwbvh; embree with --traversal embree)")
     r.add_argument("--traversal", choices=TRAVERSALS,

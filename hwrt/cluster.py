@@ -22,12 +22,10 @@ from hwbvh.errors import ParameterError, is_integer
 from hwbvh.files import signals_held
 from hwbvh.parallel import usable_cores
 
+from .config import CONNECT_TIMEOUT_S, RETRIES, WORKER_WATCH_S
 from .progress import progress_bar
 
 SCHEDULER_ENV = "HWRT_SCHEDULER"
-CONNECT_TIMEOUT_S = 5      # an unreachable scheduler fails this fast instead of hanging
-RETRIES = 2                # re-runs of a cell that raised (a killed worker is rescheduled anyway)
-WORKER_WATCH_S = 10        # how often a run checks that its scheduler still has workers
 QUIET = ("distributed", "tornado", "asyncio", "bokeh")
 
 

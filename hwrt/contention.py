@@ -67,8 +67,9 @@ def child(scene_spec, repeat, width, height, spp):
 
 def bench_contention(args, setups=None):
     """Every threading set-up in a child process; slowdown = busy / quiet time to image."""
+    from hwbvh.config import DEFAULT_THREADING
     from hwbvh.errors import InputError
-    from hwbvh.parallel import DEFAULT_THREADING, THREADING_SETUPS
+    from hwbvh.parallel import THREADING_SETUPS
 
     from scenes import compile_scene, load_scene, with_frame
     from .bench import machine, traceable

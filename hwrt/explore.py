@@ -32,6 +32,7 @@ from hwbvh.files import content_digest, figure_png, write_files
 from hwbvh import config
 from hwbvh.cycle_model import PRESETS, check_params
 from hwbvh.errors import InputError, ParameterError
+from .config import BATCH_CONFIGS, MAX_CONFIGURATIONS, TREE_CACHE
 from .report import with_figures
 
 KNOBS = ("bins", "leaf_size", "w", "tsize", "psize", "subtree_builders", "ram_pairs", "clock_mhz")
@@ -43,14 +44,8 @@ BASE = PRESETS["HWBVH-C"]          # the value of every knob the grid leaves uns
 DEFAULT_GRID = {"w": [2, 4, 8, 16], "tsize": [2, 4, 8, 16], "psize": [1024, 2048, 4096],
                 "subtree_builders": [1, 2, 4], "ram_pairs": [1, 2, 4], "clock_mhz": [250.0, 500.0],
                 "leaf_size": [4, 8, 16, 32, 64]}
-# The most configurations one exploration takes: 23x the default grid's 4,320, a few hours of
-# simulation per mesh on a workstation's cores; a grid past it is refused before its
-# configurations are made (each is a few kilobytes of parameters and results).
-MAX_CONFIGURATIONS = 100_000
 _INTEGER = re.compile(r"[+-]?[0-9]+")
 _DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
-BATCH_CONFIGS = 96         # configurations per task: ~0.1-1 s of simulation, a fine progress bar
-TREE_CACHE = 3             # trees a worker keeps (a 270k-triangle tree is ~50 MB)
 SIZE_CLASSES = ((50_000, "small (< 50k triangles)"), (150_000, "medium (50k-150k)"),
                 (math.inf, "large (> 150k)"))
 CELLS_NAME = "explore.jsonl"

@@ -44,15 +44,9 @@ import time
 import numpy as np
 
 from hwbvh.errors import InputError
+from .config import FLAT_NORMAL_TOLERANCE, PROBE_TIMEOUT_SECONDS
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
-
-# A vertex normal further than this from its face normal (1 - cos) means the mesh is shaded
-# smooth, which Mitsuba's mesh without vertex normals would not reproduce.
-FLAT_NORMAL_TOLERANCE = 1e-4
-
-# Seconds a child process may take to try a variant (the first LLVM run compiles its kernels).
-PROBE_TIMEOUT_SECONDS = 300
 
 
 def installed():

@@ -31,6 +31,7 @@ import numpy as np
 
 from hwbvh.errors import InputError
 from hwbvh.files import appending, content_digest, json_text, write_files
+from .config import MISMATCH_RAYS, MISMATCH_RAYS_QUICK, REFERENCE_DEPTH, REFERENCE_SPP_OF_SPP_KNOB
 from .report import command_of, made_by_block, with_figures
 from .bench import machine, mesh_inputs, round_order, traceable
 
@@ -630,14 +631,6 @@ def _holes(setting):
     h = Tracer(bvh, precision=setting["precision"],
                watertight=setting["triangle_test"] == "watertight").intersect(np.zeros_like(targets), targets)
     return int((h.prim < 0).sum()), int(len(targets))
-
-
-REFERENCE_DEPTH = 8                  # the reference renders follow paths this long
-REFERENCE_SPP_OF_SPP_KNOB = 16       # the spp knob's values converge toward this many samples
-# random rays per cell checked against Embree: the mismatch and tie rates resolve 1e-5
-# (--quick: 5e-5)
-MISMATCH_RAYS = 100_000
-MISMATCH_RAYS_QUICK = 20_000
 
 
 def warm_up_accuracy():

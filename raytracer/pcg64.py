@@ -14,10 +14,11 @@ of the new state, rotr64(hi ^ lo, hi >> 58); a double is (draw >> 11) * 2^-53.
 import numpy as np
 from numba import njit
 
+from .config import LANES
+
 MULTIPLIER = (2549297995355413924 << 64) + 4865540595714422341
 _MH = np.uint64(MULTIPLIER >> 64)
 _ML = np.uint64(MULTIPLIER & ((1 << 64) - 1))
-LANES = 64                              # generator copies interleaved, stepped in SIMD lanes
 
 _M32 = np.uint64(0xFFFFFFFF)
 _S32 = np.uint64(32)

@@ -43,7 +43,7 @@ from traversal.api import ACCELS, PRECISIONS, release_kept_bounds  # noqa: F401 
 from traversal.tracers import check_tracer, run_as_tracer_allows
 from traversal.triangle_unit import coordinate_box, f32_unit_reach, span_of
 from . import pcg64, stages
-from .config import BAND_PIXELS, BLOCK, MAX_PIXELS, MIN_BANDS, PIXEL
+from .config import BAND_PIXELS, BLOCK, CHILD_COMPILE_TIMEOUT, MAX_PIXELS, MIN_BANDS, PIXEL
 from hwbvh.parallel import run_ranges, usable_cores
 from .stages import fresnel_dielectric  # noqa: F401  (the shading model's Fresnel term)
 
@@ -131,9 +131,6 @@ def _compile_in_child(parent):
     threading.Thread(target=watch, daemon=True).start()
     from traversal.api import compile_kernels
     compile_kernels()
-
-
-CHILD_COMPILE_TIMEOUT = 600     # seconds; a child that takes longer is stuck (the parent compiles)
 
 
 def warm_up(builder=None, traversal=None, parallel_build=False, precision="float32"):

@@ -48,6 +48,7 @@ from hwbvh.config import MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, is_integer
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
+from .config import DEFAULT_ANIMATION_SECONDS
 from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, SCENE_KEYS, Ctx, check_scale,
                      compile_scene, finite, flat_normals, is_pattern, load_scene, mesh_scene,
                      named_after_file, scene_directory, scene_file, smooth_normals, spec_path,
@@ -55,9 +56,9 @@ from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, SCENE_KEYS, Ctx, check_
 
 DEFAULT_FPS = 30.0
 GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
-# Frame rates an animation may have: an animation without a frame count lasts four seconds,
-# which at these bounds is 1 to 4000 frames (beyond them: no frame, or frame times too fine
-# for the motions' clocks).
+# Frame rates an animation may have: an animation without a frame count lasts
+# DEFAULT_ANIMATION_SECONDS, which at these bounds is 1 to 4000 frames (beyond them: no frame,
+# or frame times too fine for the motions' clocks).
 MIN_FPS = 0.25
 MAX_FPS = 1000.0
 KEYFRAME_KEYS = ("time", "translate", "rotate", "scale")
@@ -603,7 +604,8 @@ def from_scene_dict(d, source=None, fps=None):
     frames_key = None
     if frames is None:
         # a frame count given later (--frames) replaces this one; check() judges the final one
-        frames = max_frames if max_frames is not None else int(round(4 * f))
+        frames = max_frames if max_frames is not None else \
+            int(round(DEFAULT_ANIMATION_SECONDS * f))
         frames_key = shortest
     return Animation(str(d.get("name", "scene")), base, parts, frames, f, camera,
                      inputs=inputs, source=source, max_frames=max_frames, frames_key=frames_key)

@@ -48,6 +48,12 @@ SHAPE_KEYS = {"quad": ("corners",), "box": ("min", "max", "rotate_y"),
               "sheet": ("resolution", "size", "wave", "height"),
               "triangles": ("data",), "mesh": ("filename", "smooth", "transform")}
 TRANSFORM_KEYS = ("scale", "rotate_y", "translate")
+# A sphere's subdiv and a sheet's resolution where the scene gives none (3,968 and 8,192
+# triangles): twice as many longitudes as latitudes, so that the sphere's facets span equal
+# angles both ways (5.6 degrees), and as many columns as rows, so that the square sheet's
+# cells are square.
+SPHERE_SUBDIV = (32, 64)
+SHEET_RESOLUTION = (64, 64)
 # Keys a shape does not take that a scene file's author may reach for: what to write instead.
 SHAPE_KEY_HINTS = {"frames": 'a shape of "type": "frames" with a "pattern"'}
 # Light (intensities, irradiance, ambient, background): at most float32's largest number,
@@ -927,7 +933,8 @@ def _planned_triangles(sh):
         data = sh.get("data")
         return len(data) if isinstance(data, (list, tuple, np.ndarray)) else None
     if typ in ("sphere", "sheet"):
-        key, lo, default = ("subdiv", 3, [32, 64]) if typ == "sphere" else ("resolution", 1, [64, 64])
+        key, lo, default = ("subdiv", 3, SPHERE_SUBDIV) if typ == "sphere" else \
+            ("resolution", 1, SHEET_RESOLUTION)
         v = _as_list(sh.get(key, default))
         if isinstance(v, (list, tuple)) and len(v) == 2 and \
                 all(is_integer(x) and x >= lo for x in v):
@@ -987,7 +994,7 @@ def _shape(ctx, sh, i, scene_dir):
     elif typ == "sphere":
         c = ctx.vec(sh, "center", path)
         r = ctx.num(sh, "radius", path, lo=1e-30)
-        sub = _as_list(sh.get("subdiv", [32, 64]))
+        sub = _as_list(sh.get("subdiv", SPHERE_SUBDIV))
         if not (isinstance(sub, (list, tuple)) and len(sub) == 2 and
                 all(is_integer(x) and x >= 3 for x in sub)):
             ctx.fail(f"{path}.subdiv", f"expected [n_lat, n_lon] integers >= 3, got {written(sub)}")
@@ -999,7 +1006,7 @@ def _shape(ctx, sh, i, scene_dir):
         _not_coarse(ctx, tris, f"{path}.center", "the sphere", sized=True)
         normals = V[F]                                   # radial, outward
     elif typ == "sheet":
-        res = _as_list(sh.get("resolution", [64, 64]))
+        res = _as_list(sh.get("resolution", SHEET_RESOLUTION))
         if not (isinstance(res, (list, tuple)) and len(res) == 2 and
                 all(is_integer(x) and x >= 1 for x in res)):
             ctx.fail(f"{path}.resolution", f"expected [nx, ny] positive integers, got {written(res)}")

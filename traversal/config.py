@@ -107,11 +107,25 @@ MIN_RANGE_CHUNKS = 16
 # the kept arrays stay at a megabyte or two each.
 KEPT_BOUND_RAYS = 1 << 18
 # The most rays of one generated query set (``verify_mesh``, ``hwrt verify --rays``, ``hwrt bench
-# trace --rays``): the sets are made and verified a slice at a time (``raysets.MAKE_CHUNK``,
-# ``verify.VERIFY_CHUNK``), and ``hwrt verify`` of 2^26 rays on a 70k-triangle scene peaked at
+# trace --rays``): the sets are made and verified a slice at a time (MAKE_CHUNK,
+# VERIFY_CHUNK), and ``hwrt verify`` of 2^26 rays on a 70k-triangle scene peaked at
 # 4.2 GB (primary, random), 8.5 GB (shadow) and 10.0 GB (bounces, whose first rays mostly miss),
 # and ``hwrt bench trace`` (one set alive at a time) at 10.3 GB; more would only exhaust memory.
 MAX_RAYS = 1 << 26
+# Rays made at a time (``raysets``): a set of up to 2^26 rays (and the first rays a hit-based
+# set draws, up to HIT_GROWTH^HIT_ROUNDS times more) is made a slice at a time, so that its
+# float64 working arrays stay small; whole, they took several times the set's own size.
+MAKE_CHUNK = 1 << 20
+# Hit-based sets (``raysets``) draw n first rays, then (from the hit rate seen) more, growing
+# at most HIT_GROWTH-fold per round for HIT_ROUNDS rounds: enough for any mesh that one first
+# ray in 16 hits, while memory stays bounded (n = 10^6 shadow rays never needs more than 1.6e7
+# first rays).
+HIT_GROWTH = 4
+HIT_ROUNDS = 2
+# Rays verified at a time (``verify``): each slice is traced by both tracers and classified
+# before the next, so that the working arrays of a large set (the answers, the float64 copies
+# the re-test takes) stay those of one slice.
+VERIFY_CHUNK = 1 << 20
 
 # --- Uniform grid (grid) -------------------------------------------------------------------
 # Cells per triangle of the density heuristic (cells ~ GRID_DENSITY * N, cubic where the mesh's

@@ -9,7 +9,7 @@ import numpy as np
 from hwbvh.errors import ParameterError, is_integer
 from hwbvh.primitives import checked_coordinates
 from .camera import directions_through, frame_bounds, look_at_basis, tile_pixels
-from .config import MAX_RAYS
+from .config import HIT_GROWTH, HIT_ROUNDS, MAKE_CHUNK, MAX_RAYS
 from .offset import offset_origins, points_on_planes
 
 
@@ -41,19 +41,6 @@ def checked_set_arguments(tris, n, seed=0, dtype=np.float64):
 def bounds_of(tris):
     p = np.asarray(tris, np.float64).reshape(-1, 3)
     return p.min(0), p.max(0)
-
-
-# Hit-based sets draw n first rays, then (from the hit rate seen) more, growing at most
-# HIT_GROWTH-fold per round for HIT_ROUNDS rounds: enough for any mesh that one first ray in 16
-# hits, while memory stays bounded (n = 10^6 shadow rays never needs more than 1.6e7 first rays).
-HIT_GROWTH = 4
-HIT_ROUNDS = 2
-
-
-# Rays made at a time: a set of up to 2^26 rays (and the first rays a hit-based set draws,
-# up to HIT_GROWTH^HIT_ROUNDS times more) is made a slice at a time, so that its float64
-# working arrays stay small; whole, they took several times the set's own size.
-MAKE_CHUNK = 1 << 20
 
 
 def _primary_view(tris, n):

@@ -26,7 +26,7 @@ from hwbvh.parallel import run_ranges
 
 from .api import ACCELS, _interval, ray_arrays, real_array
 from .config import (BARY_ERR_K, BARY_TOL, BARY_TOL_MAX, BEHIND_TOL_REL, PROBE_OFFSET,
-                     PROBE_STEPS, SCENE_PROBES, T_ERR_K, T_TOL_MAX_REL, T_TOL_REL)
+                     PROBE_STEPS, SCENE_PROBES, T_ERR_K, T_TOL_MAX_REL, T_TOL_REL, VERIFY_CHUNK)
 
 BEHIND = BEHIND_TOL_REL / T_TOL_REL    # the slack before t_min, as a share of the t tolerance
 
@@ -420,12 +420,6 @@ def diagnose_occluded(tris, O, D, tmin, tmax, ours_blocked, ref_blocked,
                 f"not blocked, but triangle {int(out[r, 2])} is hit strictly inside the "
                 f"interval, at t = {out[r, 3]:.9g}")
     return rows
-
-
-# Rays verified at a time: each slice is traced by both tracers and classified before the next,
-# so that the working arrays of a large set (the answers, the float64 copies the re-test
-# takes) stay those of one slice.
-VERIFY_CHUNK = 1 << 20
 
 
 def _check_embree_scene(scene):
