@@ -16,8 +16,6 @@ from hwbvh.primitives import within_bound
 from .api import _interval, ray_arrays, real_array
 from .config import EMBREE_CHUNK_RAYS
 
-EMBREE_MISS_T = 1e37
-
 
 def indexed_mesh(vertices, faces):
     """(vertices float32 (k, 3), faces int64 (m, 3)) of an indexed mesh, refused with a
