@@ -165,7 +165,7 @@ def build(source, builder="hwbvh", leaf_size=config.DEFAULT_LEAF_SIZE, bins=conf
     seconds = time.perf_counter() - t0
     st = tree_stats(nodes)
     meta = {
-        "format": "hwrt-bvh-1",
+        "format": TREE_FORMAT,
         "source": src,
         "builder": builder,
         "triangles": int(len(tris)),
@@ -210,6 +210,7 @@ def warm_up(builder="hwbvh", parallel=False):
 
 
 TREE_EXTENSIONS = (".nodes", ".indices", ".json")      # SPEC 4, in the order they are written
+TREE_FORMAT = "hwrt-bvh-1"       # the "format" of a tree's description (PREFIX.json)
 
 
 def tree_paths(prefix):
@@ -234,7 +235,8 @@ _SEPARATORS = tuple(filter(None, (os.sep, os.altsep)))     # the path separators
 def prefix_problem(prefix):
     """Why ``prefix`` cannot name a tree's three files, or None: empty, a directory, ending in
     a path separator or a file name starting with a dot would each write hidden files
-    (``.nodes``, ``.json.nodes``, ...)."""
+    (``.nodes``, ``.json.nodes``, ...); a PREFIX.json that is there and is not a tree's (a
+    scene file, when the prefix was given as ``scene.json``) would be replaced."""
     if not prefix:
         return "is empty"
     if os.path.isdir(prefix):
@@ -243,7 +245,21 @@ def prefix_problem(prefix):
         return "ends in a path separator"
     if os.path.basename(prefix).startswith("."):
         return "is a file name starting with a dot (hidden files)"
+    meta = tree_paths(prefix)[2]
+    if os.path.lexists(meta) and not _holds_tree_meta(meta):
+        return (f"would replace {meta}, which is not a tree's description (a tree's holds "
+                f'"format": "{TREE_FORMAT}")')
     return None
+
+
+def _holds_tree_meta(path):
+    """Whether the file ``path`` holds a tree's description as ``save`` writes it."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            meta = json.load(f)
+    except (OSError, ValueError, RecursionError):
+        return False
+    return isinstance(meta, dict) and meta.get("format") == TREE_FORMAT
 
 
 def prefix_example(prefix):

@@ -66,6 +66,26 @@ def _nearest_existing(path):
     return d
 
 
+def _route_problem(directory):
+    """Why the directory ``directory`` could not be reached or made as the system resolves its
+    path, component by component (a ``..`` is taken after the component before it, not
+    cancelled against it as ``abspath`` does), or None: a component that is a file, or a
+    symbolic link to nothing, which no directory can be made in place of."""
+    cur = os.sep if os.path.isabs(directory) else ""
+    for part in directory.split(os.sep):
+        if part in ("", os.curdir):
+            continue
+        cur = os.path.join(cur, part)
+        if os.path.isdir(cur):
+            continue
+        if os.path.islink(cur):
+            return f"{cur} is a symbolic link to {os.readlink(cur)}, which does not exist"
+        if os.path.lexists(cur):
+            return f"cannot create a directory under {cur}: it is a file"
+        return None                     # missing from here on: made as the path says
+    return None
+
+
 def _directory_problem(d, wanted=None):
     """Why files cannot be created in the existing path ``d``, or None; ``wanted``: the
     missing directory below ``d`` that the output needs, which the message then names."""
@@ -156,9 +176,9 @@ def check_outputs(outputs, inputs=()):
         if ident and not os.access(out, os.W_OK):
             raise OutputPathError(out, "exists and is read-only")
         d = _nearest_existing(out)
-        key = (d, os.path.dirname(os.path.abspath(out)))
+        key = (d, os.path.dirname(os.path.abspath(out)), os.path.dirname(out))
         if key not in problems:
-            problems[key] = _directory_problem(*key)
+            problems[key] = _route_problem(key[2]) or _directory_problem(d, key[1])
         if problems[key]:
             raise OutputPathError(out, problems[key])
 
@@ -167,13 +187,16 @@ def check_output_dir(directory, names=(), inputs=()):
     """Like :func:`check_outputs` for a directory that will hold the files ``names``; a problem
     with the directory itself names the directory."""
     directory = os.fspath(directory)
-    if os.path.exists(directory) and not os.path.isdir(directory):
+    if os.path.islink(directory) and not os.path.exists(directory):
+        problem = f"is a symbolic link to {os.readlink(directory)}, which does not exist"
+    elif os.path.exists(directory) and not os.path.isdir(directory):
         problem = "exists and is not a directory"
     elif os.path.exists(directory):
         problem = _directory_problem(directory)
     else:
-        problem = _directory_problem(_nearest_existing(os.path.join(directory, "x")),
-                                     os.path.abspath(directory))
+        problem = _route_problem(os.path.dirname(directory)) or \
+            _directory_problem(_nearest_existing(os.path.join(directory, "x")),
+                               os.path.abspath(directory))
     if problem:
         raise OutputPathError(directory, problem)
     check_outputs([os.path.join(directory, n) for n in names], inputs)
@@ -266,7 +289,9 @@ def write_files(pairs):
             path = os.fsdecode(path)         # str, bytes or a path object: one str
             if os.path.isdir(path):
                 raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", path)
-            d = os.path.dirname(os.path.abspath(path))
+            # the directory as the system resolves the path (``abspath`` would cancel a ``..``
+            # against a directory that does not exist yet, which the rename then needs)
+            d = os.path.dirname(os.path.join(os.getcwd(), path))
             try:
                 for attempt in range(3):
                     _make_directories(d, made)

@@ -1048,6 +1048,23 @@ _positive = _int_at_least(1)
 _non_negative = _int_at_least(0)
 
 
+def _int_in(lo, hi, note=""):
+    """An integer option in lo..hi, refused in the words the library uses for it
+    (``hwbvh.builder.check_params``): "must be an integer in lo..hi<note>"."""
+    within = _int_at_least(lo, hi)
+
+    def parse(v):
+        try:
+            return within(v)
+        except argparse.ArgumentTypeError as e:
+            if not str(e).startswith("must be"):       # not an integer at all
+                raise
+            got = str(e).rsplit(", got ", 1)[1]
+            raise argparse.ArgumentTypeError(f"must be an integer in {lo}..{hi}{note}, "
+                                             f"got {got}") from None
+    return parse
+
+
 def _scene_limit(name):
     """An option that a scene limit bounds: 1 up to ``scenes.loader``'s ``name``."""
     def parse(v):
@@ -1237,10 +1254,12 @@ def make_parser():
                    help="hwbvh: the hardware's binned SAH; sweep: full SAH reference; "
                         "embree: Embree's own build (timing only)")
     # defaults None: an option a builder does not read is refused only when given
-    b.add_argument("--leaf-size", type=_positive,
+    b.add_argument("--leaf-size", type=_int_in(1, config.MAX_LEAF_SIZE),
                    help=f"primitives per leaf, hwbvh only: 1..{config.MAX_LEAF_SIZE} (default: "
                         f"{config.DEFAULT_LEAF_SIZE})")
-    b.add_argument("--bins", type=_positive,
+    b.add_argument("--bins", type=_int_in(config.MIN_BINS, config.MAX_SOFTWARE_BINS,
+                                          f" (the hardware has at most "
+                                          f"{config.MAX_HARDWARE_BINS})"),
                    help=f"SAH bins per axis, hwbvh only: {config.MIN_BINS}.."
                         f"{config.MAX_SOFTWARE_BINS} (the hardware has at most "
                         f"{config.MAX_HARDWARE_BINS}, so a tree built with more cannot be "
@@ -1597,8 +1616,22 @@ def _environment_read(args):
     return {MESH_DIR_ENV: value} if from_dir else {}
 
 
+def _numba_threads_problem():
+    """Why Numba's own $NUMBA_NUM_THREADS cannot be taken, or None: Numba reads it as it is
+    imported, which fails with a traceback on 0 and warns at length on a word. Checked before
+    anything imports Numba."""
+    value = os.environ.get("NUMBA_NUM_THREADS", "").strip()
+    if value and not (value.isdigit() and int(value) > 0):
+        return f"$NUMBA_NUM_THREADS: {value!r} is not a positive whole number of threads"
+    return None
+
+
 def _run(argv, signals_owned):
     """Parse ``argv`` and run its command; the exit status. Interrupts go to the caller."""
+    problem = _numba_threads_problem()
+    if problem:
+        print(f"hwrt: error: {one_line(problem)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     from hwbvh.errors import InputError
     from hwbvh.files import OutputError
     from hwbvh.parallel import check_threading

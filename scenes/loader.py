@@ -223,7 +223,8 @@ def _load_scene_file(spec):
     low = spec.lower()
     if low.endswith(".json"):
         try:
-            with open(spec, encoding="utf-8") as f:
+            # utf-8-sig: a byte-order mark, which some editors write first, is read past
+            with open(spec, encoding="utf-8-sig") as f:
                 d = json.load(f, object_pairs_hook=_unique_keys, parse_int=_json_int)
         except json.JSONDecodeError as e:
             raise InputError(spec, f"not valid JSON ({json_syntax(e)})") from None
@@ -231,7 +232,7 @@ def _load_scene_file(spec):
             # read again, marking the objects that hold a key twice, for the key's path (the
             # key alone if the file fails further on)
             try:
-                with open(spec, encoding="utf-8") as f:
+                with open(spec, encoding="utf-8-sig") as f:
                     where = _twice_path(json.load(f, object_pairs_hook=_marking_keys,
                                                   parse_int=_json_int))
             except (OSError, ValueError, RecursionError):
@@ -244,7 +245,7 @@ def _load_scene_file(spec):
         import tomllib
         try:
             with open(spec, "rb") as f:
-                d = tomllib.load(f)
+                d = tomllib.loads(f.read().decode("utf-8-sig"))      # as JSON: past a BOM
         except tomllib.TOMLDecodeError as e:
             raise InputError(spec, f"not valid TOML ({e})") from None
         except (OSError, UnicodeDecodeError, RecursionError, ValueError) as e:

@@ -1119,6 +1119,18 @@ def test_unknown_threading_setup_is_a_one_line_input_error(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("value", ["0", "two"])
+def test_numbas_thread_count_that_numba_cannot_take_is_a_one_line_input_error(tmp_path, value):
+    """Numba reads $NUMBA_NUM_THREADS as it is imported: 0 ends in its traceback, a word in a
+    page of warnings; the command names it in one line before either."""
+    env = dict(os.environ, NUMBA_NUM_THREADS=value)
+    out = tmp_path / "x.exr"
+    r = run("render", "cornell", "--width", 8, "--height", 8, "--spp", 1, "-o", out, env=env)
+    assert r.returncode == 2 and not out.exists()
+    assert one_line_error(r.stderr) == f"hwrt: error: $NUMBA_NUM_THREADS: '{value}' is not a " \
+                                       f"positive whole number of threads"
+
+
 def test_every_parallel_entry_of_the_library_reports_an_unknown_threading_setup(monkeypatch):
     import hwbvh
     from hwbvh import parallel
@@ -1269,6 +1281,16 @@ def test_build_refuses_an_out_prefix_that_is_a_directory(tmp_path, capsys, tetra
     rc, out, err = call(capsys, "build", tetra, "--out", str(tmp_path) + os.sep + prefix)
     assert rc == 2 and one_line_error(err).startswith("hwrt: error: --out: ") and problem in err
     assert list((tmp_path / "d").iterdir()) == [] and not (tmp_path / "new").exists()
+
+
+def test_build_does_not_replace_a_json_file_that_is_not_a_tree(tmp_path, capsys, tetra):
+    scene = tmp_path / "scene.json"
+    scene.write_text('{"camera": {"eye": [0, 0, 1]}}')
+    rc, out, err = call(capsys, "build", tetra, "--out", scene)
+    assert rc == 2 and one_line_error(err).startswith("hwrt: error: --out: ")
+    assert "which is not a tree's description" in err
+    assert not any(p.suffix in (".nodes", ".indices") for p in tmp_path.iterdir())
+    assert scene.read_text() == '{"camera": {"eye": [0, 0, 1]}}'
 
 
 @pytest.mark.parametrize("argv,flag,problem", [
@@ -1567,8 +1589,9 @@ def test_options_that_cannot_apply_are_named(tmp_path, capsys, monkeypatch, argv
     ("4_0", "hwrt: error: --leaf-size: expected an integer, got '4_0'"),
     (" 4", "hwrt: error: --leaf-size: expected an integer, got ' 4'"),
     ("4.0", "hwrt: error: --leaf-size: expected an integer, got '4.0'"),
-    ("1" + "0" * 2000, "hwrt: error: --leaf-size: must be at most 2147483647, got a number of "
-                       "2001 digits")])
+    ("1" + "0" * 2000, "hwrt: error: --leaf-size: must be an integer in 1..255, got a number "
+                       "of 2001 digits"),
+    ("0", "hwrt: error: --leaf-size: must be an integer in 1..255, got 0")])
 def test_integer_options_take_digits_only(tmp_path, capsys, value, line):
     p = tmp_path / "m.obj"
     p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")

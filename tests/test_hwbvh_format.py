@@ -100,6 +100,14 @@ def test_save_load_roundtrip(tmp_path):
             hwbvh.save(other, bad)         # would write hidden files .nodes etc.
     assert sorted(os.listdir(tmp_path)) == ["s.indices", "s.json", "s.nodes", "t.indices",
                                             "t.json", "t.nodes"]
+    # a .json that is not a tree's (a scene file named as the prefix) is not replaced; a
+    # tree's is
+    (tmp_path / "scene.json").write_text('{"camera": {}}')
+    with pytest.raises(ParameterError, match=r"would replace .*scene\.json, which is not a "
+                                             r"tree's description"):
+        hwbvh.save(other, tmp_path / "scene.json")
+    assert (tmp_path / "scene.json").read_text() == '{"camera": {}}'
+    hwbvh.save(other, tmp_path / "t")
     (tmp_path / "t.json").write_text('{"nodes": 5,\n "triangles": ')     # cut short
     with pytest.raises(InputError, match=r"t\.json: not valid JSON \(Expecting value at line 2, "
                                          r"column 15\)$"):

@@ -7,7 +7,7 @@ import time
 import pytest
 
 from hwbvh.errors import InputError
-from hwbvh.files import check_output_dir, check_outputs
+from hwbvh.files import check_output_dir, check_outputs, write_files
 
 FRAMES = 20_000
 # a guard against quadratic work, not a benchmark: linear checking takes a fraction of this,
@@ -126,3 +126,25 @@ def test_an_output_error_names_the_output_option_though_an_input_option_holds_th
                  "--width", "8", "--height", "6"]) == 2
     assert capsys.readouterr().err.splitlines() == [
         f"hwrt: error: --output {mesh}: exists and is not a directory"]
+
+
+def test_a_path_is_checked_and_written_as_the_system_resolves_it(tmp_path, monkeypatch):
+    """``new/sub/../x`` needs ``new/sub`` (the system takes ``..`` after it), which the writer
+    makes; a directory part that is a file, or a symbolic link to nothing, is refused before
+    any work, naming it."""
+    monkeypatch.chdir(tmp_path)
+    os.symlink(tmp_path / "nowhere", "dangling")
+    (tmp_path / "plain").write_text("")
+    check_outputs(["new/sub/../x.txt"])
+    write_files([("new/sub/../x.txt", "x")])
+    assert (tmp_path / "new" / "x.txt").read_text() == "x" and (tmp_path / "new" / "sub").is_dir()
+    for out, problem in [("dangling/x.txt", "dangling is a symbolic link to "),
+                         ("plain/../y.txt", "cannot create a directory under plain: it is a file")]:
+        with pytest.raises(InputError) as e:
+            check_outputs([out])
+        assert problem in str(e.value) and str(e.value).startswith(out)
+    for directory, problem in [("dangling", "dangling: is a symbolic link to "),
+                               ("dangling/run", "dangling is a symbolic link to ")]:
+        with pytest.raises(InputError, match=problem):
+            check_output_dir(directory, ["frame.exr"])
+    assert sorted(os.listdir(tmp_path)) == ["dangling", "new", "plain"]

@@ -945,3 +945,17 @@ def test_a_scene_dict_saved_reads_back_as_the_same_scene(tmp_path, monkeypatch):
     with pytest.raises(InputError):
         save_scene(dict(d, camera={}), str(tmp_path / "bad.json"))    # not a scene
     assert not (tmp_path / "bad.json").exists() and not (tmp_path / "x.json").exists()
+
+
+def test_a_scene_file_that_starts_with_a_byte_order_mark_reads_as_without(tmp_path):
+    d = scene_dict()
+    plain = compile_scene(load_scene(str(write_scene(tmp_path, d))))
+    path = tmp_path / "bom.json"
+    path.write_text(json.dumps(d), encoding="utf-8-sig")
+    assert np.array_equal(compile_scene(load_scene(str(path))).triangles, plain.triangles)
+    toml = tmp_path / "bom.toml"
+    toml.write_text('[camera]\neye = [0, 1, 4]\ntarget = [0, 1, 0]\n[materials.m]\n'
+                    'type = "diffuse"\n[[shapes]]\ntype = "quad"\nmaterial = "m"\n'
+                    'corners = [[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]]\n',
+                    encoding="utf-8-sig")
+    assert len(compile_scene(load_scene(str(toml))).triangles) == 2
