@@ -14,7 +14,7 @@ from numba import njit
 
 from .config import (AABB_BYTES, MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES,
                      OBJ_COMPILED_MIN_BYTES, PRIMITIVE_RECORD_BYTES)
-from .errors import InputError, ParameterError
+from .errors import InputError, ParameterError, json_syntax, shown
 
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
 
@@ -493,6 +493,84 @@ def _obj_short_vertex(path):
     return None
 
 
+def _obj_bad_number(path):
+    """'line N: ...' for the first vertex, texture or normal line of the OBJ file ``path`` with
+    a value that is not a number, or None (run after a failed load, as _check_obj_face_range)."""
+    with open(path, "rb") as f:
+        for number, line in enumerate(f, 1):
+            words = line.split()
+            if not words or words[0] not in (b"v", b"vt", b"vn"):
+                continue
+            for w in words[1:]:
+                try:
+                    float(w)
+                except ValueError:
+                    return f"line {number}: {shown(w.decode('utf-8', 'replace'))} is not a number"
+    return None
+
+
+# A binary STL: an 80-byte header, the triangle count (uint32), 50 bytes per triangle
+STL_HEADER_BYTES = 84
+STL_TRIANGLE_BYTES = 50
+
+
+def _stl_cut_short(path):
+    """Why the binary STL file ``path`` cannot hold the triangles its header counts, or None
+    (an ASCII STL, or a whole binary one): trimesh reads a binary file cut short as an empty
+    mesh."""
+    size = os.path.getsize(path)
+    with open(path, "rb") as f:
+        head = f.read(STL_HEADER_BYTES)
+    if len(head) < STL_HEADER_BYTES:
+        return None if head.lstrip().startswith(b"solid") else "shorter than a binary STL header"
+    n = int.from_bytes(head[80:84], "little")
+    want = STL_HEADER_BYTES + STL_TRIANGLE_BYTES * n
+    if size >= want or head.lstrip().startswith(b"solid"):
+        return None
+    return (f"its header counts {n} triangle{'s' if n != 1 else ''} ({want} bytes), but the "
+            f"file holds {size} bytes: it is cut short")
+
+
+def _off_declared(path):
+    """The vertex and face counts an OFF file's header declares, or None."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return None
+    words = re.sub(rb"#[^\n]*", b"", head).split()
+    if not words or words[0] != b"OFF":       # not the plain form (COFF, NOFF, ...: left to trimesh)
+        return None
+    counts = words[1:3]
+    if len(counts) < 2 or not all(c.isdigit() for c in counts):
+        return None
+    return int(counts[0]), int(counts[1])
+
+
+def _gltf_problem(path):
+    """Why the .gltf file ``path`` cannot be read (not JSON, or a buffer file it names is
+    missing), or None; trimesh's own errors name neither the file nor the problem."""
+    import json
+    try:
+        with open(path, encoding="utf-8-sig") as f:
+            doc = json.load(f)
+    except UnicodeDecodeError:
+        return "not UTF-8 text"
+    except json.JSONDecodeError as e:
+        return f"not valid JSON ({json_syntax(e)})"
+    except (OSError, ValueError, RecursionError):
+        return None
+    buffers = doc.get("buffers") if isinstance(doc, dict) else None
+    for b in buffers if isinstance(buffers, list) else ():
+        uri = b.get("uri") if isinstance(b, dict) else None
+        if isinstance(uri, str) and not uri.startswith("data:"):
+            from urllib.parse import unquote
+            target = os.path.join(os.path.dirname(path), unquote(uri))
+            if not os.path.isfile(target):
+                return f"its buffer file {target} is not there"
+    return None
+
+
 def _utf8_name(path):
     try:
         path.encode("utf-8")
@@ -524,7 +602,12 @@ def load_mesh_arrays(path):
     declared = _ply_declared(path) or {}
     if "face" in declared:
         check_count(declared["face"], path)
-    obj = path.lower().endswith(".obj")
+    low = path.lower()
+    problem = _stl_cut_short(path) if low.endswith(".stl") else \
+        _gltf_problem(path) if low.endswith(".gltf") else None
+    if problem:
+        raise InputError(path, problem)
+    obj = low.endswith(".obj")
     load_args = _obj_load_args(path) if obj else {"file_obj": path}
     if load_args["file_obj"] is path and not _utf8_name(path) and not path.lower().endswith(".gltf"):
         # trimesh encodes a name it opens as UTF-8; a name in another encoding (bytes no
@@ -541,6 +624,9 @@ def load_mesh_arrays(path):
     except Exception as exc:  # trimesh raises many types for unreadable files
         if obj:
             _check_obj_face_range(path)
+            bad = _obj_bad_number(path)
+            if bad:
+                raise InputError(path, bad) from None
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if isinstance(exc, KeyError):          # a reader looked up what the file does not hold
             msg = f"it has no {msg}"
@@ -565,6 +651,12 @@ def load_mesh_arrays(path):
         raise InputError(path, "mesh faces are not triangles")
     if faces.min() < 0 or faces.max() >= len(verts):
         raise InputError(path, "a face references a vertex that does not exist")
+    off = _off_declared(path) if low.endswith(".off") else None
+    if off and (len(verts) < off[0] or len(faces) < off[1]):
+        # every face declared gives at least one triangle: fewer is a file that ends early
+        raise InputError(path, f"its header declares {off[0]} vertices and {off[1]} faces, but "
+                               f"{len(verts)} and {len(faces)} triangles could be read: the file "
+                               f"ends early or does not match its header")
     return verts, faces
 
 

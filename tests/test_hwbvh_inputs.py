@@ -570,3 +570,44 @@ def test_load_refuses_an_index_list_not_in_whole_padded_words(tmp_path):
     (tmp_path / "t.json").write_bytes(b"\xff\xfe")
     with pytest.raises(InputError, match="t.json: not UTF-8 text"):
         hwbvh.load(tmp_path / "t")
+
+
+def _binary_stl(n):
+    """A binary STL of n triangles (header, count, then 50 bytes each)."""
+    import struct
+    rows = b"".join(struct.pack("<3f", 0, 0, 1) + np.float32([[0, 0, k], [1, 0, k], [0, 1, k]])
+                    .tobytes() + b"\0\0" for k in range(n))
+    return b"\0" * 80 + struct.pack("<I", n) + rows
+
+
+GLTF_WITH_BUFFER = json.dumps({
+    "asset": {"version": "2.0"}, "buffers": [{"uri": "gone.bin", "byteLength": 36}],
+    "bufferViews": [{"buffer": 0, "byteLength": 36}],
+    "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                   "min": [0, 0, 0], "max": [1, 1, 0]}],
+    "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}],
+    "scenes": [{"nodes": [0]}], "scene": 0})
+
+
+@pytest.mark.parametrize("name,data,problem", [
+    ("cut.stl", _binary_stl(12)[:84 + 50 * 5 + 17],
+     "its header counts 12 triangles (684 bytes), but the file holds 351 bytes: it is cut short"),
+    ("short.off", "OFF\n4 5 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n",
+     "its header declares 4 vertices and 5 faces, but 4 and 1 triangles could be read"),
+    ("syntax.gltf", "{ not json", "not valid JSON (Expecting property name enclosed in double "
+                                  "quotes at line 1, column 3)"),
+    ("nobuffer.gltf", GLTF_WITH_BUFFER, "gone.bin is not there"),
+    ("word.obj", "v 0 0 0\nv 1 0 0\nv 0 1 abc\nf 1 2 3\n", "line 3: 'abc' is not a number")])
+def test_a_damaged_mesh_file_is_named_with_what_is_wrong(tmp_path, name, data, problem):
+    path = tmp_path / name
+    (path.write_bytes if isinstance(data, bytes) else path.write_text)(data)
+    with pytest.raises(InputError) as e:
+        hwbvh.load_triangles(path)
+    assert str(e.value).startswith(str(path) + ": ") and problem in str(e.value)
+
+
+def test_whole_binary_stl_and_off_files_still_load(tmp_path):
+    (tmp_path / "whole.stl").write_bytes(_binary_stl(3))
+    assert hwbvh.load_triangles(tmp_path / "whole.stl").shape == (3, 3, 3)
+    (tmp_path / "quad.off").write_text("OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n")
+    assert hwbvh.load_triangles(tmp_path / "quad.off").shape == (2, 3, 3)
