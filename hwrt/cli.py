@@ -1273,7 +1273,7 @@ def make_parser():
     b.add_argument("--block-nodes", type=_positive,
                    help=f"nodes per block of the upper builder's pool, placement only; hwbvh "
                         f"and sweep (default: {config.DEFAULT_BLOCK_NODES})")
-    b.add_argument("--out", metavar="PREFIX", type=_path,
+    b.add_argument("-o", "--out", metavar="PREFIX", type=_path,
                    help="write PREFIX.nodes, PREFIX.indices and PREFIX.json; a PREFIX ending in "
                         "one of them names the same three (default: no files)")
     b.add_argument("--dump-aabbs", metavar="F", type=_path,

@@ -1283,6 +1283,12 @@ def test_build_refuses_an_out_prefix_that_is_a_directory(tmp_path, capsys, tetra
     assert list((tmp_path / "d").iterdir()) == [] and not (tmp_path / "new").exists()
 
 
+def test_build_takes_o_for_out_as_render_and_animate_do(tmp_path, capsys, tetra):
+    rc, out, err = call(capsys, "build", tetra, "-o", tmp_path / "t")
+    assert rc == 0 and sorted(p.name for p in tmp_path.glob("t.*")) == ["t.indices", "t.json",
+                                                                         "t.nodes"]
+
+
 def test_build_does_not_replace_a_json_file_that_is_not_a_tree(tmp_path, capsys, tetra):
     scene = tmp_path / "scene.json"
     scene.write_text('{"camera": {"eye": [0, 0, 1]}}')
