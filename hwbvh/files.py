@@ -294,7 +294,7 @@ def write_files(pairs):
             d = os.path.dirname(os.path.join(os.getcwd(), path))
             try:
                 for attempt in range(3):
-                    _make_directories(d, made)
+                    make_directories(d, made)
                     try:
                         # held: a signal between creating and recording the temporary file
                         # would leave it behind
@@ -383,7 +383,7 @@ def appending(path, replace=False):
                     pass
 
 
-def _make_directories(d, made):
+def make_directories(d, made):
     """Create the directory ``d`` and its missing parents, appending each one created to
     ``made`` (outermost first) as it is created, so that a signal between two of them leaves
     none unrecorded."""

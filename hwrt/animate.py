@@ -27,18 +27,20 @@ software. Producing a frame's geometry
 (physics, mesh files) and writing it are timed apart (``scene_seconds``, ``write_seconds``).
 """
 import csv
+import fcntl
 import hashlib
 import io
 import json
 import math
 import os
 import time
+from contextlib import contextmanager
 
 import numpy as np
 
 from hwbvh.files import figure_png
 from hwbvh.errors import InputError, ParameterError
-from hwbvh.files import check_output_dir, json_text, jsonable, write_files
+from hwbvh.files import check_output_dir, json_text, jsonable, make_directories, write_files
 from hwbvh.cycle_model import PRESETS
 from .config import ADAPTIVE_THRESHOLD, BENCH_FRAMES, BENCH_QUICK_FRAMES, BENCH_QUICK_TRIANGLES
 from .progress import note_first_compile
@@ -435,6 +437,46 @@ def _check_float32_reach(anim, frames, tri_mag, eye_mag):
 def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_THRESHOLD,
         verify=False, progress=None, seed=0, inspect=None, accel="bvh", on_start=None,
         commit=write_files, fresh=False):
+    """Render ``frames`` frames of ``anim`` (see ``_run``), the output directory held by this
+    run alone from before its state is read until its last file is written: a second run into
+    it meanwhile is refused (InputError), as each would replace the other's frames."""
+    args = (anim, strategy, frames, out_dir, threshold, verify, progress, seed, inspect, accel,
+            on_start, commit, fresh)
+    if out_dir is None:
+        return _run(*args)
+    n = anim.frames if frames is None else frames
+    if isinstance(n, int) and not isinstance(n, bool) and n >= 1:
+        _check_output_dir(out_dir, anim, n)        # a path that can be made, before it is
+    with _held(out_dir):
+        return _run(*args)
+
+
+@contextmanager
+def _held(out_dir):
+    """The directory ``out_dir``, made if missing, locked against other runs (an advisory lock
+    on the directory itself, which the system lets go when the process ends however it ends);
+    a directory made here and still empty at the end is removed again."""
+    made = []
+    make_directories(os.path.join(os.getcwd(), out_dir), made)
+    fd = os.open(out_dir, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(out_dir, "another hwrt animate is writing into it: let it end, or "
+                                      "choose another output directory") from None
+        yield
+    finally:
+        os.close(fd)
+        for d in reversed(made):                # innermost first; one that holds files stays
+            try:
+                os.rmdir(d)
+            except OSError:
+                break
+
+
+def _run(anim, strategy, frames, out_dir, threshold, verify, progress, seed, inspect, accel,
+         on_start, commit, fresh):
     """Render ``frames`` frames of ``anim`` (scenes.animation.Animation) under a tree update
     ``strategy`` (``accel`` other than "bvh": that structure, rebuilt every frame). With ``out_dir``: one EXR per frame (written atomically), the run state
     (animation.json, also what a rerun resumes from, at the first frame missing or damaged), then a CSV
