@@ -246,20 +246,24 @@ def prefix_problem(prefix):
     if os.path.basename(prefix).startswith("."):
         return "is a file name starting with a dot (hidden files)"
     meta = tree_paths(prefix)[2]
-    if os.path.lexists(meta) and not _holds_tree_meta(meta):
-        return (f"would replace {meta}, which is not a tree's description (a tree's holds "
-                f'"format": "{TREE_FORMAT}")')
+    # only a regular file is read (a pipe or a device is check_outputs' to refuse)
+    if os.path.isfile(meta) and not _holds_tree_meta(meta):
+        return (f"is taken: {meta} is there and is not a tree's description, which the tree "
+                f"would replace")
     return None
 
 
 def _holds_tree_meta(path):
-    """Whether the file ``path`` holds a tree's description as ``save`` writes it."""
+    """Whether the file ``path`` holds a tree's description: a JSON object with this format's
+    name, or, as ``load`` takes one, with no format named and a triangle count."""
     try:
         with open(path, encoding="utf-8") as f:
-            meta = json.load(f)
+            text = f.read(config.TREE_META_READ_BYTES + 1)
+        meta = json.loads(text) if len(text) <= config.TREE_META_READ_BYTES else None
     except (OSError, ValueError, RecursionError):
         return False
-    return isinstance(meta, dict) and meta.get("format") == TREE_FORMAT
+    return isinstance(meta, dict) and (meta.get("format") == TREE_FORMAT or
+                                       ("format" not in meta and "triangles" in meta))
 
 
 def prefix_example(prefix):

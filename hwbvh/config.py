@@ -165,6 +165,10 @@ POWER_OF_TWO_KNOBS = ("w", "tsize")
 # beyond any controller, and keeps cycle totals (at most 2^25 splits) well inside int64.
 MAX_CONTROL_LATENCY = 1_000_000
 
+# The most bytes of an existing PREFIX.json read to tell a tree's description (a few KB) from
+# another file before a save would replace it (api.prefix_problem); a larger file is not one.
+TREE_META_READ_BYTES = 1 << 20
+
 # --- Threading (hwbvh.parallel) -----------------------------------------------------------
 # The threading set-up (``parallel.THREADING_SETUPS``) unless HWRT_THREADING names another:
 # OpenMP with sleeping idle threads, the fastest set-up alone and beside a busy competitor on

@@ -289,18 +289,21 @@ def write_files(pairs):
             path = os.fsdecode(path)         # str, bytes or a path object: one str
             if os.path.isdir(path):
                 raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", path)
-            # the directory as the system resolves the path (``abspath`` would cancel a ``..``
-            # against a directory that does not exist yet, which the rename then needs)
-            d = os.path.dirname(os.path.join(os.getcwd(), path))
             try:
+                # the directory as the system resolves the path (``abspath`` would cancel a
+                # ``..`` against a directory that does not exist yet, which the rename needs)
+                d = os.path.dirname(path if os.path.isabs(path) else
+                                    os.path.join(os.getcwd(), path))
                 for attempt in range(3):
                     make_directories(d, made)
                     try:
                         # held: a signal between creating and recording the temporary file
-                        # would leave it behind
+                        # would leave it behind; in the directory the path resolves to
+                        # (mkstemp would cancel a ``..`` after a symbolic link)
                         with signals_held():
                             fd, tmp = tempfile.mkstemp(
-                                prefix=".tmp-", suffix=os.path.splitext(path)[1], dir=d)
+                                prefix=".tmp-", suffix=os.path.splitext(path)[1],
+                                dir=os.path.realpath(d))
                             tmps.append((tmp, path))
                         break
                     except FileNotFoundError:

@@ -498,7 +498,7 @@ def _obj_bad_number(path):
     a value that is not a number, or None (run after a failed load, as _check_obj_face_range)."""
     with open(path, "rb") as f:
         for number, line in enumerate(f, 1):
-            words = line.split()
+            words = line.split(b"#", 1)[0].split()
             if not words or words[0] not in (b"v", b"vt", b"vn"):
                 continue
             for w in words[1:]:
@@ -521,30 +521,14 @@ def _stl_cut_short(path):
     size = os.path.getsize(path)
     with open(path, "rb") as f:
         head = f.read(STL_HEADER_BYTES)
-    if len(head) < STL_HEADER_BYTES:
-        return None if head.lstrip().startswith(b"solid") else "shorter than a binary STL header"
+    if len(head) < STL_HEADER_BYTES or b"facet" in head.lower():       # ASCII, or no header
+        return None
     n = int.from_bytes(head[80:84], "little")
     want = STL_HEADER_BYTES + STL_TRIANGLE_BYTES * n
-    if size >= want or head.lstrip().startswith(b"solid"):
+    if size >= want:
         return None
     return (f"its header counts {n} triangle{'s' if n != 1 else ''} ({want} bytes), but the "
             f"file holds {size} bytes: it is cut short")
-
-
-def _off_declared(path):
-    """The vertex and face counts an OFF file's header declares, or None."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(4096)
-    except OSError:
-        return None
-    words = re.sub(rb"#[^\n]*", b"", head).split()
-    if not words or words[0] != b"OFF":       # not the plain form (COFF, NOFF, ...: left to trimesh)
-        return None
-    counts = words[1:3]
-    if len(counts) < 2 or not all(c.isdigit() for c in counts):
-        return None
-    return int(counts[0]), int(counts[1])
 
 
 def _gltf_problem(path):
@@ -563,11 +547,11 @@ def _gltf_problem(path):
     buffers = doc.get("buffers") if isinstance(doc, dict) else None
     for b in buffers if isinstance(buffers, list) else ():
         uri = b.get("uri") if isinstance(b, dict) else None
-        if isinstance(uri, str) and not uri.startswith("data:"):
+        if isinstance(uri, str) and not uri.lower().startswith("data:"):
             from urllib.parse import unquote
-            target = os.path.join(os.path.dirname(path), unquote(uri))
-            if not os.path.isfile(target):
-                return f"its buffer file {target} is not there"
+            here = os.path.dirname(path)
+            if not any(os.path.isfile(os.path.join(here, name)) for name in (uri, unquote(uri))):
+                return f"its buffer file {os.path.join(here, unquote(uri))} is not there"
     return None
 
 
@@ -603,10 +587,6 @@ def load_mesh_arrays(path):
     if "face" in declared:
         check_count(declared["face"], path)
     low = path.lower()
-    problem = _stl_cut_short(path) if low.endswith(".stl") else \
-        _gltf_problem(path) if low.endswith(".gltf") else None
-    if problem:
-        raise InputError(path, problem)
     obj = low.endswith(".obj")
     load_args = _obj_load_args(path) if obj else {"file_obj": path}
     if load_args["file_obj"] is path and not _utf8_name(path) and not path.lower().endswith(".gltf"):
@@ -624,9 +604,12 @@ def load_mesh_arrays(path):
     except Exception as exc:  # trimesh raises many types for unreadable files
         if obj:
             _check_obj_face_range(path)
-            bad = _obj_bad_number(path)
-            if bad:
-                raise InputError(path, bad) from None
+        # what trimesh's own message does not say (it names neither the file nor the problem)
+        problem = _obj_bad_number(path) if obj else \
+            _gltf_problem(path) if low.endswith(".gltf") else \
+            _stl_cut_short(path) if low.endswith(".stl") else None
+        if problem:
+            raise InputError(path, problem) from None
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if isinstance(exc, KeyError):          # a reader looked up what the file does not hold
             msg = f"it has no {msg}"
@@ -637,6 +620,9 @@ def load_mesh_arrays(path):
     faces = getattr(mesh, "faces", None)
     verts = getattr(mesh, "vertices", None)
     if faces is None or verts is None or len(faces) == 0:
+        cut = _stl_cut_short(path) if low.endswith(".stl") else None
+        if cut:                             # trimesh reads a binary STL cut short as empty
+            raise InputError(path, cut)
         if declared.get("face"):            # the reader stopped short of what the header says
             raise InputError(path, f"its header declares {_elements(declared)}, but no face "
                                    f"could be read: the file ends early or does not match "
@@ -651,12 +637,6 @@ def load_mesh_arrays(path):
         raise InputError(path, "mesh faces are not triangles")
     if faces.min() < 0 or faces.max() >= len(verts):
         raise InputError(path, "a face references a vertex that does not exist")
-    off = _off_declared(path) if low.endswith(".off") else None
-    if off and (len(verts) < off[0] or len(faces) < off[1]):
-        # every face declared gives at least one triangle: fewer is a file that ends early
-        raise InputError(path, f"its header declares {off[0]} vertices and {off[1]} faces, but "
-                               f"{len(verts)} and {len(faces)} triangles could be read: the file "
-                               f"ends early or does not match its header")
     return verts, faces
 
 

@@ -440,14 +440,21 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     """Render ``frames`` frames of ``anim`` (see ``_run``), the output directory held by this
     run alone from before its state is read until its last file is written: a second run into
     it meanwhile is refused (InputError), as each would replace the other's frames."""
+    frames = anim.frames if frames is None else frames
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        raise ParameterError("frames", f"must be a positive integer, got {frames!r}")
+    if verify and strategy == "embree":
+        raise ParameterError("verify", "checks our traversal against Embree; choose a strategy "
+                                   "that uses the hardware's tree")
     args = (anim, strategy, frames, out_dir, threshold, verify, progress, seed, inspect, accel,
             on_start, commit, fresh)
     if out_dir is None:
         return _run(*args)
-    n = anim.frames if frames is None else frames
-    if isinstance(n, int) and not isinstance(n, bool) and n >= 1:
-        _check_output_dir(out_dir, anim, n)        # a path that can be made, before it is
-    with _held(out_dir):
+    if not os.fspath(out_dir):
+        raise ParameterError("out_dir", "is empty: give a directory (\".\" for this one)")
+    TreeUpdater(strategy, threshold, accel)     # the strategy's own checks, before any directory
+    _check_output_dir(out_dir, anim, frames)    # a path that can be made, before it is
+    with _held(os.fspath(out_dir)):
         return _run(*args)
 
 
@@ -455,24 +462,40 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
 def _held(out_dir):
     """The directory ``out_dir``, made if missing, locked against other runs (an advisory lock
     on the directory itself, which the system lets go when the process ends however it ends);
-    a directory made here and still empty at the end is removed again."""
-    made = []
-    make_directories(os.path.join(os.getcwd(), out_dir), made)
-    fd = os.open(out_dir, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    a directory made here and still empty at the end is removed again, before the lock is let
+    go (a run that takes it next then finds it gone, and makes it again). A file system that
+    does not lock directories (NFS) leaves the run unlocked."""
+    made, fd = [], None
     try:
+        try:
+            for attempt in range(2):
+                make_directories(out_dir if os.path.isabs(out_dir) else
+                                 os.path.join(os.getcwd(), out_dir), made)
+                try:
+                    fd = os.open(out_dir, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+                    break
+                except FileNotFoundError:       # removed by a run that just ended: again
+                    if attempt:
+                        raise
+        except OSError as e:
+            raise InputError(out_dir, f"cannot be used as the output directory "
+                                      f"({e.strerror or e})") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             raise InputError(out_dir, "another hwrt animate is writing into it: let it end, or "
                                       "choose another output directory") from None
+        except OSError:
+            pass                                # no locks here: the run goes on without one
         yield
     finally:
-        os.close(fd)
         for d in reversed(made):                # innermost first; one that holds files stays
             try:
                 os.rmdir(d)
             except OSError:
                 break
+        if fd is not None:
+            os.close(fd)
 
 
 def _run(anim, strategy, frames, out_dir, threshold, verify, progress, seed, inspect, accel,
@@ -489,12 +512,6 @@ def _run(anim, strategy, frames, out_dir, threshold, verify, progress, seed, ins
     settings. Returns the result dict."""
     t_start = time.perf_counter()
     updater = TreeUpdater(strategy, threshold, accel)
-    frames = anim.frames if frames is None else frames
-    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-        raise ParameterError("frames", f"must be a positive integer, got {frames!r}")
-    if verify and strategy == "embree":
-        raise ParameterError("verify", "checks our traversal against Embree; choose a strategy "
-                                   "that uses the hardware's tree")
     _check_float32_reach(anim, frames, *anim.check(frames))
     t = time.perf_counter()
     first = anim.scene(0)

@@ -1620,8 +1620,8 @@ def _numba_threads_problem():
     """Why Numba's own $NUMBA_NUM_THREADS cannot be taken, or None: Numba reads it as it is
     imported, which fails with a traceback on 0 and warns at length on a word. Checked before
     anything imports Numba."""
-    value = os.environ.get("NUMBA_NUM_THREADS", "").strip()
-    if value and not (value.isdigit() and int(value) > 0):
+    value = os.environ.get("NUMBA_NUM_THREADS")
+    if value is not None and not (re.fullmatch(r"\s*[0-9]+\s*", value) and int(value) > 0):
         return f"$NUMBA_NUM_THREADS: {value!r} is not a positive whole number of threads"
     return None
 

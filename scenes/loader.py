@@ -22,6 +22,7 @@ from hwbvh.errors import InputError, ParameterError, is_integer, json_syntax, sh
 from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
                               extent, float32_step, load_mesh_arrays, within_bound)
 from .builtin import BUILTIN, COUNT_LIMITS
+from .config import SHEET_RESOLUTION, SPHERE_SUBDIV
 from .meshes import grid_sheet, uv_sphere
 
 SCENE_EXTENSIONS = (".json", ".toml")
@@ -48,12 +49,6 @@ SHAPE_KEYS = {"quad": ("corners",), "box": ("min", "max", "rotate_y"),
               "sheet": ("resolution", "size", "wave", "height"),
               "triangles": ("data",), "mesh": ("filename", "smooth", "transform")}
 TRANSFORM_KEYS = ("scale", "rotate_y", "translate")
-# A sphere's subdiv and a sheet's resolution where the scene gives none (3,968 and 8,192
-# triangles): twice as many longitudes as latitudes, so that the sphere's facets span equal
-# angles both ways (5.6 degrees), and as many columns as rows, so that the square sheet's
-# cells are square.
-SPHERE_SUBDIV = (32, 64)
-SHEET_RESOLUTION = (64, 64)
 # Keys a shape does not take that a scene file's author may reach for: what to write instead.
 SHAPE_KEY_HINTS = {"frames": 'a shape of "type": "frames" with a "pattern"'}
 # Light (intensities, irradiance, ambient, background): at most float32's largest number,

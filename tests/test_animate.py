@@ -656,6 +656,19 @@ def test_a_second_run_into_a_directory_in_use_is_refused_and_touches_nothing(tmp
     assert rc == 0 and (out / "frame_0000.exr").exists()
 
 
+def test_run_checks_its_arguments_before_it_makes_a_directory(tmp_path):
+    from hwbvh.errors import ParameterError
+    anim = load_animation("cloth", triangles=200, **TINY)
+    for kwargs, name in [({"frames": 0}, "frames"), ({"strategy": "bvh"}, "strategy"),
+                         ({"strategy": "embree", "verify": True}, "verify")]:
+        with pytest.raises(ParameterError) as e:
+            run(anim, out_dir=tmp_path / "new" / "run", **kwargs)
+        assert e.value.parameter == name
+    with pytest.raises(ParameterError, match="is empty"):
+        run(anim, frames=1, out_dir="")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_sigterm_leaves_only_whole_frames_and_the_run_resumes(tmp_path):
     import os
     import signal

@@ -1294,7 +1294,7 @@ def test_build_does_not_replace_a_json_file_that_is_not_a_tree(tmp_path, capsys,
     scene.write_text('{"camera": {"eye": [0, 0, 1]}}')
     rc, out, err = call(capsys, "build", tetra, "--out", scene)
     assert rc == 2 and one_line_error(err).startswith("hwrt: error: --out: ")
-    assert "which is not a tree's description" in err
+    assert "is there and is not a tree's description, which the tree would replace" in err
     assert not any(p.suffix in (".nodes", ".indices") for p in tmp_path.iterdir())
     assert scene.read_text() == '{"camera": {"eye": [0, 0, 1]}}'
 

@@ -103,7 +103,7 @@ def test_save_load_roundtrip(tmp_path):
     # a .json that is not a tree's (a scene file named as the prefix) is not replaced; a
     # tree's is
     (tmp_path / "scene.json").write_text('{"camera": {}}')
-    with pytest.raises(ParameterError, match=r"would replace .*scene\.json, which is not a "
+    with pytest.raises(ParameterError, match=r"is taken: .*scene\.json is there and is not a "
                                              r"tree's description"):
         hwbvh.save(other, tmp_path / "scene.json")
     assert (tmp_path / "scene.json").read_text() == '{"camera": {}}'

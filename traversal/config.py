@@ -1,7 +1,7 @@
 """Every tolerance and knob of the traversal, in one place, each with its reason.
 
 Numba compiles these into the kernels as constants; an edit here compiles every kernel once
-more, as an edit anywhere in the package does (``hwbvh.kernel_cache``).
+more, as an edit to any source file of the kernel packages does (``hwbvh.kernel_cache``).
 """
 
 # --- AABB unit (aabb_unit) --------------------------------------------------------------
