@@ -1487,7 +1487,7 @@ def test_an_abbreviated_option_is_not_taken_for_the_whole(capsys, argv):
 
 
 @pytest.mark.parametrize("argv, option", [
-    (["build", "x.obj", "--out", ""], "--out"),
+    (["build", "x.obj", "--out", ""], "-o/--out"),
     (["build", "x.obj", "--dump-aabbs", ""], "--dump-aabbs"),
     (["render", "cornell", "-o", ""], "-o/--output"),
     (["explore", "x.obj", "--out-dir", ""], "--out-dir"),
