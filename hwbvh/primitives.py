@@ -498,9 +498,13 @@ def _obj_bad_number(path):
     a value that is not a number, or None (run after a failed load, as _check_obj_face_range)."""
     with open(path, "rb") as f:
         for number, line in enumerate(f, 1):
-            words = line.split(b"#", 1)[0].split()
+            values, hash_, _ = line.partition(b"#")
+            words = values.split()
             if not words or words[0] not in (b"v", b"vt", b"vn"):
                 continue
+            if hash_:                           # trimesh reads no comment after values
+                return (f"line {number}: a comment after the values; put it on a line of its "
+                        f"own")
             for w in words[1:]:
                 try:
                     float(w)
@@ -521,7 +525,9 @@ def _stl_cut_short(path):
     size = os.path.getsize(path)
     with open(path, "rb") as f:
         head = f.read(STL_HEADER_BYTES)
-    if len(head) < STL_HEADER_BYTES or b"facet" in head.lower():       # ASCII, or no header
+    # ASCII text (or no header): the count's four bytes are characters; as a count they would
+    # be at least 0x09090909, far beyond MAX_PRIMITIVES
+    if len(head) < STL_HEADER_BYTES or all(32 <= c < 127 or c in b"\t\r\n" for c in head[80:84]):
         return None
     n = int.from_bytes(head[80:84], "little")
     want = STL_HEADER_BYTES + STL_TRIANGLE_BYTES * n

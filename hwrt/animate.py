@@ -454,8 +454,11 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
         raise ParameterError("out_dir", "is empty: give a directory (\".\" for this one)")
     TreeUpdater(strategy, threshold, accel)     # the strategy's own checks, before any directory
     _check_output_dir(out_dir, anim, frames)    # a path that can be made, before it is
-    with _held(os.fspath(out_dir)):
-        return _run(*args)
+    # one spelling for the lock and the files: the directory the system resolves the path to
+    # (abspath would cancel a ``..`` after a symbolic link against the link's name)
+    resolved = os.path.realpath(out_dir)
+    with _held(resolved):
+        return _run(*args[:3], resolved, *args[4:])
 
 
 @contextmanager

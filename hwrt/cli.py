@@ -1621,8 +1621,9 @@ def _numba_threads_problem():
     imported, which fails with a traceback on 0 and warns at length on a word. Checked before
     anything imports Numba."""
     value = os.environ.get("NUMBA_NUM_THREADS")
-    if value is not None and not (re.fullmatch(r"\s*[0-9]+\s*", value) and int(value) > 0):
-        return f"$NUMBA_NUM_THREADS: {value!r} is not a positive whole number of threads"
+    if value is not None and not re.fullmatch(r"\s*0*[1-9][0-9]{0,8}\s*", value):
+        text = repr(value) if len(value) <= 20 else repr(value[:17]) + "..."   # no hwbvh yet
+        return f"$NUMBA_NUM_THREADS: {text} is not a positive whole number of threads"
     return None
 
 

@@ -595,7 +595,10 @@ GLTF_WITH_BUFFER = json.dumps({
     ("syntax.gltf", "{ not json", "not valid JSON (Expecting property name enclosed in double "
                                   "quotes at line 1, column 3)"),
     ("nobuffer.gltf", GLTF_WITH_BUFFER, "gone.bin is not there"),
-    ("word.obj", "v 0 0 0\nv 1 0 0\nv 0 1 abc\nf 1 2 3\n", "line 3: 'abc' is not a number")])
+    ("word.obj", "v 0 0 0\nv 1 0 0\nv 0 1 abc\nf 1 2 3\n", "line 3: 'abc' is not a number"),
+    ("note.obj", "v 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+     "line 1: a comment after the values; put it on a line of its own"),
+    ("long.stl", "solid " + "n" * 100 + "\nendsolid\n", "mesh has no triangles")])
 def test_a_damaged_mesh_file_is_named_with_what_is_wrong(tmp_path, name, data, problem):
     path = tmp_path / name
     (path.write_bytes if isinstance(data, bytes) else path.write_text)(data)
@@ -606,7 +609,7 @@ def test_a_damaged_mesh_file_is_named_with_what_is_wrong(tmp_path, name, data, p
 
 def test_the_damage_checks_only_explain_a_file_that_does_not_load(tmp_path):
     """They run once trimesh has failed: a file it reads (an ASCII STL in capitals after a
-    byte-order mark, a buffer named with a literal %20, a comment after a vertex) loads."""
+    byte-order mark, a buffer named with a literal %20) loads."""
     (tmp_path / "whole.stl").write_bytes(_binary_stl(3))
     assert hwbvh.load_triangles(tmp_path / "whole.stl").shape == (3, 3, 3)
     (tmp_path / "caps.stl").write_text("\ufeffSOLID x\nfacet normal 0 0 1\nouter loop\n"
