@@ -17,7 +17,7 @@ import signal
 import sys
 from functools import partial
 
-from .config import VERIFY_RAYS, env_flag
+from .config import VERIFY_KIND, VERIFY_RAYS, env_flag
 from .progress import PROGRESS_ENV, note_first_compile, progress_bar
 
 DESCRIPTION = ("hwrt simulates the hardware BVH builder of M. J. Doyle's thesis (HWBVH) bit for "
@@ -31,7 +31,6 @@ EPILOG = ("With --json a command prints exactly one JSON object on stdout, in st
           "naming the file, key or option and the problem; 130 interrupted (SIGINT); 143 "
           "terminated (SIGTERM); 141 when stdout's reader has gone (a closed pipe); 1 anything "
           "else.")
-VERIFY_KIND = "random"
 EXIT_BAD_INPUT = 2
 EXIT_SIGINT = 128 + signal.SIGINT
 EXIT_SIGTERM = 128 + signal.SIGTERM
@@ -1086,7 +1085,7 @@ _frames = _scene_limit("MAX_FRAMES")
 
 
 def _fps(v):
-    from scenes.animation import MAX_FPS, MIN_FPS
+    from scenes.config import MAX_FPS, MIN_FPS
     return _float_within(MIN_FPS, MAX_FPS)(v)
 
 
@@ -1414,7 +1413,7 @@ def make_parser():
     an.add_argument("--accel", choices=ACCELS, default="bvh",
                     help="acceleration structure: bvh (updated by --strategy) or another, "
                          "rebuilt every frame")
-    from scenes.animation import GENERATED_TRIANGLES
+    from scenes.config import GENERATED_TRIANGLES
     from .config import ADAPTIVE_THRESHOLD
     an.add_argument("--threshold", type=_positive_float,
                     help="adaptive: rebuild when the SAH cost grows past this factor of the last "

@@ -14,10 +14,16 @@ WORKER_WATCH_S = 10        # how often a run checks that its scheduler still has
 
 # --- Design-space exploration (explore) -------------------------------------------------
 # The most configurations one exploration takes: 23x the default grid's 4,320
-# (``explore.DEFAULT_GRID``), a few hours of simulation per mesh on a workstation's cores; a
+# (DEFAULT_GRID), a few hours of simulation per mesh on a workstation's cores; a
 # grid past it is refused before its configurations are made (each is a few kilobytes of
 # parameters and results).
 MAX_CONFIGURATIONS = 100_000
+# The default grid: the thesis' w x Tsize study (4.2.1, Fig. 4.2) and leaf sizes (Fig. 4.3),
+# half to twice the subtree capacity, one to four subtree builders and RAM pairs, and the two
+# presets' clocks; 16 bins, the hardware's maximum and both presets' setting.
+DEFAULT_GRID = {"w": [2, 4, 8, 16], "tsize": [2, 4, 8, 16], "psize": [1024, 2048, 4096],
+                "subtree_builders": [1, 2, 4], "ram_pairs": [1, 2, 4], "clock_mhz": [250.0, 500.0],
+                "leaf_size": [4, 8, 16, 32, 64]}
 BATCH_CONFIGS = 96         # configurations per task: ~0.1-1 s of simulation, a fine progress bar
 TREE_CACHE = 3             # trees a worker keeps (a 270k-triangle tree is ~50 MB)
 
@@ -35,7 +41,7 @@ MISMATCH_RAYS_QUICK = 20_000
 BENCH_FRAMES = 60            # bench animation: 2 s at 30 fps covers the explosion and the drape
 # --quick: 12 frames (0.4 s at 30 fps) still pass the explosion's start (0.25 s,
 # ``scenes.animation.EXPLODE_AT``), on a generated sphere and cloth of a fifth of their usual
-# triangles (``scenes.animation.GENERATED_TRIANGLES``), for a short run
+# triangles (``scenes.config.GENERATED_TRIANGLES``), for a short run
 BENCH_QUICK_FRAMES = 12
 BENCH_QUICK_TRIANGLES = 4000
 
@@ -50,6 +56,10 @@ PROBE_TIMEOUT_SECONDS = 300
 # Rays traced when --rays is not given: one mismatching ray in them is a rate of 1e-5, the
 # resolution of the accuracy study's check (MISMATCH_RAYS).
 VERIFY_RAYS = 100_000
+# The rays' kind when --kind is not given: rays from uniform points of the mesh's box in
+# uniform directions reach every part of the tree from every angle, where a camera's rays see
+# only what faces it.
+VERIFY_KIND = "random"
 
 
 # Environment switches (HWRT_PROGRESS, HWRT_DEBUG): the words that turn one on or off. An

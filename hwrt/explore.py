@@ -32,18 +32,12 @@ from hwbvh.files import content_digest, figure_png, write_files
 from hwbvh import config
 from hwbvh.cycle_model import PRESETS, check_params
 from hwbvh.errors import InputError, ParameterError
-from .config import BATCH_CONFIGS, MAX_CONFIGURATIONS, TREE_CACHE
+from .config import BATCH_CONFIGS, DEFAULT_GRID, MAX_CONFIGURATIONS, TREE_CACHE
 from .report import with_figures
 
 KNOBS = ("bins", "leaf_size", "w", "tsize", "psize", "subtree_builders", "ram_pairs", "clock_mhz")
 TREE_KNOBS = ("bins", "leaf_size")
 BASE = PRESETS["HWBVH-C"]          # the value of every knob the grid leaves unset
-# The default grid: the thesis' w x Tsize study (4.2.1, Fig. 4.2) and leaf sizes (Fig. 4.3),
-# half to twice the subtree capacity, one to four subtree builders and RAM pairs, and the two
-# presets' clocks; 16 bins, the hardware's maximum and both presets' setting.
-DEFAULT_GRID = {"w": [2, 4, 8, 16], "tsize": [2, 4, 8, 16], "psize": [1024, 2048, 4096],
-                "subtree_builders": [1, 2, 4], "ram_pairs": [1, 2, 4], "clock_mhz": [250.0, 500.0],
-                "leaf_size": [4, 8, 16, 32, 64]}
 _INTEGER = re.compile(r"[+-]?[0-9]+")
 _DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
 SIZE_CLASSES = ((50_000, "small (< 50k triangles)"), (150_000, "medium (50k-150k)"),

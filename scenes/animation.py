@@ -48,19 +48,13 @@ from hwbvh.config import MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, is_integer
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
-from .config import DEFAULT_ANIMATION_SECONDS
+from .config import (DEFAULT_ANIMATION_SECONDS, DEFAULT_FPS, GENERATED_TRIANGLES, MAX_FPS,
+                     MIN_FPS)
 from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, SCENE_KEYS, Ctx, check_scale,
                      compile_scene, finite, flat_normals, is_pattern, load_scene, mesh_scene,
                      named_after_file, scene_directory, scene_file, smooth_normals, spec_path,
                      vector_ok, with_frame, written)
 
-DEFAULT_FPS = 30.0
-GENERATED_TRIANGLES = 20_000     # the built-in cloth and generated sphere: a mid-size mesh
-# Frame rates an animation may have: an animation without a frame count lasts
-# DEFAULT_ANIMATION_SECONDS, which at these bounds is 1 to 4000 frames (beyond them: no frame,
-# or frame times too fine for the motions' clocks).
-MIN_FPS = 0.25
-MAX_FPS = 1000.0
 KEYFRAME_KEYS = ("time", "translate", "rotate", "scale")
 CAMERA_KEY_KEYS = ("time", "eye", "target", "up", "fov")
 ANIMATION_KEYS = ("frames", "fps", "camera")
