@@ -481,28 +481,18 @@ def _elements(declared):
                         for k, n in declared.items())
 
 
-def _obj_short_vertex(path):
-    """'line N: ...' for the first vertex line of the OBJ file ``path`` with fewer than 3
-    coordinates (trimesh then reads every vertex with that few), or None."""
-    with open(path, "rb") as f:
-        for number, line in enumerate(f, 1):
-            words = line.split()
-            if words and words[0] == b"v" and len(words) < 4:
-                return (f"line {number}: a vertex has {len(words) - 1} coordinate"
-                        f"{'s' if len(words) != 2 else ''}, expected 3")
-    return None
-
-
-def _obj_bad_number(path):
-    """'line N: ...' for the first vertex, texture or normal line of the OBJ file ``path`` with
-    a value that is not a number, or None (run after a failed load, as _check_obj_face_range)."""
+def _obj_vertex_problem(path):
+    """'line N: ...' for the first vertex, texture or normal line of the OBJ file ``path`` that
+    trimesh cannot read as meant, or None: a comment after its values (trimesh takes none), a
+    value that is not a number, or a vertex with fewer than 3 coordinates (trimesh then reads
+    every vertex with that few). Run only to explain a load, as _check_obj_face_range."""
     with open(path, "rb") as f:
         for number, line in enumerate(f, 1):
             values, hash_, _ = line.partition(b"#")
             words = values.split()
             if not words or words[0] not in (b"v", b"vt", b"vn"):
                 continue
-            if hash_:                           # trimesh reads no comment after values
+            if hash_:
                 return (f"line {number}: a comment after the values; put it on a line of its "
                         f"own")
             for w in words[1:]:
@@ -510,6 +500,9 @@ def _obj_bad_number(path):
                     float(w)
                 except ValueError:
                     return f"line {number}: {shown(w.decode('utf-8', 'replace'))} is not a number"
+            if words[0] == b"v" and len(words) < 4:
+                return (f"line {number}: a vertex has {len(words) - 1} coordinate"
+                        f"{'s' if len(words) != 2 else ''}, expected 3")
     return None
 
 
@@ -611,7 +604,7 @@ def load_mesh_arrays(path):
         if obj:
             _check_obj_face_range(path)
         # what trimesh's own message does not say (it names neither the file nor the problem)
-        problem = _obj_bad_number(path) if obj else \
+        problem = _obj_vertex_problem(path) if obj else \
             _gltf_problem(path) if low.endswith(".gltf") else \
             _stl_cut_short(path) if low.endswith(".stl") else None
         if problem:
@@ -637,7 +630,7 @@ def load_mesh_arrays(path):
     faces = np.asarray(faces, dtype=np.int64)
     verts = np.asarray(verts, dtype=np.float64)
     if verts.ndim != 2 or verts.shape[1] != 3:
-        raise InputError(path, (obj and _obj_short_vertex(path)) or
+        raise InputError(path, (obj and _obj_vertex_problem(path)) or
                          f"vertices have {verts.shape[-1]} coordinates, expected 3")
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise InputError(path, "mesh faces are not triangles")

@@ -289,7 +289,6 @@ def _written_beside_state(frames):
 def _check_output_dir(out_dir, anim, frames):
     """Fail before any work unless every output can be written and none is an input."""
     check_output_dir(out_dir, _written_beside_state(frames) + [STATE_NAME], anim.inputs)
-    return os.path.abspath(out_dir)
 
 
 def _load_state(out_dir, params, frames, fresh=False):
@@ -446,13 +445,13 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     if verify and strategy == "embree":
         raise ParameterError("verify", "checks our traversal against Embree; choose a strategy "
                                    "that uses the hardware's tree")
-    args = (anim, strategy, frames, out_dir, threshold, verify, progress, seed, inspect, accel,
+    updater = TreeUpdater(strategy, threshold, accel)   # its checks, before any directory
+    args = (anim, strategy, frames, out_dir, updater, verify, progress, seed, inspect, accel,
             on_start, commit, fresh)
     if out_dir is None:
         return _run(*args)
     if not os.fspath(out_dir):
         raise ParameterError("out_dir", "is empty: give a directory (\".\" for this one)")
-    TreeUpdater(strategy, threshold, accel)     # the strategy's own checks, before any directory
     _check_output_dir(out_dir, anim, frames)    # a path that can be made, before it is
     # one spelling for the lock and the files: the directory the system resolves the path to
     # (abspath would cancel a ``..`` after a symbolic link against the link's name)
@@ -501,7 +500,7 @@ def _held(out_dir):
             os.close(fd)
 
 
-def _run(anim, strategy, frames, out_dir, threshold, verify, progress, seed, inspect, accel,
+def _run(anim, strategy, frames, out_dir, updater, verify, progress, seed, inspect, accel,
          on_start, commit, fresh):
     """Render ``frames`` frames of ``anim`` (scenes.animation.Animation) under a tree update
     ``strategy`` (``accel`` other than "bvh": that structure, rebuilt every frame). With ``out_dir``: one EXR per frame (written atomically), the run state
@@ -512,9 +511,9 @@ def _run(anim, strategy, frames, out_dir, threshold, verify, progress, seed, ins
     the output directory have been checked, with the first frame to render (later than 0 when
     a rerun resumes); ``progress(i)`` after each frame. ``fresh``: an earlier run in ``out_dir``
     is removed (``_discard_run``) once every check has passed, not resumed, whatever its
-    settings. Returns the result dict."""
+    settings. ``updater``: the run's TreeUpdater; ``out_dir``: checked, resolved and held by
+    ``run``. Returns the result dict."""
     t_start = time.perf_counter()
-    updater = TreeUpdater(strategy, threshold, accel)
     _check_float32_reach(anim, frames, *anim.check(frames))
     t = time.perf_counter()
     first = anim.scene(0)
@@ -524,7 +523,6 @@ def _run(anim, strategy, frames, out_dir, threshold, verify, progress, seed, ins
                          written=out_dir is not None)
     rows, beyond = {}, {}
     if out_dir is not None:
-        out_dir = _check_output_dir(out_dir, anim, frames)
         rows = _load_state(out_dir, params, frames, fresh)
         # frames of this run past the last asked for stay in its state (not orphaned on disk):
         # a longer rerun resumes them

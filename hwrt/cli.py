@@ -1025,7 +1025,10 @@ MAX_OPTION_INT = (1 << 31) - 1
 MAX_REPEAT = 1000
 
 
-def _int_at_least(lo, hi=MAX_OPTION_INT):
+def _int_at_least(lo, hi=MAX_OPTION_INT, note=None):
+    """An integer option in lo..hi. ``note`` (a str, may be empty): a value out of range is
+    refused as "must be an integer in lo..hi<note>", the words the library uses for it
+    (``hwbvh.builder.check_params``), else as "must be at least lo" / "at most hi"."""
     def parse(v):
         # digits only (Python's int() also takes "4_0" and " 5"); a number too long to convert
         # is beyond any limit
@@ -1035,6 +1038,8 @@ def _int_at_least(lo, hi=MAX_OPTION_INT):
         long = len(v.lstrip("+-")) >= 1000
         i = (hi + 1 if v[0] != "-" else lo - 1) if long else int(v)
         got = f"a number of {len(v.lstrip('+-'))} digits" if long else i
+        if note is not None and not lo <= i <= hi:
+            raise argparse.ArgumentTypeError(f"must be an integer in {lo}..{hi}{note}, got {got}")
         if i < lo:
             raise argparse.ArgumentTypeError(f"must be at least {lo}, got {got}")
         if i > hi:
@@ -1048,20 +1053,8 @@ _non_negative = _int_at_least(0)
 
 
 def _int_in(lo, hi, note=""):
-    """An integer option in lo..hi, refused in the words the library uses for it
-    (``hwbvh.builder.check_params``): "must be an integer in lo..hi<note>"."""
-    within = _int_at_least(lo, hi)
-
-    def parse(v):
-        try:
-            return within(v)
-        except argparse.ArgumentTypeError as e:
-            if not str(e).startswith("must be"):       # not an integer at all
-                raise
-            got = str(e).rsplit(", got ", 1)[1]
-            raise argparse.ArgumentTypeError(f"must be an integer in {lo}..{hi}{note}, "
-                                             f"got {got}") from None
-    return parse
+    """An integer option in lo..hi, refused in the library's words (``_int_at_least``)."""
+    return _int_at_least(lo, hi, note)
 
 
 def _scene_limit(name):
