@@ -169,6 +169,15 @@ MAX_CONTROL_LATENCY = 1_000_000
 # another file before a save would replace it (api.prefix_problem); a larger file is not one.
 TREE_META_READ_BYTES = 1 << 20
 
+# The most bytes of a PLY file read for its header (element counts, format, property types)
+# before trimesh reads it (primitives._ply_header): far more than any header with its comments.
+PLY_HEADER_BYTES = 1 << 16
+
+# The bytes one file name may hold where the file system does not say (os.pathconf fails):
+# ext4, XFS, Btrfs and tmpfs all allow 255, so an output name longer than this is refused
+# before the work (files.check_outputs) instead of failing when the result is renamed into place.
+DEFAULT_NAME_MAX = 255
+
 # --- Threading (hwbvh.parallel) -----------------------------------------------------------
 # The threading set-up (``parallel.THREADING_SETUPS``) unless HWRT_THREADING names another:
 # OpenMP with sleeping idle threads, the fastest set-up alone and beside a busy competitor on

@@ -21,6 +21,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from .config import DEFAULT_NAME_MAX
 from .errors import InputError
 
 
@@ -103,6 +104,22 @@ def _directory_problem(d, wanted=None):
     return None
 
 
+def _long_name(path, d):
+    """Why a name along ``path`` cannot be made in the file system of its nearest existing
+    directory ``d`` (longer than the bytes it allows in one name), or None: found here, not
+    when the finished work is renamed into place."""
+    try:
+        most = os.pathconf(d, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        most = DEFAULT_NAME_MAX
+    for part in path.split(os.sep):
+        n = len(os.fsencode(part))
+        if n > most:
+            shown = part if len(part) <= 40 else part[:20] + "..." + part[-12:]
+            return f"the name {shown} is {n} bytes long; its file system takes at most {most}"
+    return None
+
+
 def directory_problem(path):
     """Why the file ``path`` could not be created where it lies (its directory, or the
     nearest existing one above), or None."""
@@ -137,6 +154,15 @@ class OutputPathError(InputError):
     value)."""
 
 
+def _with_companions(inputs):
+    """``inputs`` and the files each one reads besides itself (a .gltf's buffer files)."""
+    for src in inputs:
+        yield src
+        if src.lower().endswith(".gltf"):
+            from .primitives import gltf_buffer_files
+            yield from gltf_buffer_files(src)
+
+
 def check_outputs(outputs, inputs=()):
     """Fail before any work unless every path in ``outputs`` can be written and none of them
     is one of ``inputs`` (or one another). Paths are reported as given. Raises
@@ -146,7 +172,7 @@ def check_outputs(outputs, inputs=()):
     resolved once and looked up in dicts, and the writability probe runs once per directory."""
     outputs = [os.fspath(p) for p in outputs if p is not None]
     input_by_path, input_by_id = {}, {}
-    for src in (os.fspath(p) for p in inputs if p is not None):
+    for src in _with_companions(os.fspath(p) for p in inputs if p is not None):
         if not os.path.exists(src):
             continue
         input_by_path.setdefault(os.path.realpath(src), src)
@@ -181,6 +207,9 @@ def check_outputs(outputs, inputs=()):
             problems[key] = _route_problem(key[2]) or _directory_problem(d, key[1])
         if problems[key]:
             raise OutputPathError(out, problems[key])
+        long = _long_name(out, d)
+        if long:
+            raise OutputPathError(out, long)
 
 
 def check_output_dir(directory, names=(), inputs=()):

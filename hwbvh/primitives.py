@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from .config import (AABB_BYTES, MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES,
-                     OBJ_COMPILED_MIN_BYTES, PRIMITIVE_RECORD_BYTES)
+                     OBJ_COMPILED_MIN_BYTES, PLY_HEADER_BYTES, PRIMITIVE_RECORD_BYTES)
 from .errors import InputError, ParameterError, json_syntax, shown
 
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
@@ -23,15 +23,127 @@ def _ply_declared(path):
     """The element counts a PLY header declares ({"vertex": n, "face": m, ...}), or None for
     another file. Read before loading, so a file with more than 2^24 faces is refused
     without parsing it."""
+    header = _ply_header(path)
+    return None if header is None else {name: count for name, count, _ in header[1]}
+
+
+# The PLY types a face's vertex indices may have: trimesh truncates a float index silently.
+_PLY_INTEGER_TYPES = frozenset(("char", "uchar", "short", "ushort", "int", "uint", "int8", "uint8",
+                                "int16", "uint16", "int32", "uint32"))
+_PLY_FACE_LISTS = ("vertex_indices", "vertex_index")
+
+
+def _ply_header(path):
+    """(format, [(element, count, [(property, item type of a list or None)])], header lines)
+    of a PLY file, or None for another file or a header that does not end in its first
+    ``PLY_HEADER_BYTES``."""
     try:
         with open(path, "rb") as f:
-            head = f.read(4096)
+            head = f.read(PLY_HEADER_BYTES)
     except OSError:
         return None
-    if not head.startswith(b"ply"):
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
         return None
-    return {m.group(1).decode(): int(m.group(2))
-            for m in re.finditer(rb"element\s+(\w+)\s+(\d+)", head)}
+    fmt, elements = None, []
+    lines = head[:end].decode("ascii", "replace").splitlines()
+    for line in lines:
+        words = line.split()
+        if len(words) >= 2 and words[0] == "format":
+            fmt = words[1]
+        elif len(words) >= 3 and words[0] == "element" and words[2].isdigit():
+            elements.append((words[1], int(words[2]), []))
+        elif len(words) >= 3 and words[0] == "property" and elements:
+            item = words[3] if words[1] == "list" and len(words) >= 5 else None
+            elements[-1][2].append((words[-1], item))
+    return fmt, elements, len(lines) + 1
+
+
+@njit(cache=True, nogil=True)
+def _ply_ascii_bad_face(data, skip, n_faces):
+    """The first face line of an ASCII PLY body ``data`` (bytes after the header, ``skip``
+    lines of other elements first) whose count is not its number of indices, or whose count
+    or indices are not non-negative integers: (face, what, indices found, count given), what
+    0: another number of indices, 1: a count that is not an integer, 2: an index that is not
+    one, 3: the file ends before the face; (-1, 0, 0, 0) for none."""
+    n = data.shape[0]
+    pos = 0
+    for _ in range(skip):
+        while pos < n and data[pos] != 10:
+            pos += 1
+        pos += 1
+    for i in range(n_faces):
+        if pos >= n:
+            return i, 3, 0, 0
+        tokens = 0
+        count = -1
+        bad_index = False
+        while pos < n and data[pos] != 10:
+            c = data[pos]
+            if c == 32 or c == 9 or c == 13:
+                pos += 1
+                continue
+            value = 0
+            integer = True
+            while pos < n and data[pos] != 10 and data[pos] != 32 and data[pos] != 9 \
+                    and data[pos] != 13:
+                d = data[pos]
+                if 48 <= d <= 57:
+                    value = min(value * 10 + (d - 48), 1 << 40)
+                else:
+                    integer = False
+                pos += 1
+            if tokens == 0:
+                count = value if integer else -1
+            elif not integer:
+                bad_index = True
+            tokens += 1
+        pos += 1
+        if tokens == 0 or count < 0:
+            return i, 1, 0, 0
+        if bad_index:
+            return i, 2, 0, 0
+        if tokens != count + 1:
+            return i, 0, tokens - 1, count
+    return -1, 0, 0, 0
+
+
+def _ply_face_problem(path):
+    """Why the faces of PLY file ``path`` cannot be read as written, which trimesh reads
+    without a word (it truncates a float index, reads a face by its line's first three
+    indices whatever its count says): indices declared as floats; in an ASCII file, a face
+    line whose count is not its number of indices, or a count or index that is not a
+    non-negative integer, with its line. None where the faces are sound (or the file is not
+    a PLY file trimesh reads)."""
+    header = _ply_header(path)
+    if header is None:
+        return None
+    fmt, elements, header_lines = header
+    skip = 0
+    for name, count, props in elements:
+        if name != "face":
+            skip += count
+            continue
+        lists = [(p, item) for p, item in props if p in _PLY_FACE_LISTS]
+        if lists and lists[0][1] not in _PLY_INTEGER_TYPES:
+            return (f"its header declares the faces' vertex indices as {lists[0][1]}; indices "
+                    f"are integers")
+        if fmt != "ascii" or len(props) != 1 or not lists:
+            return None
+        with open(path, "rb") as f:
+            raw = f.read()
+        body = raw.find(b"\n", raw.find(b"end_header")) + 1
+        face, what, found, given = _ply_ascii_bad_face(np.frombuffer(raw, np.uint8)[body:],
+                                                       skip, count)
+        if face < 0:
+            return None
+        if what == 3:
+            return _ply_cut_short({n: c for n, c, _ in elements}, face)
+        line = header_lines + skip + face + 1
+        return (f"line {line}: a face's count says {given} indices, the line holds {found}",
+                f"line {line}: a face's count is not a non-negative integer",
+                f"line {line}: a face's index is not a non-negative integer")[what]
+    return None
 
 
 # OBJ files as trimesh reads them. A line ending in a backslash continues on the next. Vertices,
@@ -474,6 +586,14 @@ def beyond_bound_text(big):
     return short if float(short) > MAX_COORDINATE else repr(big)
 
 
+def _ply_cut_short(declared, faces):
+    """Why a PLY file whose header declares ``declared`` element counts gave only ``faces``
+    faces."""
+    got = "no face" if faces == 0 else f"only {faces} face{'s' if faces != 1 else ''}"
+    return (f"its header declares {_elements(declared)}, but {got} could be read: the file "
+            f"ends early or does not match its header")
+
+
 def _elements(declared):
     """'5 vertices and 1 face': a PLY header's element counts in words."""
     plural = {"vertex": "vertices"}
@@ -530,27 +650,114 @@ def _stl_cut_short(path):
             f"file holds {size} bytes: it is cut short")
 
 
-def _gltf_problem(path):
-    """Why the .gltf file ``path`` cannot be read (not JSON, or a buffer file it names is
-    missing), or None; trimesh's own errors name neither the file nor the problem."""
+def _gltf_document(path):
+    """(document, problem): the JSON of the .gltf file ``path`` (None where it cannot be
+    read) and why not (None for a file that cannot be opened: the caller says so)."""
     import json
     try:
         with open(path, encoding="utf-8-sig") as f:
-            doc = json.load(f)
+            return json.load(f), None
     except UnicodeDecodeError:
-        return "not UTF-8 text"
+        return None, "not UTF-8 text"
     except json.JSONDecodeError as e:
-        return f"not valid JSON ({json_syntax(e)})"
+        return None, f"not valid JSON ({json_syntax(e)})"
     except (OSError, ValueError, RecursionError):
-        return None
+        return None, None
+
+
+def _gltf_buffers(path, doc):
+    """(name, declared byteLength or None, path read or None) of each buffer file a .gltf
+    document names, found as trimesh finds it: the name stripped of spaces, then without a
+    leading "/", then its last part alone, the first that lies under the file's directory and
+    exists (trimesh reads nothing outside that directory, nor decodes "%20"). ``data:`` URIs
+    are not files."""
+    from pathlib import Path
     buffers = doc.get("buffers") if isinstance(doc, dict) else None
+    root = Path(os.path.dirname(os.path.abspath(path))).resolve()
     for b in buffers if isinstance(buffers, list) else ():
         uri = b.get("uri") if isinstance(b, dict) else None
-        if isinstance(uri, str) and not uri.lower().startswith("data:"):
-            from urllib.parse import unquote
-            here = os.path.dirname(path)
-            if not any(os.path.isfile(os.path.join(here, name)) for name in (uri, unquote(uri))):
-                return f"its buffer file {os.path.join(here, unquote(uri))} is not there"
+        if not isinstance(uri, str) or uri.lower().startswith("data:"):
+            continue
+        size = b.get("byteLength")
+        size = size if isinstance(size, int) and not isinstance(size, bool) else None
+        where = None
+        for name in (uri.strip(), uri.strip().lstrip("/"), os.path.split(uri)[-1]):
+            try:
+                p = (root / name).resolve()
+            except (OSError, ValueError, RuntimeError):
+                continue
+            if p.is_relative_to(root) and p.is_file():
+                where = str(p)
+                break
+        yield uri, size, where
+
+
+def gltf_buffer_files(path):
+    """The buffer files the .gltf file ``path`` reads (none for another file, or one that
+    cannot be read): inputs of a run as much as the file itself, so that no output replaces
+    one."""
+    if not str(path).lower().endswith(".gltf") or not os.path.isfile(path):
+        return []
+    doc, _ = _gltf_document(path)
+    return [where for _, _, where in _gltf_buffers(path, doc) if where]
+
+
+def _gltf_problem(path):
+    """Why the .gltf file ``path`` cannot be read (not JSON; a buffer file it names missing,
+    outside its directory, or shorter than the file says), or None; trimesh's own errors name
+    neither the file nor the problem."""
+    doc, problem = _gltf_document(path)
+    if doc is None:
+        return problem
+    here = os.path.dirname(path)
+    for name, size, where in _gltf_buffers(path, doc):
+        shown_path = os.path.join(here, name)
+        if where is None:
+            root = os.path.realpath(os.path.dirname(os.path.abspath(path)))
+            inside = os.path.realpath(os.path.join(root, name.strip())).startswith(root + os.sep)
+            return (f"its buffer file {shown_path} is not there" if inside else
+                    f"its buffer {name} lies outside the file's directory, the only place its "
+                    f"buffers are read from")
+        got = os.path.getsize(where)
+        if size is not None and got < size:
+            return (f"its buffer file {shown_path} holds {got} bytes, fewer than the {size} "
+                    f"its byteLength gives")
+    return _gltf_accessor_problem(doc)
+
+
+# glTF accessors: bytes per component (by componentType) and components per element (by type)
+_GLTF_COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_GLTF_TYPE_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+def _gltf_accessor_problem(doc):
+    """The first accessor of a .gltf document that reads past its buffer view (or names one
+    that is not there), said as such, or None (trimesh's error is NumPy's reshape message)."""
+    def number(d, key, default=None):
+        v = d.get(key, default)
+        return v if isinstance(v, int) and not isinstance(v, bool) else None
+
+    if not isinstance(doc, dict):
+        return None
+    views = doc.get("bufferViews") if isinstance(doc.get("bufferViews"), list) else []
+    accessors = doc.get("accessors") if isinstance(doc.get("accessors"), list) else []
+    for i, a in enumerate(accessors):
+        if not isinstance(a, dict) or "bufferView" not in a:
+            continue
+        v = number(a, "bufferView")
+        if v is None or not 0 <= v < len(views) or not isinstance(views[v], dict):
+            return f"its accessor {i} names buffer view {a.get('bufferView')!r}, which it has not"
+        count, offset = number(a, "count"), number(a, "byteOffset", 0)
+        size = _GLTF_COMPONENT_BYTES.get(a.get("componentType"))
+        width = _GLTF_TYPE_WIDTH.get(a.get("type"))
+        have = number(views[v], "byteLength")
+        stride = number(views[v], "byteStride", 0) or (size or 0) * (width or 0)
+        if None in (count, offset, size, width, have) or count < 1:
+            continue
+        need = offset + stride * (count - 1) + size * width
+        if need > have:
+            return (f"its accessor {i} reads {need} bytes of buffer view {v}, which holds "
+                    f"{have}")
     return None
 
 
@@ -586,6 +793,9 @@ def load_mesh_arrays(path):
     if "face" in declared:
         check_count(declared["face"], path)
     low = path.lower()
+    faces_problem = _ply_face_problem(path) if low.endswith(".ply") else None
+    if faces_problem:
+        raise InputError(path, faces_problem)
     obj = low.endswith(".obj")
     load_args = _obj_load_args(path) if obj else {"file_obj": path}
     if load_args["file_obj"] is path and not _utf8_name(path) and not path.lower().endswith(".gltf"):
@@ -623,9 +833,7 @@ def load_mesh_arrays(path):
         if cut:                             # trimesh reads a binary STL cut short as empty
             raise InputError(path, cut)
         if declared.get("face"):            # the reader stopped short of what the header says
-            raise InputError(path, f"its header declares {_elements(declared)}, but no face "
-                                   f"could be read: the file ends early or does not match "
-                                   f"its header")
+            raise InputError(path, _ply_cut_short(declared, 0))
         raise InputError(path, "mesh has no triangles")
     faces = np.asarray(faces, dtype=np.int64)
     verts = np.asarray(verts, dtype=np.float64)

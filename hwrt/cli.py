@@ -10,6 +10,7 @@ before importing the rest (NumPy, Numba, the commands), so that a Ctrl-C at any 
 the few tens of milliseconds of Python's start-up, Python's own handling applies).
 """
 import argparse
+import errno
 import os
 import re
 import select
@@ -105,6 +106,9 @@ def _write_stdout(text):
     there is one: Python's buffered writer, whose write to a pipe is cut short when the reader
     goes away (``hwrt ... | head``), can return as if it had written everything, and the run
     would end with 0 instead of 141."""
+    if sys.stdout is None:                  # closed by the caller (``>&-``): nowhere to write
+        from hwbvh.files import OutputError
+        raise OutputError(errno.EBADF, "it is closed", "<standard output>")
     sys.stdout.flush()
     try:
         fd = sys.stdout.fileno()

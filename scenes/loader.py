@@ -215,6 +215,9 @@ def _load_scene_file(spec):
         raise InputError(spec, "no such scene or file (built-in scenes: " + ", ".join(BUILTIN) + ")")
     if os.path.isdir(spec):
         raise InputError(spec, "is a directory, not a scene or mesh file")
+    if not os.path.isfile(spec):        # a pipe or a device: a read that never ends or never fills
+        raise InputError(spec, "not a regular file (a pipe or a device?): give a scene or mesh "
+                               "file")
     low = spec.lower()
     if low.endswith(".json"):
         try:

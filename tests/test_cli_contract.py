@@ -1736,6 +1736,50 @@ def test_a_full_standard_output_is_a_one_line_error_not_a_silent_success(argv, t
         "hwrt: cannot write <standard output>: No space left on device"
 
 
+def test_a_closed_standard_output_is_a_one_line_error_not_a_traceback(tetra, tmp_path):
+    """``hwrt ... >&-``: Python has no sys.stdout; the summary cannot be written, as with a full
+    disk (the run's files are written first, as then)."""
+    p = subprocess.run([sys.executable, "-m", "hwrt.cli", "simulate", str(tetra)],
+                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, timeout=600,
+                       preexec_fn=lambda: os.close(1))
+    assert p.returncode == 1 and one_line_error(p.stderr) == \
+        "hwrt: cannot write <standard output>: it is closed"
+
+
+@pytest.mark.parametrize("command", [["render", "SCENE", "-o", "OUT/x.exr"],
+                                     ["verify", "SCENE", "--rays", "5"],
+                                     ["animate", "SCENE", "-o", "OUT/a", "--frames", "1"]])
+def test_a_scene_file_that_is_a_pipe_or_a_device_is_refused_before_it_is_read(tmp_path, capsys,
+                                                                            command):
+    """A read from a pipe would wait for a writer for ever, one from /dev/zero fill the memory."""
+    fifo = tmp_path / "f.json"
+    os.mkfifo(fifo)
+    zero = tmp_path / "z.toml"
+    zero.symlink_to("/dev/zero")
+    for scene in (fifo, zero):
+        argv = [str(scene) if a == "SCENE" else a.replace("OUT", str(tmp_path / "o"))
+                for a in command]
+        rc, out, err = call(capsys, *argv)
+        assert (rc, out) == (2, "") and one_line_error(err) == (
+            f"hwrt: error: {scene}: not a regular file (a pipe or a device?): give a scene or "
+            f"mesh file")
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_output_name_longer_than_the_file_system_takes_is_refused_before_the_work(
+        tmp_path, capsys, tetra):
+    """Found when the finished render was renamed into place, it exited 1 after the work."""
+    long = "a" * 300
+    for argv in (["render", "cornell", "--width", "8", "--height", "8", "-o",
+                  tmp_path / f"{long}.exr"],
+                 ["build", tetra, "-o", tmp_path / long / "tree"]):
+        rc, out, err = call(capsys, *argv)
+        assert (rc, out) == (2, "") and one_line_error(err).endswith(
+            "is 300 bytes long; its file system takes at most 255" if argv[0] == "build" else
+            "is 304 bytes long; its file system takes at most 255")
+    assert os.listdir(tmp_path) == ["tetra.obj"]
+
+
 def test_replay_of_rays_beyond_the_float32_units_names_the_file(tmp_path, capsys, tetra):
     """Rays no run of the float32 units traced (origins past float32's reach) are the file's
     problem, said of the file, with no Python remedy; a t_max past float32 is infinity there,

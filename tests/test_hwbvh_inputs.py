@@ -580,6 +580,15 @@ def _binary_stl(n):
     return b"\0" * 80 + struct.pack("<I", n) + rows
 
 
+def _ascii_ply(faces, index_type="int", n_faces=None):
+    """An ASCII PLY of four vertices (header lines 1-9, vertices 10-13) and ``faces``, one line
+    each (``n_faces``: the count its header declares, by default theirs)."""
+    return (f"ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+            f"property float z\nelement face {len(faces) if n_faces is None else n_faces}\n"
+            f"property list uchar {index_type} vertex_indices\nend_header\n"
+            "0 0 0\n1 0 0\n0 1 0\n0 0 1\n" + "".join(f + "\n" for f in faces))
+
+
 GLTF_WITH_BUFFER = json.dumps({
     "asset": {"version": "2.0"}, "buffers": [{"uri": "gone.bin", "byteLength": 36}],
     "bufferViews": [{"buffer": 0, "byteLength": 36}],
@@ -595,21 +604,57 @@ GLTF_WITH_BUFFER = json.dumps({
     ("syntax.gltf", "{ not json", "not valid JSON (Expecting property name enclosed in double "
                                   "quotes at line 1, column 3)"),
     ("nobuffer.gltf", GLTF_WITH_BUFFER, "gone.bin is not there"),
+    ("outside.gltf", GLTF_WITH_BUFFER.replace("gone.bin", "../gone.bin"),
+     "its buffer ../gone.bin lies outside the file's directory, the only place its buffers are "
+     "read from"),
+    ("short.gltf", GLTF_WITH_BUFFER.replace("gone.bin", "short.bin"),
+     "its buffer file {dir}/short.bin holds 20 bytes, fewer than the 36 its byteLength gives"),
+    ("count.gltf", GLTF_WITH_BUFFER.replace("gone.bin", "whole.bin").replace('"count": 3',
+                                                                             '"count": 300'),
+     "its accessor 0 reads 3600 bytes of buffer view 0, which holds 36"),
     ("word.obj", "v 0 0 0\nv 1 0 0\nv 0 1 abc\nf 1 2 3\n", "line 3: 'abc' is not a number"),
     ("note.obj", "v 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
      "line 1: a comment after the values; put it on a line of its own"),
-    ("long.stl", "solid " + "n" * 100 + "\nendsolid\n", "mesh has no triangles")])
+    ("long.stl", "solid " + "n" * 100 + "\nendsolid\n", "mesh has no triangles"),
+    # PLY faces trimesh reads without a word: by their first three indices whatever the count,
+    # a float index truncated
+    ("count.ply", _ascii_ply(["3 0 1 2", "255 0 1 3"]),
+     "line 15: a face's count says 255 indices, the line holds 3"),
+    ("short.ply", _ascii_ply(["3 0 1"]), "line 14: a face's count says 3 indices, the line holds 2"),
+    ("word.ply", _ascii_ply(["3 0 1 x"]), "line 14: a face's index is not a non-negative integer"),
+    ("floats.ply", _ascii_ply(["3 0 1 2"], "float"),
+     "its header declares the faces' vertex indices as float; indices are integers"),
+    ("ends.ply", _ascii_ply(["3 0 1 2"], n_faces=2),
+     "its header declares 4 vertices and 2 faces, but only 1 face could be read")])
 def test_a_damaged_mesh_file_is_named_with_what_is_wrong(tmp_path, name, data, problem):
     path = tmp_path / name
     (path.write_bytes if isinstance(data, bytes) else path.write_text)(data)
+    (tmp_path / "short.bin").write_bytes(bytes(20))
+    (tmp_path / "whole.bin").write_bytes(bytes(36))
+    (tmp_path.parent / "gone.bin").write_bytes(bytes(36))      # there, but not read from there
     with pytest.raises(InputError) as e:
         hwbvh.load_triangles(path)
-    assert str(e.value).startswith(str(path) + ": ") and problem in str(e.value)
+    assert str(e.value).startswith(str(path) + ": ") and \
+        problem.format(dir=tmp_path) in str(e.value)
+
+
+def test_a_gltf_files_buffer_is_an_input_no_output_may_replace(tmp_path):
+    """``hwrt build mesh.gltf --dump-aabbs mesh.bin`` replaced the mesh's own buffer."""
+    from hwbvh.files import OutputPathError, check_outputs
+    buffer = tmp_path / "mesh.bin"
+    buffer.write_bytes(np.float32([[0, 0, 0], [1, 0, 0], [0, 1, 0]]).tobytes())
+    mesh = tmp_path / "mesh.gltf"
+    mesh.write_text(GLTF_WITH_BUFFER.replace("gone.bin", "mesh.bin"))
+    with pytest.raises(OutputPathError) as e:
+        check_outputs([buffer], inputs=[mesh])
+    assert str(e.value) == f"{buffer}: is an input of this run; an output may not overwrite an input"
+    check_outputs([tmp_path / "other.bin"], inputs=[mesh])
 
 
 def test_the_damage_checks_only_explain_a_file_that_does_not_load(tmp_path):
-    """They run once trimesh has failed: a file it reads (an ASCII STL in capitals after a
-    byte-order mark, a buffer named with a literal %20) loads."""
+    """They run once trimesh has failed (the PLY faces' check, before: trimesh reads bad ones
+    without failing): a file it reads (an ASCII STL in capitals after a byte-order mark, a
+    buffer named with a literal %20, an ASCII PLY of mixed faces with CRLF line ends) loads."""
     (tmp_path / "whole.stl").write_bytes(_binary_stl(3))
     assert hwbvh.load_triangles(tmp_path / "whole.stl").shape == (3, 3, 3)
     (tmp_path / "caps.stl").write_text("\ufeffSOLID x\nfacet normal 0 0 1\nouter loop\n"
@@ -619,3 +664,7 @@ def test_the_damage_checks_only_explain_a_file_that_does_not_load(tmp_path):
     (tmp_path / "lit%20.bin").write_bytes(np.float32([[0, 0, 0], [1, 0, 0], [0, 1, 0]]).tobytes())
     (tmp_path / "lit.gltf").write_text(GLTF_WITH_BUFFER.replace("gone.bin", "lit%20.bin"))
     assert hwbvh.load_triangles(tmp_path / "lit.gltf").shape == (1, 3, 3)
+    # faces of three and four indices, spaces and tabs around them, CRLF line ends
+    (tmp_path / "mixed.ply").write_bytes(_ascii_ply(["3 0 1 2", "  4\t0 1 2 3  "]).replace(
+        "\n", "\r\n").encode())
+    assert hwbvh.load_triangles(tmp_path / "mixed.ply").shape == (3, 3, 3)
