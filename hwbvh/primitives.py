@@ -146,6 +146,34 @@ def _ply_face_problem(path):
     return None
 
 
+def _off_face_problem(path):
+    """Why the faces of the OFF file ``path`` are not what its counts say, which trimesh reads
+    without a word (it takes the face lines there are, and a face line's indices up to its
+    count): fewer face lines than the header declares, or a face line with fewer indices than
+    its count. Lines as trimesh sees them (comments and blank lines dropped, so a face is named
+    by its place, not its line). None where the faces are sound, or where trimesh cannot read
+    the file (its own error says so)."""
+    from trimesh.util import comment_strip, decode_text
+    try:
+        with open(path, "rb") as f:
+            text = comment_strip(decode_text(f.read())).strip()
+        parts = re.split("(COFF|OFF)", text, maxsplit=1)
+        lines = [line for line in (x.strip() for x in parts[2].splitlines()) if line]
+        n_vertices, n_faces = (int(c) for c in lines[0].split()[:2])
+    except (OSError, ValueError, IndexError, UnicodeError):
+        return None
+    faces = lines[n_vertices + 1:n_vertices + 1 + n_faces]
+    if len(faces) < n_faces:
+        return f"its header declares {n_faces} faces, but it holds {len(faces)}"
+    for k, line in enumerate(faces, 1):
+        words = line.split()
+        if not words[0].isdigit():
+            return f"face {k}: its count {words[0]!r} is not a non-negative integer"
+        if len(words) < int(words[0]) + 1:
+            return f"face {k}: its count says {words[0]} indices, the line holds {len(words) - 1}"
+    return None
+
+
 # OBJ files as trimesh reads them. A line ending in a backslash continues on the next. Vertices,
 # texture coordinates and normals are the lines starting "v ", "vt ", "vn " (trimesh numbers
 # only those). A face index counts from 1; a negative one counts back from the elements of its
@@ -793,7 +821,8 @@ def load_mesh_arrays(path):
     if "face" in declared:
         check_count(declared["face"], path)
     low = path.lower()
-    faces_problem = _ply_face_problem(path) if low.endswith(".ply") else None
+    faces_problem = _ply_face_problem(path) if low.endswith(".ply") else \
+        _off_face_problem(path) if low.endswith(".off") else None
     if faces_problem:
         raise InputError(path, faces_problem)
     obj = low.endswith(".obj")

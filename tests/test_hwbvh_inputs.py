@@ -625,7 +625,12 @@ GLTF_WITH_BUFFER = json.dumps({
     ("floats.ply", _ascii_ply(["3 0 1 2"], "float"),
      "its header declares the faces' vertex indices as float; indices are integers"),
     ("ends.ply", _ascii_ply(["3 0 1 2"], n_faces=2),
-     "its header declares 4 vertices and 2 faces, but only 1 face could be read")])
+     "its header declares 4 vertices and 2 faces, but only 1 face could be read"),
+    # OFF faces trimesh reads without a word: the face lines there are, each up to its count
+    ("fewer.off", "OFF\n4 3 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n3 0 1 3\n",
+     "its header declares 3 faces, but it holds 2"),
+    ("short.off", "OFF\n# a comment\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n\n3 0 1\n",
+     "face 2: its count says 3 indices, the line holds 2")])
 def test_a_damaged_mesh_file_is_named_with_what_is_wrong(tmp_path, name, data, problem):
     path = tmp_path / name
     (path.write_bytes if isinstance(data, bytes) else path.write_text)(data)
@@ -652,9 +657,10 @@ def test_a_gltf_files_buffer_is_an_input_no_output_may_replace(tmp_path):
 
 
 def test_the_damage_checks_only_explain_a_file_that_does_not_load(tmp_path):
-    """They run once trimesh has failed (the PLY faces' check, before: trimesh reads bad ones
-    without failing): a file it reads (an ASCII STL in capitals after a byte-order mark, a
-    buffer named with a literal %20, an ASCII PLY of mixed faces with CRLF line ends) loads."""
+    """They run once trimesh has failed (the PLY and OFF faces' checks, before: trimesh reads
+    bad faces without failing): a file it reads (an ASCII STL in capitals after a byte-order
+    mark, a buffer named with a literal %20, an ASCII PLY of mixed faces with CRLF line ends,
+    an OFF file with a two-vertex face, colours and comments) loads."""
     (tmp_path / "whole.stl").write_bytes(_binary_stl(3))
     assert hwbvh.load_triangles(tmp_path / "whole.stl").shape == (3, 3, 3)
     (tmp_path / "caps.stl").write_text("\ufeffSOLID x\nfacet normal 0 0 1\nouter loop\n"
@@ -668,3 +674,7 @@ def test_the_damage_checks_only_explain_a_file_that_does_not_load(tmp_path):
     (tmp_path / "mixed.ply").write_bytes(_ascii_ply(["3 0 1 2", "  4\t0 1 2 3  "]).replace(
         "\n", "\r\n").encode())
     assert hwbvh.load_triangles(tmp_path / "mixed.ply").shape == (3, 3, 3)
+    # an OFF face of two vertices (no triangle), colours after a face's indices, comments
+    (tmp_path / "colours.off").write_text("OFF # counts next\n4 3 0\n0 0 0\n1 0 0\n0 1 0\n"
+                                          "0 0 1\n2 0 1\n3 0 1 2 255 0 0\n4 0 1 2 3 # quad\n")
+    assert hwbvh.load_triangles(tmp_path / "colours.off").shape == (3, 3, 3)
