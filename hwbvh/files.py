@@ -105,19 +105,36 @@ def _directory_problem(d, wanted=None):
 
 
 def _long_name(path, d):
-    """Why a name along ``path`` cannot be made in the file system of its nearest existing
-    directory ``d`` (longer than the bytes it allows in one name), or None: found here, not
-    when the finished work is renamed into place."""
+    """Why a name ``path`` needs made below its nearest existing directory ``d`` is longer
+    than the file system takes, or None: found here, not when the finished work is renamed
+    into place. The first such name is put to the file system itself (a lookup of it fails
+    with ENAMETOOLONG, whatever the file system counts: bytes, or UTF-16 units on NTFS); a
+    name below it, in a directory still to be made, is measured against what ``d``'s file
+    system says it takes, in bytes (``DEFAULT_NAME_MAX`` where it says nothing)."""
+    parts = [p for p in os.path.relpath(os.path.abspath(path), d).split(os.sep)
+             if p not in ("", os.curdir, os.pardir)]
+    if not parts:
+        return None
+    try:
+        os.lstat(os.path.join(d, parts[0]))
+    except OSError as e:
+        if e.errno == errno.ENAMETOOLONG:
+            return _too_long(parts[0], None)
     try:
         most = os.pathconf(d, "PC_NAME_MAX")
     except (OSError, ValueError):
-        most = DEFAULT_NAME_MAX
-    for part in path.split(os.sep):
-        n = len(os.fsencode(part))
-        if n > most:
-            shown = part if len(part) <= 40 else part[:20] + "..." + part[-12:]
-            return f"the name {shown} is {n} bytes long; its file system takes at most {most}"
+        most = -1
+    most = most if most > 0 else DEFAULT_NAME_MAX
+    for part in parts[1:]:
+        if len(os.fsencode(part)) > most:
+            return _too_long(part, most)
     return None
+
+
+def _too_long(name, most):
+    shown = name if len(name) <= 40 else name[:20] + "..." + name[-12:]
+    takes = "" if most is None else f"; its file system takes at most {most}"
+    return f"the name {shown} is too long ({len(os.fsencode(name))} bytes){takes}"
 
 
 def directory_problem(path):
@@ -136,15 +153,26 @@ def file_identity(path):
     return st.st_dev, st.st_ino
 
 
+def with_companions(inputs):
+    """``inputs`` and the files each one reads besides itself (a .gltf's buffer files)."""
+    for src in map(os.fspath, inputs):
+        yield src
+        if isinstance(src, str) and src.lower().endswith(".gltf"):
+            from .primitives import gltf_buffer_files
+            yield from gltf_buffer_files(src)
+
+
 def content_digest(path):
-    """The first 16 hex digits of the SHA-256 of a file's bytes (read a MiB at a time): what
-    the resumable studies key a mesh's results by, so that a file given new contents under
-    the same name is computed again."""
+    """The first 16 hex digits of the SHA-256 of a file's bytes and those of the files it reads
+    besides itself (``with_companions``: a .gltf's buffers), read a MiB at a time: what the
+    resumable studies key a mesh's results by, so that a file given new contents under the
+    same name is computed again."""
     import hashlib
     h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
+    for part in with_companions([os.fspath(path)]):
+        with open(part, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
     return h.hexdigest()[:16]
 
 
@@ -152,15 +180,6 @@ class OutputPathError(InputError):
     """An output path that cannot be written, or would overwrite an input: the error names the
     output (a command reports the option that gave it, not an input option of the same
     value)."""
-
-
-def _with_companions(inputs):
-    """``inputs`` and the files each one reads besides itself (a .gltf's buffer files)."""
-    for src in inputs:
-        yield src
-        if src.lower().endswith(".gltf"):
-            from .primitives import gltf_buffer_files
-            yield from gltf_buffer_files(src)
 
 
 def check_outputs(outputs, inputs=()):
@@ -172,7 +191,7 @@ def check_outputs(outputs, inputs=()):
     resolved once and looked up in dicts, and the writability probe runs once per directory."""
     outputs = [os.fspath(p) for p in outputs if p is not None]
     input_by_path, input_by_id = {}, {}
-    for src in _with_companions(os.fspath(p) for p in inputs if p is not None):
+    for src in with_companions(os.fspath(p) for p in inputs if p is not None):
         if not os.path.exists(src):
             continue
         input_by_path.setdefault(os.path.realpath(src), src)

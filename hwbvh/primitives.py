@@ -19,36 +19,43 @@ from .errors import InputError, ParameterError, json_syntax, shown
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
 
 
-def _ply_declared(path):
+def _ply_declared(path, header=None):
     """The element counts a PLY header declares ({"vertex": n, "face": m, ...}), or None for
     another file. Read before loading, so a file with more than 2^24 faces is refused
-    without parsing it."""
-    header = _ply_header(path)
+    without parsing it. ``header``: the file's ``_ply_header``, if the caller has it."""
+    header = _ply_header(path) if header is None else header
     return None if header is None else {name: count for name, count, _ in header[1]}
 
 
-# The PLY types a face's vertex indices may have: trimesh truncates a float index silently.
+# The PLY types a face's vertex indices may have (trimesh's integer types): a binary file's
+# float index would be truncated without a word.
 _PLY_INTEGER_TYPES = frozenset(("char", "uchar", "short", "ushort", "int", "uint", "int8", "uint8",
-                                "int16", "uint16", "int32", "uint32"))
+                                "int16", "uint16", "int32", "uint32", "int64", "uint64"))
 _PLY_FACE_LISTS = ("vertex_indices", "vertex_index")
 
 
 def _ply_header(path):
-    """(format, [(element, count, [(property, item type of a list or None)])], header lines)
-    of a PLY file, or None for another file or a header that does not end in its first
-    ``PLY_HEADER_BYTES``."""
+    """(format, [(element, count, [(property, item type of a list or None)])], the header's
+    length in bytes, its lines) of a PLY file, or None for another file or a header that does
+    not end in its first ``PLY_HEADER_BYTES``. The header ends, as trimesh reads it, with the
+    first line that holds the word ``end_header``."""
     try:
         with open(path, "rb") as f:
             head = f.read(PLY_HEADER_BYTES)
     except OSError:
         return None
-    end = head.find(b"end_header")
-    if not head.startswith(b"ply") or end < 0:
+    if not head.startswith(b"ply"):
         return None
-    fmt, elements = None, []
-    lines = head[:end].decode("ascii", "replace").splitlines()
-    for line in lines:
-        words = line.split()
+    fmt, elements, at = None, [], 0
+    while True:
+        nl = head.find(b"\n", at)
+        words = head[at:len(head) if nl < 0 else nl].decode("ascii", "replace").split()
+        if "end_header" in words:
+            length = len(head) if nl < 0 else nl + 1
+            return fmt, elements, length, head[:length].count(b"\n")
+        if nl < 0:
+            return None
+        at = nl + 1
         if len(words) >= 2 and words[0] == "format":
             fmt = words[1]
         elif len(words) >= 3 and words[0] == "element" and words[2].isdigit():
@@ -56,16 +63,16 @@ def _ply_header(path):
         elif len(words) >= 3 and words[0] == "property" and elements:
             item = words[3] if words[1] == "list" and len(words) >= 5 else None
             elements[-1][2].append((words[-1], item))
-    return fmt, elements, len(lines) + 1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)
 def _ply_ascii_bad_face(data, skip, n_faces):
     """The first face line of an ASCII PLY body ``data`` (bytes after the header, ``skip``
     lines of other elements first) whose count is not its number of indices, or whose count
-    or indices are not non-negative integers: (face, what, indices found, count given), what
-    0: another number of indices, 1: a count that is not an integer, 2: an index that is not
-    one, 3: the file ends before the face; (-1, 0, 0, 0) for none."""
+    or indices are not non-negative integers (as a reader of numbers takes them: "+3" and
+    "3.0" are 3): (face, what, indices found, count given), what 0: another number of
+    indices, 1: a count that is not such an integer, 2: an index that is not one, 3: the file
+    ends before the face; (-1, 0, 0, 0) for none."""
     n = data.shape[0]
     pos = 0
     for _ in range(skip):
@@ -84,15 +91,23 @@ def _ply_ascii_bad_face(data, skip, n_faces):
                 pos += 1
                 continue
             value = 0
+            digits = 0
             integer = True
+            fraction = False                    # past a ".": only zeros keep it an integer
+            if c == 43:                         # a leading "+"
+                pos += 1
             while pos < n and data[pos] != 10 and data[pos] != 32 and data[pos] != 9 \
                     and data[pos] != 13:
                 d = data[pos]
-                if 48 <= d <= 57:
+                if 48 <= d <= 57 and not fraction:
                     value = min(value * 10 + (d - 48), 1 << 40)
-                else:
+                    digits += 1
+                elif d == 46 and not fraction:
+                    fraction = True
+                elif not (d == 48 and fraction):
                     integer = False
                 pos += 1
+            integer = integer and digits > 0
             if tokens == 0:
                 count = value if integer else -1
             elif not integer:
@@ -108,33 +123,32 @@ def _ply_ascii_bad_face(data, skip, n_faces):
     return -1, 0, 0, 0
 
 
-def _ply_face_problem(path):
-    """Why the faces of PLY file ``path`` cannot be read as written, which trimesh reads
-    without a word (it truncates a float index, reads a face by its line's first three
-    indices whatever its count says): indices declared as floats; in an ASCII file, a face
-    line whose count is not its number of indices, or a count or index that is not a
-    non-negative integer, with its line. None where the faces are sound (or the file is not
-    a PLY file trimesh reads)."""
-    header = _ply_header(path)
+def _ply_face_problem(path, header):
+    """Why the faces of PLY file ``path`` (its ``_ply_header``) cannot be read as written,
+    which trimesh reads without a word: in a binary file, indices of a float type (trimesh
+    truncates them); in an ASCII file, a face line whose count is not its number of indices
+    (trimesh reads the line's first indices whatever its count says), or a count or index
+    that is not a non-negative integer (a fraction truncated), with its line. None where the
+    faces are sound (or the file is not a PLY file trimesh reads)."""
     if header is None:
         return None
-    fmt, elements, header_lines = header
+    fmt, elements, length, header_lines = header
     skip = 0
     for name, count, props in elements:
         if name != "face":
             skip += count
             continue
-        lists = [(p, item) for p, item in props if p in _PLY_FACE_LISTS]
-        if lists and lists[0][1] not in _PLY_INTEGER_TYPES:
-            return (f"its header declares the faces' vertex indices as {lists[0][1]}; indices "
-                    f"are integers")
-        if fmt != "ascii" or len(props) != 1 or not lists:
+        lists = [item for p, item in props if p in _PLY_FACE_LISTS and item is not None]
+        if fmt != "ascii":
+            if lists and lists[0] not in _PLY_INTEGER_TYPES:
+                return (f"its header declares the faces' vertex indices as {lists[0]}; indices "
+                        f"are integers")
+            return None
+        if len(props) != 1 or not lists:
             return None
         with open(path, "rb") as f:
-            raw = f.read()
-        body = raw.find(b"\n", raw.find(b"end_header")) + 1
-        face, what, found, given = _ply_ascii_bad_face(np.frombuffer(raw, np.uint8)[body:],
-                                                       skip, count)
+            body = np.frombuffer(f.read(), np.uint8)[length:]
+        face, what, found, given = _ply_ascii_bad_face(body, skip, count)
         if face < 0:
             return None
         if what == 3:
@@ -693,12 +707,17 @@ def _gltf_document(path):
         return None, None
 
 
+def _gltf_buffer_candidates(uri):
+    """The names trimesh tries for a buffer's ``uri``, in order: as written, without a leading
+    "/", and its last part alone, each stripped of spaces (it decodes no "%20")."""
+    return uri.strip(), uri.strip().lstrip("/"), os.path.split(uri)[-1].strip()
+
+
 def _gltf_buffers(path, doc):
-    """(name, declared byteLength or None, path read or None) of each buffer file a .gltf
-    document names, found as trimesh finds it: the name stripped of spaces, then without a
-    leading "/", then its last part alone, the first that lies under the file's directory and
-    exists (trimesh reads nothing outside that directory, nor decodes "%20"). ``data:`` URIs
-    are not files."""
+    """(uri, declared byteLength or None, path read or None) of each buffer file a .gltf
+    document names, found as trimesh finds it: the first of ``_gltf_buffer_candidates`` that
+    lies under the file's directory and exists (trimesh reads nothing outside it). ``data:``
+    URIs are not files."""
     from pathlib import Path
     buffers = doc.get("buffers") if isinstance(doc, dict) else None
     root = Path(os.path.dirname(os.path.abspath(path))).resolve()
@@ -709,12 +728,12 @@ def _gltf_buffers(path, doc):
         size = b.get("byteLength")
         size = size if isinstance(size, int) and not isinstance(size, bool) else None
         where = None
-        for name in (uri.strip(), uri.strip().lstrip("/"), os.path.split(uri)[-1]):
+        for name in _gltf_buffer_candidates(uri):
             try:
                 p = (root / name).resolve()
             except (OSError, ValueError, RuntimeError):
                 continue
-            if p.is_relative_to(root) and p.is_file():
+            if p.is_relative_to(root) and os.path.isfile(p):    # isfile: False on any error
                 where = str(p)
                 break
         yield uri, size, where
@@ -734,21 +753,30 @@ def _gltf_problem(path):
     """Why the .gltf file ``path`` cannot be read (not JSON; a buffer file it names missing,
     outside its directory, or shorter than the file says), or None; trimesh's own errors name
     neither the file nor the problem."""
+    from pathlib import Path
+    from urllib.parse import unquote
     doc, problem = _gltf_document(path)
     if doc is None:
         return problem
     here = os.path.dirname(path)
-    for name, size, where in _gltf_buffers(path, doc):
-        shown_path = os.path.join(here, name)
+    root = Path(os.path.dirname(os.path.abspath(path))).resolve()
+    for uri, size, where in _gltf_buffers(path, doc):
         if where is None:
-            root = os.path.realpath(os.path.dirname(os.path.abspath(path)))
-            inside = os.path.realpath(os.path.join(root, name.strip())).startswith(root + os.sep)
-            return (f"its buffer file {shown_path} is not there" if inside else
-                    f"its buffer {name} lies outside the file's directory, the only place its "
-                    f"buffers are read from")
+            inside = [n for n in _gltf_buffer_candidates(uri)
+                      if n and (root / n).resolve().is_relative_to(root)]
+            if not inside or inside[0] != uri.strip():
+                nor = f" (nor is {os.path.join(here, inside[-1])} there)" if inside else ""
+                return (f"its buffer {uri} lies outside the file's directory, the only place "
+                        f"its buffers are read from{nor}")
+            missing = f"its buffer file {os.path.join(here, inside[0])} is not there"
+            if unquote(uri) != uri and os.path.isfile(os.path.join(here, unquote(uri))):
+                missing += f" ({unquote(uri)} is: a buffer's name is read as written, %XX " \
+                           f"undecoded)"
+            return missing
         got = os.path.getsize(where)
         if size is not None and got < size:
-            return (f"its buffer file {shown_path} holds {got} bytes, fewer than the {size} "
+            shown_where = where if os.path.isabs(path) else os.path.relpath(where)
+            return (f"its buffer file {shown_where} holds {got} bytes, fewer than the {size} "
                     f"its byteLength gives")
     return _gltf_accessor_problem(doc)
 
@@ -817,11 +845,12 @@ def load_mesh_arrays(path):
                          + ")")
     if os.path.getsize(path) == 0:
         raise InputError(path, "empty file")
-    declared = _ply_declared(path) or {}
+    low = path.lower()
+    header = _ply_header(path) if low.endswith(".ply") else None
+    declared = _ply_declared(path, header) or {}
     if "face" in declared:
         check_count(declared["face"], path)
-    low = path.lower()
-    faces_problem = _ply_face_problem(path) if low.endswith(".ply") else \
+    faces_problem = _ply_face_problem(path, header) if low.endswith(".ply") else \
         _off_face_problem(path) if low.endswith(".off") else None
     if faces_problem:
         raise InputError(path, faces_problem)

@@ -230,10 +230,11 @@ def open_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
 
 
 def _inputs_digest(paths):
-    """SHA-256 over the files a run reads (their paths and bytes): a scene file or mesh edited
-    since the frames on disk were rendered makes another run."""
+    """SHA-256 over the files a run reads (their paths and bytes, a .gltf's buffers with it):
+    a scene file or mesh edited since the frames on disk were rendered makes another run."""
+    from hwbvh.files import with_companions
     h = hashlib.sha256()
-    for path in paths:
+    for path in with_companions(paths):
         h.update(os.fsencode(path) + b"\0")
         with open(path, "rb") as f:
             for block in iter(lambda: f.read(1 << 20), b""):

@@ -1650,6 +1650,9 @@ def _run(argv, signals_owned):
                 raise InputError(f"${name}", f"unknown value {os.environ[name]!r} (choose 1 or 0; "
                                              f"true/false, yes/no and on/off are taken too)")
         check_threading()
+        if sys.stdout is None:          # closed by the caller (``>&-``): found before the work
+            raise InputError("<standard output>", "is closed: give the command somewhere to "
+                                                  "print (>/dev/null drops what it prints)")
         args.func(args)
         _answer_swallowed_signal()
     except InputError as e:

@@ -1736,14 +1736,19 @@ def test_a_full_standard_output_is_a_one_line_error_not_a_silent_success(argv, t
         "hwrt: cannot write <standard output>: No space left on device"
 
 
-def test_a_closed_standard_output_is_a_one_line_error_not_a_traceback(tetra, tmp_path):
-    """``hwrt ... >&-``: Python has no sys.stdout; the summary cannot be written, as with a full
-    disk (the run's files are written first, as then)."""
-    p = subprocess.run([sys.executable, "-m", "hwrt.cli", "simulate", str(tetra)],
-                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, timeout=600,
-                       preexec_fn=lambda: os.close(1))
-    assert p.returncode == 1 and one_line_error(p.stderr) == \
-        "hwrt: cannot write <standard output>: it is closed"
+def test_a_closed_standard_output_is_refused_before_the_work(tetra, tmp_path):
+    """``hwrt ... >&-``: Python has no sys.stdout, and the summary would be lost after the
+    work; ``--help`` has no work before it and fails as a full standard output does."""
+    for argv, status, line in (
+            (["build", tetra, "-o", tmp_path / "tree"], 2,
+             "hwrt: error: <standard output>: is closed: give the command somewhere to print "
+             "(>/dev/null drops what it prints)"),
+            (["--help"], 1, "hwrt: cannot write <standard output>: it is closed")):
+        p = subprocess.run([sys.executable, "-m", "hwrt.cli", *map(str, argv)],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                           timeout=600, preexec_fn=lambda: os.close(1))
+        assert p.returncode == status and one_line_error(p.stderr) == line
+    assert not list(tmp_path.glob("tree*"))
 
 
 @pytest.mark.parametrize("command", [["render", "SCENE", "-o", "OUT/x.exr"],
@@ -1770,13 +1775,14 @@ def test_an_output_name_longer_than_the_file_system_takes_is_refused_before_the_
         tmp_path, capsys, tetra):
     """Found when the finished render was renamed into place, it exited 1 after the work."""
     long = "a" * 300
-    for argv in (["render", "cornell", "--width", "8", "--height", "8", "-o",
-                  tmp_path / f"{long}.exr"],
-                 ["build", tetra, "-o", tmp_path / long / "tree"]):
+    for argv, said in (
+            (["render", "cornell", "--width", "8", "--height", "8", "-o", tmp_path / f"{long}.exr"],
+             "is too long (304 bytes)"),
+            (["build", tetra, "-o", tmp_path / long / "tree"], "is too long (300 bytes)"),
+            (["build", tetra, "-o", tmp_path / "new" / long / "tree"], "is too long (300 bytes); "
+                                                                        "its file system takes at most")):
         rc, out, err = call(capsys, *argv)
-        assert (rc, out) == (2, "") and one_line_error(err).endswith(
-            "is 300 bytes long; its file system takes at most 255" if argv[0] == "build" else
-            "is 304 bytes long; its file system takes at most 255")
+        assert (rc, out) == (2, "") and said in one_line_error(err)
     assert os.listdir(tmp_path) == ["tetra.obj"]
 
 

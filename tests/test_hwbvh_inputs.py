@@ -589,6 +589,16 @@ def _ascii_ply(faces, index_type="int", n_faces=None):
             "0 0 0\n1 0 0\n0 1 0\n0 0 1\n" + "".join(f + "\n" for f in faces))
 
 
+def _binary_ply_float_indices():
+    """A binary PLY of one triangle whose header declares float indices (0.0, 1.0, 2.0)."""
+    import struct
+    return (b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+            b"property float y\nproperty float z\nelement face 1\n"
+            b"property list uchar float vertex_indices\nend_header\n"
+            + np.float32([[0, 0, 0], [1, 0, 0], [0, 1, 0]]).tobytes()
+            + struct.pack("<B3f", 3, 0.0, 1.0, 2.0))
+
+
 GLTF_WITH_BUFFER = json.dumps({
     "asset": {"version": "2.0"}, "buffers": [{"uri": "gone.bin", "byteLength": 36}],
     "bufferViews": [{"buffer": 0, "byteLength": 36}],
@@ -621,8 +631,12 @@ GLTF_WITH_BUFFER = json.dumps({
     ("count.ply", _ascii_ply(["3 0 1 2", "255 0 1 3"]),
      "line 15: a face's count says 255 indices, the line holds 3"),
     ("short.ply", _ascii_ply(["3 0 1"]), "line 14: a face's count says 3 indices, the line holds 2"),
+    ("odd_header.ply", _ascii_ply(["3 0 1"]).replace("end_header", "comment a\fb\r c\n  end_header"),
+     "line 15: a face's count says 3 indices, the line holds 2"),
     ("word.ply", _ascii_ply(["3 0 1 x"]), "line 14: a face's index is not a non-negative integer"),
-    ("floats.ply", _ascii_ply(["3 0 1 2"], "float"),
+    ("half.ply", _ascii_ply(["3 0.5 1 2"], "float"),
+     "line 14: a face's index is not a non-negative integer"),
+    ("floats.ply", _binary_ply_float_indices(),
      "its header declares the faces' vertex indices as float; indices are integers"),
     ("ends.ply", _ascii_ply(["3 0 1 2"], n_faces=2),
      "its header declares 4 vertices and 2 faces, but only 1 face could be read"),
@@ -654,6 +668,11 @@ def test_a_gltf_files_buffer_is_an_input_no_output_may_replace(tmp_path):
         check_outputs([buffer], inputs=[mesh])
     assert str(e.value) == f"{buffer}: is an input of this run; an output may not overwrite an input"
     check_outputs([tmp_path / "other.bin"], inputs=[mesh])
+    # and its contents: the studies' cells and an animation's frames are keyed by them
+    from hwbvh.files import content_digest
+    before = content_digest(mesh)
+    buffer.write_bytes(np.float32([[0, 0, 0], [2, 0, 0], [0, 1, 0]]).tobytes())
+    assert content_digest(mesh) != before
 
 
 def test_the_damage_checks_only_explain_a_file_that_does_not_load(tmp_path):
@@ -674,6 +693,13 @@ def test_the_damage_checks_only_explain_a_file_that_does_not_load(tmp_path):
     (tmp_path / "mixed.ply").write_bytes(_ascii_ply(["3 0 1 2", "  4\t0 1 2 3  "]).replace(
         "\n", "\r\n").encode())
     assert hwbvh.load_triangles(tmp_path / "mixed.ply").shape == (3, 3, 3)
+    # what a reader of numbers takes as integers ("+1", "2.0", a float type holding them), the
+    # word end_header inside a comment's word, int64 indices
+    (tmp_path / "numbers.ply").write_text(_ascii_ply(["3 0 +1 2.0", "3.0 0 1 3"], "float").replace(
+        "end_header", "comment not_the_end_header_yet\nend_header", 1))
+    assert hwbvh.load_triangles(tmp_path / "numbers.ply").shape == (2, 3, 3)
+    (tmp_path / "wide.ply").write_text(_ascii_ply(["3 0 1 2"], "int64"))
+    assert hwbvh.load_triangles(tmp_path / "wide.ply").shape == (1, 3, 3)
     # an OFF face of two vertices (no triangle), colours after a face's indices, comments
     (tmp_path / "colours.off").write_text("OFF # counts next\n4 3 0\n0 0 0\n1 0 0\n0 1 0\n"
                                           "0 0 1\n2 0 1\n3 0 1 2 255 0 0\n4 0 1 2 3 # quad\n")
