@@ -335,6 +335,9 @@ def load(prefix, triangles=None):
         raise InputError(prefix + ".json", "not UTF-8 text") from None
     except json.JSONDecodeError as e:
         raise InputError(prefix + ".json", f"not valid JSON ({json_syntax(e)})") from None
+    except RecursionError:
+        raise InputError(prefix + ".json", "not a tree's description (nested too deeply)") \
+            from None
     if not isinstance(meta, dict):
         raise InputError(prefix + ".json", f"expected a JSON object, got {type(meta).__name__}")
     n = _json_count(meta, ("triangles",), config.MAX_PRIMITIVES, prefix + ".json")

@@ -384,21 +384,27 @@ def check_tree(tree, params):
 
 
 def check_params(p):
-    """Raise ParameterError (naming the parameter) unless every knob of ``p`` is within the
-    hardware's range (``config.KNOB_RANGES``)."""
+    """``p`` with its knobs as Python numbers (a NumPy int16 would wrap in the model's
+    products, a float16 clock overflow in Hz), or ParameterError (naming the parameter)
+    unless every knob is within the hardware's range (``config.KNOB_RANGES``)."""
+    from dataclasses import replace
     if not isinstance(p, HwParams):
         raise ParameterError("params", f"expected a HwParams, got {type(p).__name__}")
+    numbers = {}
     for k, (lo, hi) in config.KNOB_RANGES.items():
         v = getattr(p, k)
         if k == "clock_mhz":
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
                     or not lo <= v <= hi:
                 raise ParameterError(k, f"must be a clock in MHz within {lo:g}..{hi:g}, got {v!r}")
+            numbers[k] = float(v)
             continue
         if not is_integer(v) or not lo <= v <= hi:
             raise ParameterError(k, f"must be an integer within {lo}..{hi} in the hardware, got {v!r}")
         if k in config.POWER_OF_TWO_KNOBS and v & (v - 1):
             raise ParameterError(k, f"must be a power of two (thesis 3.3), got {v}")
+        numbers[k] = int(v)
+    p = replace(p, **numbers)
     if p.w * p.psize > config.MAX_PRIMITIVES:
         raise ParameterError("psize", f"w * psize = {p.w * p.psize} exceeds the 24-bit primitive index "
                                   f"({config.MAX_PRIMITIVES})")
@@ -411,7 +417,7 @@ def check_params(p):
     if not is_integer(v) or not 0 <= v <= config.MAX_CONTROL_LATENCY:
         raise ParameterError("control_latency", f"must be a non-negative integer up to "
                                                 f"{config.MAX_CONTROL_LATENCY}, got {v!r}")
-    return p
+    return replace(p, control_latency=int(v))
 
 
 def params_for(preset="HWBVH-C", **overrides):

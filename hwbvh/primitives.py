@@ -587,6 +587,14 @@ def within_bound(a, bound=MAX_COORDINATE):
     return a.size == 0 or bool(a.max() <= np.float64(bound) and a.min() >= -np.float64(bound))
 
 
+def _native_float(t):
+    """``t`` (floats, within bounds) as float32 or float64 in this machine's byte order, the
+    types the kernels are compiled for: half precision widened (exactly), a foreign byte order
+    swapped, anything wider than float64 rounded to it."""
+    want = np.dtype(np.float32 if t.dtype.itemsize <= 4 else np.float64)
+    return t if t.dtype == want else t.astype(want)
+
+
 def checked_coordinates(t, source):
     """``t`` ((n, 3, 3) triangles) in a float type, refused (InputError naming ``source`` and
     the first bad triangle) if a coordinate is NaN, infinite or beyond MAX_COORDINATE.
@@ -596,6 +604,10 @@ def checked_coordinates(t, source):
     and other kinds are refused."""
     kind = t.dtype.kind
     if kind == "O":
+        if any(isinstance(x, (str, bytes, bool, np.bool_)) for x in t.flat):
+            # a cast would parse the text and take a truth value as 0 or 1
+            raise InputError(source, "triangles must be real numbers, got an object array "
+                                     "holding text or truth values")
         try:
             t = t.astype(np.float64)
         except OverflowError:                   # a Python integer past float64's range
@@ -609,7 +621,7 @@ def checked_coordinates(t, source):
     elif kind != "f":
         raise InputError(source, f"triangles must be real numbers, got {t.dtype}")
     if within_bound(t):
-        return t
+        return _native_float(t)
     t64 = t.astype(np.float64)
     ok = (np.abs(t64) <= MAX_COORDINATE).reshape(len(t), 9).all(axis=1)    # NaN is not <=
     bad = int(np.argmin(ok))

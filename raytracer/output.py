@@ -9,7 +9,7 @@ import numpy as np
 
 from hwbvh.config import MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, checked_flag
-from hwbvh.files import write_files
+from hwbvh.files import check_outputs, write_files
 
 # The channels of an EXR that write_exr writes with its layers, in order (the image's three
 # first)
@@ -20,8 +20,10 @@ def write_exr(path, result, metadata=None, layers=True):
     """Float RGB, plus depth (Z), shading normal (N.X/N.Y/N.Z) and primitive id (prim.id, exact
     in float32 below 2^24) when ``layers``; ``metadata`` (a dict) goes into the header as hwrt:*
     keys: numbers as numbers where the header's types hold them (floats rounded to float32),
-    anything else as text."""
-    write_files([(path, exr_writer(path, result, metadata, layers))])
+    anything else as text. ``path`` is checked as every output is (``check_outputs``)."""
+    write = exr_writer(path, result, metadata, layers)
+    check_outputs([path])
+    write_files([(path, write)])
 
 
 def _check_path(path, extension):
@@ -57,9 +59,11 @@ def exr_writer(path, result, metadata=None, layers=True):
         metadata = {}
     if not isinstance(metadata, dict):
         raise ParameterError("metadata", f"expected a dict, got {type(metadata).__name__}")
-    for k in metadata:
+    for k, v in metadata.items():
         if not (isinstance(k, str) and k):      # each names a header attribute hwrt:<key>
             raise ParameterError("metadata", f"keys must be non-empty strings, got {k!r}")
+        if "\0" in k or "\0" in str(v):         # the header's strings end at one: cut short
+            raise ParameterError("metadata", f"a key or value holds a NUL character: {k!r}")
     layers = checked_flag(layers, "layers")
     image = _check_image("result.image", result.image, (None, None, 3))
     H, W, _ = image.shape

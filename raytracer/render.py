@@ -182,8 +182,8 @@ def builder_and_traversal(builder=None, traversal=None):
     goes with Embree's traversal only, so "embree" on one side brings it on the other; else
     the hardware's tree on our units."""
     embree = "embree" in (builder, traversal)
-    return (builder or ("embree" if embree else "hwbvh"),
-            traversal or ("embree" if embree else "numba"))
+    return ("embree" if embree else "hwbvh") if builder is None else builder, \
+        ("embree" if embree else "numba") if traversal is None else traversal
 
 
 def make_tracer(scene, builder=None, traversal=None, leaf_size=DEFAULT_LEAF_SIZE,
@@ -613,6 +613,7 @@ def _check_render_arguments(scene, tracer, seed, progress):
                                             f"than the renderer's {MAX_PIXELS}")
     _check_camera(scene.camera)
     _check_materials(scene)
+    _check_shading_arrays(scene)
     check_tracer(tracer, triangles=scene.triangles)
     if not is_integer(seed) or seed < 0:
         raise ParameterError("seed", f"must be a non-negative integer, got {seed!r}")
@@ -640,6 +641,48 @@ def _check_materials(scene):
         raise ParameterError("scene.material", f"indices must lie in [0, {n}) (the scene's "
                                                f"materials), got {int(mat.min())}..{int(mat.max())}")
 
+
+def _check_shading_arrays(scene):
+    """The rest of what the shading kernels read unchecked, as ``compile_scene`` makes it
+    (checked again, as the materials are): the vertex normals, one (3, 3) per triangle; the
+    material tables' columns (kd and kr three per material, ks, shininess and ior one); the
+    ambient light and background, three numbers each; each light a point (position,
+    intensity) or directional one (direction, irradiance) of three numbers each. Numbers are
+    finite (a NaN would make a NaN image without a word), but the normals, where a NaN is a
+    normal the shading cannot use and leaves for the geometric one."""
+    n, m = len(scene.triangles), len(scene.kd)
+    for key, shape in (("normals", (n, 3, 3)), ("kd", (m, 3)), ("kr", (m, 3)), ("ks", (m,)),
+                       ("shininess", (m,)), ("ior", (m,)), ("ambient", (3,)),
+                       ("background", (3,))):
+        a = getattr(scene, key, None)
+        a = np.asarray(a) if a is not None else None
+        if a is None or a.shape != shape or a.dtype.kind not in "fiu":
+            got = "None" if a is None else f"{a.dtype} of shape {a.shape}"
+            raise ParameterError(f"scene.{key}", f"expected numbers of shape {shape}, got {got}")
+        if key != "normals" and not np.isfinite(a).all():
+            raise ParameterError(f"scene.{key}", "holds a number that is not finite")
+    if not np.isfinite(getattr(scene, "cutoff", np.nan)):
+        raise ParameterError("scene.cutoff", f"must be a finite number, got {scene.cutoff!r}")
+    lights = scene.lights if isinstance(scene.lights, (list, tuple)) else None
+    if lights is None:
+        raise ParameterError("scene.lights", f"expected a list of lights, got "
+                                             f"{type(scene.lights).__name__}")
+    for k, light in enumerate(lights):
+        keys = LIGHT_TERMS.get(light.get("type") if isinstance(light, dict) else None)
+        if keys is None:
+            raise ParameterError(f"scene.lights[{k}]", f"expected a point or directional light "
+                                                       f"as compile_scene makes it, got {light!r}")
+        for key in keys:
+            v = light.get(key)
+            v = np.asarray(v) if v is not None else None
+            if v is None or v.shape != (3,) or v.dtype.kind not in "fiu" or \
+                    not np.isfinite(v).all():
+                raise ParameterError(f"scene.lights[{k}].{key}", f"expected three finite "
+                                                                 f"numbers, got {light.get(key)!r}")
+
+
+# What a compiled light holds, by its type: its place or direction, and its light
+LIGHT_TERMS = {"point": ("position", "intensity"), "directional": ("direction", "irradiance")}
 
 # ``check_camera``'s names for a compiled scene's camera
 SCENE_CAMERA_NAMES = dict({k: f"scene.camera.{k}" for k in ("eye", "target", "up", "fov")},

@@ -257,6 +257,19 @@ def test_a_subtree_builder_that_cannot_hold_a_leaf_is_refused():
     assert simulate(tree, HwParams(w=1, psize=4, leaf_size=4))["cycles"] > 0
 
 
+def test_numpy_knobs_are_taken_as_the_numbers_they_hold():
+    """A NumPy int16 would wrap in the model's products (w * psize = 65536 read as 0) and a
+    float16 clock overflow in Hz (NaN seconds); the model computes with Python numbers."""
+    import json
+    import numpy as np
+    import hwbvh
+    from hwbvh.cycle_model import HwParams, simulate
+    tree = hwbvh.build(random_soup(200, seed=1)).tree
+    want = simulate(tree, HwParams(w=4, psize=16384, clock_mhz=250.0))
+    got = simulate(tree, HwParams(w=np.int8(4), psize=np.int16(16384), clock_mhz=np.float16(250)))
+    assert got == want and json.dumps(got)
+
+
 def test_the_presets_cannot_be_changed_only_varied():
     """A caller cannot change a preset for everyone: the table and its parameters are
     read-only; ``dataclasses.replace`` gives a variant, checked like any parameters."""

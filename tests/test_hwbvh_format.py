@@ -409,3 +409,12 @@ def test_a_saved_tree_read_back_without_triangles_says_where_they_are(tmp_path):
     with pytest.raises(InputError, match=r"a refitted tree: the triangles it was refitted to"):
         Tracer(hwbvh.load(tmp_path / "moved"))
     Tracer(hwbvh.load(tmp_path / "moved"), triangles=moved.triangles)
+
+
+def test_a_tree_description_nested_too_deeply_is_named_not_a_recursion_error(tmp_path):
+    tris = np.float32([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 0, 1], [0, 1, 1]]])
+    hwbvh.save(hwbvh.build(tris), tmp_path / "t")
+    (tmp_path / "t.json").write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(InputError, match=r"t\.json: not a tree's description \(nested too "
+                                         r"deeply\)$"):
+        hwbvh.load(tmp_path / "t")

@@ -325,6 +325,20 @@ def test_embree_path_renders_the_same_image():
     np.testing.assert_allclose(a.depth[other], b.depth[other], rtol=1e-5)
 
 
+def test_exr_to_a_directory_or_with_a_nul_in_its_metadata_is_refused(tmp_path):
+    """A directory named x.exr is an output error as for the command line's outputs; a NUL in
+    a key or value would cut the header's text short without a word."""
+    sc = compile_scene(load_scene("cornell", width=8, height=6, spp=1))
+    res = render(sc, make_tracer(sc)[0])
+    (tmp_path / "dir.exr").mkdir()
+    with pytest.raises(InputError, match="is a directory; give a file path"):
+        write_exr(tmp_path / "dir.exr", res)
+    for meta in ({"j": "x\0y"}, {"a\0b": 1}):
+        with pytest.raises(ParameterError, match="^metadata: a key or value holds a NUL"):
+            write_exr(tmp_path / "m.exr", res, meta)
+    assert not (tmp_path / "m.exr").exists()
+
+
 def test_exr_layers_metadata_and_atomic_write(tmp_path):
     d = load_scene("cornell", width=20, height=10, spp=1)
     _, res = run(d)

@@ -898,7 +898,21 @@ def test_a_scene_changed_after_compiling_is_checked_again_before_it_renders():
                              "scene.camera.eye: must be 3 finite numbers"),
                             ({"camera": {"eye": cam["eye"]}}, "scene.camera: expected the eye"),
                             ({"width": 2 ** 16, "height": 2 ** 16},  # past 32-bit pixel indices
-                             "scene.width: 65536 x 65536 pixels is more than the renderer's")):
+                             "scene.width: 65536 x 65536 pixels is more than the renderer's"),
+                            # arrays the shading kernels index unchecked: read past their ends,
+                            # or NaN images, without a word
+                            ({"normals": np.ones((1, 3, 3), np.float32)},
+                             r"scene.normals: expected numbers of shape \(\d+, 3, 3\)"),
+                            ({"normals": None}, "scene.normals: expected numbers of shape"),
+                            ({"kd": np.ones((len(sc.kd), 1))}, "scene.kd: expected numbers"),
+                            ({"background": np.ones(1)}, r"scene.background: expected numbers of "
+                                                         r"shape \(3,\)"),
+                            ({"ambient": np.full(3, np.nan)}, "scene.ambient: holds a number that "
+                                                              "is not finite"),
+                            ({"lights": [{"type": "spot"}]}, r"scene.lights\[0\]: expected a point "
+                                                             "or directional light"),
+                            ({"lights": [dict(sc.lights[0], position=[0, 0, np.inf])]},
+                             r"scene.lights\[0\].position: expected three finite numbers")):
         with pytest.raises(ParameterError, match=message):
             render(dataclasses.replace(sc, **change), tracer)
     assert (render(sc, tracer).prim >= 0).sum() > 30
@@ -920,6 +934,15 @@ def test_shading_puts_each_hit_point_on_its_triangles_plane():
     darkened = late.sum(-1) < 0.5 * right.sum(-1)
     assert (darkened & lit).sum() < 0.01 * lit.sum()
     assert np.median(np.abs(late - right).sum(-1)[lit] / right.sum(-1)[lit]) < 0.01
+
+
+def test_make_tracer_takes_only_none_for_the_default_builder_and_traversal():
+    """A false value other than None (0, "") was taken as the default."""
+    from hwbvh.errors import ParameterError
+    sc = compile_scene(load_scene("cornell", width=8, height=6, spp=1))
+    for key, bad in (("builder", 0), ("builder", ""), ("traversal", "")):
+        with pytest.raises(ParameterError, match=f"^{key}: unknown {key}"):
+            make_tracer(sc, **{key: bad})
 
 
 def test_make_tracer_pairs_embree_with_embree():

@@ -358,9 +358,10 @@ def test_float64_triangles_past_their_float32_boxes_are_still_hit():
     np.testing.assert_array_equal(tracer.nodes, hwbvh.build(tri).nodes)
 
 
-def test_edge_eps_must_be_a_finite_number_at_least_zero(bvh):
-    for bad in (-1.0, np.nan, np.inf, "x", True):
-        with pytest.raises(ParameterError, match="^edge_eps: must be a finite number >= 0, got") as e:
+def test_edge_eps_must_be_a_finite_number_at_least_zero_and_small(bvh):
+    for bad in (-1.0, np.nan, np.inf, "x", True, 1.0, 1e300):
+        with pytest.raises(ParameterError, match=r"^edge_eps: must be a finite number in \[0, 0.001\], "
+                                                 r"got") as e:
             Tracer(bvh, edge_eps=bad)
         assert e.value.parameter == "edge_eps"
     assert (Tracer(bvh, edge_eps=0).intersect(O, D).prim >= 0).all()
@@ -773,3 +774,38 @@ def test_a_loaded_tree_without_its_triangles_says_where_they_are(tmp_path):
     tracer = Tracer(loaded, triangles=hwbvh.load_triangles(loaded.meta["source"]))
     hit = tracer.intersect(np.array([[0.5, 0.25, 1.0]]), np.array([[0.0, 0.0, -1.0]]))
     assert hit.prim[0] >= 0 and hit.t[0] == 1.0
+
+
+def test_triangles_in_half_precision_or_a_foreign_byte_order_are_traced_as_float32(bvh):
+    """The builder takes them; the tracer's kernels are compiled for native float32 and
+    float64 only, and Numba's typing error leaked."""
+    want = Tracer(bvh).intersect(O, D).prim
+    for dtype in (">f4", ">f8"):
+        tracer = Tracer(bvh, triangles=TRIS.astype(dtype))
+        assert tracer.tris.dtype == np.float32 and np.array_equal(tracer.intersect(O, D).prim, want)
+    # rounded to half precision they are other triangles than the tree's, and said to be
+    with pytest.raises(InputError, match="not the triangles the tree was built over"):
+        Tracer(bvh, triangles=TRIS.astype(np.float16))
+
+
+def test_an_object_array_of_text_or_truth_values_is_not_triangles():
+    """A cast would parse the text ("1") and take True as 1, as a text or bool array is not."""
+    for bad in (np.full((2, 3, 3), "1", object), np.full((2, 3, 3), b"1", object),
+                np.full((2, 3, 3), True, object)):
+        with pytest.raises(InputError, match="triangles must be real numbers, got an object array "
+                                             "holding text or truth values"):
+            hwbvh.as_triangles(bad)
+    assert hwbvh.as_triangles(TRIS.astype(object)).shape == TRIS.shape
+
+
+def test_verify_rays_refuses_bounds_not_one_per_ray_and_a_flag_that_is_not_one(bvh):
+    from traversal.embree_ref import embree_scene
+    scene = embree_scene(V, F)
+    for kw, message in ((dict(tmax=np.full(len(O) + 3, 9.0)), r"^tmax: must be a number or one "
+                                                               r"per ray \(16\), got shape \(19,\)"),
+                        (dict(tmax=[9.0] * 10), r"^tmax: must be a number or one per ray"),
+                        (dict(anyhit="no"), "^anyhit: must be True or False")):
+        with pytest.raises(ParameterError, match=message):
+            verify_rays(Tracer(bvh), scene, TRIS, O, D, **kw)
+    counts = verify_rays(Tracer(bvh), scene, TRIS, O, D, tmax=np.full(len(O), 9.0))[0]
+    assert counts["hit"] == len(O)

@@ -21,7 +21,7 @@ from hwbvh.parallel import run_ranges
 from .config import CHUNK_RAYS, KEPT_BOUND_RAYS, MIN_RANGE_CHUNKS
 from .traverse import trace_chunks
 from .triangle_unit import Float32Range, Float64Range, band_eps2, preprocess
-from .config import EDGE_EPS_F32, EDGE_EPS_F64   # the valid check's slack, with its reason
+from .config import EDGE_EPS_F32, EDGE_EPS_F64, MAX_EDGE_EPS   # the valid check's slack
 
 
 PRECISIONS = ("float32", "float64")     # the units' working precision: the hardware's, or wider
@@ -331,9 +331,11 @@ class Tracer(PacketCount):
             edge_eps = EDGE_EPS_F32 if f32 else EDGE_EPS_F64
         elif isinstance(edge_eps, (bool, np.bool_)) \
                 or not isinstance(edge_eps, (int, float, np.integer, np.floating)) \
-                or not (np.isfinite(edge_eps) and edge_eps >= 0):
-            # a negative or NaN slack fails every valid check: every ray would miss
-            raise ParameterError("edge_eps", f"must be a finite number >= 0, got {edge_eps!r}")
+                or not (np.isfinite(edge_eps) and 0 <= edge_eps <= MAX_EDGE_EPS):
+            # a negative or NaN slack fails every valid check: every ray would miss; a wide
+            # one takes the neighbours' hits
+            raise ParameterError("edge_eps", f"must be a finite number in [0, {MAX_EDGE_EPS:g}], "
+                                             f"got {edge_eps!r}")
         if not (hasattr(bvh, "nodes") and hasattr(bvh, "indices")):
             raise ParameterError("bvh", "expected an hwbvh.Bvh (nodes, indices, triangles), "
                                         f"got {type(bvh).__name__}")

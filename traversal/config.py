@@ -32,6 +32,11 @@ BAND_K = 4.0
 # triangle by that fraction of its size, far below a pixel. Set to 0 for the strict unit.
 EDGE_EPS_F32 = 2.0**-18
 EDGE_EPS_F64 = 2.0**-40
+# The largest slack a tracer takes (``Tracer(edge_eps=...)``): a thousandth of the triangle, some
+# 250 times the float32 default and far past any rounding of a barycentric coordinate. A wider
+# triangle takes hits that belong to its neighbours (at 1, most hits on a random soup are
+# another triangle's).
+MAX_EDGE_EPS = 1e-3
 
 # --- Secondary-ray origins (offset) -----------------------------------------------------
 # Offset along the geometric normal, relative to the largest coordinate magnitude of the hit

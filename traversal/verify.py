@@ -21,7 +21,7 @@ live in ``traversal.config`` with their reasons.
 import numpy as np
 from numba import njit
 
-from hwbvh.errors import ParameterError
+from hwbvh.errors import ParameterError, checked_flag
 from hwbvh.parallel import run_ranges
 
 from .api import ACCELS, _interval, ray_arrays, real_array
@@ -491,6 +491,10 @@ def _traced_and_classified(tracer, scene, tris, O, D, tmax, anyhit):
         raise ParameterError("D", f"must be (n, 3) with one row per origin {shape}, got shape "
                                   f"{np.shape(D)}")
     n = len(O)
+    anyhit = checked_flag(anyhit, "anyhit")
+    if tmax is not None and np.ndim(tmax) and np.shape(tmax) != (n,):
+        raise ParameterError("tmax", f"must be a number or one per ray ({n}), got shape "
+                                     f"{np.shape(tmax)}")
     tmax_of = _tmax_slices(tmax)
     if anyhit:
         ours, ref = np.empty(n, bool), np.empty(n, bool)
