@@ -642,14 +642,18 @@ def _check_materials(scene):
                                                f"materials), got {int(mat.min())}..{int(mat.max())}")
 
 
+# What a compiled light holds, by its type: its place or direction, and its light
+LIGHT_TERMS = {"point": ("position", "intensity"), "directional": ("direction", "irradiance")}
+
+
 def _check_shading_arrays(scene):
     """The rest of what the shading kernels read unchecked, as ``compile_scene`` makes it
     (checked again, as the materials are): the vertex normals, one (3, 3) per triangle; the
     material tables' columns (kd and kr three per material, ks, shininess and ior one); the
     ambient light and background, three numbers each; each light a point (position,
     intensity) or directional one (direction, irradiance) of three numbers each. Numbers are
-    finite (a NaN would make a NaN image without a word), but the normals, where a NaN is a
-    normal the shading cannot use and leaves for the geometric one."""
+    finite (a NaN would make a NaN image without a word), except in the normals, where a NaN
+    is a normal the shading cannot use and leaves for the geometric one."""
     n, m = len(scene.triangles), len(scene.kd)
     for key, shape in (("normals", (n, 3, 3)), ("kd", (m, 3)), ("kr", (m, 3)), ("ks", (m,)),
                        ("shininess", (m,)), ("ior", (m,)), ("ambient", (3,)),
@@ -661,8 +665,10 @@ def _check_shading_arrays(scene):
             raise ParameterError(f"scene.{key}", f"expected numbers of shape {shape}, got {got}")
         if key != "normals" and not np.isfinite(a).all():
             raise ParameterError(f"scene.{key}", "holds a number that is not finite")
-    if not np.isfinite(getattr(scene, "cutoff", np.nan)):
-        raise ParameterError("scene.cutoff", f"must be a finite number, got {scene.cutoff!r}")
+    cutoff = getattr(scene, "cutoff", None)
+    if isinstance(cutoff, (bool, np.bool_)) or not isinstance(cutoff, (int, float, np.number)) \
+            or not np.isfinite(cutoff):
+        raise ParameterError("scene.cutoff", f"must be a finite number, got {cutoff!r}")
     lights = scene.lights if isinstance(scene.lights, (list, tuple)) else None
     if lights is None:
         raise ParameterError("scene.lights", f"expected a list of lights, got "
@@ -680,9 +686,6 @@ def _check_shading_arrays(scene):
                 raise ParameterError(f"scene.lights[{k}].{key}", f"expected three finite "
                                                                  f"numbers, got {light.get(key)!r}")
 
-
-# What a compiled light holds, by its type: its place or direction, and its light
-LIGHT_TERMS = {"point": ("position", "intensity"), "directional": ("direction", "irradiance")}
 
 # ``check_camera``'s names for a compiled scene's camera
 SCENE_CAMERA_NAMES = dict({k: f"scene.camera.{k}" for k in ("eye", "target", "up", "fov")},
