@@ -22,7 +22,7 @@ def write_exr(path, result, metadata=None, layers=True):
     keys: numbers as numbers where the header's types hold them (floats rounded to float32),
     anything else as text. ``path`` is checked as every output is (``check_outputs``)."""
     write = exr_writer(path, result, metadata, layers)
-    check_outputs([path])
+    check_outputs([os.fsdecode(path)])           # checked as a str, whatever path type it came as
     write_files([(path, write)])
 
 
@@ -207,8 +207,11 @@ def tonemap(image):
 
 
 def write_png(path, image):
-    """An 8-bit sRGB preview of ``image`` (see :func:`tonemap`)."""
-    write_files([(path, png_writer(path, image))])
+    """An 8-bit sRGB preview of ``image`` (see :func:`tonemap`); ``path`` is checked as
+    every output is (``check_outputs``)."""
+    write = png_writer(path, image)
+    check_outputs([os.fsdecode(path)])
+    write_files([(path, write)])
 
 
 def png_writer(path, image):

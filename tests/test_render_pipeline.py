@@ -444,6 +444,7 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
     """A file name without the format's extension, a directory, a 4-channel image, a
     metadata value the header cannot hold as a number: named, or written as text."""
     from hwbvh.errors import ParameterError
+    from hwbvh.files import OutputPathError
     from raytracer.output import read_exr, write_exr, write_png
     from raytracer.render import RenderResult
 
@@ -467,7 +468,7 @@ def test_image_writers_refuse_what_they_cannot_write_naming_it(tmp_path):
         with pytest.raises(ParameterError, match="metadata: keys must be non-empty strings"):
             write_exr(tmp_path / "k.exr", res, {key: 1})
     (tmp_path / "d.exr").mkdir()
-    with pytest.raises(IsADirectoryError, match="d.exr"):
+    with pytest.raises(OutputPathError, match="d.exr: is a directory; give a file path"):
         write_exr(tmp_path / "d.exr", res)
     four = RenderResult(np.zeros((h, w, 4), np.float32), res.depth, res.normal, res.prim)
     with pytest.raises(ParameterError, match=r"result.image: expected a non-empty \(h, w, 3\)"):
