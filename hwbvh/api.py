@@ -7,6 +7,7 @@
 """
 import json
 import os
+import re
 import time
 from dataclasses import dataclass, field
 
@@ -310,7 +311,7 @@ def save(bvh, prefix):
     tris = getattr(bvh, "triangles", None)
     _checked_tree(meta, check_nodes(bvh.nodes, n_positions=len(indices), source="bvh.nodes"),
                   indices, None if tris is None else as_triangles(tris, source="bvh.triangles"),
-                  "bvh.meta", "bvh.nodes", "bvh.indices")
+                  "bvh.meta", "bvh.nodes", "bvh.indices", "bvh.triangles")
     files = tree_files(bvh, prefix)
     write_files(files)
     return [path for path, _ in files]
@@ -367,16 +368,17 @@ def load(prefix, triangles=None):
         raise InputError(prefix + ".indices", f"the last word's tail after entry {n} is not "
                                               f"padding (0xFFFFFF)")
     _checked_tree(meta, nodes, entries[:n], tris, prefix + ".json", prefix + ".nodes",
-                  prefix + ".indices")
+                  prefix + ".indices", "triangles")
     bvh = Bvh(nodes=nodes, indices=entries[:n].copy(), triangles=tris, meta=meta)
     bvh._invariants_hold = True                 # as validated above
     return bvh
 
 
-def _checked_tree(meta, nodes, entries, tris, meta_name, nodes_name, indices_name):
+def _checked_tree(meta, nodes, entries, tris, meta_name, nodes_name, indices_name, tris_name):
     """The invariants of a tree as ``load`` reads it and ``save`` writes it (InputError naming
     the part): its description's counts, every invariant of the nodes over the ``entries``
-    (and leaf boxes around ``tris`` given), and the node count it states."""
+    (and leaf boxes around ``tris`` given: a sound tree whose leaves do not hold them names
+    ``tris_name``, other triangles than its own), and the node count it states."""
     n = _json_count(meta, ("triangles",), config.MAX_PRIMITIVES, meta_name)
     # no builder writes a leaf above MAX_LEAF_SIZE (the sweep builder's limit is below it)
     max_leaf = _json_count(meta, ("parameters", "max_leaf"), config.MAX_LEAF_SIZE, meta_name)
@@ -385,8 +387,15 @@ def _checked_tree(meta, nodes, entries, tris, meta_name, nodes_name, indices_nam
                                        f"triangles")
     if tris is not None and len(tris) != n:
         raise InputError(meta_name, f"says {n} triangles, the tree has {len(tris)}")
-    boxes = primitive_boxes(tris) if tris is not None else None
-    reached = validate(nodes, entries, n, max_leaf, boxes, source=nodes_name)
+    reached = validate(nodes, entries, n, max_leaf, source=nodes_name)
+    if tris is not None:
+        try:
+            validate(nodes, entries, n, max_leaf, primitive_boxes(tris), source=nodes_name)
+        except InputError as e:         # the boxes are all that changed: a leaf's box
+            node = re.search(r"\(node (\d+)\)", str(e))
+            where = f" (node {node.group(1)} of {nodes_name})" if node else ""
+            raise InputError(tris_name, f"a triangle lies outside its leaf's box{where}: not "
+                                        f"the triangles the tree was built over") from None
     # the counts a reader reports must be the tree's own
     for key, got in (("nodes", reached), ("node_slots", len(nodes))):
         if key in meta or key == "nodes":

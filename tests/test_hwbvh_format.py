@@ -418,3 +418,14 @@ def test_a_tree_description_nested_too_deeply_is_named_not_a_recursion_error(tmp
     with pytest.raises(InputError, match=r"t\.json: not a tree's description \(nested too "
                                          r"deeply\)$"):
         hwbvh.load(tmp_path / "t")
+
+
+def test_load_with_other_triangles_names_the_triangles_not_the_tree(tmp_path):
+    """The tree on disk is sound; it is the triangles given that do not fit its leaves."""
+    tris = random_soup(200, seed=4)
+    hwbvh.save(hwbvh.build(tris), tmp_path / "t")
+    with pytest.raises(InputError, match=r"^triangles: a triangle lies outside its leaf's box "
+                                         r"\(node \d+ of .*t\.nodes\): not the triangles the "
+                                         r"tree was built over$"):
+        hwbvh.load(tmp_path / "t", triangles=tris + np.float32(0.5))
+    assert hwbvh.load(tmp_path / "t", triangles=tris).meta["triangles"] == 200

@@ -115,6 +115,10 @@ def test_classify_refuses_primitive_ids_out_of_range_and_answers_not_one_per_ray
                                      miss, np.ones(16)))
     refused("float_blocked", lambda: classify_occluded(tris, o, d, 0.0, np.inf, np.ones(16),
                                                        np.zeros(16, bool)))
+    refused("two_blocked", lambda: classify_occluded(tris, o, d, 0.0, np.inf,
+                                                     np.full(16, 2), np.zeros(16, bool)))
+    refused("ragged", lambda: classify(tris, [[0, 0, 0], [1, 1]], d[:2], 0.0, np.inf, miss[:2],
+                                       np.ones(2), miss[:2], np.ones(2)))
     """)
     assert code >= 0, out
     assert "far ParameterError ours_prim: primitive ids must be -1 or below len(tris) = 64, " \
@@ -125,6 +129,9 @@ def test_classify_refuses_primitive_ids_out_of_range_and_answers_not_one_per_ray
     assert "tris ParameterError tris: must be (m, 3, 3), got shape (64, 9)" in out
     assert "float_blocked ParameterError ours_blocked: must be booleans (or integers 0 and 1), " \
            "got float64" in out
+    assert "two_blocked ParameterError ours_blocked: must be booleans (or integers 0 and 1), " \
+           "got 2 (ray 0)" in out
+    assert "ragged ParameterError O: must be rows of equal length" in out
 
 
 def test_classify_still_judges_right_answers(bvh):

@@ -94,8 +94,13 @@ def negative_tmin_error(name):
 def real_array(x, name, dtype=None):
     """``x`` as an ndarray of real numbers (converted to ``dtype`` when given); ParameterError
     naming ``name`` for None, complex, boolean, string or object data: NumPy would drop an
-    imaginary part, read True as 1 and None as NaN, each a silently wrong ray or bound."""
-    a = np.asarray(x) if x is not None else None
+    imaginary part, read True as 1 and None as NaN, each a silently wrong ray or bound; and
+    for rows of different lengths, which NumPy's own message would not name."""
+    try:
+        a = np.asarray(x) if x is not None else None
+    except ValueError:                  # a ragged list: "setting an array element with a sequence"
+        raise ParameterError(name, "must be rows of equal length (an (n, 3) array or list of "
+                                   "rows), got rows of different lengths") from None
     if a is None or a.dtype.kind not in "fiu":
         got = "None" if a is None else str(a.dtype)
         raise ParameterError(name, f"must be real numbers, got {got}")

@@ -220,6 +220,10 @@ def _per_ray(x, n, name, kinds="fiu"):
         raise ParameterError(name, f"must be {what}, got {a.dtype}")
     if a.shape != (n,):
         raise ParameterError(name, f"must hold one answer per ray ({n},), got shape {a.shape}")
+    if kinds == "biu" and a.dtype.kind in "iu" and n and not np.isin(a, (0, 1)).all():
+        bad = int(np.argmax(~np.isin(a, (0, 1))))
+        raise ParameterError(name, f"must be booleans (or integers 0 and 1), got {a[bad]} "
+                                   f"(ray {bad})")
     return a
 
 
