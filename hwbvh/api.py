@@ -341,6 +341,9 @@ def load(prefix, triangles=None):
             from None
     if not isinstance(meta, dict):
         raise InputError(prefix + ".json", f"expected a JSON object, got {type(meta).__name__}")
+    if meta.get("format", TREE_FORMAT) != TREE_FORMAT:     # another program's description
+        raise InputError(prefix + ".json", f"its format is {meta['format']!r}, not a tree's "
+                                           f"description ({TREE_FORMAT!r})")
     n = _json_count(meta, ("triangles",), config.MAX_PRIMITIVES, prefix + ".json")
     tris = None
     if triangles is not None:

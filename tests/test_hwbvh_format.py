@@ -429,3 +429,18 @@ def test_load_with_other_triangles_names_the_triangles_not_the_tree(tmp_path):
                                          r"tree was built over$"):
         hwbvh.load(tmp_path / "t", triangles=tris + np.float32(0.5))
     assert hwbvh.load(tmp_path / "t", triangles=tris).meta["triangles"] == 200
+
+
+def test_load_refuses_a_description_in_another_format(tmp_path):
+    """save would not replace such a file (it is not a tree's description); load does not read
+    it as one either. A description without a format name is read, as older ones are."""
+    tris = random_soup(50, seed=4)
+    hwbvh.save(hwbvh.build(tris), tmp_path / "t")
+    meta = json.loads((tmp_path / "t.json").read_text())
+    (tmp_path / "t.json").write_text(json.dumps(dict(meta, format="other")))
+    with pytest.raises(InputError, match=r"t\.json: its format is 'other', not a tree's "
+                                         r"description \('hwrt-bvh-1'\)$"):
+        hwbvh.load(tmp_path / "t")
+    del meta["format"]
+    (tmp_path / "t.json").write_text(json.dumps(meta))
+    assert hwbvh.load(tmp_path / "t").meta["triangles"] == 50
