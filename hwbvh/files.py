@@ -11,6 +11,7 @@ way. ``json_text`` is the one JSON encoder: strict JSON, with ``null`` for a num
 infinite or undefined.
 """
 import errno
+import fcntl
 import json
 import math
 import os
@@ -432,6 +433,47 @@ def appending(path, replace=False):
                     os.unlink(tmp)
                 except OSError:
                     pass
+
+
+@contextmanager
+def held_directory(out_dir, command):
+    """The directory ``out_dir``, made if missing, locked against other runs (an advisory lock
+    on the directory itself, which the system lets go when the process ends however it ends;
+    ``command``: the hwrt command a refusal names as the other run). A directory made here and
+    still empty at the end is removed again, before the lock is let go (a run that takes it
+    next then finds it gone, and makes it again). A file system that does not lock
+    directories (NFS) leaves the run unlocked."""
+    made, fd = [], None
+    try:
+        try:
+            for attempt in range(2):
+                make_directories(out_dir if os.path.isabs(out_dir) else
+                                 os.path.join(os.getcwd(), out_dir), made)
+                try:
+                    fd = os.open(out_dir, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+                    break
+                except FileNotFoundError:       # removed by a run that just ended: again
+                    if attempt:
+                        raise
+        except OSError as e:
+            raise InputError(out_dir, f"cannot be used as the output directory "
+                                      f"({e.strerror or e})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(out_dir, f"another hwrt {command} is writing into it: let it end, "
+                                      f"or choose another output directory") from None
+        except OSError:
+            pass                                # no locks here: the run goes on without one
+        yield
+    finally:
+        for d in reversed(made):                # innermost first; one that holds files stays
+            try:
+                os.rmdir(d)
+            except OSError:
+                break
+        if fd is not None:
+            os.close(fd)
 
 
 def make_directories(d, made):

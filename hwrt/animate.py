@@ -27,20 +27,18 @@ software. Producing a frame's geometry
 (physics, mesh files) and writing it are timed apart (``scene_seconds``, ``write_seconds``).
 """
 import csv
-import fcntl
 import hashlib
 import io
 import json
 import math
 import os
 import time
-from contextlib import contextmanager
 
 import numpy as np
 
 from hwbvh.files import figure_png
 from hwbvh.errors import InputError, ParameterError
-from hwbvh.files import check_output_dir, json_text, jsonable, make_directories, write_files
+from hwbvh.files import check_output_dir, held_directory, json_text, jsonable, write_files
 from hwbvh.cycle_model import PRESETS
 from .config import ADAPTIVE_THRESHOLD, BENCH_FRAMES, BENCH_QUICK_FRAMES, BENCH_QUICK_TRIANGLES
 from .progress import note_first_compile
@@ -457,48 +455,8 @@ def run(anim, strategy="rebuild", frames=None, out_dir=None, threshold=ADAPTIVE_
     # one spelling for the lock and the files: the directory the system resolves the path to
     # (abspath would cancel a ``..`` after a symbolic link against the link's name)
     resolved = os.path.realpath(out_dir)
-    with _held(resolved):
+    with held_directory(resolved, "animate"):
         return _run(*args[:3], resolved, *args[4:])
-
-
-@contextmanager
-def _held(out_dir):
-    """The directory ``out_dir``, made if missing, locked against other runs (an advisory lock
-    on the directory itself, which the system lets go when the process ends however it ends);
-    a directory made here and still empty at the end is removed again, before the lock is let
-    go (a run that takes it next then finds it gone, and makes it again). A file system that
-    does not lock directories (NFS) leaves the run unlocked."""
-    made, fd = [], None
-    try:
-        try:
-            for attempt in range(2):
-                make_directories(out_dir if os.path.isabs(out_dir) else
-                                 os.path.join(os.getcwd(), out_dir), made)
-                try:
-                    fd = os.open(out_dir, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-                    break
-                except FileNotFoundError:       # removed by a run that just ended: again
-                    if attempt:
-                        raise
-        except OSError as e:
-            raise InputError(out_dir, f"cannot be used as the output directory "
-                                      f"({e.strerror or e})") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise InputError(out_dir, "another hwrt animate is writing into it: let it end, or "
-                                      "choose another output directory") from None
-        except OSError:
-            pass                                # no locks here: the run goes on without one
-        yield
-    finally:
-        for d in reversed(made):                # innermost first; one that holds files stays
-            try:
-                os.rmdir(d)
-            except OSError:
-                break
-        if fd is not None:
-            os.close(fd)
 
 
 def _run(anim, strategy, frames, out_dir, updater, verify, progress, seed, inspect, accel,

@@ -476,9 +476,7 @@ def explore(meshes, grid=None, out_dir=None, *, scheduler=None, workers=None, us
     the CSV, JSON, summary and plots are written there (the summary names ``command``, the
     command line that made it, when given), in one set through ``commit(files)`` (the command
     line's also marks the run done). Everything is checked before any work."""
-    from hwbvh.calibration import fit_cost_model
-    from hwbvh.files import check_output_dir, json_text
-    from .cluster import dask_client, describe, run_cells
+    from hwbvh.files import check_output_dir, held_directory
 
     t0 = time.perf_counter()
     grid = DEFAULT_GRID if grid is None else grid
@@ -486,8 +484,24 @@ def explore(meshes, grid=None, out_dir=None, *, scheduler=None, workers=None, us
         raise ParameterError("grid", "is empty: give at least one KNOB=V1,V2,...")
     configs = [(config_of(p), name) for p, name in configurations(grid)]
     specs = mesh_specs(meshes)
-    if out_dir is not None:
-        check_output_dir(out_dir, OUTPUT_NAMES + (CELLS_NAME,), inputs=[s["path"] for s in specs])
+    if out_dir is None:
+        return _explored(t0, grid, configs, specs, out_dir, scheduler, workers, use_dask, fresh,
+                         progress, command, commit)
+    check_output_dir(out_dir, OUTPUT_NAMES + (CELLS_NAME,), inputs=[s["path"] for s in specs])
+    # held from before its saved cells are read until its last file is written: a second
+    # exploration into it meanwhile would share (or, with fresh, remove) this one's cells
+    with held_directory(os.path.realpath(out_dir), "explore"):
+        return _explored(t0, grid, configs, specs, out_dir, scheduler, workers, use_dask, fresh,
+                         progress, command, commit)
+
+
+def _explored(t0, grid, configs, specs, out_dir, scheduler, workers, use_dask, fresh, progress,
+              command, commit):
+    """``explore`` once its arguments are checked (and its output directory held)."""
+    from hwbvh.calibration import fit_cost_model
+    from hwbvh.files import json_text
+    from .cluster import dask_client, describe, run_cells
+
     fingerprint = model_fingerprint()
     cells = _CellStore(Path(out_dir) / CELLS_NAME, fresh) if out_dir is not None else None
     done, todo = {}, []

@@ -643,9 +643,9 @@ def test_unknown_strategy_and_bad_output_exit_2_before_any_work(tmp_path, capsys
 def test_a_second_run_into_a_directory_in_use_is_refused_and_touches_nothing(tmp_path, capsys):
     """Two runs into one directory would each replace the other's frames and state; the
     second is refused while the first holds it (here: the test holds it, as a run does)."""
-    from hwrt.animate import _held
+    from hwbvh.files import held_directory
     out = tmp_path / "run"
-    with _held(out):
+    with held_directory(out, "animate"):
         rc, _, err = _run_cli(capsys, "animate", "cloth", "--triangles", 200, "--frames", 1,
                               "--width", 8, "--height", 8, "--spp", 1, "-o", out)
         assert rc == 2 and "another hwrt animate is writing into it" in err

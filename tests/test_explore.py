@@ -365,3 +365,19 @@ def test_a_run_whose_workers_are_all_lost_says_it_waits_for_one():
             time.sleep(0.3)                         # said once, not at every check
     assert lines == [f"hwrt: the Dask scheduler at {cluster.scheduler_address} has no workers "
                      f"left; waiting for one to join (the run goes on when one does)"]
+
+
+def test_a_second_exploration_into_a_directory_in_use_is_refused(tmp_path):
+    """Two explorations into one directory would share (or, with fresh, remove) each other's
+    saved cells: the directory is held while one runs, as an animation's is."""
+    from hwbvh.errors import InputError
+    from hwbvh.files import held_directory
+    mesh = write_mesh(tmp_path / "soup.ply", random_soup(200, seed=2))
+    out = tmp_path / "out"
+    with held_directory(str(out), "explore"):             # another run, meanwhile
+        with pytest.raises(InputError, match="another hwrt explore is writing into it"):
+            ex.explore([mesh], {"w": [2]}, out, use_dask=False, progress=False)
+        assert os.listdir(out) == []
+    assert not out.exists()                                # made for it, left empty: removed
+    result = ex.explore([mesh], {"w": [2]}, out, use_dask=False, progress=False)
+    assert result["computed"] == result["cells"] > 0 and (out / "explore.json").exists()
