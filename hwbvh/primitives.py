@@ -66,12 +66,13 @@ def _ply_header(path):
 
 
 @njit(cache=True)
-def _ply_ascii_bad_face(data, skip, n_faces):
-    """The first face line of an ASCII PLY body ``data`` (bytes after the header, ``skip``
-    lines of other elements first) whose count is not its number of indices, or whose count
-    or indices are not non-negative integers (as a reader of numbers takes them: "+3" and
-    "3.0" are 3): (face, what, indices found, count given), what 0: another number of
-    indices, 1: a count that is not such an integer, 2: an index that is not one, 3: the file
+def _ascii_bad_face(data, skip, n_faces, more_ok):
+    """The first face line of ASCII mesh text ``data`` (``skip`` lines of other elements
+    first; a line a face, its count then its indices) whose count is not its number of
+    indices (with ``more_ok``, fewer only: an OFF face may carry a colour after them), or whose
+    count or indices are not non-negative integers (as a reader of numbers takes them: "+3"
+    and "3.0" are 3): (face, what, indices found, count given), what 0: another number of
+    indices, 1: a count that is not such an integer, 2: an index that is not one, 3: the text
     ends before the face; (-1, 0, 0, 0) for none."""
     n = data.shape[0]
     pos = 0
@@ -110,7 +111,7 @@ def _ply_ascii_bad_face(data, skip, n_faces):
             integer = integer and digits > 0
             if tokens == 0:
                 count = value if integer else -1
-            elif not integer:
+            elif tokens <= count and not integer:
                 bad_index = True
             tokens += 1
         pos += 1
@@ -118,7 +119,7 @@ def _ply_ascii_bad_face(data, skip, n_faces):
             return i, 1, 0, 0
         if bad_index:
             return i, 2, 0, 0
-        if tokens != count + 1:
+        if tokens < count + 1 or (tokens > count + 1 and not more_ok):
             return i, 0, tokens - 1, count
     return -1, 0, 0, 0
 
@@ -148,7 +149,7 @@ def _ply_face_problem(path, header):
             return None
         with open(path, "rb") as f:
             body = np.frombuffer(f.read(), np.uint8)[length:]
-        face, what, found, given = _ply_ascii_bad_face(body, skip, count)
+        face, what, found, given = _ascii_bad_face(body, skip, count, False)
         if face < 0:
             return None
         if what == 3:
@@ -163,29 +164,30 @@ def _ply_face_problem(path, header):
 def _off_face_problem(path):
     """Why the faces of the OFF file ``path`` are not what its counts say, which trimesh reads
     without a word (it takes the face lines there are, and a face line's indices up to its
-    count): fewer face lines than the header declares, or a face line with fewer indices than
-    its count. Lines as trimesh sees them (comments and blank lines dropped, so a face is named
-    by its place, not its line). None where the faces are sound, or where trimesh cannot read
-    the file (its own error says so)."""
+    count): fewer face lines than the header declares, a face line with fewer indices than
+    its count, or a count or index that is not a non-negative integer. Lines as trimesh sees
+    them (comments and blank lines dropped, so a face is named by its place, not its line).
+    None where the faces are sound, or where trimesh cannot read the file (its own error says
+    so)."""
     from trimesh.util import comment_strip, decode_text
     try:
         with open(path, "rb") as f:
             text = comment_strip(decode_text(f.read())).strip()
         parts = re.split("(COFF|OFF)", text, maxsplit=1)
-        lines = [line for line in (x.strip() for x in parts[2].splitlines()) if line]
+        lines = list(filter(None, map(str.strip, parts[2].splitlines())))
         n_vertices, n_faces = (int(c) for c in lines[0].split()[:2])
     except (OSError, ValueError, IndexError, UnicodeError):
         return None
     faces = lines[n_vertices + 1:n_vertices + 1 + n_faces]
     if len(faces) < n_faces:
         return f"its header declares {n_faces} faces, but it holds {len(faces)}"
-    for k, line in enumerate(faces, 1):
-        words = line.split()
-        if not words[0].isdigit():
-            return f"face {k}: its count {words[0]!r} is not a non-negative integer"
-        if len(words) < int(words[0]) + 1:
-            return f"face {k}: its count says {words[0]} indices, the line holds {len(words) - 1}"
-    return None
+    data = np.frombuffer(("\n".join(faces) + "\n").encode("ascii", "replace"), np.uint8)
+    face, what, found, given = _ascii_bad_face(data, 0, len(faces), True)
+    if face < 0:
+        return None
+    return (f"face {face + 1}: its count says {given} indices, the line holds {found}",
+            f"face {face + 1}: its count is not a non-negative integer",
+            f"face {face + 1}: an index is not a non-negative integer")[what]
 
 
 # OBJ files as trimesh reads them. A line ending in a backslash continues on the next. Vertices,
@@ -588,7 +590,7 @@ def within_bound(a, bound=MAX_COORDINATE):
 
 
 def _native_float(t):
-    """``t`` (floats, within bounds) as float32 or float64 in this machine's byte order, the
+    """``t`` (floats, within bounds) as float32 or float64 in native byte order, the
     types the kernels are compiled for: half precision widened (exactly), a foreign byte order
     swapped, anything wider than float64 rounded to it."""
     want = np.dtype(np.float32 if t.dtype.itemsize <= 4 else np.float64)
@@ -726,10 +728,10 @@ def _gltf_buffer_candidates(uri):
 
 
 def _gltf_buffers(path, doc):
-    """(uri, declared byteLength or None, path read or None) of each buffer file a .gltf
-    document names, found as trimesh finds it: the first of ``_gltf_buffer_candidates`` that
-    lies under the file's directory and exists (trimesh reads nothing outside it). ``data:``
-    URIs are not files."""
+    """(uri, declared byteLength or None, path read or None, the candidate names under the
+    file's directory) of each buffer file a .gltf document names, found as trimesh finds it:
+    the first of ``_gltf_buffer_candidates`` that lies under the file's directory and exists
+    (trimesh reads nothing outside it). ``data:`` URIs are not files."""
     from pathlib import Path
     buffers = doc.get("buffers") if isinstance(doc, dict) else None
     root = Path(os.path.dirname(os.path.abspath(path))).resolve()
@@ -739,16 +741,16 @@ def _gltf_buffers(path, doc):
             continue
         size = b.get("byteLength")
         size = size if isinstance(size, int) and not isinstance(size, bool) else None
-        where = None
+        inside = []
         for name in _gltf_buffer_candidates(uri):
             try:
                 p = (root / name).resolve()
             except (OSError, ValueError, RuntimeError):
                 continue
-            if p.is_relative_to(root) and os.path.isfile(p):    # isfile: False on any error
-                where = str(p)
-                break
-        yield uri, size, where
+            if name and p.is_relative_to(root):
+                inside.append((name, p))
+        where = next((str(p) for _, p in inside if os.path.isfile(p)), None)   # False on errors
+        yield uri, size, where, [name for name, _ in inside]
 
 
 def gltf_buffer_files(path):
@@ -758,24 +760,20 @@ def gltf_buffer_files(path):
     if not str(path).lower().endswith(".gltf") or not os.path.isfile(path):
         return []
     doc, _ = _gltf_document(path)
-    return [where for _, _, where in _gltf_buffers(path, doc) if where]
+    return [where for _, _, where, _ in _gltf_buffers(path, doc) if where]
 
 
 def _gltf_problem(path):
     """Why the .gltf file ``path`` cannot be read (not JSON; a buffer file it names missing,
     outside its directory, or shorter than the file says), or None; trimesh's own errors name
     neither the file nor the problem."""
-    from pathlib import Path
     from urllib.parse import unquote
     doc, problem = _gltf_document(path)
     if doc is None:
         return problem
     here = os.path.dirname(path)
-    root = Path(os.path.dirname(os.path.abspath(path))).resolve()
-    for uri, size, where in _gltf_buffers(path, doc):
+    for uri, size, where, inside in _gltf_buffers(path, doc):
         if where is None:
-            inside = [n for n in _gltf_buffer_candidates(uri)
-                      if n and (root / n).resolve().is_relative_to(root)]
             if not inside or inside[0] != uri.strip():
                 nor = f" (nor is {os.path.join(here, inside[-1])} there)" if inside else ""
                 return (f"its buffer {uri} lies outside the file's directory, the only place "
