@@ -10,6 +10,7 @@ before importing the rest (NumPy, Numba, the commands), so that a Ctrl-C at any 
 the few tens of milliseconds of Python's start-up, Python's own handling applies).
 """
 import argparse
+import contextlib
 import errno
 import os
 import re
@@ -961,7 +962,7 @@ def _bench_options(args):
 
 
 def cmd_bench(args):
-    from hwbvh.files import check_output_dir
+    from hwbvh.files import check_output_dir, held_directory
     from . import study
     _bench_options(args)
     if args.what in BENCH_WRITES_OUT_DIR:
@@ -970,7 +971,12 @@ def cmd_bench(args):
         check_output_dir(args.out_dir, [f"{args.what}.md", f"{args.what}.json"], inputs=args.meshes)
     run, human = _bench_run(args.what)
     commit = partial(_commit, args)
-    result = run(args, commit=commit)
+    # a study keeps its cells in its output directory and resumes from them: a second run into
+    # it meanwhile is refused, where the two would append to, or with --fresh replace, each
+    # other's cells
+    with held_directory(os.path.realpath(args.out_dir), f"bench {args.what}") \
+            if args.what in BENCH_WRITES_OUT_DIR else contextlib.nullcontext():
+        result = run(args, commit=commit)
     if args.what in BENCH_REPORTS and args.out_dir:
         result["files"] = _write_report(args, result, human, commit)
     _emit(args, result, partial(_with_files_line, human))

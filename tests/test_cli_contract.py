@@ -380,6 +380,22 @@ def test_bench_tti_honours_size_and_writes_strict_json(tmp_path, sphere_ply):
             assert s[key] is None or s[key] >= 0
 
 
+
+def test_bench_study_into_a_directory_in_use_is_refused_and_touches_nothing(tmp_path, sphere_ply):
+    """A study resumes from the cells in its output directory: a second run into it while the
+    first holds it (here the test holds it, as a run does) is refused before any cell."""
+    from hwbvh.files import held_directory
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    (out_dir / "tti.jsonl").write_text("")
+    with held_directory(str(out_dir), "bench tti"):
+        r = run("bench", "tti", sphere_ply, "--quick", "--width", 8, "--height", 8,
+                "--out-dir", out_dir)
+    assert r.returncode == 2
+    assert "another hwrt bench tti is writing into it" in one_line_error(r.stderr)
+    assert sorted(p.name for p in out_dir.iterdir()) == ["tti.jsonl"]
+    assert (out_dir / "tti.jsonl").read_text() == ""
+
 # ---------------------------------------------------------------------------------------
 # 5 and 10. scene files: negative light, unknown keys
 # ---------------------------------------------------------------------------------------
