@@ -468,11 +468,12 @@ def _verifiable_geometry(name):
     """``_scene_geometry``, refused (naming the scene) where the float32 units cannot trace it
     whole: too large or too small, as ``render`` refuses it, for the rays the sets make."""
     from raytracer.render import check_float32_reach_from
-    from traversal.raysets import points_beyond
+    from traversal.raysets import check_extent, points_beyond
 
     geometry = _scene_geometry(name)
     tris = geometry[1]
     if len(tris):
+        check_extent(tris, name)
         check_float32_reach_from(tris, points_beyond(tris))
     return geometry
 

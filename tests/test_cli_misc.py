@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hwbvh.errors import InputError
 from hwbvh.parallel import usable_cores
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -149,6 +150,23 @@ def test_a_mesh_whose_vertices_all_coincide_is_refused_naming_the_file(tmp_path,
     out = tmp_path / "o.exr"
     _refused(_hwrt("render", p, "-o", out, "--width", 8, "--height", 6), out,
              f"{p}: its triangles' vertices all coincide; nothing to frame")
+
+
+@pytest.mark.parametrize("kind", ["primary", "shadow"])
+def test_verify_refuses_a_scene_whose_vertices_all_coincide_naming_it(tmp_path, kind):
+    """Every ray set frames or spans the triangles' box: without extent it has no view (NaN
+    directions, which would verify as agreeing misses)."""
+    scene = tmp_path / "point.json"
+    scene.write_text(json.dumps({
+        "camera": {"eye": [0, 1.6, 4.2], "target": [0, 0.4, 0]},
+        "materials": {"red": {"type": "plastic"}},
+        "shapes": [{"type": "triangles", "material": "red", "data": [[[1, 1, 1]] * 3] * 2}]}))
+    out = tmp_path / "m.npz"
+    _refused(_hwrt("verify", scene, "--rays", 100, "--kind", kind, "--mismatches", out), out,
+             f"{scene}: its triangles' vertices all coincide; nothing to frame")
+    from traversal.raysets import primary
+    with pytest.raises(InputError, match="^tris: its triangles' vertices all coincide"):
+        primary(np.ones((1, 3, 3), np.float32), 10)
 
 
 @pytest.mark.parametrize("face, problem", [

@@ -6,7 +6,7 @@ no first ray hits can give fewer (``len`` of the result says how many).
 """
 import numpy as np
 
-from hwbvh.errors import ParameterError, is_integer
+from hwbvh.errors import InputError, ParameterError, is_integer
 from hwbvh.primitives import checked_coordinates
 from .camera import directions_through, frame_bounds, look_at_basis, tile_pixels
 from .config import HIT_GROWTH, HIT_ROUNDS, MAKE_CHUNK, MAX_RAYS
@@ -15,7 +15,8 @@ from .offset import offset_origins, points_on_planes
 
 def checked_set_arguments(tris, n, seed=0, dtype=np.float64):
     """A ray set's arguments, refused with a ParameterError naming the argument (an
-    InputError naming ``tris`` for a coordinate NaN, infinite or beyond the builder's bound):
+    InputError naming ``tris`` for a coordinate NaN, infinite or beyond the builder's bound, or
+    for triangles whose vertices all coincide):
     ``tris`` (m, 3, 3) real coordinates (m >= 1), ``n`` an integer of rays in
     1..``MAX_RAYS``, ``seed`` a non-negative integer, ``dtype`` float32 or float64. Returns
     the triangles as an array."""
@@ -25,6 +26,7 @@ def checked_set_arguments(tris, n, seed=0, dtype=np.float64):
     if t.ndim != 3 or t.shape[1:] != (3, 3) or len(t) == 0:
         raise ParameterError("tris", f"must be (m, 3, 3) with m >= 1, got shape {t.shape}")
     t = checked_coordinates(t, "tris")
+    check_extent(t, "tris")
     if not is_integer(n) or not 1 <= n <= MAX_RAYS:
         raise ParameterError("n", f"must be an integer from 1 to {MAX_RAYS} (rays), got {n!r}")
     if not is_integer(seed) or seed < 0:
@@ -36,6 +38,14 @@ def checked_set_arguments(tris, n, seed=0, dtype=np.float64):
     if not known:
         raise ParameterError("dtype", f"must be float32 or float64, got {dtype!r}")
     return t
+
+
+def check_extent(tris, source):
+    """InputError naming ``source`` when the triangles' vertices all coincide: every set frames
+    or spans the triangles' box, and a box without extent has no view or span."""
+    lo, hi = bounds_of(tris)
+    if not (hi > lo).any():
+        raise InputError(source, "its triangles' vertices all coincide; nothing to frame")
 
 
 def bounds_of(tris):
