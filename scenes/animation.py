@@ -241,6 +241,7 @@ def expand_pattern(pattern, source=None):
     """The frame files of a printf or glob pattern, in frame order. Raises NoFrameFiles naming
     the pattern when nothing matches or it cannot number frames, and InputError naming the
     missing file when a frame in the middle of the numbered sequence is absent."""
+    given = source is not None
     source = source or pattern
     pattern = os.fspath(pattern)
     if len(FRAME_FIELD.findall(pattern)) > 1:
@@ -266,8 +267,10 @@ def expand_pattern(pattern, source=None):
         for k in range(nums[0], nums[-1] + 1):
             f = _with_frame(pattern, m, k)
             if not os.path.isfile(f):
-                raise InputError(f, f"missing frame {k} of the sequence {nums[0]}..{nums[-1]} "
-                                    f"({pattern})")
+                raise InputError(source, f"missing frame {k}: {f} (of the sequence "
+                                         f"{nums[0]}..{nums[-1]})") if given else \
+                    InputError(f, f"missing frame {k} of the sequence {nums[0]}..{nums[-1]} "
+                                  f"({pattern})")
             files.append(f)
         return files
     files = [f for f in glob.glob(pattern) if os.path.isfile(f)]
@@ -276,13 +279,19 @@ def expand_pattern(pattern, source=None):
     numbered = [(re.findall(r"\d+", os.path.basename(f)), f) for f in files]
     if all(n for n, _ in numbered):
         keyed = sorted((int(n[-1]), n[-1], f) for n, f in numbered)
-        for (a, sa, fa), (b, _, _) in zip(keyed, keyed[1:]):
+        for (a, sa, fa), (b, _, fb) in zip(keyed, keyed[1:]):
+            if b == a:
+                raise InputError(source, f"two files for frame {a}: {fa} and {fb} (a pattern "
+                                         f"that matches one file a frame, such as a printf "
+                                         f"%04d field, tells them apart)")
             if b != a + 1:
                 name = os.path.basename(fa)
                 i = name.rfind(sa)
-                missing = name[:i] + str(a + 1).zfill(len(sa)) + name[i + len(sa):]
-                raise InputError(os.path.join(os.path.dirname(fa), missing),
-                                 f"missing frame {a + 1} of the sequence matching {pattern!r}")
+                missing = os.path.join(os.path.dirname(fa),
+                                       name[:i] + str(a + 1).zfill(len(sa)) + name[i + len(sa):])
+                raise InputError(source, f"missing frame {a + 1}: {missing}") if given else \
+                    InputError(missing, f"missing frame {a + 1} of the sequence matching "
+                                        f"{pattern!r}")
         return [f for _, _, f in keyed]
     return sorted(files)
 
@@ -473,23 +482,35 @@ class RigidMotion:
 
 
 class FrameSequence:
-    """A shape read from one mesh file per frame."""
+    """A shape read from one mesh file per frame. ``where``: the scene file and key that name
+    the sequence (None for a pattern given alone), which a frame file's error then starts
+    with, as the first frame's does."""
 
-    def __init__(self, files, smooth=False):
+    def __init__(self, files, smooth=False, where=None):
         self.files = files
         self.smooth = smooth
+        self.where = where
+
+    def _load(self, f):
+        try:
+            return load_frame_mesh(f, self.smooth)
+        except InputError as e:
+            if self.where is None:
+                raise
+            source, key = self.where
+            raise InputError(source, f"key '{key}': {e}") from None
 
     def check(self, frames):
         """Load the first ``frames`` files (each is refused on its own); returns the largest
         coordinate magnitude of each."""
-        return np.array([float(np.abs(load_frame_mesh(f, self.smooth)[0]).max(initial=0))
+        return np.array([float(np.abs(self._load(f)[0]).max(initial=0))
                          for f in self.files[:frames]])
 
     def __call__(self, i, t):
         if i >= len(self.files):
             raise InputError(self.files[-1], f"frame {i} asked for, but the sequence has "
                                              f"{len(self.files)} frames")
-        return load_frame_mesh(self.files[i], self.smooth)
+        return self._load(self.files[i])
 
 
 def _check_camera(source, times, eye, target, up):
@@ -560,7 +581,8 @@ def from_scene_dict(d, source=None, fps=None):
             if not isinstance(smooth, (bool, np.bool_)):
                 _fail(source, f"{path}.smooth", f"expected true or false, got {written(smooth)}")
             full = pat if os.path.isabs(pat) else os.path.join(scene_dir, pat)
-            files = expand_pattern(full, f"{source}: key '{path}.pattern'")
+            alone = os.path.abspath(source) == full     # a pattern given alone (pattern_scene)
+            files = expand_pattern(full, None if alone else f"{source}: key '{path}.pattern'")
             inputs += files
             if max_frames is None or len(files) < max_frames:
                 max_frames, shortest = len(files), f"{path}.pattern"
@@ -575,7 +597,9 @@ def from_scene_dict(d, source=None, fps=None):
                     raise
                 raise InputError(e.source, f"key '{path}.pattern'{e.problem[len(as_mesh):]}") \
                     from None
-            parts.append(Part(c.triangles, c.normals, int(c.material[0]), FrameSequence(files, smooth)))
+            parts.append(Part(c.triangles, c.normals, int(c.material[0]),
+                              FrameSequence(files, smooth,
+                                            None if alone else (source, f"{path}.pattern"))))
         else:
             keys = sh.get("keyframes")
             plain = {k: v for k, v in sh.items() if k != "keyframes"}
@@ -593,8 +617,9 @@ def from_scene_dict(d, source=None, fps=None):
     if "camera" in anim:
         camera = _camera_fn(camera_track(source, anim["camera"], "animation.camera", base.camera),
                             base.camera, source)
-    f = fps if fps is not None else _number(source, anim.get("fps", DEFAULT_FPS), "animation.fps",
-                                            lo=MIN_FPS, hi=MAX_FPS)
+    # the file's value is checked even where --fps replaces it, as every other key is
+    f = _number(source, anim.get("fps", DEFAULT_FPS), "animation.fps", lo=MIN_FPS, hi=MAX_FPS)
+    f = fps if fps is not None else f
     frames_key = None
     if frames is None:
         # a frame count given later (--frames) replaces this one; check() judges the final one

@@ -425,6 +425,45 @@ def test_frame_sequences_bad_inputs(tmp_path, capsys):
     assert rc == 2 and "only 3" in err
 
 
+
+def test_a_glob_with_two_files_for_one_frame_number_names_both(tmp_path, capsys):
+    """A repeated number is not a gap: the error names the two files, not a "missing" one."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for name in ("a_0000.ply", "a_0001.ply", "b_0000.ply"):
+        _ply(frames / name, sphere(4, 8))
+    rc, _, err = _run_cli(capsys, "animate", str(frames / "*.ply"), "-o", tmp_path / "out")
+    assert rc == 2 and "missing" not in err
+    assert f"two files for frame 0: {frames / 'a_0000.ply'} and {frames / 'b_0000.ply'}" in err
+
+
+@pytest.mark.parametrize("pattern", ["f_%04d.ply", "f_*.ply"])
+def test_a_frame_file_of_a_scene_is_refused_naming_the_scene_key(tmp_path, capsys, pattern):
+    """Any frame's fault, not only the first's, names the scene file and the key whose pattern
+    holds the frame, then the frame file."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(4):
+        _ply(frames / f"f_{i:04d}.ply", sphere(4, 8) + i)
+    (frames / "f_0002.ply").write_bytes(b"ply\nformat ascii 1.0\n")
+    p = _scene_file(tmp_path, [{"type": "frames", "pattern": f"frames/{pattern}",
+                                "material": "white"}])
+    rc, _, err = _run_cli(capsys, "animate", p, "-o", tmp_path / "out")
+    assert rc == 2 and err.startswith(f"hwrt: error: {p}: key 'shapes[0].pattern': ")
+    assert "f_0002.ply" in err and err.count("\n") == 1
+    (frames / "f_0002.ply").unlink()
+    rc, _, err = _run_cli(capsys, "animate", p, "-o", tmp_path / "out")
+    assert rc == 2 and err.startswith(f"hwrt: error: {p}: key 'shapes[0].pattern': missing "
+                                      f"frame 2: ") and "f_0002.ply" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_scene_files_fps_is_checked_where_the_command_line_replaces_it(tmp_path, capsys):
+    p = _scene_file(tmp_path, [BOX], {"fps": "abc"})
+    rc, _, err = _run_cli(capsys, "animate", p, "--fps", 10, "--frames", 1, "-o", tmp_path / "o")
+    assert rc == 2 and "key 'animation.fps': expected a finite number, got 'abc'" in err
+    assert not (tmp_path / "o").exists()
+
 def test_frame_pattern_with_changing_triangle_count_rebuilds_and_writes_everything(tmp_path, capsys):
     frames = tmp_path / "frames"
     frames.mkdir()
