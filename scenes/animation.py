@@ -52,8 +52,8 @@ from .config import (DEFAULT_ANIMATION_SECONDS, DEFAULT_FPS, GENERATED_TRIANGLES
                      MIN_FPS)
 from .loader import (FOV_RANGE, FRAME_FIELD, MAX_FRAMES, SCENE_KEYS, Ctx, check_scale,
                      compile_scene, finite, flat_normals, is_pattern, load_scene, mesh_scene,
-                     named_after_file, scene_directory, scene_file, smooth_normals, spec_path,
-                     vector_ok, with_frame, written)
+                     key_text, named_after_file, scene_directory, scene_file, smooth_normals,
+                     spec_path, vector_ok, with_frame, written)
 
 KEYFRAME_KEYS = ("time", "translate", "rotate", "scale")
 CAMERA_KEY_KEYS = ("time", "eye", "target", "up", "fov")
@@ -89,7 +89,7 @@ def _check_keys(source, obj, allowed, path):
         _fail(source, path, "expected an object")
     for k in obj:
         if k not in allowed:
-            _fail(source, f"{path}.{k}", f"unknown key (known keys: {', '.join(allowed)})")
+            _fail(source, f"{path}.{key_text(k)}", f"unknown key (known keys: {', '.join(allowed)})")
 
 
 def _number(source, v, path, lo=None, positive=False, hi=None):

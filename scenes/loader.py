@@ -58,6 +58,9 @@ SHAPE_KEY_HINTS = {"frames": 'a shape of "type": "frames" with a "pattern"'}
 # float64, so no sum overflows there; a pixel brighter than float32 holds (a light of such
 # values close to a surface) is +inf in the image, and the renderer counts such pixels.
 MAX_RADIANCE = float(np.finfo(np.float32).max)
+# Characters of a key that an error line shows: the line names the key, and a key (a material's
+# name) may be as long as the file.
+KEY_TEXT_LIMIT = 60
 
 # The largest film: a render keeps about 100 bytes per pixel (the film in float64, the image
 # and its depth, normal and primitive layers, a sample pass' jitter), so 2^25 pixels (8192 x
@@ -692,9 +695,22 @@ class CompiledScene:
     faces: np.ndarray = None     # (n, 3) int32
 
 
+def key_text(key, limit=KEY_TEXT_LIMIT):
+    """A key of a scene file as a message names it, cut short: an error is one line, and a key
+    (a material's name) may be as long as the file."""
+    text = str(key)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _listed(names, most=12):
+    """Names for a message (``key_text`` each), the first ``most`` of them and how many more."""
+    shown_names = ", ".join(key_text(n) for n in names[:most])
+    return shown_names + (f" and {len(names) - most} more" if len(names) > most else "")
+
+
 def _at(path, key):
     """The key ``key`` of the object at ``path`` ("" for the scene itself), as messages name it."""
-    return f"{path}.{key}" if path else str(key)
+    return f"{path}.{key_text(key)}" if path else key_text(key)
 
 
 class Ctx:
@@ -712,7 +728,7 @@ class Ctx:
         (or ``hints[key]``, for a key that belongs elsewhere)."""
         for key in obj:
             if key not in allowed:
-                where = _at(path, key) if path else str(key)
+                where = _at(path, key)
                 close = difflib.get_close_matches(str(key), [a for a in allowed if a[0] != "_"], 1)
                 known = "known keys: " + ", ".join(a for a in allowed if a[0] != "_")
                 hint = (f"did you mean {hints[key]}? {known}" if key in (hints or {}) else
@@ -1157,7 +1173,7 @@ def compile_scene(d, source=None, first_shape=0):
     kr = np.zeros((len(names), 3)); ior = np.zeros(len(names))
     for k, name in enumerate(names):
         m = mats[name]
-        p = f"materials.{name}"
+        p = _at("materials", name)
         if not isinstance(m, dict):
             ctx.fail(p, f"expected an object, got {written(m)}")
         if m.get("type") not in MATERIAL_TYPES:
@@ -1189,9 +1205,10 @@ def compile_scene(d, source=None, first_shape=0):
             _refuse_scene_size(ctx, i, total)
         mname = sh.get("material")
         if "material" not in sh:
-            ctx.fail(f"shapes[{i}].material", f"missing (defined: {', '.join(names)})")
+            ctx.fail(f"shapes[{i}].material", f"missing (defined: {_listed(names)})")
         if not isinstance(mname, str) or mname not in mats:
-            ctx.fail(f"shapes[{i}].material", f"unknown material {written(mname)} (defined: {', '.join(names)})")
+            ctx.fail(f"shapes[{i}].material", f"unknown material {written(mname)} "
+                                              f"(defined: {_listed(names)})")
         all_t.append(tris)
         all_n.append(normals)
         all_m.append(np.full(len(tris), names.index(mname), np.int32))

@@ -959,3 +959,29 @@ def test_a_scene_file_that_starts_with_a_byte_order_mark_reads_as_without(tmp_pa
                     'corners = [[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]]\n',
                     encoding="utf-8-sig")
     assert len(compile_scene(load_scene(str(toml))).triangles) == 2
+
+
+def test_an_error_line_stays_short_however_long_the_files_keys_and_names(tmp_path, capsys,
+                                                                          monkeypatch):
+    """A key or a material name may be as long as the file, and a scene may define thousands
+    of materials: the one error line names them cut short."""
+    from scenes.loader import KEY_TEXT_LIMIT
+    long_key = "k" * 100_000
+    d = scene_dict()
+    d["camera"][long_key] = 1
+    line = refused(capsys, tmp_path, monkeypatch, "render", write_scene(tmp_path, d))
+    assert "key 'camera.kkk" in line and "...': unknown key (known keys: type, eye" in line
+    assert len(line) < 2 * KEY_TEXT_LIMIT + 100 + len(str(tmp_path))
+    d = scene_dict(materials={long_key: {"type": "diffuse", "bogus": 1}})
+    line = refused(capsys, tmp_path, monkeypatch, "render", write_scene(tmp_path, d))
+    assert "key 'materials.kkk" in line and "....bogus': unknown key" in line
+    d = scene_dict(materials={f"mat{i}": {"type": "diffuse"} for i in range(20_000)})
+    line = refused(capsys, tmp_path, monkeypatch, "render", write_scene(tmp_path, d))
+    assert line.endswith("key 'shapes[0].material': unknown material 'white' (defined: mat0, "
+                         "mat1, mat2, mat3, mat4, mat5, mat6, mat7, mat8, mat9, mat10, mat11 and "
+                         "19988 more)")
+    d = scene_dict()
+    d["animation"] = {long_key: 1}
+    line = refused(capsys, tmp_path, monkeypatch, "animate", write_scene(tmp_path, d), "-o",
+                   tmp_path / "o")
+    assert "key 'animation.kkk" in line and len(line) < 400 + len(str(tmp_path))
