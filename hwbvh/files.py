@@ -183,6 +183,24 @@ class OutputPathError(InputError):
     value)."""
 
 
+class NameTooLongError(OutputPathError):
+    """An output path with a name longer than its file system takes."""
+
+
+@contextmanager
+def named_after(what, given, remedy):
+    """Checks of an output that, unless a path was ``given``, is named after ``what`` (a
+    scene's name): a name too long for its file system is then said to come from ``what``,
+    with the ``remedy`` (the option that names the output)."""
+    try:
+        yield
+    except NameTooLongError as e:
+        if given is not None:
+            raise
+        raise NameTooLongError(e.source, f"{e.problem}: the name is made from {what}; "
+                                         f"{remedy}") from None
+
+
 def check_outputs(outputs, inputs=()):
     """Fail before any work unless every path in ``outputs`` can be written and none of them
     is one of ``inputs`` (or one another). Paths are reported as given. Raises
@@ -229,7 +247,7 @@ def check_outputs(outputs, inputs=()):
             raise OutputPathError(out, problems[key])
         long = _long_name(out, d)
         if long:
-            raise OutputPathError(out, long)
+            raise NameTooLongError(out, long)
 
 
 def check_output_dir(directory, names=(), inputs=()):

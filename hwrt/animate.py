@@ -38,7 +38,8 @@ import numpy as np
 
 from hwbvh.files import figure_png
 from hwbvh.errors import InputError, ParameterError
-from hwbvh.files import check_output_dir, held_directory, json_text, jsonable, write_files
+from hwbvh.files import (check_output_dir, held_directory, json_text, jsonable, named_after,
+                         write_files)
 from hwbvh.cycle_model import PRESETS
 from .config import ADAPTIVE_THRESHOLD, BENCH_FRAMES, BENCH_QUICK_FRAMES, BENCH_QUICK_TRIANGLES
 from .progress import note_first_compile
@@ -616,9 +617,11 @@ def cmd_animate(args, commit=write_files):
 
     threshold = ADAPTIVE_THRESHOLD if args.threshold is None else args.threshold
     try:
-        result = run(anim, args.strategy, frames, out, threshold=threshold, verify=args.verify,
-                     progress=lambda i: bars[0].update(1), seed=args.seed, accel=accel,
-                     on_start=start, commit=commit, fresh=args.fresh)
+        with named_after("the scene's name", args.output, "give -o to name the directory"):
+            result = run(anim, args.strategy, frames, out, threshold=threshold,
+                         verify=args.verify, progress=lambda i: bars[0].update(1),
+                         seed=args.seed, accel=accel, on_start=start, commit=commit,
+                         fresh=args.fresh)
     finally:
         for bar in bars:
             bar.close()

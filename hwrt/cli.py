@@ -616,7 +616,7 @@ def cmd_explore(args):
 def cmd_render(args):
     import time
     from hwbvh.errors import InputError, ParameterError
-    from hwbvh.files import OutputPathError, check_outputs
+    from hwbvh.files import OutputPathError, check_outputs, named_after
     from raytracer.render import (builder_and_traversal, check_float32_reach, make_tracer,
                                    render, simulated_ready_seconds, verified_render, warm_up)
     from raytracer.output import exr_writer, png_writer
@@ -654,7 +654,8 @@ def cmd_render(args):
                                         f"the EXR)")
     png = os.path.splitext(out)[0] + ".png" if args.png else None
     try:
-        check_outputs([out, png], inputs=scene_inputs(args.scene))
+        with named_after("the scene's name", args.output, "give -o to name the image"):
+            check_outputs([out, png], inputs=scene_inputs(args.scene))
     except OutputPathError as e:
         if png is None or e.source != png:
             raise

@@ -1802,6 +1802,29 @@ def test_an_output_name_longer_than_the_file_system_takes_is_refused_before_the_
     assert os.listdir(tmp_path) == ["tetra.obj"]
 
 
+
+@pytest.mark.parametrize("command, output", [("render", "renders/{name}.exr"),
+                                             ("animate", "renders/animate-{name}-rebuild")])
+def test_a_scene_name_too_long_for_the_default_output_points_to_o(tmp_path, capsys,
+                                                                  monkeypatch, command, output):
+    """The default output is named after the scene: a name too long for the file system is
+    refused before the work, as made from the scene's name, with -o as the way out."""
+    monkeypatch.chdir(tmp_path)
+    name = "n" * 300
+    scene = tmp_path / "long.json"
+    scene.write_text(json.dumps({
+        "name": name, "camera": {"eye": [0, 1, 4], "target": [0, 0, 0]},
+        "materials": {"w": {"type": "diffuse"}},
+        "shapes": [{"type": "box", "min": [0, 0, 0], "max": [1, 1, 1], "material": "w"}],
+        **({"animation": {"frames": 1}} if command == "animate" else {})}))
+    rc, out, err = call(capsys, command, scene, "--width", "8", "--height", "8")
+    line = one_line_error(err)
+    assert (rc, out) == (2, "") and line.startswith(f"hwrt: error: {output.format(name=name)}")
+    assert line.endswith(f"its file system takes at most {os.pathconf(tmp_path, 'PC_NAME_MAX')}: "
+                         f"the name is made from the scene's name; give -o to name the "
+                         f"{'image' if command == 'render' else 'directory'}")
+    assert os.listdir(tmp_path) == ["long.json"]
+
 def test_replay_of_rays_beyond_the_float32_units_names_the_file(tmp_path, capsys, tetra):
     """Rays no run of the float32 units traced (origins past float32's reach) are the file's
     problem, said of the file, with no Python remedy; a t_max past float32 is infinity there,
