@@ -15,8 +15,7 @@ from .offset import offset_origins, points_on_planes
 
 def checked_set_arguments(tris, n, seed=0, dtype=np.float64):
     """A ray set's arguments, refused with a ParameterError naming the argument (an
-    InputError naming ``tris`` for a coordinate NaN, infinite or beyond the builder's bound, or
-    for triangles whose vertices all coincide):
+    InputError naming ``tris`` for a coordinate NaN, infinite or beyond the builder's bound):
     ``tris`` (m, 3, 3) real coordinates (m >= 1), ``n`` an integer of rays in
     1..``MAX_RAYS``, ``seed`` a non-negative integer, ``dtype`` float32 or float64. Returns
     the triangles as an array."""
@@ -26,7 +25,6 @@ def checked_set_arguments(tris, n, seed=0, dtype=np.float64):
     if t.ndim != 3 or t.shape[1:] != (3, 3) or len(t) == 0:
         raise ParameterError("tris", f"must be (m, 3, 3) with m >= 1, got shape {t.shape}")
     t = checked_coordinates(t, "tris")
-    check_extent(t, "tris")
     if not is_integer(n) or not 1 <= n <= MAX_RAYS:
         raise ParameterError("n", f"must be an integer from 1 to {MAX_RAYS} (rays), got {n!r}")
     if not is_integer(seed) or seed < 0:
@@ -41,8 +39,8 @@ def checked_set_arguments(tris, n, seed=0, dtype=np.float64):
 
 
 def check_extent(tris, source):
-    """InputError naming ``source`` when the triangles' vertices all coincide: every set frames
-    or spans the triangles' box, and a box without extent has no view or span."""
+    """InputError naming ``source`` when the triangles' vertices all coincide: ``primary``
+    frames the triangles' box, and a box without extent has no view."""
     lo, hi = bounds_of(tris)
     if not (hi > lo).any():
         raise InputError(source, "its triangles' vertices all coincide; nothing to frame")
@@ -55,6 +53,7 @@ def bounds_of(tris):
 
 def _primary_view(tris, n):
     """The view of ``primary``: (eye, basis (u, v, w), width, height)."""
+    check_extent(tris, "tris")
     lo, hi = bounds_of(tris)
     eye, target, up = frame_bounds(lo, hi)
     w = max(1, int(np.ceil(np.sqrt(n * 4 / 3))))
