@@ -47,6 +47,13 @@ from .report import with_figures
 
 STRATEGIES = ("rebuild", "refit", "adaptive", "embree")
 PRESET_NAMES = tuple(PRESETS)
+
+
+def _not_simulated():
+    """A frame's simulated figures where no hardware build or refit runs (Embree's tree, a grid
+    or k-d tree): each preset's entry null, so that the figures keep one shape on every
+    frame."""
+    return dict.fromkeys(PRESET_NAMES)
 FRAME_NAME = "frame_{:04d}.exr"
 STATE_NAME = "animation.json"
 CSV_NAME = "frames.csv"
@@ -122,7 +129,7 @@ class TreeUpdater:
                "build_seconds": refit_s + (sah_s if self.strategy == "adaptive" else 0.0),
                "refit_seconds": refit_s,
                "simulated_build_seconds": {k: c["seconds"] for k, c in costs.items()},
-               "simulated_energy_joules": None, "simulation_seconds": 0.0,
+               "simulated_energy_joules": _not_simulated(), "simulation_seconds": 0.0,
                "sah_cost": sah, "sah_growth": sah / self.sah_at_rebuild if self.sah_at_rebuild else None,
                "nodes": r.node_count}
         return bvh, row
@@ -143,16 +150,18 @@ class TreeUpdater:
             from .bench import structure_figures
             tracer, build_s, _ = make_tracer(scene, accel=self.accel)
             return tracer, {"rebuilt": True, "rebuild_reason": f"the {self.accel} is rebuilt every frame",
-                            "build_seconds": build_s, "simulated_build_seconds": None,
-                            "simulated_energy_joules": None, "simulation_seconds": 0.0,
+                            "build_seconds": build_s,
+                            "simulated_build_seconds": _not_simulated(),
+                            "simulated_energy_joules": _not_simulated(), "simulation_seconds": 0.0,
                             "sah_cost": None, "sah_growth": None, "nodes": None,
                             **structure_figures(tracer, len(tris))}
         if self.strategy == "embree":
             from raytracer.render import make_tracer
             tracer, build_s, _ = make_tracer(scene, builder="embree", traversal="embree")
             return tracer, {"rebuilt": True, "rebuild_reason": "Embree builds every frame",
-                            "build_seconds": build_s, "simulated_build_seconds": None,
-                            "simulated_energy_joules": None, "simulation_seconds": 0.0,
+                            "build_seconds": build_s,
+                            "simulated_build_seconds": _not_simulated(),
+                            "simulated_energy_joules": _not_simulated(), "simulation_seconds": 0.0,
                             "sah_cost": None, "sah_growth": None, "nodes": None}
         if self.strategy == "rebuild":
             bvh, row = self._rebuild(tris, "rebuild every frame")
@@ -315,6 +324,10 @@ def _load_state(out_dir, params, frames, fresh=False):
                                    "choose another output directory") from None
     if fresh:
         return {}
+    for r in rows.values():             # a frame without simulation may be stored as null
+        for key in ("simulated_build_seconds", "simulated_energy_joules"):
+            if r.get(key) is None:
+                r[key] = _not_simulated()
     # every key of either run: a key only one names (accel, threshold) differs too
     value = lambda p, k: p.get(k, PARAMS_ABSENT.get(k))
     diff = [k for k in list(params) + [k for k in old if k not in params]
@@ -632,8 +645,8 @@ def human(r):
     lines = [f"{'frame':>5}{'tris':>9}{'rebuilt':>8}{'build ms':>10}{'HWBVH-C ms':>11}"
              f"{'render ms':>10}{'tti ms':>9}{'SAH':>9}"]
     for f in r["frames"]:
-        sim = f["simulated_build_seconds"]
-        c = f"{sim['HWBVH-C'] * 1e3:>11.2f}" if sim else f"{'-':>11}"
+        sim = f["simulated_build_seconds"]["HWBVH-C"]
+        c = f"{sim * 1e3:>11.2f}" if sim is not None else f"{'-':>11}"
         sah = f"{f['sah_cost']:>9.1f}" if f["sah_cost"] is not None else f"{'-':>9}"
         lines.append(f"{f['frame']:>5}{f['triangles']:>9}{'yes' if f['rebuilt'] else 'no':>8}"
                      f"{f['build_seconds'] * 1e3:>10.2f}{c}{f['render_seconds'] * 1e3:>10.1f}"
@@ -692,8 +705,8 @@ def bench_animation(args, commit=write_files):
     rows = []
     for (name, label), r in runs.items():
         for f in r["frames"]:
-            sim = f["simulated_build_seconds"] or {}
-            en = f["simulated_energy_joules"] or {}
+            sim = f["simulated_build_seconds"]
+            en = f["simulated_energy_joules"]
             rows.append({"animation": name, "structure": r["accel"], "strategy": r["strategy"],
                          "frame": f["frame"],
                          "triangles": f["triangles"], "rebuilt": f["rebuilt"],

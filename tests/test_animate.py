@@ -114,10 +114,14 @@ def test_strategies_produce_valid_trees(name, strategy):
     res = run(anim, strategy, 24, inspect=_checker(seen))
     assert len(res["frames"]) == 24
     if strategy == "embree":
-        assert seen == [] and all(f["simulated_build_seconds"] is None for f in res["frames"])
+        # the contract's shape on every frame: each preset, null where no hardware build runs
+        assert seen == [] and all(f["simulated_build_seconds"] == {"HWBVH-C": None,
+                                                                    "HWBVH-HP": None}
+                                  for f in res["frames"])
     else:
         assert len(seen) == 24
     for f in res["frames"]:
+        assert set(f["simulated_build_seconds"]) == {"HWBVH-C", "HWBVH-HP"}
         assert f["time_to_image_seconds"] == pytest.approx(f["build_seconds"] + f["render_seconds"])
         assert f["rays"]["primary"] == 16 * 12
         if strategy == "rebuild":
