@@ -24,8 +24,9 @@ every split and every leaf of the canonical tree. What it times:
   threads in a fixed round-robin order and wait for a thread whose split is not ready (3.3.2).
 * Output: node records (two 192-bit words) and the 24-bit index list (8 per word) leave
   through the write channels, overlapped with construction. A subtree builder cannot finish
-  before its share of the channels has carried its output, and the build cannot finish before
-  the channels have carried every word written, upper-sort writes included.
+  before its share of the channels (shared with the builders building when it starts) has
+  carried its output, and the build cannot finish before the channels have carried every word
+  written, upper-sort writes included.
 
 Only what a build calls for is simulated. A mesh that fits one subtree builder never starts the
 upper builder's DRAM model, and its AABB pass is the fill itself.
@@ -299,9 +300,12 @@ def simulate(tree, params, node_count=None):
         cyc, pb, sb, rec = simulate_subtree(tree.left, tree.right, tree.count, tree.start,
                                             unit_pos, int(i), p.w, p.tsize, p.control_latency)
         # the subtree's output (two words per node, 8 indices per word) leaves through this
-        # builder's share of the write channels while it builds; it can only delay the end
+        # builder's share of the write channels while it builds: the R channels are shared by
+        # the builders building when it starts (an idle builder writes nothing and takes no
+        # share); it can only delay the end
         out_words = 2 * sub_nodes(tree, int(i)) + -(-c // 8)
-        share = max(1.0, p.subtree_builders / R)
+        building = 1 + sum(1 for j, free in enumerate(builder_free) if j != k and free > t)
+        share = max(1.0, building / R)
         cyc = max(int(cyc), math.ceil(out_words * share))
         builder_free[k] = t + int(cyc)
         builder_busy[k] += int(cyc) + fill

@@ -84,6 +84,17 @@ def test_more_threads_more_bandwidth_more_builders_never_slower(big):
     assert hp["seconds"] < c["seconds"] / 2
 
 
+def test_idle_subtree_builders_take_no_share_of_the_write_channels(big):
+    """Builders beyond the handoffs never build: adding them changes nothing (their share of
+    the channels went to nobody, and the build took up to 3x as long with 64)."""
+    tris, tree = big
+    handoffs = simulate(tree, PRESETS["HWBVH-C"])["subtree_builders"]["handoffs"]
+    assert 2 <= handoffs < 64
+    runs = [simulate(tree, params_for("HWBVH-C", subtree_builders=k))
+            for k in (handoffs, 2 * handoffs, 64)]
+    assert len({r["cycles"] for r in runs}) == 1, [r["cycles"] for r in runs]
+
+
 def test_parameters_are_checked():
     with pytest.raises(InputError, match="power of two"):
         params_for("HWBVH-C", w=3)
