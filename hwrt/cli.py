@@ -186,6 +186,18 @@ def _check_mesh_file(path, command):
                                f"take scenes")
 
 
+def _holds_handoff_description(path):
+    """Whether the file ``path`` holds what ``build --dump-handoff`` writes beside the dump: a
+    JSON object of the record size and the handoff sizes."""
+    import json
+    try:
+        with open(path, encoding="utf-8") as f:
+            d = json.load(f)
+    except (OSError, ValueError, RecursionError):
+        return False
+    return isinstance(d, dict) and set(d) == {"record_bytes", "handoff_sizes"}
+
+
 def cmd_build(args):
     import time
     import numpy as np
@@ -218,7 +230,15 @@ def cmd_build(args):
     if args.dump_aabbs:
         planned.append(args.dump_aabbs)
     if args.dump_handoff:
-        planned += [args.dump_handoff, args.dump_handoff + ".json"]
+        beside = args.dump_handoff + ".json"
+        # named by the option, not given: a file there that is not such a description (a
+        # scene file, when F was given as "scene") is not ours to replace
+        if os.path.isfile(beside) and not _holds_handoff_description(beside):
+            raise InputError("--dump-handoff", f"{args.dump_handoff}: {beside}, written beside "
+                                               f"it, is there and is not a handoff dump's "
+                                               f"description, which the dump would replace; "
+                                               f"choose another name")
+        planned += [args.dump_handoff, beside]
     if args.builder == "embree" and planned:
         given = next(o for o, v in (("--out", args.out), ("--dump-aabbs", args.dump_aabbs),
                                     ("--dump-handoff", args.dump_handoff)) if v)

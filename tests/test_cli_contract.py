@@ -1704,6 +1704,24 @@ def test_an_output_embree_cannot_give_names_its_option(capsys, tmp_path, tetra, 
     assert [f.name for f in tmp_path.iterdir()] == ["tetra.obj"]      # the mesh alone
 
 
+
+def test_a_handoff_dump_does_not_replace_a_foreign_file_beside_it(capsys, tmp_path, tetra):
+    """F.json is written beside the dump F without being named: a file there that is not a
+    dump's description is refused, not replaced; a dump's own is replaced by the next."""
+    dump = tmp_path / "hd.bin"
+    beside = tmp_path / "hd.bin.json"
+    beside.write_text('{"precious": 1}')
+    rc, out, err = call(capsys, "build", tetra, "--dump-handoff", dump)
+    assert (rc, out) == (2, "") and one_line_error(err) == (
+        f"hwrt: error: --dump-handoff: {dump}: {beside}, written beside it, is there and is not a "
+        f"handoff dump's description, which the dump would replace; choose another name")
+    assert beside.read_text() == '{"precious": 1}' and not dump.exists()
+    beside.unlink()
+    for _ in range(2):
+        rc, out, err = call(capsys, "build", tetra, "--dump-handoff", dump)
+        assert rc == 0, err
+    assert set(json.loads(beside.read_text())) == {"record_bytes", "handoff_sizes"}
+
 @pytest.mark.parametrize("argv", [["bench", "render", "cornell", "cornell"],
                                   ["bench", "trees", "cornell", "cornell"]])
 def test_a_scene_given_twice_to_a_benchmark_is_refused(argv, capsys):
