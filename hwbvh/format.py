@@ -295,6 +295,7 @@ def _tree_stats(u, f):
     leaves = 0
     max_depth = 0
     max_leaf = 0
+    prims = 0
     while sp > 0:
         sp -= 1
         i = stack[sp]
@@ -310,6 +311,7 @@ def _tree_stats(u, f):
             leaves += 1
             c = np.int64(u[i, WORD_B])
             leaf_area += c * area
+            prims += c
             if c > max_leaf:
                 max_leaf = c
         else:
@@ -321,7 +323,7 @@ def _tree_stats(u, f):
             stack[sp + 1] = u[i, WORD_A]
             dstack[sp + 1] = d + 1
             sp += 2
-    return internal_area, leaf_area, nodes, leaves, max_depth, max_leaf
+    return internal_area, leaf_area, nodes, leaves, max_depth, max_leaf, prims
 
 
 def sah_cost(nodes):
@@ -335,13 +337,16 @@ def tree_stats(nodes):
     at node 0. Refuses (InputError naming 'nodes') what :func:`check_nodes` refuses."""
     nodes = check_nodes(nodes)
     u, f = node_views(nodes)
-    internal, leaf, n, leaves, depth, max_leaf = _tree_stats(u, f)
+    internal, leaf, n, leaves, depth, max_leaf, prims = _tree_stats(u, f)
     b = nodes["bounds"][0].astype(np.float64)
     d = b[3:] - b[:3]
     root_area = 2.0 * (d[0] * d[1] + d[1] * d[2] + d[2] * d[0])
     if root_area > 0:
         cost = (internal + leaf) / root_area
-    else:  # a zero-area scene (all triangles on a point/segment): every ray tests everything
-        cost = float(n - leaves) * 2.0 + float(nodes["b"][0] if nodes["flags"][0] & LEAF_FLAG else 0)
+    else:
+        # a zero-area scene (all triangles on a point or a segment): a ray that reaches it
+        # reaches every node, so each area ratio counts as 1: both child tests of every
+        # internal node and every triangle of every leaf
+        cost = float(n - leaves) * 2.0 + float(prims)
     return {"sah_cost": float(cost), "nodes": int(n), "leaves": int(leaves),
             "max_depth": int(depth), "max_leaf_count": int(max_leaf)}
