@@ -311,6 +311,7 @@ def human(what):
                       if "thesis_seconds" in m else f"{'-':>14}")
                 lines.append(f"{m['mesh']:<{w}}{m['preset']:<10}{m['text_only_seconds']*1e3:>13.2f}"
                              f"{m['calibrated_seconds']*1e3:>15.2f}{th}{ra}")
+            lines.append(MODEL_COLUMNS)
             lines += _thesis_table_lines(r)
             fs = r["fill_share"]
             if fs:
@@ -882,6 +883,12 @@ def _thesis_tree_tables(name, scene, tris, hw):
             "thesis_sweep_sah": sw_sah, "thesis_sweep_nodes": sw_nodes,
             "sah_percent_of_sweep": 100 * hw["sah_cost"] / sweep["sah_cost"],
             "thesis_sah_percent_of_sweep": cal.THESIS_SAH_PERCENT_OF_SWEEP[scene]}
+
+
+# What bench model's columns are: the thesis prints no build times, so its column is derived
+MODEL_COLUMNS = ("thesis ms: the build time the thesis implies (it prints none): Table 4.11's "
+                 "energy per build over Table 4.10's active power; ratios: text-only and "
+                 "calibrated over it")
 
 
 def _thesis_table_lines(result):
