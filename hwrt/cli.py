@@ -1291,12 +1291,13 @@ def make_parser():
     b.add_argument("--capacity", type=_positive,
                    help=f"subtree capacity w*Psize, at least the leaf size; placement only (the "
                         f"tree never changes); hwbvh and sweep (default: {config.DEFAULT_CAPACITY})")
-    b.add_argument("--subtree-builders", type=_positive,
+    b.add_argument("--subtree-builders", type=_int_in(*config.LAYOUT_KNOB_RANGES["subtree_builders"]),
                    help=f"subtree builders, placement only; hwbvh and sweep: "
                         f"1..{config.LAYOUT_KNOB_RANGES['subtree_builders'][1]} (default: 1)")
-    b.add_argument("--block-nodes", type=_positive,
+    b.add_argument("--block-nodes", type=_int_in(*config.LAYOUT_KNOB_RANGES["block_nodes"]),
                    help=f"nodes per block of the upper builder's pool, placement only; hwbvh "
-                        f"and sweep (default: {config.DEFAULT_BLOCK_NODES})")
+                        f"and sweep: 1..{config.LAYOUT_KNOB_RANGES['block_nodes'][1]} (default: "
+                        f"{config.DEFAULT_BLOCK_NODES})")
     b.add_argument("-o", "--out", metavar="PREFIX", type=_path,
                    help="write PREFIX.nodes, PREFIX.indices and PREFIX.json; a PREFIX ending in "
                         "one of them names the same three (default: no files)")

@@ -1621,6 +1621,23 @@ def test_integer_options_take_digits_only(tmp_path, capsys, value, line):
     assert rc == 2 and out == "" and one_line_error(err) == line
 
 
+
+@pytest.mark.parametrize("option, knob", [("--block-nodes", "block_nodes"),
+                                          ("--subtree-builders", "subtree_builders")])
+def test_a_placement_option_states_the_range_the_library_takes(capsys, tmp_path, option, knob):
+    """One range, the library's, in the parser's refusal and its help: a value the parser took
+    would otherwise meet the library's other bound after it."""
+    from hwbvh.config import LAYOUT_KNOB_RANGES
+    lo, hi = LAYOUT_KNOB_RANGES[knob]
+    p = tmp_path / "m.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    for value in (hi + 1, 2**31 - 1, 10**11):
+        rc, out, err = call(capsys, "build", p, option, value)
+        assert rc == 2 and one_line_error(err) == (
+            f"hwrt: error: {option}: must be an integer in {lo}..{hi}, got {value}")
+    rc, out, err = call(capsys, "build", p, option, hi)
+    assert rc == 0, err
+
 def test_a_mesh_of_an_unknown_type_is_refused_by_its_name(capsys, tmp_path):
     p = tmp_path / "points.xyz"
     p.write_text("0 0 0\n1 0 0\n0 1 0\n")

@@ -85,8 +85,8 @@ def test_more_threads_more_bandwidth_more_builders_never_slower(big):
 
 
 def test_idle_subtree_builders_take_no_share_of_the_write_channels(big):
-    """Builders beyond the handoffs never build: adding them changes nothing (their share of
-    the channels went to nobody, and the build took up to 3x as long with 64)."""
+    """Builders beyond the handoffs never build: adding them changes nothing, as an idle
+    builder writes nothing and holds no share of the write channels."""
     tris, tree = big
     handoffs = simulate(tree, PRESETS["HWBVH-C"])["subtree_builders"]["handoffs"]
     assert 2 <= handoffs < 64

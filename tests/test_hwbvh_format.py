@@ -450,7 +450,8 @@ def test_load_refuses_a_description_in_another_format(tmp_path):
 def test_a_zero_area_scene_costs_every_test_of_its_tree(leaf_size):
     """All triangles on one point: no area ratio is defined, and a ray that reaches the scene
     reaches every node, so the cost is both child tests of each internal node and every
-    triangle of every leaf, whatever the leaf size (a deeper tree was cheaper than one leaf)."""
+    triangle of every leaf, whatever the leaf size (a deeper tree never costs less than one
+    leaf)."""
     tris = np.full((10, 3, 3), 0.25, np.float32)
     meta = hwbvh.build(tris, leaf_size=leaf_size).meta
     internal = meta["nodes"] - meta["leaves"]
