@@ -440,8 +440,10 @@ def params_for(preset="HWBVH-C", **overrides):
 
 def simulate_mesh(source, preset="HWBVH-C", **overrides):
     """Build ``source`` (mesh path or (n,3,3) triangles) functionally, then simulate it on
-    ``preset`` (a preset's name or a HwParams) with ``overrides`` (``params_for``). The result's
-    ``preset`` is the name, or "custom" for a HwParams."""
+    ``preset`` (a preset's name or a HwParams) with ``overrides`` (``params_for``). The result
+    says what was simulated: ``preset``, the name of the preset it is (None where a knob differs
+    from it); ``base_preset``, the preset it was made from ("custom" for a HwParams that is no
+    preset); ``changed``, the knobs that differ from that one, with their values."""
     import time
     from .api import _triangles
     from .builder import build_canonical
@@ -458,7 +460,15 @@ def simulate_mesh(source, preset="HWBVH-C", **overrides):
     nodes, _, _ = lay_out(tree, p.capacity, p.subtree_builders)
     out["sah_cost"] = tree_stats(nodes)["sah_cost"]
     out["triangles"] = int(len(tris))
-    out["preset"] = preset if isinstance(preset, str) else "custom"
+    base = as_params(preset, "preset")
+    name = preset if isinstance(preset, str) else \
+        next((k for k, v in PRESETS.items() if v == base), None)
+    changed = {k: v for k, v in asdict(p).items() if getattr(base, k) != v}
+    if p.capacity != base.capacity:     # derived (w x Psize), but a knob's effect all the same
+        changed["capacity"] = p.capacity
+    out["preset"] = None if changed else name
+    out["base_preset"] = name or "custom"
+    out["changed"] = changed
     return out
 
 

@@ -582,7 +582,9 @@ def cmd_simulate(args):
                            clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins,
                            control_latency=args.control_latency)
     changed = _knobs_changed(result["parameters"], args.preset)
-    _emit(args, result, lambda r: _kv(dict(r, changed=changed) if changed else r,
+    _emit(args, result, lambda r: _kv(dict(r, preset=r["base_preset"], changed=changed)
+                                      if changed else r if r["changed"] else
+                                      {k: v for k, v in r.items() if k != "changed"},
                                       ["preset", "changed", "triangles", "cycles", "seconds",
                                        "energy_joules", "area_mm2", "active_power_w",
                                        "traffic_bytes", "footprint_bytes", "utilisation",

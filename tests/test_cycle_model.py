@@ -330,7 +330,13 @@ def test_simulate_mesh_takes_a_hwparams():
     named = simulate_mesh(tris, "HWBVH-HP", tsize=4)
     given = simulate_mesh(tris, replace(PRESETS["HWBVH-HP"], tsize=4))
     assert given["cycles"] == named["cycles"] and given["parameters"] == named["parameters"]
-    assert given["preset"] == "custom" and named["preset"] == "HWBVH-HP"
+    # neither is a preset: each says what it was made from and what changed from that
+    assert given["preset"] is None and named["preset"] is None
+    assert given["base_preset"] == "custom" and named["base_preset"] == "HWBVH-HP"
+    assert given["changed"] == {} and named["changed"] == {"tsize": 4}
+    assert simulate_mesh(tris, "HWBVH-C", w=2)["changed"] == {"w": 2, "capacity": 4096}
+    plain = simulate_mesh(tris, PRESETS["HWBVH-HP"])
+    assert (plain["preset"], plain["base_preset"], plain["changed"]) == ("HWBVH-HP", "HWBVH-HP", {})
     assert simulate_mesh(tris, PRESETS["HWBVH-C"], w=2)["parameters"]["w"] == 2
     for bad in ("HWBVH-X", 3, None):
         with pytest.raises(InputError, match="preset"):
