@@ -1672,7 +1672,10 @@ def _run(argv, signals_owned):
             # its name and them ("bench tti --quick MESH"); they are meshes all the same
             args.meshes = args.meshes + _late_meshes(parser, extra)
         elif extra:
-            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+            knobs = [x for x in extra if re.fullmatch(r"[a-z_]+=.*", x)]
+            hint = (f" (one knob per --grid: --grid {' --grid '.join(knobs)})"
+                    if args.command == "explore" and knobs else "")
+            parser.error(f"unrecognized arguments: {' '.join(extra)}{hint}")
         args.argv = argv
         args.environment = _environment_read(args)
         args.signals_owned = signals_owned

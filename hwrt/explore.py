@@ -412,14 +412,18 @@ def plots(rows, summary, meshes, configs, grid):
     return files
 
 
+def _count(n, one, many):
+    return f"{n} {one if n == 1 else many}"
+
+
 def markdown(result, command=None):
     """A summary page: the run, the cost model, the best configurations and the presets' gaps."""
     from .report import made_by_lines
     lab = labeller(result)
     f = result["cost_model"]
     lines = ["# Design-space exploration\n"] + made_by_lines(command) + [
-             f"{result['cells']} cells: {len(result['configs'])} configurations x {len(result['meshes'])} "
-             f"meshes; {result['computed']} computed" + (
+             f"{result['cells']} cells: {len(result['configs'])} configurations x "
+             f"{_count(len(result['meshes']), 'mesh', 'meshes')}; {result['computed']} computed" + (
                  f" in {result['compute_seconds']:.1f} s ({result['cells_per_second']:.0f} cells/s) on "
                  f"{result['cluster']}, {result['resumed']} resumed.\n" if result["computed"]
                  else f", {result['resumed']} resumed.\n"),
@@ -433,7 +437,7 @@ def markdown(result, command=None):
              f"{config.POWER_REFERENCE_MHZ:.0f} MHz, times (clock / {config.POWER_REFERENCE_MHZ:.0f} "
              f"MHz)^{f['power_clock_exponent']:.3f} (90 nm), fitted on HWBVH-C and HWBVH-HP (area "
              f"within {max(abs(v - 1) for v in f['area_ratio'].values()):.1%} of thesis Table 4.10, "
-             f"power as it: within {max(abs(v - 1) for v in f['power_ratio'].values()):.0e}).\n"]
+             f"power as it gives it, which two constants on two presets can match).\n"]
     for group in result["pareto"]:
         tk = {k: group[k] for k in TREE_KNOBS}
         lines += [f"## Leaf size {tk['leaf_size']}, {tk['bins']} bins\n",
@@ -562,7 +566,8 @@ def _explored(t0, grid, configs, specs, out_dir, scheduler, workers, use_dask, f
                  ("explore.md", markdown(result, command))] + plots(rows, summary, specs, configs, grid)
         files = with_figures([(os.path.join(out_dir, n), d) for n, d in files])
         commit(files)
-        result["files"] = [p for p, _ in files]
+        # the cells a rerun resumes from are the run's too
+        result["files"] = [p for p, _ in files] + [os.path.join(out_dir, CELLS_NAME)]
     return result
 
 

@@ -1638,6 +1638,16 @@ def test_a_placement_option_states_the_range_the_library_takes(capsys, tmp_path,
     rc, out, err = call(capsys, "build", p, option, hi)
     assert rc == 0, err
 
+
+def test_explore_knobs_after_one_grid_option_are_refused_with_the_way_to_give_them(capsys,
+                                                                                 tmp_path):
+    rc, out, err = call(capsys, "explore", "m.ply", "--grid", "w=2", "tsize=4", "psize=1024",
+                        "--out-dir", tmp_path / "o")
+    assert (rc, out) == (2, "") and one_line_error(err).endswith(
+        "unrecognized arguments: tsize=4 psize=1024 (one knob per --grid: --grid tsize=4 "
+        "--grid psize=1024)")
+    assert not (tmp_path / "o").exists()
+
 def test_a_mesh_of_an_unknown_type_is_refused_by_its_name(capsys, tmp_path):
     p = tmp_path / "points.xyz"
     p.write_text("0 0 0\n1 0 0\n0 1 0\n")

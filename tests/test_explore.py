@@ -124,7 +124,8 @@ def test_cells_resume_after_an_interruption(meshes, tmp_path):
     out = tmp_path / "out"
     grid = {"w": [2, 4], "tsize": [2, 8], "leaf_size": [4, 8]}
     first = ex.explore(meshes, grid, out, use_dask=False, progress=False)
-    assert first["computed"] == first["cells"] and len(first["files"]) == 5
+    assert first["computed"] == first["cells"] and len(first["files"]) == 6
+    assert first["files"][-1] == str(out / ex.CELLS_NAME)      # what a rerun resumes from
     for name in ex.OUTPUT_NAMES:
         assert (out / name).exists(), name
     again = ex.explore(meshes, grid, out, use_dask=False, progress=False)
@@ -162,7 +163,7 @@ def test_cells_resume_after_an_interruption(meshes, tmp_path):
     # the thesis' Figs. 4.2-4.3 are the subtree builder's alone (``hwrt bench model``), not
     # drawn from a grid of whole-scene builds
     drawn = {os.path.basename(p) for p in fresh["files"]}
-    assert drawn == set(ex.OUTPUT_NAMES) and not any(n.startswith("fig4") for n in drawn)
+    assert drawn == {*ex.OUTPUT_NAMES, ex.CELLS_NAME} and not any(n.startswith("fig4") for n in drawn)
 
 
 def test_meshes_are_named_as_the_benchmarks_name_them(tmp_path):
