@@ -138,6 +138,19 @@ def _too_long(name, most):
     return f"the name {shown} is too long ({len(os.fsencode(name))} bytes){takes}"
 
 
+def absent(path, problem):
+    """What to say of an input ``path`` that does not exist: ``problem``, or, for a symbolic
+    link, where it leads (a link to a missing file, or a loop of links, exists as a link)."""
+    if os.path.islink(path):
+        try:
+            target = os.readlink(path)
+        except OSError:
+            target = "?"
+        return (f"a symbolic link to {target}, which leads to no file (its target is missing, "
+                f"or the links loop)")
+    return problem
+
+
 def directory_problem(path):
     """Why the file ``path`` could not be created where it lies (its directory, or the
     nearest existing one above), or None."""

@@ -845,7 +845,8 @@ def load_mesh_arrays(path):
         raise ParameterError("path", f"expected a mesh file's path, got {type(path).__name__}")
     path = os.fspath(path)
     if not os.path.exists(path):
-        raise InputError(path, "no such file")
+        from .files import absent
+        raise InputError(path, absent(path, "no such file"))
     if os.path.isdir(path):
         raise InputError(path, "is a directory, not a mesh file")
     if not os.path.isfile(path):                    # a pipe or a device: no size to read

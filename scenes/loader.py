@@ -19,6 +19,7 @@ import numpy as np
 from hwbvh.config import MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES
 from traversal.config import FOV_RANGE
 from hwbvh.errors import InputError, ParameterError, is_integer, json_syntax, shown
+from hwbvh.files import absent
 from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
                               extent, float32_step, load_mesh_arrays, within_bound)
 from .builtin import BUILTIN, COUNT_LIMITS
@@ -215,7 +216,8 @@ def _load_scene_file(spec):
                                    "render it with hwrt animate")
         if spec in ANIMATIONS:
             raise InputError(spec, "a built-in animation: render it with hwrt animate")
-        raise InputError(spec, "no such scene or file (built-in scenes: " + ", ".join(BUILTIN) + ")")
+        raise InputError(spec, absent(spec, "no such scene or file (built-in scenes: " +
+                                      ", ".join(BUILTIN) + ")"))
     if os.path.isdir(spec):
         raise InputError(spec, "is a directory, not a scene or mesh file")
     if not os.path.isfile(spec):        # a pipe or a device: a read that never ends or never fills

@@ -752,3 +752,21 @@ def test_a_figure_of_one_run_says_so():
     from hwrt.bench import medians_of
     assert medians_of(1) == "one run" and medians_of(1, "warm runs") == "one warm run"
     assert medians_of(7) == "medians of 7 runs"
+
+
+@pytest.mark.parametrize("command", ["render", "build"])
+def test_a_symbolic_link_that_leads_nowhere_is_named_as_one(tmp_path, command):
+    """A loop of links, or a link to a missing file, is there as a link: not "no such file"."""
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.symlink_to(b.name)
+    b.symlink_to(a.name)
+    dangling = tmp_path / "gone.ply"
+    dangling.symlink_to("missing.ply")
+    out = tmp_path / "o.exr"
+    for link, target in ((a, b.name), (dangling, "missing.ply")):
+        if command == "build" and link == a:
+            continue
+        argv = [command, link] + (["-o", out, "--width", 8, "--height", 6] if command == "render"
+                                  else [])
+        _refused(_hwrt(*argv), out, f"{link}: a symbolic link to {target}, which leads to no "
+                                    f"file (its target is missing, or the links loop)")
