@@ -302,7 +302,9 @@ def simulate(tree, params, node_count=None):
         # the subtree's output (two words per node, 8 indices per word) leaves through this
         # builder's share of the write channels while it builds: the R channels are shared by
         # the builders building when it starts (an idle builder writes nothing and takes no
-        # share); it can only delay the end
+        # share; one that starts later counts this one in its own share, not the reverse, so
+        # with more builders than channels the share is a bound from below); it can only
+        # delay the end
         out_words = 2 * sub_nodes(tree, int(i)) + -(-c // 8)
         building = 1 + sum(1 for j, free in enumerate(builder_free) if j != k and free > t)
         share = max(1.0, building / R)
@@ -441,9 +443,10 @@ def params_for(preset="HWBVH-C", **overrides):
 def simulate_mesh(source, preset="HWBVH-C", **overrides):
     """Build ``source`` (mesh path or (n,3,3) triangles) functionally, then simulate it on
     ``preset`` (a preset's name or a HwParams) with ``overrides`` (``params_for``). The result
-    says what was simulated: ``preset``, the name of the preset it is (None where a knob differs
-    from it); ``base_preset``, the preset it was made from ("custom" for a HwParams that is no
-    preset); ``changed``, the knobs that differ from that one, with their values."""
+    says what was simulated: ``preset``, the name of the preset whose values it has (None for
+    any other configuration); ``base_preset``, the preset it was made from ("custom" for a
+    HwParams that is no preset); ``changed``, the knobs that differ from that one, with their
+    values."""
     import time
     from .api import _triangles
     from .builder import build_canonical
@@ -466,7 +469,9 @@ def simulate_mesh(source, preset="HWBVH-C", **overrides):
     changed = {k: v for k, v in asdict(p).items() if getattr(base, k) != v}
     if p.capacity != base.capacity:     # derived (w x Psize), but a knob's effect all the same
         changed["capacity"] = p.capacity
-    out["preset"] = None if changed else name
+    # named by its values, as explore names its configurations: HWBVH-C with HWBVH-HP's
+    # builders, channels and clock is HWBVH-HP
+    out["preset"] = next((k for k, v in PRESETS.items() if v == p), None)
     out["base_preset"] = name or "custom"
     out["changed"] = changed
     return out

@@ -51,10 +51,16 @@ def checked_flag(flag, name):
     return bool(flag)
 
 
+def cut_short(text, limit):
+    """``text`` for a message, cut to ``limit`` characters with "..." where it is longer: an
+    error is one line."""
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def shown(v, limit=40):
     """``repr(v)`` for a message, cut short: a 400-digit number is not worth printing."""
     try:
         text = repr(v)
     except ValueError:                  # an int beyond Python's digit limit for str()
         return f"an integer of about {int(v.bit_length() * 0.30103)} digits"
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+    return cut_short(text, limit)

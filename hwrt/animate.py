@@ -47,13 +47,6 @@ from .report import with_figures
 
 STRATEGIES = ("rebuild", "refit", "adaptive", "embree")
 PRESET_NAMES = tuple(PRESETS)
-
-
-def _not_simulated():
-    """A frame's simulated figures where no hardware build or refit runs (Embree's tree, a grid
-    or k-d tree): each preset's entry null, so that the figures keep one shape on every
-    frame."""
-    return dict.fromkeys(PRESET_NAMES)
 FRAME_NAME = "frame_{:04d}.exr"
 STATE_NAME = "animation.json"
 CSV_NAME = "frames.csv"
@@ -61,6 +54,13 @@ PREVIEW_NAME = "preview.gif"
 BENCH_FILES = {"per_frame": "animation_tti_per_frame.png", "totals": "animation_totals.png",
                "drift": "animation_sah_drift.png", "csv": "animation.csv", "json": "animation.json",
                "md": "animation.md", "structures": "animation_structures.png"}
+
+
+def _not_simulated():
+    """A frame's simulated figure where the model gives none (no hardware build or refit runs:
+    Embree's tree, a grid or k-d tree; or a refit's energy): each preset's entry null, so that
+    the figures keep one shape on every frame."""
+    return dict.fromkeys(PRESET_NAMES)
 
 
 # --------------------------------------------------------------------------------------
@@ -325,7 +325,8 @@ def _load_state(out_dir, params, frames, fresh=False):
     if fresh:
         return {}
     for r in rows.values():             # a frame without simulation may be stored as null
-        for key in ("simulated_build_seconds", "simulated_energy_joules"):
+        for key in ("simulated_build_seconds", "simulated_energy_joules",
+                    "time_to_image_simulated_seconds"):
             if r.get(key) is None:
                 r[key] = _not_simulated()
     # every key of either run: a key only one names (accel, threshold) differs too
@@ -533,7 +534,8 @@ def _run(anim, strategy, frames, out_dir, updater, verify, progress, seed, inspe
                "render_seconds": render_s,
                "time_to_image_seconds": row["build_seconds"] + render_s,
                "time_to_image_simulated_seconds":
-                   None if ready is None else {k: v + render_s for k, v in ready.items()},
+                   _not_simulated() if ready is None else
+                   {k: v + render_s for k, v in ready.items()},
                "scene_seconds": scene_s, "rays": res.stats["rays"],
                "pixels_beyond_float32": res.stats["pixels_beyond_float32"]}
         if verify:

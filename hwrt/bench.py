@@ -11,7 +11,7 @@ from typing import Callable, NamedTuple, Optional
 import numpy as np
 
 from hwbvh.errors import InputError, ParameterError
-from hwbvh.files import file_identity, write_files
+from hwbvh.files import absent, file_identity, write_files
 from hwbvh.primitives import MESH_EXTENSIONS
 from .paths import MESH_DIR_ENV, default_mesh_dir, mesh_files
 from .progress import progress_over
@@ -176,7 +176,7 @@ def mesh_inputs(args):
                                          "or the directory")
     for p in paths:
         if not p.exists():
-            raise InputError(p, "no such file" + (
+            raise InputError(p, absent(p, "no such file") + (
                 f"; {p} is a built-in scene: this benchmark takes mesh files (those that render "
                 "pick their built-in scenes themselves)" if str(p) in BUILTIN else ""))
         if p.is_dir():
@@ -467,6 +467,7 @@ def bench_trace(args):
         name = mesh.name
         verts, faces = mesh.load()
         tris = as_triangles(verts[faces], source=mesh.source)
+        raysets.check_extent(tris, mesh.source)         # the primary set frames the mesh
         traceable(mesh.source, triangles=tris, points=raysets.points_beyond(tris))
         v32, f32 = verts.astype(np.float32), faces.astype(np.int32)
         tracer = Tracer(hwbvh.build(tris))

@@ -186,16 +186,23 @@ def _check_mesh_file(path, command):
                                f"take scenes")
 
 
+# What build --dump-handoff F writes beside F, in F.json
+HANDOFF_DESCRIPTION_KEYS = ("record_bytes", "handoff_sizes")
+
+
 def _holds_handoff_description(path):
     """Whether the file ``path`` holds what ``build --dump-handoff`` writes beside the dump: a
     JSON object of the record size and the handoff sizes."""
     import json
+    from .config import HANDOFF_DESCRIPTION_MAX_BYTES
     try:
+        if os.path.getsize(path) > HANDOFF_DESCRIPTION_MAX_BYTES:
+            return False
         with open(path, encoding="utf-8") as f:
             d = json.load(f)
     except (OSError, ValueError, RecursionError):
         return False
-    return isinstance(d, dict) and set(d) == {"record_bytes", "handoff_sizes"}
+    return isinstance(d, dict) and set(d) == set(HANDOFF_DESCRIPTION_KEYS)
 
 
 def cmd_build(args):
@@ -230,6 +237,13 @@ def cmd_build(args):
     if args.dump_aabbs:
         planned.append(args.dump_aabbs)
     if args.dump_handoff:
+        planned += [args.dump_handoff, args.dump_handoff + ".json"]
+    if args.builder == "embree" and planned:
+        given = next(o for o, v in (("--out", args.out), ("--dump-aabbs", args.dump_aabbs),
+                                    ("--dump-handoff", args.dump_handoff)) if v)
+        raise InputError(given, "needs a tree of ours (--builder hwbvh or sweep): Embree's "
+                                "tree stays inside Embree")
+    if args.dump_handoff:
         beside = args.dump_handoff + ".json"
         # named by the option, not given: a file there that is not such a description (a
         # scene file, when F was given as "scene") is not ours to replace
@@ -238,12 +252,6 @@ def cmd_build(args):
                                                f"it, is there and is not a handoff dump's "
                                                f"description, which the dump would replace; "
                                                f"choose another name")
-        planned += [args.dump_handoff, beside]
-    if args.builder == "embree" and planned:
-        given = next(o for o, v in (("--out", args.out), ("--dump-aabbs", args.dump_aabbs),
-                                    ("--dump-handoff", args.dump_handoff)) if v)
-        raise InputError(given, "needs a tree of ours (--builder hwbvh or sweep): Embree's "
-                                "tree stays inside Embree")
     check_outputs(planned, inputs=[args.mesh])
     verts, faces = load_mesh_arrays(args.mesh)
     tris = as_triangles(verts[faces], source=args.mesh)
@@ -273,8 +281,8 @@ def cmd_build(args):
             order, sizes = bvh.handoff_order()
             files.append((args.dump_handoff, made_as_written(lambda: pack_records(boxes, order))))
             files.append((args.dump_handoff + ".json",
-                          json_text({"record_bytes": config.PRIMITIVE_RECORD_BYTES,
-                                     "handoff_sizes": sizes}) + "\n"))
+                          json_text(dict(zip(HANDOFF_DESCRIPTION_KEYS,
+                                             (config.PRIMITIVE_RECORD_BYTES, sizes)))) + "\n"))
             result["handoff_sizes"] = [int(x) for x in sizes]
     _commit(args, files)
     # _commit returns only with every planned file in place: it drops a signal at the renames
@@ -502,7 +510,7 @@ def cmd_verify(args):
     import io
     import numpy as np
     from hwbvh.errors import InputError
-    from hwbvh.files import check_outputs, json_text
+    from hwbvh.files import absent, check_outputs, json_text, named_after
     from scenes.loader import scene_inputs
     from traversal.verify import diagnose, diagnose_occluded, query_of, verify_mesh
 
@@ -514,7 +522,7 @@ def cmd_verify(args):
                 raise InputError(flag, "is for a verification run; --replay re-traces the file's rays")
         if not os.path.isfile(args.replay):
             raise InputError(args.replay, "not a file" if os.path.exists(args.replay)
-                             else "no such file")
+                             else absent(args.replay, "no such file"))
         label, tris, verts, faces = _verifiable_geometry(args.scene)
         return _emit(args, _replay(args.replay, label, tris, verts, faces), _replay_human)
     if args.mismatches and not args.mismatches.lower().endswith(".npz"):
@@ -528,7 +536,8 @@ def cmd_verify(args):
     where = "" if accel == "bvh" else f"-{accel}"
     out = args.mismatches or os.path.join("renders",
                                           f"verify-{label}-{kind}{where}-mismatches.npz")
-    check_outputs([out], inputs=scene_inputs(args.scene))
+    with named_after("the scene's name", args.mismatches, "give --mismatches to name the file"):
+        check_outputs([out], inputs=scene_inputs(args.scene))
     tracer = _verify_tracer(accel, tris)
     counts, labels, (O, D, tmax), ours, ref = verify_mesh(tris, verts, faces, kind, rays,
                                                           tracer=tracer)
@@ -581,9 +590,9 @@ def cmd_simulate(args):
                            subtree_builders=args.subtree_builders, ram_pairs=args.ram_pairs,
                            clock_mhz=args.clock_mhz, leaf_size=args.leaf_size, bins=args.bins,
                            control_latency=args.control_latency)
-    changed = _knobs_changed(result["parameters"], args.preset)
+    changed = _knobs_changed(result["changed"], args.preset)
     _emit(args, result, lambda r: _kv(dict(r, preset=r["base_preset"], changed=changed)
-                                      if changed else r if r["changed"] else
+                                      if changed else
                                       {k: v for k, v in r.items() if k != "changed"},
                                       ["preset", "changed", "triangles", "cycles", "seconds",
                                        "energy_joules", "area_mm2", "active_power_w",
@@ -591,8 +600,8 @@ def cmd_simulate(args):
                                        "sah_cost"]))
 
 
-def _knobs_changed(parameters, preset):
-    """The knobs of a simulated configuration that differ from ``preset``'s, as a line:
+def _knobs_changed(changed, preset):
+    """``simulate_mesh``'s ``changed`` knobs beside ``preset``'s values, as a line:
     "w 2 (preset: 4), capacity 4096 (preset: 8192)"; "" for the preset itself."""
     from dataclasses import asdict
     from hwbvh.cycle_model import PRESETS
@@ -603,7 +612,7 @@ def _knobs_changed(parameters, preset):
         return (_shown(v), _shown(w)) if _shown(v) != _shown(w) else (repr(v), repr(w))
 
     return ", ".join("{} {} (preset: {})".format(k, *shown_apart(v, base[k]))
-                     for k, v in parameters.items() if k in base and base[k] != v)
+                     for k, v in changed.items())
 
 
 def cmd_explore(args):
@@ -1298,8 +1307,8 @@ def make_parser():
                         f"1..{config.LAYOUT_KNOB_RANGES['subtree_builders'][1]} (default: 1)")
     b.add_argument("--block-nodes", type=_int_in(*config.LAYOUT_KNOB_RANGES["block_nodes"]),
                    help=f"nodes per block of the upper builder's pool, placement only; hwbvh "
-                        f"and sweep: 1..{config.LAYOUT_KNOB_RANGES['block_nodes'][1]} (default: "
-                        f"{config.DEFAULT_BLOCK_NODES})")
+                        f"and sweep: {'..'.join(map(str, config.LAYOUT_KNOB_RANGES['block_nodes']))} "
+                        f"(default: {config.DEFAULT_BLOCK_NODES})")
     b.add_argument("-o", "--out", metavar="PREFIX", type=_path,
                    help="write PREFIX.nodes, PREFIX.indices and PREFIX.json; a PREFIX ending in "
                         "one of them names the same three (default: no files)")
@@ -1672,7 +1681,8 @@ def _run(argv, signals_owned):
             # its name and them ("bench tti --quick MESH"); they are meshes all the same
             args.meshes = args.meshes + _late_meshes(parser, extra)
         elif extra:
-            knobs = [x for x in extra if re.fullmatch(r"[a-z_]+=.*", x)]
+            from .explore import KNOBS
+            knobs = [x for x in extra if x.split("=", 1)[0] in KNOBS and "=" in x]
             hint = (f" (one knob per --grid: --grid {' --grid '.join(knobs)})"
                     if args.command == "explore" and knobs else "")
             parser.error(f"unrecognized arguments: {' '.join(extra)}{hint}")

@@ -275,7 +275,7 @@ def make_tracer(scene, builder=None, traversal=None, leaf_size=DEFAULT_LEAF_SIZE
 def simulated_ready_seconds(info):
     """{preset: seconds} from a tree to a tracer ready to trace with a simulated hardware build
     (``make_tracer``'s info): each preset's build time plus our tracer's set-up in software;
-    None where the info has no simulated builds (none, or each preset's entry null)."""
+    None where the info has no simulated builds (none, or a preset's entry null)."""
     sim = info.get("simulated_build_seconds")
     if not sim or any(v is None for v in sim.values()):
         return None

@@ -46,6 +46,7 @@ from numba import njit
 
 from hwbvh.config import MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES
 from hwbvh.errors import InputError, ParameterError, is_integer
+from hwbvh.files import absent
 from hwbvh.primitives import as_triangles, beyond_bound_text, load_mesh_arrays, within_bound
 from .builtin import BUILTIN
 from .config import (DEFAULT_ANIMATION_SECONDS, DEFAULT_FPS, GENERATED_TRIANGLES, MAX_FPS,
@@ -239,8 +240,10 @@ def _with_frame(text, field, k):
 
 def expand_pattern(pattern, source=None):
     """The frame files of a printf or glob pattern, in frame order. Raises NoFrameFiles naming
-    the pattern when nothing matches or it cannot number frames, and InputError naming the
-    missing file when a frame in the middle of the numbered sequence is absent."""
+    ``source`` (the pattern, unless given: a scene file and its key) when nothing matches or it
+    cannot number frames, and InputError when a frame in the middle of the numbered sequence
+    is absent (naming ``source`` where given, else the missing file) or two files of a glob
+    carry one frame number (naming ``source``)."""
     given = source is not None
     source = source or pattern
     pattern = os.fspath(pattern)
@@ -1101,8 +1104,9 @@ def load_animation(spec, width=None, height=None, spp=None, max_depth=None, fps=
     if is_pattern(spec) and not os.path.exists(spec):
         d = pattern_scene(spec)
     elif not os.path.exists(spec) and spec not in BUILTIN:
-        raise InputError(spec, "no such animation, scene or file (built-in animations: "
-                               f"{', '.join(ANIMATIONS)}; scenes: {', '.join(BUILTIN)})")
+        raise InputError(spec, absent(spec, "no such animation, scene or file (built-in "
+                                            f"animations: {', '.join(ANIMATIONS)}; scenes: "
+                                            f"{', '.join(BUILTIN)})"))
     else:
         d = load_scene(spec)
     d = with_frame(d, **film)

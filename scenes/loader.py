@@ -18,7 +18,7 @@ import numpy as np
 
 from hwbvh.config import MAX_COORDINATE, MAX_FLOAT32_ROUNDING, MAX_PRIMITIVES
 from traversal.config import FOV_RANGE
-from hwbvh.errors import InputError, ParameterError, is_integer, json_syntax, shown
+from hwbvh.errors import InputError, ParameterError, cut_short, is_integer, json_syntax, shown
 from hwbvh.files import absent
 from hwbvh.primitives import (MESH_EXTENSIONS, as_triangles, beyond_bound_text, checked_coordinates,
                               extent, float32_step, load_mesh_arrays, within_bound)
@@ -62,6 +62,9 @@ MAX_RADIANCE = float(np.finfo(np.float32).max)
 # Characters of a key that an error line shows: the line names the key, and a key (a material's
 # name) may be as long as the file.
 KEY_TEXT_LIMIT = 60
+# Names an error line lists (the materials a shape may name), the rest counted: a dozen names of
+# that length keep the line within a screen or two.
+LISTED_NAMES = 12
 
 # The largest film: a render keeps about 100 bytes per pixel (the film in float64, the image
 # and its depth, normal and primitive layers, a sample pass' jitter), so 2^25 pixels (8192 x
@@ -98,7 +101,7 @@ def written(v, limit=40):
             text = json.dumps(v, allow_nan=False)
         except (TypeError, ValueError):
             return shown(v, limit)
-        return text if len(text) <= limit else text[:limit - 3] + "..."
+        return cut_short(text, limit)
     return shown(v, limit)
 
 
@@ -586,6 +589,7 @@ def mesh_scene(path, name=None):
     """A mesh alone: default camera framing it, a point light, a plain diffuse material; named
     ``name``, else after the file (``name_of_file``)."""
     from traversal.camera import frame_bounds
+    from traversal.raysets import check_extent
 
     path = spec_path(path, "path", "a mesh file path")
     if name is None:
@@ -595,9 +599,8 @@ def mesh_scene(path, name=None):
                                      f"got {written(name)}")
     verts, faces = _mesh_arrays(path)
     used = verts[np.unique(faces)]
+    check_extent(used, path)
     lo, hi = used.min(0), used.max(0)
-    if not (hi > lo).any():
-        raise InputError(path, "its triangles' vertices all coincide; nothing to frame")
     eye, target, up = frame_bounds(lo, hi, 40.0)
     diag = float(np.linalg.norm(hi - lo)) or 1.0
     light = (lo + hi) / 2 + np.array([0.4, 1.0, 0.8]) * diag
@@ -700,11 +703,10 @@ class CompiledScene:
 def key_text(key, limit=KEY_TEXT_LIMIT):
     """A key of a scene file as a message names it, cut short: an error is one line, and a key
     (a material's name) may be as long as the file."""
-    text = str(key)
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+    return cut_short(str(key), limit)
 
 
-def _listed(names, most=12):
+def _listed(names, most=LISTED_NAMES):
     """Names for a message (``key_text`` each), the first ``most`` of them and how many more."""
     shown_names = ", ".join(key_text(n) for n in names[:most])
     return shown_names + (f" and {len(names) - most} more" if len(names) > most else "")

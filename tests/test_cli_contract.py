@@ -1849,7 +1849,8 @@ def test_an_output_name_longer_than_the_file_system_takes_is_refused_before_the_
 
 
 @pytest.mark.parametrize("command, output", [("render", "renders/{name}.exr"),
-                                             ("animate", "renders/animate-{name}-rebuild")])
+                                             ("animate", "renders/animate-{name}-rebuild"),
+                                             ("verify", "renders/verify-{name}-random-")])
 def test_a_scene_name_too_long_for_the_default_output_points_to_o(tmp_path, capsys,
                                                                   monkeypatch, command, output):
     """The default output is named after the scene: a name too long for the file system is
@@ -1862,12 +1863,14 @@ def test_a_scene_name_too_long_for_the_default_output_points_to_o(tmp_path, caps
         "materials": {"w": {"type": "diffuse"}},
         "shapes": [{"type": "box", "min": [0, 0, 0], "max": [1, 1, 1], "material": "w"}],
         **({"animation": {"frames": 1}} if command == "animate" else {})}))
-    rc, out, err = call(capsys, command, scene, "--width", "8", "--height", "8")
+    size = ["--rays", "100"] if command == "verify" else ["--width", "8", "--height", "8"]
+    rc, out, err = call(capsys, command, scene, *size)
     line = one_line_error(err)
     assert (rc, out) == (2, "") and line.startswith(f"hwrt: error: {output.format(name=name)}")
+    way = {"render": "-o to name the image", "animate": "-o to name the directory",
+           "verify": "--mismatches to name the file"}[command]
     assert line.endswith(f"its file system takes at most {os.pathconf(tmp_path, 'PC_NAME_MAX')}: "
-                         f"the name is made from the scene's name; give -o to name the "
-                         f"{'image' if command == 'render' else 'directory'}")
+                         f"the name is made from the scene's name; give {way}")
     assert os.listdir(tmp_path) == ["long.json"]
 
 def test_replay_of_rays_beyond_the_float32_units_names_the_file(tmp_path, capsys, tetra):

@@ -152,10 +152,19 @@ def test_a_mesh_whose_vertices_all_coincide_is_refused_naming_the_file(tmp_path,
              f"{p}: its triangles' vertices all coincide; nothing to frame")
 
 
+def test_bench_trace_refuses_a_mesh_whose_vertices_all_coincide_naming_it(tmp_path):
+    p = tmp_path / "point.obj"
+    p.write_text("v 0.5 2 -1\n" * 3 + "f 1 2 3\n")
+    out = tmp_path / "o"
+    _refused(_hwrt("bench", "trace", p, "--rays", 100, "--out-dir", out), out,
+             f"{p}: its triangles' vertices all coincide; nothing to frame")
+
+
 @pytest.mark.parametrize("kind", ["primary", "shadow"])
 def test_verify_refuses_a_scene_whose_vertices_all_coincide_naming_it(tmp_path, kind):
-    """Every ray set frames or spans the triangles' box: without extent it has no view (NaN
-    directions, which would verify as agreeing misses)."""
+    """The primary set frames the triangles' box, and verify refuses any kind for such a
+    scene as render does: without extent the box has no view (NaN directions, which would
+    verify as agreeing misses)."""
     scene = tmp_path / "point.json"
     scene.write_text(json.dumps({
         "camera": {"eye": [0, 1.6, 4.2], "target": [0, 0.4, 0]},

@@ -335,6 +335,8 @@ def test_simulate_mesh_takes_a_hwparams():
     assert given["base_preset"] == "custom" and named["base_preset"] == "HWBVH-HP"
     assert given["changed"] == {} and named["changed"] == {"tsize": 4}
     assert simulate_mesh(tris, "HWBVH-C", w=2)["changed"] == {"w": 2, "capacity": 4096}
+    same = simulate_mesh(tris, "HWBVH-C", subtree_builders=2, ram_pairs=2, clock_mhz=500.0)
+    assert (same["preset"], same["base_preset"]) == ("HWBVH-HP", "HWBVH-C")
     plain = simulate_mesh(tris, PRESETS["HWBVH-HP"])
     assert (plain["preset"], plain["base_preset"], plain["changed"]) == ("HWBVH-HP", "HWBVH-HP", {})
     assert simulate_mesh(tris, PRESETS["HWBVH-C"], w=2)["parameters"]["w"] == 2

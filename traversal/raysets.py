@@ -38,10 +38,11 @@ def checked_set_arguments(tris, n, seed=0, dtype=np.float64):
     return t
 
 
-def check_extent(tris, source):
-    """InputError naming ``source`` when the triangles' vertices all coincide: ``primary``
-    frames the triangles' box, and a box without extent has no view."""
-    lo, hi = bounds_of(tris)
+def check_extent(points, source):
+    """InputError naming ``source`` when the points (triangles' vertices, any shape of 3-vectors)
+    all coincide: a view framing their box (``primary``'s, a mesh scene's camera) needs a box
+    with extent."""
+    lo, hi = bounds_of(points)
     if not (hi > lo).any():
         raise InputError(source, "its triangles' vertices all coincide; nothing to frame")
 
