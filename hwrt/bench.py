@@ -46,8 +46,9 @@ def machine():
                     break
     except OSError:
         pass
+    from hwbvh.parallel import THREADING
     return {"cpu": cpu, "cores": os.cpu_count(), "numba_threads": numba.get_num_threads(),
-            "python": platform.python_version(), "numba": numba.__version__,
+            "threading": THREADING, "python": platform.python_version(), "numba": numba.__version__,
             "numpy": np.__version__, "embreex": emb}
 
 
@@ -776,7 +777,8 @@ def _render_markdown(r, args=None):
     lines = ["# hwrt bench render", ""] + made_by_lines(command_of(args)) + [
              f"Time to image, `hwrt bench render`: {medians_of(r['repeat'], 'warm runs')} per path, "
              f"the paths alternating run by run. {m.get('cpu', '')}, {m.get('cores')} cores, "
-             f"{m.get('numba_threads')} Numba threads. Render / trace-only: the median of "
+             f"{m.get('numba_threads')} Numba thread{'' if m.get('numba_threads') == 1 else 's'}. "
+             f"Render / trace-only: the median of "
              f"the rounds' own ratios (each round renders, then traces the same rays alone), "
              f"and in brackets the lowest and highest of them. Build: up to a tracer ready to "
              f"trace (ours: the BVH build and the tracer's set-up, its triangle rows and "

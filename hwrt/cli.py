@@ -1634,22 +1634,30 @@ def _late_meshes(parser, extra):
         parser.error(f"argument MESH: {e}")
 
 
+# The environment variables that set how a run's kernels use the machine: a benchmark's page
+# records those given, as its figures depend on them (``bench contention`` measures how much)
+THREADING_ENVS = ("HWRT_THREADING", "NUMBA_NUM_THREADS", "NUMBA_THREADING_LAYER")
+
+
 def _environment_read(args):
     """The environment variables a benchmark's results depend on beyond its command line, for
-    the command its page records: $HWRT_MESHES where it supplies the meshes (a benchmark given
-    no meshes and no --mesh-dir, or the animation benchmark's exploding bunny, but for
-    --quick's)."""
+    the command its page records: those of ``THREADING_ENVS`` that are set, and $HWRT_MESHES
+    where it supplies the meshes (a benchmark given no meshes and no --mesh-dir, or the
+    animation benchmark's exploding bunny, but for --quick's)."""
     from .paths import MESH_DIR_ENV
 
-    value = os.environ.get(MESH_DIR_ENV)
-    if not value or args.command != "bench":
+    if args.command != "bench":
         return {}
+    read = {k: os.environ[k] for k in THREADING_ENVS if os.environ.get(k)}
+    value = os.environ.get(MESH_DIR_ENV)
     reads = BENCH_OPTIONS.get(args.what, {})
     # --quick's exploding animation explodes a generated sphere, not the directory's bunny
     from_dir = (args.what == "animation" and not args.quick) or (
         "mesh_dir" in reads and getattr(args, "mesh_dir", None) is None
         and not getattr(args, "meshes", None))
-    return {MESH_DIR_ENV: value} if from_dir else {}
+    if value and from_dir:
+        read[MESH_DIR_ENV] = value
+    return read
 
 
 def _numba_threads_problem():

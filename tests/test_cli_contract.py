@@ -1049,8 +1049,10 @@ def test_a_page_made_from_the_mesh_directory_of_the_environment_names_it(tmp_pat
     """A benchmark whose meshes come from $HWRT_MESHES records it before its command, so that
     the page's line makes the page again; one given its meshes does not."""
     import trimesh
-    from hwrt.cli import main
+    from hwrt.cli import THREADING_ENVS, main
     from scenes.meshes import sphere
+    for name in THREADING_ENVS:
+        monkeypatch.delenv(name, raising=False)
     d = tmp_path / "my meshes"
     d.mkdir()
     tris = sphere(6, 8)
@@ -1070,6 +1072,11 @@ def test_a_page_made_from_the_mesh_directory_of_the_environment_names_it(tmp_pat
     assert read("bench", "animation", "--quick") == {}       # a generated sphere instead
     assert read("bench", "build", "--mesh-dir", str(d)) == {}
     assert read("bench", "trees") == {} and read("render") == {}
+    # how the kernels use the machine, where set: a page's figures depend on it
+    monkeypatch.setenv("HWRT_THREADING", "workqueue")
+    monkeypatch.setenv("NUMBA_NUM_THREADS", "1")
+    assert read("bench", "trees") == {"HWRT_THREADING": "workqueue", "NUMBA_NUM_THREADS": "1"}
+    assert read("render") == {}
 
 
 def test_bench_rows_of_one_name_are_told_apart_by_their_source(tmp_path, capsys):
