@@ -722,11 +722,14 @@ def bench_animation(args, commit=write_files):
                          "sah_cost": f["sah_cost"], "rays": sum(f["rays"].values())})
     summary = _bench_summary(runs, structures)
     out_dir = args.out_dir
-    files = _bench_files(out_dir, rows, summary, runs, frames, args, structures)
-    result = jsonable({"rows": rows, "summary": summary, "frames": frames, "machine": machine(),
-                       "structures": structures,
+    # what the run was, in the JSON file as on stdout, so that the file says how it was made
+    result = jsonable({"setting": {"width": args.width, "height": args.height, "spp": args.spp,
+                                   "max_depth": args.max_depth, "triangles": tris},
+                       "frames": frames, "structures": structures,
                        "physics": runs[("marbles", "rebuild")]["animation"].get("physics"),
-                       "files": [f for f, _ in files]})
+                       "summary": summary, "rows": rows, "machine": machine()})
+    files = _bench_files(out_dir, result, runs, frames, args, structures)
+    result["files"] = [f for f, _ in files]
     commit(files)
     return result
 
@@ -790,11 +793,12 @@ def _frame_axis(ax, label):
         ax.set_xlabel(label)
 
 
-def _bench_files(out_dir, rows, summary, runs, frames, args, structures):
+def _bench_files(out_dir, result, runs, frames, args, structures):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from .bench import machine
+
+    summary, rows = result["summary"], result["rows"]
 
     names = list(dict.fromkeys(a for a, _ in runs))
     files = []
@@ -875,10 +879,9 @@ def _bench_files(out_dir, rows, summary, runs, frames, args, structures):
         ax.legend(fontsize=7)
     files.append((os.path.join(out_dir, BENCH_FILES["structures"]), figure_png(fig)))
     files.append((os.path.join(out_dir, BENCH_FILES["csv"]), _csv_text(rows)))
-    files.append((os.path.join(out_dir, BENCH_FILES["json"]),
-                  json_text({"summary": summary, "rows": rows, "machine": machine()}, indent=1) + "\n"))
+    files.append((os.path.join(out_dir, BENCH_FILES["json"]), json_text(result, indent=1) + "\n"))
     files.append((os.path.join(out_dir, BENCH_FILES["md"]),
-                  _bench_markdown(summary, frames, args, machine(), structures)))
+                  _bench_markdown(summary, frames, args, result["machine"], structures)))
     return with_figures(files)
 
 
@@ -915,8 +918,9 @@ def _bench_markdown(summary, frames, args, mach, structures):
                  f"{r['refit_sah_ratio_final']:.2f}, {r['refit_sah_ratio_max']:.2f} | "
                  f"{', '.join(map(str, r['adaptive_rebuild_frames'])) or 'never'} |")
     L += ["", "A ratio below 1 means the hardware's full rebuild every frame reaches the image sooner "
-          "than refitting in software; the refit's tree is worse, so its render time grows as the "
-          "scene moves away from the topology it was built for.", ""]
+          "than refitting in software. Where the refit's tree grows worse than a rebuild's (an SAH "
+          "ratio above 1), its render time grows as the scene moves away from the topology it was "
+          "built for.", ""]
     if structures:
         L += ["Every structure rebuilt every frame (ms per frame, means over the frames; build: up "
               "to a structure ready to trace, the HWBVH-C row's the simulated build and our "

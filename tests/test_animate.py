@@ -82,6 +82,7 @@ def test_refit_cost_is_one_streaming_pass_through_the_ram_pairs():
 # built-in animations: a valid tree every frame under every strategy
 # --------------------------------------------------------------------------------------
 from hwrt.animate import STRATEGIES, run  # noqa: E402
+from hwrt.config import BENCH_QUICK_TRIANGLES  # noqa: E402
 from scenes.animation import load_animation  # noqa: E402
 
 TINY = {"width": 16, "height": 12, "spp": 1}
@@ -757,6 +758,11 @@ def test_bench_animation_writes_its_figures_and_summary(tmp_path, capsys):
         assert s["hw_rebuild_HWBVH-C_vs_refit"] > 0 and s["energy_per_frame_HWBVH-C_joules"] > 0
     for f in r["files"]:
         assert Path(f).parent == tmp_path and Path(f).stat().st_size > 0
+    # the file holds what stdout holds but the file list: how the run was made, too
+    saved = json.loads((tmp_path / "animation.json").read_text())
+    assert saved == {k: v for k, v in r.items() if k != "files"}
+    assert saved["setting"] == {"width": 16, "height": 12, "spp": 1, "max_depth": None,
+                                "triangles": BENCH_QUICK_TRIANGLES}
 
 
 def test_errors_name_the_shape_by_its_place_in_the_file(tmp_path, capsys):
