@@ -924,11 +924,12 @@ BENCH_MESHES = {None: "mesh files (default: every mesh in --mesh-dir)",
 
 # What --accel NAME adds to each benchmark that reads it
 BENCH_ACCEL_HELP = {
-    "trace": "also trace the ray sets with each (default: the BVH against its peers only)",
+    "trace": "also trace the ray sets with each, the BVH's own row as the others' reference "
+             "(default: the BVH against its peers only)",
     "tti": "the structures timed beside the BVH paths, which are always timed (default: every "
-           "one)",
+           "one; bvh alone: none)",
     "animation": "the structures rebuilt every frame beside the BVH's strategies (default: "
-                 "every one)"}
+                 "every one; bvh alone: none)"}
 
 
 def _accel_help(what=None):
