@@ -227,6 +227,8 @@ def _load_scene_file(spec):
         raise InputError(spec, "not a regular file (a pipe or a device?): give a scene or mesh "
                                "file")
     low = spec.lower()
+    if low.endswith(SCENE_EXTENSIONS) and os.path.getsize(spec) == 0:
+        raise InputError(spec, "empty file")            # as an empty mesh file is named
     if low.endswith(".json"):
         try:
             # utf-8-sig: a byte-order mark, which some editors write first, is read past

@@ -985,3 +985,13 @@ def test_an_error_line_stays_short_however_long_the_files_keys_and_names(tmp_pat
     line = refused(capsys, tmp_path, monkeypatch, "animate", write_scene(tmp_path, d), "-o",
                    tmp_path / "o")
     assert "key 'animation.kkk" in line and len(line) < 400 + len(str(tmp_path))
+
+
+@pytest.mark.parametrize("name", ["s.json", "s.toml"])
+def test_an_empty_scene_file_is_named_as_empty(tmp_path, capsys, monkeypatch, name):
+    """As an empty mesh file is: not a JSON syntax error at line 1, column 1, nor a scene
+    without a camera."""
+    p = tmp_path / name
+    p.write_text("")
+    line = refused(capsys, tmp_path, monkeypatch, "render", p)
+    assert line == f"hwrt: error: {p}: empty file"
