@@ -16,7 +16,7 @@ import numpy as np
 from . import config
 from .builder import build_canonical, check_params, check_task_prims
 from .errors import InputError, ParameterError, checked_flag, is_integer, json_syntax, shown
-from .files import json_text, made_as_written, write_files
+from .files import json_object_in, json_text, made_as_written, write_files
 from .format import NODE_DTYPE, check_nodes, pack_indices, tree_stats, unpack_indices, validate
 from .layout import lay_out
 from .parallel import check_threading
@@ -257,14 +257,9 @@ def prefix_problem(prefix):
 def _holds_tree_meta(path):
     """Whether the file ``path`` holds a tree's description: a JSON object with this format's
     name, or, as ``load`` takes one, with no format named and a triangle count."""
-    try:
-        with open(path, encoding="utf-8") as f:
-            text = f.read(config.TREE_META_READ_BYTES + 1)
-        meta = json.loads(text) if len(text) <= config.TREE_META_READ_BYTES else None
-    except (OSError, ValueError, RecursionError):
-        return False
-    return isinstance(meta, dict) and (meta.get("format") == TREE_FORMAT or
-                                       ("format" not in meta and "triangles" in meta))
+    meta = json_object_in(path, config.TREE_META_READ_BYTES)
+    return meta is not None and (meta.get("format") == TREE_FORMAT or
+                                 ("format" not in meta and "triangles" in meta))
 
 
 def prefix_example(prefix):

@@ -440,6 +440,11 @@ def params_for(preset="HWBVH-C", **overrides):
     return check_params(replace(base, **kw))
 
 
+def preset_named(params):
+    """The name of the preset whose values ``params`` has, or None."""
+    return next((name for name, p in PRESETS.items() if p == params), None)
+
+
 def simulate_mesh(source, preset="HWBVH-C", **overrides):
     """Build ``source`` (mesh path or (n,3,3) triangles) functionally, then simulate it on
     ``preset`` (a preset's name or a HwParams) with ``overrides`` (``params_for``). The result
@@ -464,15 +469,13 @@ def simulate_mesh(source, preset="HWBVH-C", **overrides):
     out["sah_cost"] = tree_stats(nodes)["sah_cost"]
     out["triangles"] = int(len(tris))
     base = as_params(preset, "preset")
-    name = preset if isinstance(preset, str) else \
-        next((k for k, v in PRESETS.items() if v == base), None)
     changed = {k: v for k, v in asdict(p).items() if getattr(base, k) != v}
     if p.capacity != base.capacity:     # derived (w x Psize), but a knob's effect all the same
         changed["capacity"] = p.capacity
     # named by its values, as explore names its configurations: HWBVH-C with HWBVH-HP's
     # builders, channels and clock is HWBVH-HP
-    out["preset"] = next((k for k, v in PRESETS.items() if v == p), None)
-    out["base_preset"] = name or "custom"
+    out["preset"] = preset_named(p)
+    out["base_preset"] = (preset if isinstance(preset, str) else preset_named(base)) or "custom"
     out["changed"] = changed
     return out
 

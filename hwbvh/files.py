@@ -138,6 +138,20 @@ def _too_long(name, most):
     return f"the name {shown} is too long ({len(os.fsencode(name))} bytes){takes}"
 
 
+def json_object_in(path, max_chars):
+    """The JSON object the file ``path`` holds, or None: for a file that cannot be read, is
+    not UTF-8 JSON, holds another JSON value, or runs past ``max_chars`` characters (a
+    description of ours is far shorter, so a larger file is something else, and is not read
+    whole)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            text = f.read(max_chars + 1)
+        d = json.loads(text) if len(text) <= max_chars else None
+    except (OSError, ValueError, RecursionError):
+        return None
+    return d if isinstance(d, dict) else None
+
+
 def absent(path, problem):
     """What to say of an input ``path`` that does not exist: ``problem``, or, for a symbolic
     link, where it leads (a link to a missing file, or a loop of links, exists as a link)."""

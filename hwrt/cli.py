@@ -193,16 +193,10 @@ HANDOFF_DESCRIPTION_KEYS = ("record_bytes", "handoff_sizes")
 def _holds_handoff_description(path):
     """Whether the file ``path`` holds what ``build --dump-handoff`` writes beside the dump: a
     JSON object of the record size and the handoff sizes."""
-    import json
-    from .config import HANDOFF_DESCRIPTION_MAX_BYTES
-    try:
-        if os.path.getsize(path) > HANDOFF_DESCRIPTION_MAX_BYTES:
-            return False
-        with open(path, encoding="utf-8") as f:
-            d = json.load(f)
-    except (OSError, ValueError, RecursionError):
-        return False
-    return isinstance(d, dict) and set(d) == set(HANDOFF_DESCRIPTION_KEYS)
+    from hwbvh.files import json_object_in
+    from .config import HANDOFF_DESCRIPTION_MAX_CHARS
+    d = json_object_in(path, HANDOFF_DESCRIPTION_MAX_CHARS)
+    return d is not None and set(d) == set(HANDOFF_DESCRIPTION_KEYS)
 
 
 def cmd_build(args):

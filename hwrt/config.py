@@ -7,10 +7,10 @@ and ``scenes.config``; the scene files' limits in ``scenes.loader``."""
 # bounds what refitting may add to a frame's render at about half again of a fresh tree's.
 ADAPTIVE_THRESHOLD = 1.5
 
-# The most bytes of a file beside a handoff dump (F.json) read to tell whether it is such a
-# dump's description before the dump replaces it: a description lists one size per handoff, at
-# most a few per thousand primitives, so a file far past this is something else.
-HANDOFF_DESCRIPTION_MAX_BYTES = 1 << 26
+# The most characters of a file beside a handoff dump (F.json) read to tell whether it is such
+# a dump's description before the dump replaces it: a description lists one size per handoff,
+# at most a few per thousand primitives, so a file far past this is something else.
+HANDOFF_DESCRIPTION_MAX_CHARS = 1 << 26
 
 # --- Cells on Dask (cluster) ------------------------------------------------------------
 CONNECT_TIMEOUT_S = 5      # an unreachable scheduler fails this fast instead of hanging

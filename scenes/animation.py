@@ -486,8 +486,8 @@ class RigidMotion:
 
 class FrameSequence:
     """A shape read from one mesh file per frame. ``where``: the scene file and key that name
-    the sequence (None for a pattern given alone), which a frame file's error then starts
-    with, as the first frame's does."""
+    the sequence ("scene.json: key 'shapes[1].pattern'"; None for a pattern given alone),
+    which a frame file's error then starts with, as the first frame's does."""
 
     def __init__(self, files, smooth=False, where=None):
         self.files = files
@@ -500,8 +500,7 @@ class FrameSequence:
         except InputError as e:
             if self.where is None:
                 raise
-            source, key = self.where
-            raise InputError(source, f"key '{key}': {e}") from None
+            raise InputError(self.where, str(e)) from None
 
     def check(self, frames):
         """Load the first ``frames`` files (each is refused on its own); returns the largest
@@ -584,8 +583,10 @@ def from_scene_dict(d, source=None, fps=None):
             if not isinstance(smooth, (bool, np.bool_)):
                 _fail(source, f"{path}.smooth", f"expected true or false, got {written(smooth)}")
             full = pat if os.path.isabs(pat) else os.path.join(scene_dir, pat)
-            alone = os.path.abspath(source) == full     # a pattern given alone (pattern_scene)
-            files = expand_pattern(full, None if alone else f"{source}: key '{path}.pattern'")
+            # what names the sequence in its errors: a pattern given alone (pattern_scene)
+            # names itself, a scene file's names the file and key
+            where = None if os.path.abspath(source) == full else f"{source}: key '{path}.pattern'"
+            files = expand_pattern(full, where)
             inputs += files
             if max_frames is None or len(files) < max_frames:
                 max_frames, shortest = len(files), f"{path}.pattern"
@@ -601,8 +602,7 @@ def from_scene_dict(d, source=None, fps=None):
                 raise InputError(e.source, f"key '{path}.pattern'{e.problem[len(as_mesh):]}") \
                     from None
             parts.append(Part(c.triangles, c.normals, int(c.material[0]),
-                              FrameSequence(files, smooth,
-                                            None if alone else (source, f"{path}.pattern"))))
+                              FrameSequence(files, smooth, where)))
         else:
             keys = sh.get("keyframes")
             plain = {k: v for k, v in sh.items() if k != "keyframes"}
